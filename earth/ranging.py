@@ -1,0 +1,69 @@
+"""GNSS ranging geometry with the Earth-rotation (Sagnac) correction, batched.
+
+The simulated receiver uses it to make true ranges and the tightly coupled
+filter uses it to predict them from the INS; one function for both.
+
+Satellite positions/velocities are given as a broadcast ephemeris would give
+them: ECEF at the *transmission* time. The signal flies for ``tau = rho / c``
+during which the ECEF frame turns by ``OMEGA_IE * tau``; the satellite
+position resolved in the ECEF frame at the *reception* time is
+``C_z(OMEGA_IE tau) r_s`` (Groves eq 8.36)::
+
+    rho     = | C_z(w tau) r_s - r_r |                                   (Groves 8.36)
+    rho_dot = u^T [C_z(w tau) (v_s + Omega r_s) - (v_r + Omega r_r)]      (Groves 8.46)
+
+with ``u`` the unit line of sight from receiver to satellite and ``Omega`` the
+skew matrix of the Earth rate. The light-time equation is solved by fixed-point
+iteration (3 passes: error < 1e-9 m for GNSS orbits).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .wgs84 import C_LIGHT, OMEGA_IE
+
+
+def _rot_sagnac(theta, v):
+    """Apply C_z(theta) = [[c, s, 0], [-s, c, 0], [0, 0, 1]] to (..., 3) vectors."""
+    c, s = np.cos(theta), np.sin(theta)
+    x, y, z = v[..., 0], v[..., 1], v[..., 2]
+    return np.stack([c * x + s * y, -s * x + c * y, z], -1)
+
+
+def _omega_cross(r):
+    """Omega_ie x r for (..., 3) vectors."""
+    return np.stack([-OMEGA_IE * r[..., 1], OMEGA_IE * r[..., 0], np.zeros_like(r[..., 2])], -1)
+
+
+def range_and_rate(sat_pos, sat_vel, rx_pos, rx_vel, iterations: int = 3):
+    """Geometric range, range rate and line of sight with the Sagnac correction.
+
+    Parameters
+    ----------
+    sat_pos, sat_vel : (..., S, 3) satellite ECEF position [m] / velocity [m/s] at transmission time.
+    rx_pos, rx_vel : (..., 3) receiver ECEF position [m] / velocity [m/s] at reception time
+        (broadcast against the satellite axis S).
+    iterations : light-time iterations.
+
+    Returns
+    -------
+    rho : (..., S) geometric range [m]
+    rho_dot : (..., S) range rate [m/s]
+    u : (..., S, 3) unit line of sight receiver -> satellite, ECEF at reception time.
+    """
+    sat_pos = np.asarray(sat_pos)
+    sat_vel = np.asarray(sat_vel)
+    rp = np.asarray(rx_pos)[..., None, :]
+    rv = np.asarray(rx_vel)[..., None, :]
+    d = sat_pos - rp
+    rho = np.sqrt(np.sum(d * d, -1))
+    for _ in range(iterations):
+        theta = OMEGA_IE * rho / C_LIGHT
+        d = _rot_sagnac(theta, sat_pos) - rp
+        rho = np.sqrt(np.sum(d * d, -1))
+    theta = OMEGA_IE * rho / C_LIGHT
+    u = d / rho[..., None]
+    vs = _rot_sagnac(theta, sat_vel + _omega_cross(sat_pos))
+    vr = rv + _omega_cross(rp)
+    rho_dot = np.sum(u * (vs - vr), -1)
+    return rho, rho_dot, u
