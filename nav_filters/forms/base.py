@@ -1,0 +1,180 @@
+"""The one filter interface every Kalman-filter form implements.
+
+A *form* holds the uncertainty of a batch of B error-state filters (the
+covariance P, or its SVD / Cholesky / information factors) and the error-state
+estimate x, and offers three operations:
+
+``predict(Phi, Q)``
+    time update ``x <- Phi x``, ``P <- Phi P Phi^T + Q``;
+``update(dz, H, R, mask)``
+    measurement update with innovation ``dz = z - h(x_nominal)``, returns an
+    :class:`UpdateResult` (NIS, number of rows used);
+``take_correction()``
+    returns x and resets it to zero (closed-loop error-state feedback).
+
+Masked measurement rows (variable satellite counts, padded to a fixed m) are
+neutralized before the form sees them: ``H = 0``, ``dz = 0``, unit variance, so
+they change nothing in any form (DESIGN.md section 2).
+
+Shapes: x (B, n), P (B, n, n), Phi and Q (B, n, n), dz (B, m), H (B, m, n),
+R either (B, m) (diagonal variances) or (B, m, m), mask (B, m) bool.
+"""
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+
+import numpy as np
+
+SUPPORTED_DTYPES = (np.float32, np.float64)
+
+
+@dataclass(frozen=True)
+class UpdateResult:
+    """Diagnostics of one batched measurement update.
+
+    Attributes
+    ----------
+    nis : (B,) normalized innovation squared ``dz^T S^-1 dz`` over the used rows.
+    n_used : (B,) int, number of measurement rows used (its chi-square dof).
+    innovation : (B, m) the (masked) innovations.
+    innovation_var : (B, m) diagonal of ``S = H P H^T + R`` (1 on masked rows).
+    applied : (B,) bool, False where a row had no measurement (or a form rejected it).
+    """
+
+    nis: np.ndarray
+    n_used: np.ndarray
+    innovation: np.ndarray
+    innovation_var: np.ndarray
+    applied: np.ndarray
+
+
+def check_dtype(dtype) -> np.dtype:
+    """Return ``np.dtype(dtype)`` if it is float32/float64, else ``ValueError`` naming ``dtype``."""
+    dt = np.dtype(dtype)
+    if dt.type not in SUPPORTED_DTYPES:
+        raise ValueError(f"dtype must be float32 or float64, got {dt}")
+    return dt
+
+
+def prepare_measurement(dz, H, R, mask, dtype):
+    """Validate a batched measurement and neutralize its masked rows.
+
+    Parameters
+    ----------
+    dz : (B, m) innovations; H : (B, m, n); R : (B, m) variances or (B, m, m);
+    mask : (B, m) bool or None (all rows valid).
+
+    Returns
+    -------
+    dz, H, R_full (B, m, m), mask — copies in ``dtype`` with masked rows set to
+    ``dz = 0``, ``H = 0``, ``R = I``.
+
+    Raises
+    ------
+    ValueError
+        wrong shapes, or NaN/inf in a *valid* row of dz, H or R, or a
+        non-positive variance on a valid row (names the argument).
+    """
+    dz = np.asarray(dz)
+    H = np.asarray(H)
+    R = np.asarray(R)
+    if dz.ndim != 2:
+        raise ValueError(f"dz must have shape (B, m), got {dz.shape}")
+    B, m = dz.shape
+    if H.ndim != 3 or H.shape[:2] != (B, m):
+        raise ValueError(f"H must have shape (B, m, n) = ({B}, {m}, n), got {H.shape}")
+    if R.shape not in ((B, m), (B, m, m)):
+        raise ValueError(f"R must have shape (B, m) or (B, m, m) with B={B}, m={m}, got {R.shape}")
+    mask = np.ones((B, m), bool) if mask is None else np.asarray(mask, bool)
+    if mask.shape != (B, m):
+        raise ValueError(f"mask must have shape ({B}, {m}), got {mask.shape}")
+    Rdiag = R if R.ndim == 2 else np.diagonal(R, axis1=1, axis2=2)
+    for name, arr in (("dz", dz), ("H", H.reshape(B, m, -1)), ("R", Rdiag)):
+        bad = ~np.isfinite(arr)
+        if arr.ndim == 3:
+            bad = bad.any(-1)
+        bad &= mask
+        if bad.any():
+            b, j = np.argwhere(bad)[0]
+            raise ValueError(f"{name} has a non-finite value on valid measurement row {j} of batch row {b}")
+    if (mask & ~(Rdiag > 0)).any():
+        b, j = np.argwhere(mask & ~(Rdiag > 0))[0]
+        raise ValueError(f"R must be positive on valid rows; row {j} of batch row {b} has variance {Rdiag[b, j]}")
+    dz = np.where(mask, dz, 0).astype(dtype)
+    H = np.where(mask[..., None], H, 0).astype(dtype)
+    if R.ndim == 2:
+        Rf = np.zeros((B, m, m), dtype)
+        idx = np.arange(m)
+        Rf[:, idx, idx] = np.where(mask, R, 1)
+    else:
+        keep = mask[:, :, None] & mask[:, None, :]
+        Rf = np.where(keep, R, 0).astype(dtype)
+        idx = np.arange(m)
+        Rf[:, idx, idx] = np.where(mask, Rdiag, 1)
+    return dz, H, Rf, mask
+
+
+def symmetrize(P):
+    """``(P + P^T) / 2`` over the last two axes."""
+    return 0.5 * (P + P.mT)
+
+
+class FilterForm(ABC):
+    """Base class of the batched Kalman-filter forms (see module docstring).
+
+    Parameters
+    ----------
+    P0 : (B, n, n) initial covariance (symmetric positive definite).
+    x0 : (B, n) initial error state, default zeros.
+    dtype : float32 or float64 (default: the dtype of P0, or float64).
+    """
+
+    name = "base"
+
+    def __init__(self, P0, x0=None, dtype=None):
+        P0 = np.asarray(P0)
+        if P0.ndim != 3 or P0.shape[1] != P0.shape[2]:
+            raise ValueError(f"P0 must have shape (B, n, n), got {P0.shape}")
+        self.dtype = check_dtype(dtype if dtype is not None else (P0.dtype if P0.dtype.kind == "f" else np.float64))
+        if not np.all(np.isfinite(P0)):
+            raise ValueError("P0 contains non-finite values")
+        B, n, _ = P0.shape
+        self.batch_size, self.n = B, n
+        x0 = np.zeros((B, n)) if x0 is None else np.asarray(x0)
+        if x0.shape != (B, n):
+            raise ValueError(f"x0 must have shape ({B}, {n}), got {x0.shape}")
+        self.x = x0.astype(self.dtype)
+        self._init_uncertainty(symmetrize(P0.astype(self.dtype)))
+
+    # -- to implement ---------------------------------------------------------
+    @abstractmethod
+    def _init_uncertainty(self, P0):
+        """Store the initial covariance (or its factors)."""
+
+    @abstractmethod
+    def predict(self, Phi, Q):
+        """Time update with transition ``Phi`` (B, n, n) and process noise ``Q`` (B, n, n)."""
+
+    @abstractmethod
+    def _update(self, dz, H, R, mask) -> UpdateResult:
+        """Measurement update on prepared (masked, validated) arrays."""
+
+    @property
+    @abstractmethod
+    def covariance(self) -> np.ndarray:
+        """(B, n, n) current covariance P."""
+
+    # -- shared ---------------------------------------------------------------
+    def update(self, dz, H, R, mask=None) -> UpdateResult:
+        """Measurement update ``z = H x + v``, ``v ~ N(0, R)``; see :func:`prepare_measurement`."""
+        dz, H, R, mask = prepare_measurement(dz, H, R, mask, self.dtype)
+        if H.shape[2] != self.n:
+            raise ValueError(f"H must have {self.n} columns, got {H.shape[2]}")
+        return self._update(dz, H, R, mask)
+
+    def take_correction(self) -> np.ndarray:
+        """Return the error-state estimate (B, n) and reset it to zero (closed-loop feedback)."""
+        x = self.x
+        self.x = np.zeros_like(x)
+        return x
