@@ -202,8 +202,8 @@ class Navigator:
         self.v, self.C = v.astype(self.dtype, copy=False), C.astype(self.dtype, copy=False)
         self.bg = self.bg + dx[:, BG]
         self.ba = self.ba + dx[:, BA]
-        self.clk = self.clk + dx[:, CLK].astype(np.float64)
-        self.drift = self.drift + dx[:, DRIFT]
+        self.clk = self.clk + dx[:, CLK.start].astype(np.float64)
+        self.drift = self.drift + dx[:, DRIFT.start]
         finite = np.isfinite(self.r).all(1) & np.isfinite(self.v).all(1) & np.isfinite(self.C).all((1, 2))
         P = self.form.covariance
         finite &= np.isfinite(np.diagonal(P, axis1=1, axis2=2)).all(1) & (np.diagonal(P, axis1=1, axis2=2) > 0).all(1)

@@ -1,0 +1,57 @@
+"""Episode metrics of DESIGN.md section 4 (results.json) with bootstrap confidence intervals."""
+from __future__ import annotations
+
+import numpy as np
+
+from .episodes import EpisodeLog
+
+
+def bootstrap_rmse_ci(sq_err: np.ndarray, n_boot: int = 2000, level: float = 0.95, seed: int = 0):
+    """Percentile bootstrap CI of the pooled RMSE, resampling whole episodes.
+
+    Parameters
+    ----------
+    sq_err : (E, M) squared errors of E episodes.
+
+    Returns
+    -------
+    (low, high) [same unit as sqrt(sq_err)]; (nan, nan) without episodes.
+    """
+    E = sq_err.shape[0]
+    if E == 0:
+        return (float("nan"), float("nan"))
+    per_ep = sq_err.mean(1)
+    rng = np.random.default_rng(seed)
+    idx = rng.integers(0, E, size=(n_boot, E))
+    boot = np.sqrt(per_ep[idx].mean(1))
+    a = (1 - level) / 2
+    return (float(np.quantile(boot, a)), float(np.quantile(boot, 1 - a)))
+
+
+def summarize(log: EpisodeLog) -> dict:
+    """The per-method metrics dictionary of results.json.
+
+    RMSE, max and p95 pool every epoch of every non-diverged episode; the CI
+    resamples episodes. Diverged episodes are counted in ``diverged`` and left
+    out of the error statistics.
+    """
+    ok = ~log.diverged
+    h = log.horizontal_error[ok]
+    d3 = log.error_3d[ok]
+    n_epochs = log.t.size * log.diverged.size
+    out = {
+        "episodes": int(log.diverged.size),
+        "rmse_h_m": float(np.sqrt(np.mean(h ** 2))) if h.size else float("nan"),
+        "rmse_3d_m": float(np.sqrt(np.mean(d3 ** 2))) if d3.size else float("nan"),
+        "max_h_m": float(np.max(h)) if h.size else float("nan"),
+        "p95_h_m": float(np.quantile(h, 0.95)) if h.size else float("nan"),
+        "rmse_h_ci95_m": list(bootstrap_rmse_ci(h ** 2)),
+        "filter_time_per_epoch_s": float(log.filter_time_s / max(n_epochs, 1)),
+        "diverged": int(log.diverged.sum()),
+    }
+    nees = log.nees_pv[ok]
+    out["mean_nees_pv"] = float(np.nanmean(nees)) if nees.size else float("nan")
+    used = log.n_used[ok]
+    nis = log.nis[ok]
+    out["mean_nis_per_dof"] = float(np.sum(nis[used > 0]) / max(np.sum(used[used > 0]), 1))
+    return out

@@ -1,0 +1,964 @@
+"""IMU error model with named sensor grades, plus vehicle vibration.
+
+Output convention
+-----------------
+Sample ``k`` (k = 1..N, stored at index ``k - 1``) is the **mean** specific
+force ``f_b`` [m/s^2] and the **mean** angular rate ``w_b`` [rad/s] over the
+interval ``(t_{k-1}, t_k]``, ``dt = 1 / imu_rate_hz``, resolved in the body
+frame ``b`` (FRD, see :mod:`earth`). The error-free means ``f_true`` and
+``w_true`` (B, N, 3) come from the truth generator.
+
+Error model (Groves 2013, *Principles of GNSS, Inertial, and Multisensor
+Integrated Navigation Systems*, 2nd ed., sec. 4.4 "Error characteristics":
+biases, scale factor and cross-coupling errors, random noise)::
+
+    w_meas = (I + S_g + M_g) (w_true + w_vib) + b_g(t) + n_g
+    f_meas = (I + S_a + M_a) (f_true + f_vib) + b_a(t) + n_a
+    b(t)   = b_fixed + b_turn_on + b_gm(t)
+
+* ``S`` diagonal scale-factor errors and ``M`` off-diagonal small-angle
+  misalignment / non-orthogonality terms, drawn once per run;
+* ``b_turn_on`` a per-run random constant (run-to-run / turn-on bias);
+* ``b_gm`` a first-order Gauss-Markov process (the usual stand-in for bias
+  instability, Groves sec. 4.4; IEEE Std 952-1997 Annex C for the Allan
+  variance terms): ``b_k = exp(-dt/tau) b_{k-1} + u_k``,
+  ``var(u) = sigma^2 (1 - exp(-2 dt/tau))``, ``b_0 ~ N(0, sigma^2)``, so the
+  process is stationary from the first sample;
+* ``n`` the white noise of a mean over ``dt``: angle / velocity random walk
+  (IEEE Std 952-1997: ARW ``N`` in rad/sqrt(s), VRW in m/s/sqrt(s)) gives a
+  per-sample standard deviation ``ARW / sqrt(dt)`` and ``VRW / sqrt(dt)``;
+* ``w_vib``, ``f_vib`` vehicle vibration (a property of the vehicle, not of the
+  IMU): it is added to the motion the IMU senses, before the sensor's own
+  errors, see :class:`Vibration`.
+
+Random numbers
+--------------
+Row ``i`` draws only from ``rngs[i]``: two 64-bit words, from which independent
+per-component child streams are derived (``SeedSequence`` spawn keys; SFC64
+bit generators, chosen for speed). Each component (per-run constants, gyro
+white noise, accel white noise, gyro Gauss-Markov, accel Gauss-Markov,
+vibration) therefore has its own stream: the draws do not depend on the batch
+size, and switching one error term on or off (or changing its size) leaves the
+realizations of the others unchanged (paired Monte Carlo comparisons).
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+from scipy.signal import lfilter
+
+from earth.units import DEG, deg, dph, dpsh, mg, mpsph, ppm, ugpsh, ugpshz
+
+__all__ = [
+    "ImuGrade",
+    "IMU_GRADES",
+    "get_imu_grade",
+    "Vibration",
+    "ImuData",
+    "simulate_imu",
+    "simulate_vibration",
+    "sinusoid_interval_mean",
+    "allan_deviation",
+    "density_from_sample_sigma",
+]
+
+_COMPONENTS = ("constants", "gyro_white", "accel_white", "gyro_gm", "accel_gm", "vibration")
+"""Child streams derived from each row's generator; spawn key = index here (never reorder)."""
+
+
+# --------------------------------------------------------------------------- helpers
+def _check_nonneg(owner: str, name: str, value) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{owner}.{name} must be a real number, got {value!r}") from None
+    if not math.isfinite(v):
+        raise ValueError(f"{owner}.{name} must be finite, got {v!r}")
+    if v < 0.0:
+        raise ValueError(f"{owner}.{name} must be >= 0, got {v!r}")
+    return v
+
+
+def _check_pos(owner: str, name: str, value) -> float:
+    v = _check_nonneg(owner, name, value)
+    if v <= 0.0:
+        raise ValueError(f"{owner}.{name} must be > 0, got {v!r}")
+    return v
+
+
+def _check_vec3(owner: str, name: str, value, *, nonneg: bool = False) -> tuple[float, float, float]:
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{owner}.{name} must be 3 real numbers, got {value!r}") from None
+    if arr.shape != (3,):
+        raise ValueError(f"{owner}.{name} must have 3 elements, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{owner}.{name} must be finite, got {value!r}")
+    if nonneg and np.any(arr < 0):
+        raise ValueError(f"{owner}.{name} must be >= 0, got {value!r}")
+    return (float(arr[0]), float(arr[1]), float(arr[2]))
+
+
+def _check_range(owner: str, name: str, value) -> tuple[float, float]:
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{owner}.{name} must be a (low, high) pair, got {value!r}") from None
+    if arr.shape != (2,):
+        raise ValueError(f"{owner}.{name} must be a (low, high) pair, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{owner}.{name} must be finite, got {value!r}")
+    if arr[0] < 0 or arr[1] < arr[0]:
+        raise ValueError(f"{owner}.{name} must satisfy 0 <= low <= high, got {value!r}")
+    return (float(arr[0]), float(arr[1]))
+
+
+def density_from_sample_sigma(sigma: float, rate_hz: float) -> float:
+    """Random-walk coefficient equivalent to a per-sample white-noise sigma.
+
+    A mean over ``dt = 1/rate_hz`` of white noise with density ``N`` has the
+    standard deviation ``N / sqrt(dt)`` (IEEE Std 952-1997, angle / velocity
+    random walk), so ``N = sigma * sqrt(dt)``.
+
+    Parameters
+    ----------
+    sigma : per-sample standard deviation [rad/s or m/s^2].
+    rate_hz : sample rate the sigma refers to [Hz].
+
+    Returns
+    -------
+    float, ARW [rad/sqrt(s)] or VRW [m/s/sqrt(s)].
+    """
+    return float(sigma) * math.sqrt(1.0 / float(rate_hz))
+
+
+# --------------------------------------------------------------------------- grade
+@dataclass(frozen=True)
+class ImuGrade:
+    """Error budget of one IMU (SI units; one value per sensor triad, same on each axis).
+
+    Attributes
+    ----------
+    name : str
+        Label of the grade.
+    gyro_arw : float
+        Gyro angle random walk [rad/sqrt(s)]; per-sample sigma ``gyro_arw / sqrt(dt)`` [rad/s].
+    accel_vrw : float
+        Accelerometer velocity random walk [m/s/sqrt(s)]; per-sample sigma ``accel_vrw / sqrt(dt)`` [m/s^2].
+    gyro_bias_turn_on_sigma : float
+        Sigma of the per-run constant gyro bias [rad/s].
+    accel_bias_turn_on_sigma : float
+        Sigma of the per-run constant accelerometer bias [m/s^2].
+    gyro_bias_instability : float
+        Steady-state sigma of the first-order Gauss-Markov gyro bias [rad/s].
+    gyro_bias_tau_s : float
+        Correlation time of that process [s], > 0.
+    accel_bias_instability : float
+        Steady-state sigma of the Gauss-Markov accelerometer bias [m/s^2].
+    accel_bias_tau_s : float
+        Its correlation time [s], > 0.
+    gyro_scale_sigma, accel_scale_sigma : float
+        Sigma of the per-axis scale-factor errors (diagonal of ``S``) [dimensionless].
+    gyro_misalignment_sigma, accel_misalignment_sigma : float
+        Sigma of each off-diagonal small-angle misalignment / non-orthogonality
+        term of ``M`` [rad].
+    gyro_bias_fixed : tuple of 3 floats or None
+        Deterministic gyro bias added on every run [rad/s].
+    accel_bias_fixed : tuple of 3 floats or None
+        Deterministic accelerometer bias added on every run [m/s^2].
+    """
+
+    name: str
+    gyro_arw: float = 0.0
+    accel_vrw: float = 0.0
+    gyro_bias_turn_on_sigma: float = 0.0
+    accel_bias_turn_on_sigma: float = 0.0
+    gyro_bias_instability: float = 0.0
+    gyro_bias_tau_s: float = 3600.0
+    accel_bias_instability: float = 0.0
+    accel_bias_tau_s: float = 3600.0
+    gyro_scale_sigma: float = 0.0
+    accel_scale_sigma: float = 0.0
+    gyro_misalignment_sigma: float = 0.0
+    accel_misalignment_sigma: float = 0.0
+    gyro_bias_fixed: tuple[float, float, float] | None = None
+    accel_bias_fixed: tuple[float, float, float] | None = None
+
+    def __post_init__(self):
+        if not isinstance(self.name, str) or not self.name:
+            raise ValueError(f"ImuGrade.name must be a non-empty str, got {self.name!r}")
+        for f in dataclasses.fields(self):
+            if f.name in ("name", "gyro_bias_fixed", "accel_bias_fixed"):
+                continue
+            check = _check_pos if f.name.endswith("_tau_s") else _check_nonneg
+            object.__setattr__(self, f.name, check("ImuGrade", f.name, getattr(self, f.name)))
+        for fname in ("gyro_bias_fixed", "accel_bias_fixed"):
+            v = getattr(self, fname)
+            if v is not None:
+                object.__setattr__(self, fname, _check_vec3("ImuGrade", fname, v))
+
+    def replace(self, **changes) -> "ImuGrade":
+        """Copy with some fields changed (``dataclasses.replace``; validated again)."""
+        return dataclasses.replace(self, **changes)
+
+    @property
+    def is_ideal(self) -> bool:
+        """True when every error term is zero (the output then equals the truth)."""
+        zero = all(
+            getattr(self, f.name) == 0.0
+            for f in dataclasses.fields(self)
+            if f.name not in ("name", "gyro_bias_tau_s", "accel_bias_tau_s", "gyro_bias_fixed", "accel_bias_fixed")
+        )
+        fixed = all(
+            v is None or not any(v) for v in (self.gyro_bias_fixed, self.accel_bias_fixed)
+        )
+        return zero and fixed
+
+
+IMU_GRADES: dict[str, ImuGrade] = {
+    # No error at all: the output is the truth (analytic INS checks).
+    "ideal": ImuGrade(name="ideal"),
+    # Consumer MEMS (smartphone / low-cost automotive), values typical of the
+    # Bosch BMI160 / BMI088 and TDK ICM-20602 / ICM-42688-P data sheets:
+    # gyro noise density 0.003-0.007 deg/s/sqrt(Hz) (BMI160: 0.007, i.e.
+    # 0.42 deg/sqrt(h)), zero-rate offset +-0.5 deg/s (ICM-42688-P; a few
+    # deg/s uncalibrated), sensitivity tolerance ~0.5-1 %, cross-axis ~1 %;
+    # accel noise 70-180 ug/sqrt(Hz) (BMI160: 180), zero-g offset +-20..40 mg.
+    # In-run bias instability of this class: ~10 deg/h and ~0.1 mg (Allan
+    # floors), modelled as Gauss-Markov with 100 s correlation time.
+    "consumer": ImuGrade(
+        name="consumer",
+        gyro_arw=deg(0.007),                    # 0.007 deg/s/sqrt(Hz) = 0.42 deg/sqrt(h)
+        accel_vrw=ugpshz(180.0),                # 180 ug/sqrt(Hz)
+        gyro_bias_turn_on_sigma=deg(0.5),       # 0.5 deg/s
+        accel_bias_turn_on_sigma=mg(20.0),      # 20 mg
+        gyro_bias_instability=dph(10.0),        # 10 deg/h
+        gyro_bias_tau_s=100.0,
+        accel_bias_instability=mg(0.1),         # 0.1 mg
+        accel_bias_tau_s=100.0,
+        gyro_scale_sigma=ppm(5000.0),           # 0.5 %
+        accel_scale_sigma=ppm(5000.0),          # 0.5 %
+        gyro_misalignment_sigma=0.005,          # 5 mrad (~0.3 deg, cross-axis ~0.5 %)
+        accel_misalignment_sigma=0.005,
+    ),
+    # Industrial MEMS, STIM300-like: seed paper 003 Table 1 (gyro zero-bias
+    # stability 8 deg/h, used here as the turn-on sigma; accel bias instability
+    # 0.05 mg) and the Safran/Sensonor STIM300 data sheet (gyro bias instability
+    # ~0.3-0.5 deg/h, ARW 0.15 deg/sqrt(h), scale factor accuracy +-500 ppm,
+    # misalignment ~1 mrad; 10 g accel VRW 0.07 m/s/sqrt(h), bias instability
+    # 0.05 mg, scale factor +-300 ppm). Note: seed 003's VRW of 700 ug/sqrt(h)
+    # is 0.0069 m/s/sqrt(h), ten times below the data sheet; its exact Table 1
+    # is the grade "seed003".
+    "industrial": ImuGrade(
+        name="industrial",
+        gyro_arw=dpsh(0.15),                    # 0.15 deg/sqrt(h)
+        accel_vrw=mpsph(0.07),                  # 0.07 m/s/sqrt(h)
+        gyro_bias_turn_on_sigma=dph(8.0),       # 8 deg/h (seed 003 Table 1)
+        accel_bias_turn_on_sigma=mg(2.0),       # 2 mg: typical industrial-MEMS run-to-run accel bias (not in seed 003)
+        gyro_bias_instability=dph(0.5),         # 0.5 deg/h
+        gyro_bias_tau_s=300.0,
+        accel_bias_instability=mg(0.05),        # 0.05 mg (seed 003 Table 1)
+        accel_bias_tau_s=300.0,
+        gyro_scale_sigma=ppm(500.0),
+        accel_scale_sigma=ppm(300.0),
+        gyro_misalignment_sigma=1e-3,           # 1 mrad
+        accel_misalignment_sigma=1e-3,
+    ),
+    # Tactical, NovAtel IMU-FSAS (iMAR FOG + servo accelerometers) as quoted in
+    # seed paper 000 sec. 5.2: accelerometer bias 1 mg and scale factor 300 ppm,
+    # gyro bias 0.75 deg/h and scale factor 400 ppm; FSAS data sheet ARW
+    # ~0.1 deg/sqrt(h). Accelerometer noise (50 ug/sqrt(Hz)), in-run
+    # instabilities (0.1 deg/h, 0.1 mg; 1 h correlation) and misalignment
+    # (0.1 mrad after calibration) are typical values of this class.
+    "tactical": ImuGrade(
+        name="tactical",
+        gyro_arw=dpsh(0.1),                     # 0.1 deg/sqrt(h)
+        accel_vrw=ugpshz(50.0),                 # 50 ug/sqrt(Hz) = 0.03 m/s/sqrt(h)
+        gyro_bias_turn_on_sigma=dph(0.75),      # 0.75 deg/h (seed 000)
+        accel_bias_turn_on_sigma=mg(1.0),       # 1 mg (seed 000)
+        gyro_bias_instability=dph(0.1),
+        gyro_bias_tau_s=3600.0,
+        accel_bias_instability=mg(0.1),
+        accel_bias_tau_s=3600.0,
+        gyro_scale_sigma=ppm(400.0),            # 400 ppm (seed 000)
+        accel_scale_sigma=ppm(300.0),           # 300 ppm (seed 000)
+        gyro_misalignment_sigma=1e-4,
+        accel_misalignment_sigma=1e-4,
+    ),
+    # Seed paper 000 sec. 5.1 simulation: per-sample white noise 3 mg (accel)
+    # and 1 deg/h (gyro) at 100 Hz, expressed as the equivalent random walks
+    # for dt = 0.01 s (VRW = 3 mg * sqrt(0.01 s), ARW = 1 deg/h * sqrt(0.01 s));
+    # at another rate the per-sample sigma scales as 1/sqrt(dt). Plus the fixed
+    # biases of its Table 1; no other error.
+    "seed000": ImuGrade(
+        name="seed000",
+        gyro_arw=density_from_sample_sigma(dph(1.0), 100.0),
+        accel_vrw=density_from_sample_sigma(mg(3.0), 100.0),
+        gyro_bias_fixed=(-8.7e-4, 13e-4, -8.7e-4),
+        accel_bias_fixed=(0.0883, -0.1275, 0.0785),
+    ),
+    # Seed paper 003 Table 1 verbatim (STIM300-like): gyro zero-bias stability
+    # 8 deg/h and accel zero-bias instability 0.05 mg as random constants (the
+    # paper's filter states are "gyro random constant drift" and "accelerometer
+    # random constant bias"), ARW 0.2 deg/sqrt(h), VRW 700 ug/sqrt(h).
+    "seed003": ImuGrade(
+        name="seed003",
+        gyro_arw=dpsh(0.2),
+        accel_vrw=ugpsh(700.0),
+        gyro_bias_turn_on_sigma=dph(8.0),
+        accel_bias_turn_on_sigma=mg(0.05),
+    ),
+}
+"""Named IMU grades (sources in the comments of each entry)."""
+
+
+def get_imu_grade(name) -> ImuGrade:
+    """The preset :class:`ImuGrade` called ``name`` (an ``ImuGrade`` is returned as is).
+
+    Raises
+    ------
+    ValueError
+        Unknown name; the message lists the known names.
+    """
+    if isinstance(name, ImuGrade):
+        return name
+    try:
+        return IMU_GRADES[name]
+    except (KeyError, TypeError):
+        raise ValueError(f"unknown IMU grade {name!r}; known grades: {sorted(IMU_GRADES)}") from None
+
+
+# --------------------------------------------------------------------------- vibration
+@dataclass(frozen=True)
+class Vibration:
+    """Vehicle vibration sensed by the IMU (a property of the vehicle, not of the IMU).
+
+    Three regimes, decided per sample from ``engine_on`` and ``speed``:
+
+    * engine on and stationary (``|speed| <= stationary_speed_mps``): engine-idle
+      vibration, a sinusoid at the engine firing frequency ``f_e`` plus its
+      second harmonic, independent random phase on each channel. A 4-stroke
+      4-cylinder engine fires twice per revolution, so 600-1050 rpm idle gives
+      ``f_e`` = 20-35 Hz. ``f_e`` and the rms levels are drawn once per run,
+      uniformly in the configured ranges.
+    * engine on and moving: road vibration. The *displacement* (tilt angle,
+      vibration velocity) is band-limited Gaussian noise (a damped second-order
+      resonance at ``road_center_hz``, damping ``road_damping``); the sensed
+      rate sample is its increment over the interval divided by dt, so the
+      integrated vibration stays bounded (no spurious attitude/velocity random
+      walk). The rate rms is ``road_rms_ref * (|speed| /
+      road_ref_speed_mps) ** road_speed_exponent``; ``road_rms_ref`` is drawn
+      once per run.
+    * engine off: none.
+
+    Because an IMU sample is the mean over ``(t_{k-1}, t_k]``, the idle
+    sinusoids are averaged analytically (:func:`sinusoid_interval_mean`): the
+    mean is the mid-interval value attenuated by ``sinc(w dt / 2)``, and a tone
+    above the Nyquist frequency ``1 / (2 dt)`` (e.g. the 40-70 Hz harmonic at
+    100 Hz, or the fundamental at 10 Hz) is aliased into the output, as in a
+    real integrating IMU. The road noise is generated directly at the output
+    rate as the impulse-invariant discretization of the resonance (its spectrum
+    folds around Nyquist likewise; the mild sinc attenuation of the interval
+    mean is neglected).
+
+    Attributes
+    ----------
+    enabled : bool
+        False: no vibration at all (see :meth:`none`).
+    engine_freq_hz_range : (float, float)
+        Range of the idle firing frequency [Hz].
+    harmonic_ratio : float
+        Amplitude of the second harmonic (``2 f_e``) relative to the fundamental [-].
+    idle_accel_rms_range : (float, float)
+        Range of the per-axis rms of the idle specific-force vibration [m/s^2].
+    idle_gyro_rms_range : (float, float)
+        Range of the per-axis rms of the idle angular-rate vibration [rad/s].
+    road_accel_rms_ref_range : (float, float)
+        Range of the per-axis rms of road specific-force vibration at
+        ``road_ref_speed_mps`` [m/s^2].
+    road_gyro_rms_ref_range : (float, float)
+        Same for the angular rate [rad/s].
+    road_ref_speed_mps : float
+        Reference speed of the road levels [m/s], > 0.
+    road_speed_exponent : float
+        Exponent of the rms growth with speed [-], >= 0.
+    road_center_hz : float
+        Natural frequency of the road-vibration resonance [Hz], > 0.
+    road_damping : float
+        Damping ratio of that resonance, 0 < zeta < 1.
+    axis_weights : (float, float, float)
+        Per-axis multipliers of all rms levels (x, y, z body axes) [-].
+    stationary_speed_mps : float
+        Speeds at or below this are "stationary" [m/s].
+    """
+
+    enabled: bool = True
+    engine_freq_hz_range: tuple[float, float] = (20.0, 35.0)
+    harmonic_ratio: float = 0.5
+    idle_accel_rms_range: tuple[float, float] = (0.05, 0.3)
+    idle_gyro_rms_range: tuple[float, float] = (0.05 * DEG, 0.3 * DEG)
+    road_accel_rms_ref_range: tuple[float, float] = (0.2, 0.6)
+    road_gyro_rms_ref_range: tuple[float, float] = (0.2 * DEG, 0.8 * DEG)
+    road_ref_speed_mps: float = 20.0
+    road_speed_exponent: float = 1.0
+    road_center_hz: float = 12.0
+    road_damping: float = 0.3
+    axis_weights: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    stationary_speed_mps: float = 0.05
+
+    def __post_init__(self):
+        if not isinstance(self.enabled, (bool, np.bool_)):
+            raise ValueError(f"Vibration.enabled must be a bool, got {self.enabled!r}")
+        object.__setattr__(self, "enabled", bool(self.enabled))
+        for name in ("engine_freq_hz_range", "idle_accel_rms_range", "idle_gyro_rms_range",
+                     "road_accel_rms_ref_range", "road_gyro_rms_ref_range"):
+            object.__setattr__(self, name, _check_range("Vibration", name, getattr(self, name)))
+        if self.engine_freq_hz_range[0] <= 0.0:
+            raise ValueError(f"Vibration.engine_freq_hz_range must be > 0, got {self.engine_freq_hz_range!r}")
+        for name in ("harmonic_ratio", "road_speed_exponent", "stationary_speed_mps"):
+            object.__setattr__(self, name, _check_nonneg("Vibration", name, getattr(self, name)))
+        for name in ("road_ref_speed_mps", "road_center_hz", "road_damping"):
+            object.__setattr__(self, name, _check_pos("Vibration", name, getattr(self, name)))
+        if self.road_damping >= 1.0:
+            raise ValueError(f"Vibration.road_damping must be < 1 (under-damped), got {self.road_damping!r}")
+        object.__setattr__(self, "axis_weights", _check_vec3("Vibration", "axis_weights", self.axis_weights, nonneg=True))
+
+    @classmethod
+    def none(cls) -> "Vibration":
+        """No vibration."""
+        return cls(enabled=False)
+
+    def replace(self, **changes) -> "Vibration":
+        """Copy with some fields changed (validated again)."""
+        return dataclasses.replace(self, **changes)
+
+
+def sinusoid_interval_mean(amplitude, omega, phase, t_start, dt):
+    """Mean of ``amplitude * sin(omega t + phase)`` over ``(t_start, t_start + dt]``.
+
+    Exact: ``A (cos(a) - cos(b)) / (omega dt)`` with ``a = omega t_start + phase``,
+    ``b = a + omega dt``, evaluated in the equivalent well-conditioned form
+    ``A sinc(omega dt / 2) sin(omega (t_start + dt/2) + phase)`` (product-to-sum
+    identity; ``sinc(x) = sin(x)/x``, 1 at x = 0).
+
+    Parameters
+    ----------
+    amplitude : array_like, same unit as the result.
+    omega : array_like, angular frequency [rad/s].
+    phase : array_like [rad].
+    t_start : array_like, interval start [s].
+    dt : float or array_like, interval length [s], > 0.
+
+    Returns
+    -------
+    ndarray, broadcast shape of the inputs.
+    """
+    omega = np.asarray(omega, dtype=float)
+    half = 0.5 * omega * dt
+    atten = np.sinc(half / np.pi)  # numpy sinc is sin(pi x)/(pi x)
+    return np.asarray(amplitude, dtype=float) * atten * np.sin(omega * (np.asarray(t_start, dtype=float) + 0.5 * dt) + phase)
+
+
+def _ar2_coefficients(center_hz: float, damping: float, dt: float) -> tuple[float, float, float]:
+    """AR(2) ``y_k = a1 y_{k-1} + a2 y_{k-2} + e_k`` with the poles of a damped resonance sampled at dt.
+
+    Impulse invariance: continuous poles ``-zeta w_n +- i w_n sqrt(1 - zeta^2)``
+    map to ``r exp(+-i theta)``, ``r = exp(-zeta w_n dt)``, ``theta = w_n
+    sqrt(1 - zeta^2) dt`` (any rate; frequencies above Nyquist alias).
+    Returns ``(a1, a2, gamma0)`` with ``gamma0`` the stationary variance for a
+    unit-variance ``e`` (Box & Jenkins AR(2) autocovariance):
+    ``gamma0 = (1 - a2) / ((1 + a2) ((1 - a2)^2 - a1^2))``.
+    """
+    wn = 2.0 * math.pi * center_hz
+    r = math.exp(-damping * wn * dt)
+    theta = wn * math.sqrt(1.0 - damping * damping) * dt
+    a1 = 2.0 * r * math.cos(theta)
+    a2 = -r * r
+    gamma0 = (1.0 - a2) / ((1.0 + a2) * ((1.0 - a2) ** 2 - a1 * a1))
+    return a1, a2, gamma0
+
+
+def _vibration_row(gen: np.random.Generator, dt: float, engine_on: np.ndarray | None, speed: np.ndarray,
+                   vib: Vibration) -> tuple[np.ndarray, np.ndarray] | None:
+    """Vibration of one run: ``(f_vib, w_vib)``, each (N, 3) float64, or None if it is zero throughout.
+
+    Draw order (fixed, independent of the data): f_e, idle accel rms, idle gyro
+    rms, 2 x 6 phases, road accel level, road gyro level, then (only if the run
+    moves with the engine on) the road noise (2 + M) x 6, M = number of road samples.
+    """
+    n = speed.shape[0]
+    f_e = gen.uniform(*vib.engine_freq_hz_range)
+    a_rms = gen.uniform(*vib.idle_accel_rms_range)
+    g_rms = gen.uniform(*vib.idle_gyro_rms_range)
+    phases = gen.uniform(0.0, 2.0 * math.pi, size=(2, 6))
+    road_a = gen.uniform(*vib.road_accel_rms_ref_range)
+    road_g = gen.uniform(*vib.road_gyro_rms_ref_range)
+
+    moving = np.abs(speed) > vib.stationary_speed_mps
+    eng = np.ones(n, dtype=bool) if engine_on is None else engine_on
+    idle = eng & ~moving
+    road = eng & moving
+    if not idle.any() and not road.any():
+        return None
+    weights = np.asarray(vib.axis_weights)
+    fv = np.zeros((n, 3))
+    wv = np.zeros((n, 3))
+
+    if idle.any():
+        # per-channel rms r -> fundamental amplitude sqrt(2) r / sqrt(1 + h^2), harmonic h times that
+        rms = np.concatenate([a_rms * weights, g_rms * weights])
+        h = vib.harmonic_ratio
+        amp1 = math.sqrt(2.0) * rms / math.sqrt(1.0 + h * h)
+        idx = np.flatnonzero(idle)
+        t_mid = (idx + 0.5) * dt  # sample k = idx + 1 covers (idx dt, (idx + 1) dt]
+        basis = []
+        coef = []
+        for j, (mult, amp) in enumerate(((1.0, amp1), (2.0, h * amp1))):
+            w = 2.0 * math.pi * f_e * mult
+            atten = float(np.sinc(w * dt / (2.0 * math.pi)))  # sin(w dt/2) / (w dt/2), sinusoid_interval_mean
+            th = w * t_mid
+            basis += [np.sin(th), np.cos(th)]
+            # A sin(th + phi) = A cos(phi) sin(th) + A sin(phi) cos(th)
+            coef += [amp * atten * np.cos(phases[j]), amp * atten * np.sin(phases[j])]
+        vals = np.zeros((idx.size, 6))
+        tmp = np.empty(idx.size)
+        for c in range(6):  # (M, 4) x (4, 6) without BLAS threads, see _apply_matrix
+            col = vals[:, c]
+            for bj, cj in zip(basis, coef):
+                np.multiply(bj, cj[c], out=tmp)
+                col += tmp
+        fv[idx] = vals[:, :3]
+        wv[idx] = vals[:, 3:]
+
+    if road.any() and (road_a > 0.0 or road_g > 0.0):
+        # The process runs only over the road samples (a stationary process
+        # restarted from its carried-over state after a stop is still stationary).
+        ridx = np.flatnonzero(road)
+        a1, a2, gamma0 = _ar2_coefficients(vib.road_center_hz, vib.road_damping, dt)
+        z = gen.standard_normal((2, 6))
+        e = gen.standard_normal((ridx.size, 6))
+        rho1 = a1 / (1.0 - a2)
+        y1 = z[0]
+        y2 = rho1 * z[0] + math.sqrt(max(1.0 - rho1 * rho1, 0.0)) * z[1]
+        zi = np.stack([a1 * y1 + a2 * y2, a2 * y1]) * math.sqrt(gamma0)  # state in the unscaled process
+        y, _ = lfilter([1.0], [1.0, -a1, -a2], e, axis=0, zi=zi)  # stationary variance gamma0
+        level = np.abs(speed[ridx]) * (1.0 / vib.road_ref_speed_mps)
+        if vib.road_speed_exponent != 1.0:
+            level **= vib.road_speed_exponent
+        # y is the vibration *displacement* (tilt angle, velocity) of the resonance; the IMU
+        # senses its rate, and the interval mean of a rate is the displacement increment over
+        # the interval divided by dt. So the sample is (L_k y_k - L_(k-1) y_(k-1)) / dt: its sum
+        # telescopes, the integrated vibration (attitude, velocity) stays bounded, and its
+        # spectrum is zero at DC, as for a physical oscillation (a rate with power at DC would
+        # integrate into an attitude random walk that no vehicle has).
+        # var(y_k - y_(k-1)) = 2 gamma0 (1 - rho1) for the unit-innovation process.
+        unit = 1.0 / math.sqrt(2.0 * gamma0 * (1.0 - rho1))
+        scale = np.concatenate([road_a * weights, road_g * weights]) * unit
+        y *= level[:, None]
+        y = np.diff(y, axis=0, prepend=np.zeros((1, 6)))
+        y *= scale
+        fv[ridx] = y[:, :3]
+        wv[ridx] = y[:, 3:]
+    return fv, wv
+
+
+def simulate_vibration(imu_rate_hz: float, rngs: Sequence[np.random.Generator], speed, engine_on=None,
+                       vibration: Vibration | None = None, dtype=np.float64) -> tuple[np.ndarray, np.ndarray]:
+    """Vehicle vibration as interval means at the IMU rate (see :class:`Vibration`).
+
+    Row i draws only from ``rngs[i]`` (for the vehicle, the ``"vibration"``
+    stream of :func:`envs.sim.rng.row_generators`). :func:`simulate_imu` with
+    ``vibration_rngs=rngs`` applies exactly this vibration.
+
+    Parameters
+    ----------
+    imu_rate_hz : float, sample rate [Hz].
+    rngs : B generators; row i draws only from ``rngs[i]``.
+    speed : (B, N) vehicle speed [m/s].
+    engine_on : (B, N) bool or None (engine on throughout).
+    vibration : Vibration or None (defaults).
+    dtype : np.float32 or np.float64.
+
+    Returns
+    -------
+    f_vib : (B, N, 3) specific-force vibration [m/s^2].
+    w_vib : (B, N, 3) angular-rate vibration [rad/s].
+    """
+    vib = Vibration() if vibration is None else vibration
+    dtype = _check_dtype(dtype)
+    rate = _check_rate(imu_rate_hz)
+    speed = np.asarray(speed, dtype=float)
+    if speed.ndim != 2:
+        raise ValueError(f"speed must have shape (B, N), got {speed.shape}")
+    b, n = speed.shape
+    _check_rngs(rngs, b)
+    speed, engine_on = _check_motion(speed, engine_on, b, n)
+    f = np.zeros((b, n, 3), dtype=dtype)
+    w = np.zeros((b, n, 3), dtype=dtype)
+    if not vib.enabled:
+        return f, w
+    for i in range(b):
+        r = _vibration_row(rngs[i], 1.0 / rate, None if engine_on is None else engine_on[i], speed[i], vib)
+        if r is not None:
+            f[i], w[i] = r
+    return f, w
+
+
+# --------------------------------------------------------------------------- output
+@dataclass(frozen=True)
+class ImuData:
+    """Simulated IMU output of B runs of N samples (interval means, see the module docstring).
+
+    Attributes
+    ----------
+    f_b : (B, N, 3) measured specific force [m/s^2].
+    w_b : (B, N, 3) measured angular rate [rad/s].
+    gyro_bias : (B, N, 3) total additive gyro bias at each sample
+        (fixed + turn-on + Gauss-Markov) [rad/s]; a read-only broadcast view
+        when it is constant in time.
+    accel_bias : (B, N, 3) same for the accelerometers [m/s^2].
+    gyro_scale_misalignment : (B, 3, 3) per-run ``S_g + M_g`` [-]; the sensor
+        applies ``I + gyro_scale_misalignment``.
+    accel_scale_misalignment : (B, 3, 3) per-run ``S_a + M_a`` [-].
+    dt : float, sample interval [s].
+    grade : ImuGrade used.
+    """
+
+    f_b: np.ndarray
+    w_b: np.ndarray
+    gyro_bias: np.ndarray
+    accel_bias: np.ndarray
+    gyro_scale_misalignment: np.ndarray
+    accel_scale_misalignment: np.ndarray
+    dt: float
+    grade: ImuGrade = field(repr=False)
+
+
+# --------------------------------------------------------------------------- validation
+def _check_dtype(dtype):
+    dt = np.dtype(dtype)
+    if dt not in (np.dtype(np.float32), np.dtype(np.float64)):
+        raise ValueError(f"dtype must be np.float32 or np.float64, got {dtype!r}")
+    return dt
+
+
+def _check_rate(rate) -> float:
+    try:
+        r = float(rate)
+    except (TypeError, ValueError):
+        raise ValueError(f"imu_rate_hz must be a positive number, got {rate!r}") from None
+    if not math.isfinite(r) or r <= 0.0:
+        raise ValueError(f"imu_rate_hz must be finite and > 0, got {rate!r}")
+    return r
+
+
+def _check_rngs(rngs, b: int) -> None:
+    if isinstance(rngs, np.random.Generator) or not hasattr(rngs, "__len__"):
+        raise ValueError("rngs must be a list of B numpy Generators (one per row)")
+    if len(rngs) != b:
+        raise ValueError(f"rngs must hold one Generator per row: len(rngs) = {len(rngs)} but B = {b}")
+    for i, g in enumerate(rngs):
+        if not isinstance(g, np.random.Generator):
+            raise ValueError(f"rngs[{i}] must be a numpy.random.Generator, got {type(g).__name__}")
+
+
+def _check_motion(speed, engine_on, b: int, n: int):
+    if speed is not None:
+        speed = np.asarray(speed, dtype=float)
+        if speed.shape != (b, n):
+            raise ValueError(f"speed must have shape (B, N) = {(b, n)}, got {speed.shape}")
+        if not np.all(np.isfinite(speed)):
+            raise ValueError("speed must be finite")
+    if engine_on is not None:
+        engine_on = np.asarray(engine_on)
+        if engine_on.shape != (b, n):
+            raise ValueError(f"engine_on must have shape (B, N) = {(b, n)}, got {engine_on.shape}")
+        if engine_on.dtype != bool:
+            if not np.all(np.isin(engine_on, (0, 1))):
+                raise ValueError("engine_on must be boolean (or 0/1)")
+            engine_on = engine_on.astype(bool)
+    return speed, engine_on
+
+
+# --------------------------------------------------------------------------- simulation
+def _children(rng: np.random.Generator) -> dict[str, np.random.Generator]:
+    """Independent per-component streams of one row (2 draws from ``rng``)."""
+    words = rng.integers(0, np.iinfo(np.uint64).max, size=2, dtype=np.uint64, endpoint=True)
+    entropy = [int(w) for w in words]
+    return {
+        c: np.random.Generator(np.random.SFC64(np.random.SeedSequence(entropy, spawn_key=(k,))))
+        for k, c in enumerate(_COMPONENTS)
+    }
+
+
+def _error_matrix(gen: np.random.Generator, scale_sigma: float, mis_sigma: float) -> np.ndarray:
+    """``S + M`` (3, 3): diagonal scale errors, off-diagonal misalignments (9 draws, fixed order)."""
+    z = gen.standard_normal((3, 3))
+    e = z * mis_sigma
+    np.fill_diagonal(e, np.diagonal(z) * scale_sigma)
+    return e
+
+
+def _gauss_markov_row(gen: np.random.Generator, sigma: float, tau: float, dt: float, n: int,
+                      scratch: np.ndarray | None = None) -> np.ndarray:
+    """First-order Gauss-Markov sequence b_1..b_n on 3 axes, (n, 3), stationary from b_0.
+
+    ``b_k = phi b_{k-1} + u_k``, ``phi = exp(-dt/tau)``,
+    ``var(u) = sigma^2 (1 - phi^2)``, ``b_0 ~ N(0, sigma^2)``
+    (exact discretization of the continuous first-order Markov process,
+    Groves 2013 sec. 4.4 / Brown & Hwang, *Introduction to Random Signals and
+    Applied Kalman Filtering*, first-order Gauss-Markov process). Computed with
+    ``scipy.signal.lfilter`` along time. Draws: 3 (b_0), then n x 3.
+    ``scratch`` is an optional (n, 3) float64 work array (overwritten).
+    """
+    phi = math.exp(-dt / tau)
+    b0 = gen.standard_normal(3) * sigma
+    u = np.empty((n, 3)) if scratch is None else scratch
+    gen.standard_normal(out=u)
+    u *= sigma * math.sqrt(-math.expm1(-2.0 * dt / tau))
+    y, _ = lfilter([1.0], [1.0, -phi], u, axis=0, zi=(phi * b0)[None, :])
+    return y
+
+
+def _apply_matrix(a: np.ndarray, x: np.ndarray, out: np.ndarray, tmp: np.ndarray) -> None:
+    """``out = x @ a.T`` for x, out (n, 3) and a (3, 3), column by column.
+
+    Plain ufunc loops along time: ``np.matmul`` would hand this tiny product to
+    a threaded BLAS whose spinning worker threads steal the cores that the
+    row-parallel simulation uses. ``tmp`` is an (n,) work array (may be strided).
+    """
+    for j in range(3):
+        oj = out[:, j]
+        np.multiply(x[:, 0], a[j, 0], out=oj)
+        np.multiply(x[:, 1], a[j, 1], out=tmp)
+        oj += tmp
+        np.multiply(x[:, 2], a[j, 2], out=tmp)
+        oj += tmp
+
+
+@dataclass(frozen=True)
+class _SensorSpec:
+    """Per-sensor view of an ImuGrade used inside :func:`simulate_imu` (SI units)."""
+
+    fixed_in: tuple | None
+    turn_on_sigma: float
+    scale_sigma: float
+    mis_sigma: float
+    gm_sigma: float
+    gm_tau: float
+    white_sigma: float  # per-sample sigma of the interval mean
+    gm_stream: str
+    white_stream: str
+
+    @property
+    def fixed(self) -> np.ndarray:
+        return np.zeros(3) if self.fixed_in is None else np.asarray(self.fixed_in, dtype=float)
+
+    @property
+    def has_sm(self) -> bool:
+        return self.scale_sigma > 0 or self.mis_sigma > 0
+
+
+def simulate_imu(f_true, w_true, imu_rate_hz: float, grade, rngs: Sequence[np.random.Generator],
+                 engine_on=None, speed=None, vibration: Vibration | None = None, dtype=np.float64,
+                 workers: int | None = None, vibration_rngs: Sequence[np.random.Generator] | None = None) -> ImuData:
+    """Corrupt ideal IMU interval means with the errors of an IMU grade (and vehicle vibration).
+
+    Implements (Groves 2013 sec. 4.4; IEEE Std 952-1997 noise terms)::
+
+        w_meas = (I + S_g + M_g)(w_true + w_vib) + b_fixed,g + b_on,g + b_gm,g(t) + n_g
+        f_meas = (I + S_a + M_a)(f_true + f_vib) + b_fixed,a + b_on,a + b_gm,a(t) + n_a
+
+    with ``n ~ N(0, (ARW or VRW)^2 / dt)`` per sample and the Gauss-Markov
+    recursion of the module docstring (the bias of sample k is the process
+    value ``b_k``; its variation inside one interval, O(dt/tau), is neglected).
+    The "ideal" grade with no vibration returns the truth exactly.
+
+    Parameters
+    ----------
+    f_true : (B, N, 3) ideal mean specific force per interval [m/s^2].
+    w_true : (B, N, 3) ideal mean angular rate per interval [rad/s].
+    imu_rate_hz : float, sample rate [Hz]; ``dt = 1 / imu_rate_hz``.
+    grade : ImuGrade or a name of :data:`IMU_GRADES`.
+    rngs : list of B ``numpy.random.Generator``; row i draws only from ``rngs[i]``
+        (two 64-bit words per call, see the module docstring).
+    engine_on : (B, N) bool or None. None: engine on throughout (only used for vibration).
+    speed : (B, N) vehicle speed [m/s] or None; required when vibration is enabled.
+    vibration : Vibration or None (None: no vibration).
+    dtype : np.float32 or np.float64, dtype of the output arrays (internal
+        arithmetic is float64, so a float32 result is the float64 result rounded).
+    workers : int or None
+        Threads over rows (numpy's random fills and scipy's filters release the
+        GIL). None: ``min(B, os.cpu_count(), 8)``; 1: serial. Results do not
+        depend on it.
+    vibration_rngs : list of B generators or None
+        Streams of the vehicle vibration (e.g. ``row_generators(seeds,
+        "vibration")``); then the vibration equals :func:`simulate_vibration`
+        with these generators. None: a child stream of ``rngs[i]`` (still
+        independent of the IMU error terms).
+
+    Returns
+    -------
+    ImuData
+
+    Raises
+    ------
+    ValueError
+        Bad shapes (naming ``f_true``, ``w_true``, ``rngs``, ``engine_on``,
+        ``speed``), non-finite truth, unknown grade, bad rate, dtype or workers.
+    """
+    grade = get_imu_grade(grade)
+    dtype = _check_dtype(dtype)
+    rate = _check_rate(imu_rate_hz)
+    dt = 1.0 / rate
+    f_true = np.asarray(f_true)
+    w_true = np.asarray(w_true)
+    if f_true.ndim != 3 or f_true.shape[-1] != 3:
+        raise ValueError(f"f_true must have shape (B, N, 3), got {f_true.shape}")
+    if w_true.shape != f_true.shape:
+        raise ValueError(f"w_true must have the shape of f_true {f_true.shape}, got {w_true.shape}")
+    for name, arr in (("f_true", f_true), ("w_true", w_true)):
+        if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
+            raise ValueError(f"{name} must be a real array, got dtype {arr.dtype}")
+        if not np.isfinite(arr).all():
+            raise ValueError(f"{name} must be finite")
+    b, n, _ = f_true.shape
+    if b == 0 or n == 0:
+        raise ValueError(f"f_true must hold at least one row and one sample, got shape {f_true.shape}")
+    _check_rngs(rngs, b)
+    speed, engine_on = _check_motion(speed, engine_on, b, n)
+    if vibration is not None and not isinstance(vibration, Vibration):
+        raise ValueError(f"vibration must be a Vibration or None, got {type(vibration).__name__}")
+    vib_on = vibration is not None and vibration.enabled
+    if vib_on and speed is None:
+        raise ValueError("speed (B, N) is required when vibration is enabled")
+    if vibration_rngs is not None:
+        try:
+            _check_rngs(vibration_rngs, b)
+        except ValueError as exc:
+            raise ValueError(f"vibration_rngs: {exc}") from None
+    if workers is None:
+        workers = max(1, min(b, os.cpu_count() or 1, 8))
+    elif not isinstance(workers, (int, np.integer)) or isinstance(workers, bool) or workers < 1:
+        raise ValueError(f"workers must be a positive int or None, got {workers!r}")
+
+    g = grade
+    sensors = (
+        _SensorSpec(g.gyro_bias_fixed, g.gyro_bias_turn_on_sigma, g.gyro_scale_sigma, g.gyro_misalignment_sigma,
+                    g.gyro_bias_instability, g.gyro_bias_tau_s, g.gyro_arw / math.sqrt(dt), "gyro_gm", "gyro_white"),
+        _SensorSpec(g.accel_bias_fixed, g.accel_bias_turn_on_sigma, g.accel_scale_sigma, g.accel_misalignment_sigma,
+                    g.accel_bias_instability, g.accel_bias_tau_s, g.accel_vrw / math.sqrt(dt), "accel_gm", "accel_white"),
+    )
+    truth = (w_true, f_true)
+    outs = (np.empty((b, n, 3), dtype=dtype), np.empty((b, n, 3), dtype=dtype))
+    bias_full = tuple(np.empty((b, n, 3), dtype=dtype) if s.gm_sigma > 0 else None for s in sensors)
+    bias_const = (np.empty((b, 3)), np.empty((b, 3)))
+    sm = (np.zeros((b, 3, 3)), np.zeros((b, 3, 3)))
+    direct = dtype == np.dtype(np.float64)
+
+    def row(i: int) -> None:
+        ch = _children(rngs[i])
+        c = ch["constants"]
+        # per-run constants, fixed order: turn-on gyro (3), turn-on accel (3), S+M gyro (9), S+M accel (9)
+        for k, s in enumerate(sensors):
+            bias_const[k][i] = s.fixed + c.standard_normal(3) * s.turn_on_sigma
+        for k, s in enumerate(sensors):
+            sm[k][i] = _error_matrix(c, s.scale_sigma, s.mis_sigma)
+        vib_row = None
+        if vib_on:
+            vgen = ch["vibration"] if vibration_rngs is None else vibration_rngs[i]
+            vib_row = _vibration_row(vgen, dt, None if engine_on is None else engine_on[i], speed[i], vibration)
+        noise = np.empty((n, 3))
+        for k, s in enumerate(sensors):  # k = 0 gyro, 1 accel
+            o = outs[k][i] if direct else np.empty((n, 3))
+            src = truth[k][i]
+            if vib_row is not None:
+                src = np.add(vib_row[1 - k], src, out=vib_row[1 - k])  # vib_row = (f_vib, w_vib)
+            if s.has_sm:
+                _apply_matrix(np.eye(3) + sm[k][i], src, o, noise[:, 0])
+            else:
+                o[...] = src
+            const = bias_const[k][i]
+            if s.gm_sigma > 0:
+                bias = _gauss_markov_row(ch[s.gm_stream], s.gm_sigma, s.gm_tau, dt, n, noise)
+                bias += const
+                o += bias
+                bias_full[k][i] = bias
+            elif np.any(const):
+                o += const
+            if s.white_sigma > 0:
+                ch[s.white_stream].standard_normal(out=noise)
+                noise *= s.white_sigma
+                o += noise
+            if not direct:
+                outs[k][i] = o
+
+    if workers == 1 or b == 1:
+        for i in range(b):
+            row(i)
+    else:
+        with ThreadPoolExecutor(max_workers=workers) as ex:
+            for _ in ex.map(row, range(b)):
+                pass
+
+    def _bias(full, const):
+        if full is not None:
+            return full
+        return np.broadcast_to(const.astype(dtype)[:, None, :], (b, n, 3))
+
+    return ImuData(
+        f_b=outs[1],
+        w_b=outs[0],
+        gyro_bias=_bias(bias_full[0], bias_const[0]),
+        accel_bias=_bias(bias_full[1], bias_const[1]),
+        gyro_scale_misalignment=sm[0].astype(dtype),
+        accel_scale_misalignment=sm[1].astype(dtype),
+        dt=dt,
+        grade=grade,
+    )
+
+
+# --------------------------------------------------------------------------- analysis
+def allan_deviation(x, dt: float, taus, axis: int = -1) -> tuple[np.ndarray, np.ndarray]:
+    """Overlapping Allan deviation of a rate signal (IEEE Std 952-1997 Annex C).
+
+    With the integrated signal ``theta_k = dt * sum_{j<=k} x_j`` and cluster
+    length ``m = round(tau / dt)``::
+
+        AVAR(tau) = sum_k (theta_{k+2m} - 2 theta_{k+m} + theta_k)^2 / (2 tau^2 (L - 2m))
+
+    where ``L`` is the number of theta samples. For white noise of density
+    ``N`` (ARW/VRW), ``ADEV(tau) = N / sqrt(tau)``.
+
+    Parameters
+    ----------
+    x : (..., L, ...) rate samples (interval means) [unit].
+    dt : sample interval [s].
+    taus : (M,) cluster times [s]; rounded to multiples of dt, each needs 2 m < L.
+    axis : time axis of ``x``.
+
+    Returns
+    -------
+    taus_used : (M,) the cluster times actually used [s].
+    adev : x's shape with the time axis replaced by M, [unit].
+    """
+    x = np.moveaxis(np.asarray(x, dtype=float), axis, -1)
+    theta = np.concatenate([np.zeros(x.shape[:-1] + (1,)), np.cumsum(x, axis=-1) * dt], axis=-1)
+    big_l = theta.shape[-1]
+    ms = np.maximum(1, np.round(np.asarray(taus, dtype=float) / dt).astype(int))
+    if np.any(2 * ms >= big_l):
+        raise ValueError(f"taus too long for {big_l - 1} samples at dt = {dt}")
+    out = []
+    for m in ms:  # loop over cluster sizes, vectorized over time
+        d = theta[..., 2 * m:] - 2.0 * theta[..., m:-m] + theta[..., :-2 * m]
+        tau = m * dt
+        out.append(np.sqrt(np.mean(d * d, axis=-1) / (2.0 * tau * tau)))
+    adev = np.moveaxis(np.stack(out, axis=-1), -1, axis)
+    return ms * dt, adev

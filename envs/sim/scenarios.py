@@ -1,0 +1,230 @@
+"""Named scenarios: frozen presets of the whole simulated world (DESIGN.md section 4).
+
+A :class:`Scenario` fixes everything about the world an episode is drawn from
+(duration, rates, the vehicle's motion or its random-drive style, IMU grade,
+vibration, receiver, GNSS degradations, initial-estimate errors); the episode
+seed draws the random parts. ``get_scenario(name, **overrides)`` returns a
+preset, optionally with fields replaced (validated again).
+
+=================  ======  =========  ==================================================================
+name               length  IMU        world
+=================  ======  =========  ==================================================================
+``open-sky``       300 s   industrial random open-road drive, clean sky
+``urban``          300 s   industrial stop-and-go drive, street canyons (blockage), NLOS/multipath bursts
+``outage``         300 s   industrial open-road drive, 60 s full outages at 60-120 s and 180-240 s
+``noise-burst``    300 s   industrial open-road drive, true code/Doppler noise x5 for 30 s every 90 s
+``seed000-sim``    60 s    seed000    seed paper 000 sec 5.1: 20 m/s, 90-deg turns at 15 s and 45 s,
+                                      IMU 100 Hz, GNSS 2 Hz, 3 mg / 1 deg/h noise, Table 1 biases and
+                                      initial errors
+``seed003-sim``    700 s   seed003    seed paper 003 Table 1: start 36 N 100 E heading 90 deg, stationary /
+                                      accelerate / decelerate / corner, outages 100-300 s and 550-650 s
+=================  ======  =========  ==================================================================
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+from .constellation import Constellation
+from .gnss import GnssEvents, ReceiverConfig
+from .imu import IMU_GRADES, Vibration
+from .trajectory import Accelerate, Cruise, Decelerate, Motion, Static, Turn, random_drive
+
+DRIVE_STYLES = ("urban", "highway", "open")
+
+
+def _finite(owner, name, value, lo=None, lo_open=False):
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) or not math.isfinite(value):
+        raise ValueError(f"{owner}.{name} must be a finite number, got {value!r}")
+    if lo is not None and (value <= lo if lo_open else value < lo):
+        raise ValueError(f"{owner}.{name} must be {'>' if lo_open else '>='} {lo}, got {value!r}")
+
+
+@dataclass(frozen=True)
+class InitialErrors:
+    """Errors of the navigator's initial estimate (and the matching initial uncertainty).
+
+    Attributes
+    ----------
+    position_sigma_m : (north, east, down) one-sigma position error [m].
+    velocity_sigma_mps : (north, east, down) one-sigma velocity error [m/s].
+    attitude_sigma_rad : (roll, pitch, yaw) one-sigma attitude error [rad] (small angles about NED axes).
+    clock_sigma_m, drift_sigma_mps : receiver clock bias [m] / drift [m/s] error of the initial
+        estimate (as from a single-point solution before the filter starts).
+    fixed_ecef : if True the errors are not drawn: each is exactly +sigma on the ECEF x, y, z axes
+        (seed paper 000 Table 1: "dpX = dpY = dpZ = 10 m"), and the initial covariance is diagonal in ECEF.
+    """
+
+    position_sigma_m: tuple = (3.0, 3.0, 5.0)
+    velocity_sigma_mps: tuple = (0.1, 0.1, 0.1)
+    attitude_sigma_rad: tuple = (math.radians(0.5), math.radians(0.5), math.radians(2.0))
+    clock_sigma_m: float = 10.0
+    drift_sigma_mps: float = 0.5
+    fixed_ecef: bool = False
+
+    def __post_init__(self):
+        for name in ("position_sigma_m", "velocity_sigma_mps", "attitude_sigma_rad"):
+            v = getattr(self, name)
+            if not isinstance(v, (tuple, list)) or len(v) != 3:
+                raise ValueError(f"InitialErrors.{name} must be a tuple of 3 numbers, got {v!r}")
+            for x in v:
+                _finite("InitialErrors", name, x, lo=0.0)
+            object.__setattr__(self, name, tuple(float(x) for x in v))
+        _finite("InitialErrors", "clock_sigma_m", self.clock_sigma_m, lo=0.0)
+        _finite("InitialErrors", "drift_sigma_mps", self.drift_sigma_mps, lo=0.0)
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A simulated world (see the module table for the presets).
+
+    Attributes
+    ----------
+    name : scenario name.
+    duration_s : episode length [s].
+    imu_rate_hz, gnss_rate_hz : sample rates [Hz]; the IMU rate must be an integer multiple of the GNSS rate.
+    imu_grade : a key of :data:`envs.sim.imu.IMU_GRADES`.
+    drive : a random-drive style (``'urban'``, ``'highway'``, ``'open'``) drawn per episode, or a fixed
+        :class:`~envs.sim.trajectory.Motion` shared by every episode.
+    start : (lat_deg, lon_deg, h_m) of random drives.
+    vibration : vehicle vibration model (engine idle, road).
+    receiver : GNSS receiver and residual errors.
+    constellation : satellite constellation.
+    events : GNSS degradations (outages, noise bursts, NLOS, street canyons).
+    initial : initial-estimate errors.
+    description : one line for tables and docs.
+    """
+
+    name: str
+    duration_s: float = 300.0
+    imu_rate_hz: float = 100.0
+    gnss_rate_hz: float = 1.0
+    imu_grade: str = "industrial"
+    drive: object = "open"
+    start: tuple = (52.5096, 13.3760, 34.0)
+    vibration: Vibration = field(default_factory=Vibration)
+    receiver: ReceiverConfig = field(default_factory=ReceiverConfig)
+    constellation: Constellation = field(default_factory=Constellation)
+    events: GnssEvents = field(default_factory=GnssEvents)
+    initial: InitialErrors = field(default_factory=InitialErrors)
+    description: str = ""
+
+    def __post_init__(self):
+        o = "Scenario"
+        if not isinstance(self.name, str) or not self.name:
+            raise ValueError(f"{o}.name must be a non-empty string, got {self.name!r}")
+        _finite(o, "duration_s", self.duration_s, lo=0.0, lo_open=True)
+        _finite(o, "imu_rate_hz", self.imu_rate_hz, lo=0.0, lo_open=True)
+        _finite(o, "gnss_rate_hz", self.gnss_rate_hz, lo=0.0, lo_open=True)
+        if self.gnss_rate_hz > self.imu_rate_hz:
+            raise ValueError(f"{o}.gnss_rate_hz ({self.gnss_rate_hz}) must not exceed imu_rate_hz ({self.imu_rate_hz})")
+        ratio = self.imu_rate_hz / self.gnss_rate_hz
+        if abs(ratio - round(ratio)) > 1e-9:
+            raise ValueError(f"{o}.gnss_rate_hz ({self.gnss_rate_hz}) must divide imu_rate_hz ({self.imu_rate_hz}) "
+                             f"into a whole number of IMU samples per epoch")
+        if self.duration_s * self.gnss_rate_hz < 1:
+            raise ValueError(f"{o}.duration_s ({self.duration_s}) is shorter than one GNSS epoch")
+        if self.imu_grade not in IMU_GRADES:
+            raise ValueError(f"{o}.imu_grade {self.imu_grade!r} is unknown; known: {sorted(IMU_GRADES)}")
+        if isinstance(self.drive, str):
+            if self.drive not in DRIVE_STYLES:
+                raise ValueError(f"{o}.drive {self.drive!r} is unknown; known styles: {list(DRIVE_STYLES)} or a Motion")
+        elif not isinstance(self.drive, Motion):
+            raise ValueError(f"{o}.drive must be a drive style or a Motion, got {type(self.drive).__name__}")
+        if not (isinstance(self.start, (tuple, list)) and len(self.start) == 3):
+            raise ValueError(f"{o}.start must be (lat_deg, lon_deg, h_m), got {self.start!r}")
+        for x in self.start:
+            _finite(o, "start", x)
+        if not -90 <= self.start[0] <= 90:
+            raise ValueError(f"{o}.start latitude must be in [-90, 90] deg, got {self.start[0]}")
+        for name, typ in (("vibration", Vibration), ("receiver", ReceiverConfig), ("constellation", Constellation),
+                          ("events", GnssEvents), ("initial", InitialErrors)):
+            if not isinstance(getattr(self, name), typ):
+                raise ValueError(f"{o}.{name} must be a {typ.__name__}, got {type(getattr(self, name)).__name__}")
+
+    @property
+    def samples_per_epoch(self) -> int:
+        """IMU samples per GNSS epoch."""
+        return int(round(self.imu_rate_hz / self.gnss_rate_hz))
+
+    def motions(self, rngs: Sequence[np.random.Generator]) -> list[Motion]:
+        """One :class:`Motion` per batch row (drawn from the row's trajectory generator for random drives)."""
+        if isinstance(self.drive, Motion):
+            return [self.drive] * len(rngs)
+        lat, lon, h = self.start
+        return [random_drive(g, self.duration_s, style=self.drive, lat0_deg=lat, lon0_deg=lon, h0_m=h) for g in rngs]
+
+    def replace(self, **changes) -> "Scenario":
+        """A copy with fields replaced (validated)."""
+        return dataclasses.replace(self, **changes)
+
+
+def _seed000_motion() -> Motion:
+    """Seed 000 sec 5.1: 20 m/s for 60 s with two 90-degree turns starting at 15 s and 45 s (15 deg/s)."""
+    return Motion(lat0_deg=32.06, lon0_deg=118.79, h0_m=20.0, heading0_deg=0.0, speed0_mps=20.0,
+                  segments=(Cruise(15.0), Turn(90.0, 15.0), Cruise(24.0), Turn(90.0, 15.0), Cruise(9.0)))
+
+
+def _seed003_motion() -> Motion:
+    """Seed 003 Table 1 start (36 N, 100 E, heading 90 deg); stationary / accelerate / decelerate / corner."""
+    segs = (Static(30.0), Accelerate(10.0, 15.0), Cruise(50.0), Turn(90.0, 9.0), Cruise(40.0),
+            Decelerate(7.5, 0.0), Static(20.0), Accelerate(12.5, 25.0), Cruise(80.0), Turn(-90.0, 6.0),
+            Cruise(60.0), Decelerate(10.0, 5.0), Turn(90.0, 10.0), Accelerate(7.5, 20.0), Cruise(120.0),
+            Decelerate(10.0, 0.0), Static(25.0), Accelerate(10.0, 15.0), Turn(-90.0, 9.0), Cruise(130.0),
+            Decelerate(7.5, 0.0), Static(30.0))
+    return Motion(lat0_deg=36.0, lon0_deg=100.0, h0_m=1500.0, heading0_deg=90.0, speed0_mps=0.0, segments=segs)
+
+
+def _presets() -> dict[str, Scenario]:
+    return {
+        "open-sky": Scenario(name="open-sky", drive="open",
+                             description="open-road drive under a clean sky"),
+        "urban": Scenario(name="urban", drive="urban", receiver=ReceiverConfig(elevation_mask_deg=15.0),
+                          events=GnssEvents.urban(),
+                          description="stop-and-go city drive: street-canyon blockage and NLOS/multipath bursts"),
+        "outage": Scenario(name="outage", drive="open",
+                           events=GnssEvents(outages=((60.0, 120.0), (180.0, 240.0))),
+                           description="open-road drive with two 60 s full GNSS outages"),
+        "noise-burst": Scenario(name="noise-burst", drive="open",
+                                events=GnssEvents.noise_bursts(scale=5.0, duration_s=30.0, period_s=90.0,
+                                                               t_start_s=45.0, t_end_s=300.0),
+                                description="open-road drive; true code/Doppler noise x5 for 30 s every 90 s"),
+        "seed000-sim": Scenario(name="seed000-sim", duration_s=60.0, imu_rate_hz=100.0, gnss_rate_hz=2.0,
+                                imu_grade="seed000", drive=_seed000_motion(), vibration=Vibration.none(),
+                                initial=InitialErrors(position_sigma_m=(10.0, 10.0, 10.0),
+                                                      velocity_sigma_mps=(0.1, 0.1, 0.1),
+                                                      attitude_sigma_rad=(math.radians(0.03),) * 3,
+                                                      fixed_ecef=True),
+                                description="seed paper 000 sec 5.1 / Table 1 simulation"),
+        "seed003-sim": Scenario(name="seed003-sim", duration_s=700.0, imu_rate_hz=100.0, gnss_rate_hz=1.0,
+                                imu_grade="seed003", drive=_seed003_motion(),
+                                events=GnssEvents(outages=((100.0, 300.0), (550.0, 650.0))),
+                                initial=InitialErrors(position_sigma_m=(0.0175, 0.0175, 1.0),
+                                                      velocity_sigma_mps=(0.03, 0.03, 0.03),
+                                                      attitude_sigma_rad=(math.radians(1.0),) * 3),
+                                description="seed paper 003 Table 1 simulation with outages 100-300 s, 550-650 s"),
+    }
+
+
+SCENARIOS: dict[str, Scenario] = _presets()
+"""The named presets."""
+
+
+def get_scenario(name, **overrides) -> Scenario:
+    """The preset ``name`` (or a :class:`Scenario` passed through), with fields replaced by ``overrides``."""
+    if isinstance(name, Scenario):
+        scen = name
+    elif name not in SCENARIOS:
+        raise ValueError(f"unknown scenario {name!r}; known: {sorted(SCENARIOS)}")
+    else:
+        scen = SCENARIOS[name]
+    if overrides:
+        bad = set(overrides) - {f.name for f in dataclasses.fields(Scenario)}
+        if bad:
+            raise ValueError(f"unknown Scenario field(s) {sorted(bad)}")
+        scen = scen.replace(**overrides)
+    return scen

@@ -1,0 +1,132 @@
+"""Generate a whole batched world at reset: truth, IMU, GNSS and the navigator's initial estimate.
+
+Everything random is drawn per row from the row's seed (:mod:`envs.sim.rng`),
+so row i of a batch equals the same seed run alone. Nothing here knows how the
+world will be estimated.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from earth import C_en, exp_so3
+
+from .gnss import GnssData, simulate_gnss
+from .imu import IMU_GRADES, ImuData, ImuGrade, simulate_imu
+from .rng import as_seeds, row_generators
+from .scenarios import Scenario, get_scenario
+from .trajectory import Truth, generate_truth
+
+
+@dataclass(frozen=True)
+class InitialEstimate:
+    """The navigator's initial estimate and the covariance that honestly describes its error.
+
+    Attributes
+    ----------
+    r_e, v_e : (B, 3) ECEF position [m] and velocity [m/s].
+    C_eb : (B, 3, 3) attitude.
+    clock_bias_m, clock_drift_mps : (B,).
+    pos_cov_e, vel_cov_e, att_cov_e : (B, 3, 3) error covariances in ECEF [m^2, m^2/s^2, rad^2].
+    clock_sigma_m, drift_sigma_mps : float.
+    """
+
+    r_e: np.ndarray
+    v_e: np.ndarray
+    C_eb: np.ndarray
+    clock_bias_m: np.ndarray
+    clock_drift_mps: np.ndarray
+    pos_cov_e: np.ndarray
+    vel_cov_e: np.ndarray
+    att_cov_e: np.ndarray
+    clock_sigma_m: float
+    drift_sigma_mps: float
+
+
+@dataclass(frozen=True)
+class World:
+    """One batch of simulated episodes.
+
+    Attributes
+    ----------
+    scenario : the scenario it was drawn from; seeds : list of B seeds.
+    truth : truth at the IMU rate (N samples); imu : measured IMU (N samples).
+    gnss : GNSS epochs (M); epoch_idx : (M,) IMU sample index of each epoch.
+    init : the navigator's initial estimate at t = 0.
+    """
+
+    scenario: Scenario
+    seeds: list
+    truth: Truth
+    imu: ImuData
+    gnss: GnssData
+    epoch_idx: np.ndarray
+    init: InitialEstimate
+
+    @property
+    def batch_size(self) -> int:
+        return len(self.seeds)
+
+    @property
+    def imu_grade(self) -> ImuGrade:
+        return IMU_GRADES[self.scenario.imu_grade]
+
+
+def _initial_estimate(scen: Scenario, truth: Truth, gnss: GnssData, rngs) -> InitialEstimate:
+    ie = scen.initial
+    B = truth.batch_size
+    r0, v0, C0 = truth.r_e[:, 0].astype(np.float64), truth.v_e[:, 0].astype(np.float64), truth.C_eb[:, 0]
+    # truth clock at t = 0, from the first epoch's state and drift
+    t1 = gnss.t[0]
+    clk0 = gnss.clock_bias_m[:, 0] - gnss.clock_drift_mps[:, 0] * t1
+    drift0 = gnss.clock_drift_mps[:, 0]
+    Cen = C_en(truth.lat0, truth.lon0)  # (B, 3, 3)
+    sp, sv, sa = (np.asarray(x, float) for x in (ie.position_sigma_m, ie.velocity_sigma_mps, ie.attitude_sigma_rad))
+    if ie.fixed_ecef:
+        dp = np.broadcast_to(sp, (B, 3))
+        dv = np.broadcast_to(sv, (B, 3))
+        da = np.broadcast_to(sa, (B, 3))
+        dclk = np.zeros(B)
+        ddr = np.zeros(B)
+        eye = np.eye(3)
+        pos_cov, vel_cov, att_cov = (np.broadcast_to(np.diag(s ** 2) * eye, (B, 3, 3)).copy() for s in (sp, sv, sa))
+    else:
+        z = np.stack([g.standard_normal(11) for g in rngs])  # fixed draw count per row: B-invariant
+        dp = (Cen @ (sp * z[:, 0:3])[..., None])[..., 0]
+        dv = (Cen @ (sv * z[:, 3:6])[..., None])[..., 0]
+        da = (Cen @ (sa * z[:, 6:9])[..., None])[..., 0]
+        dclk = ie.clock_sigma_m * z[:, 9]
+        ddr = ie.drift_sigma_mps * z[:, 10]
+        pos_cov, vel_cov, att_cov = (Cen @ np.diag(s ** 2) @ Cen.mT for s in (sp, sv, sa))
+    # estimate = truth + error; attitude: C_true = (I + [x]) C_est with x = -error rotation
+    C_est = exp_so3(da) @ C0
+    return InitialEstimate(r_e=r0 + dp, v_e=v0 + dv, C_eb=C_est, clock_bias_m=clk0 + dclk, clock_drift_mps=drift0 + ddr,
+                           pos_cov_e=pos_cov, vel_cov_e=vel_cov, att_cov_e=att_cov,
+                           clock_sigma_m=max(ie.clock_sigma_m, 1e-3), drift_sigma_mps=max(ie.drift_sigma_mps, 1e-4))
+
+
+def generate_world(scenario, seeds, dtype=np.float64) -> World:
+    """Draw B episodes of ``scenario`` (name or :class:`Scenario`) from ``seeds`` (B non-negative ints).
+
+    Parameters
+    ----------
+    scenario : str or Scenario
+    seeds : int or sequence of int, one per row.
+    dtype : float dtype of the IMU samples (the truth and GNSS geometry stay float64).
+    """
+    scen = get_scenario(scenario)
+    seeds = as_seeds(seeds)
+    motions = scen.motions(row_generators(seeds, "trajectory"))
+    truth = generate_truth(motions, scen.duration_s, scen.imu_rate_hz)
+    imu = simulate_imu(truth.f_b, truth.w_b, scen.imu_rate_hz, IMU_GRADES[scen.imu_grade],
+                       row_generators(seeds, "imu"), engine_on=truth.engine_on, speed=truth.speed,
+                       vibration=scen.vibration, dtype=dtype,
+                       vibration_rngs=row_generators(seeds, "vibration"))
+    spe = scen.samples_per_epoch
+    epoch_idx = np.arange(spe, truth.t.size, spe)
+    at = truth.take(epoch_idx)
+    gnss = simulate_gnss(truth.t[epoch_idx], at.r_e, at.v_e, at.heading, scen.constellation, scen.receiver,
+                         scen.events, row_generators(seeds, "gnss"))
+    init = _initial_estimate(scen, truth, gnss, row_generators(seeds, "init"))
+    return World(scenario=scen, seeds=seeds, truth=truth, imu=imu, gnss=gnss, epoch_idx=epoch_idx, init=init)

@@ -1,0 +1,358 @@
+"""Tests of envs.sim.imu: IMU error model, grades, vibration."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from earth.units import G0, deg, dph, dpsh, mg, ugpsh
+from envs.sim.imu import (
+    IMU_GRADES,
+    ImuGrade,
+    Vibration,
+    allan_deviation,
+    get_imu_grade,
+    simulate_imu,
+    simulate_vibration,
+    sinusoid_interval_mean,
+)
+from envs.sim.rng import row_generators
+
+RATE = 100.0
+DT = 1.0 / RATE
+
+
+def static_truth(b, n):
+    """Level, stationary IMU: f = (0, 0, -g) in FRD, w = 0."""
+    f = np.zeros((b, n, 3))
+    f[..., 2] = -G0
+    return f, np.zeros((b, n, 3))
+
+
+def rngs(seeds):
+    return row_generators(list(seeds), "imu")
+
+
+IDEAL = IMU_GRADES["ideal"]
+
+
+# ----------------------------------------------------------------------------- grades
+def test_ideal_grade_returns_truth_exactly():
+    r = np.random.default_rng(1)
+    f = r.normal(size=(3, 400, 3)) * 5
+    w = r.normal(size=(3, 400, 3))
+    d = simulate_imu(f, w, RATE, "ideal", rngs(range(3)))
+    assert np.array_equal(d.f_b, f) and np.array_equal(d.w_b, w)
+    assert not d.gyro_bias.any() and not d.accel_bias.any()
+    assert not d.gyro_scale_misalignment.any() and not d.accel_scale_misalignment.any()
+    assert d.f_b.shape == d.gyro_bias.shape == (3, 400, 3) and d.dt == DT
+    assert IDEAL.is_ideal and not IMU_GRADES["seed000"].is_ideal
+
+
+def test_presets_and_lookup():
+    assert {"ideal", "consumer", "industrial", "tactical", "seed000"} <= set(IMU_GRADES)
+    for name, g in IMU_GRADES.items():
+        assert get_imu_grade(name) is g and g.name == name
+    # seed000: per-sample sigma at 100 Hz is 3 mg and 1 deg/h (seed paper 000 sec. 5.1)
+    s0 = IMU_GRADES["seed000"]
+    assert s0.accel_vrw / math.sqrt(DT) == pytest.approx(mg(3.0), rel=1e-12)
+    assert s0.gyro_arw / math.sqrt(DT) == pytest.approx(dph(1.0), rel=1e-12)
+    # seed003 Table 1, and grades ordered by quality
+    s3 = IMU_GRADES["seed003"]
+    assert s3.gyro_arw == pytest.approx(dpsh(0.2)) and s3.accel_vrw == pytest.approx(ugpsh(700.0))
+    assert s3.gyro_bias_turn_on_sigma == pytest.approx(dph(8.0))
+    c, i, t = IMU_GRADES["consumer"], IMU_GRADES["industrial"], IMU_GRADES["tactical"]
+    for field in ("gyro_arw", "gyro_bias_turn_on_sigma", "accel_bias_turn_on_sigma", "gyro_scale_sigma"):
+        assert getattr(c, field) > getattr(i, field) > getattr(t, field), field
+    with pytest.raises(ValueError, match="industrial"):
+        get_imu_grade("navigation-grade-x")
+
+
+def test_white_noise_sigma_and_allan_deviation():
+    arw, vrw = dpsh(2.0), ugpsh(2000.0)
+    grade = IDEAL.replace(name="white", gyro_arw=arw, accel_vrw=vrw)
+    b, n = 4, 40000
+    f, w = static_truth(b, n)
+    d = simulate_imu(f, w, RATE, grade, rngs(range(b)))
+    eg, ea = d.w_b - w, d.f_b - f
+    # per-sample sigma of an interval mean: N / sqrt(dt); rel. std error 1/sqrt(2 * 480000) ~ 0.1 %
+    assert np.std(eg) == pytest.approx(arw / math.sqrt(DT), rel=0.01)
+    assert np.std(ea) == pytest.approx(vrw / math.sqrt(DT), rel=0.01)
+    assert abs(np.mean(eg)) < 5 * arw / math.sqrt(DT) / math.sqrt(eg.size)
+    # white: lag-1 autocorrelation ~ 0
+    x = eg[..., 0]
+    assert abs(np.mean(x[:, 1:] * x[:, :-1]) / np.mean(x * x)) < 0.01
+    # Allan deviation (IEEE 952): ADEV(tau) = N / sqrt(tau)
+    taus, adev = allan_deviation(eg, DT, [1.0, 10.0], axis=1)
+    assert adev.shape == (b, 2, 3)
+    assert np.mean(adev[:, 0]) == pytest.approx(arw, rel=0.1)
+    assert np.mean(adev[:, 1]) == pytest.approx(arw / math.sqrt(10.0), rel=0.1)
+    _, adev_a = allan_deviation(ea, DT, [1.0], axis=1)
+    assert np.mean(adev_a) == pytest.approx(vrw, rel=0.1)
+
+
+def test_gauss_markov_bias_variance_and_correlation():
+    sg, tg, sa, ta = 1e-3, 0.5, 2e-2, 2.0
+    grade = IDEAL.replace(name="gm", gyro_bias_instability=sg, gyro_bias_tau_s=tg,
+                          accel_bias_instability=sa, accel_bias_tau_s=ta)
+    b, n = 8, 20000
+    f, w = static_truth(b, n)
+    d = simulate_imu(f, w, RATE, grade, rngs(range(b)))
+    assert np.array_equal(d.w_b - w, d.gyro_bias) and np.allclose(d.f_b - f, d.accel_bias, atol=1e-14)
+    for bias, sigma, tau, tol in ((d.gyro_bias, sg, tg, 0.06), (d.accel_bias, sa, ta, 0.15)):
+        assert np.mean(bias**2) == pytest.approx(sigma**2, rel=tol)
+        x = np.moveaxis(bias, 1, -1).reshape(-1, n)
+        x = x - x.mean(axis=1, keepdims=True)
+        var = np.mean(x * x)
+        rho1 = np.mean(x[:, 1:] * x[:, :-1]) / var
+        assert rho1 == pytest.approx(math.exp(-DT / tau), abs=0.003)
+        m = int(round(tau / DT))  # lag tau: 1/e
+        rho_tau = np.mean(x[:, m:] * x[:, :-m]) / var
+        assert rho_tau == pytest.approx(math.exp(-1.0), abs=0.06)
+    # stationary from the first sample: var(b_1) over many runs = sigma^2
+    f2, w2 = static_truth(600, 2)
+    d2 = simulate_imu(f2, w2, RATE, grade.replace(gyro_bias_tau_s=1e4), rngs(range(600)), workers=1)
+    assert np.mean(d2.gyro_bias[:, 0] ** 2) == pytest.approx(sg**2, rel=0.12)
+
+
+def test_turn_on_bias_constant_within_run_random_across_runs():
+    grade = IDEAL.replace(name="on", gyro_bias_turn_on_sigma=dph(8.0), accel_bias_turn_on_sigma=mg(1.0))
+    b, n = 400, 30
+    f, w = static_truth(b, n)
+    d = simulate_imu(f, w, RATE, grade, rngs(range(b)))
+    assert np.ptp(d.gyro_bias, axis=1).max() == 0.0 and np.ptp(d.accel_bias, axis=1).max() == 0.0
+    assert np.array_equal(d.w_b - w, d.gyro_bias)
+    bg = d.gyro_bias[:, 0]
+    assert np.std(bg) == pytest.approx(dph(8.0), rel=0.1)
+    assert np.std(d.accel_bias[:, 0]) == pytest.approx(mg(1.0), rel=0.1)
+    assert abs(np.mean(bg)) < 4 * dph(8.0) / math.sqrt(bg.size)
+    assert len(np.unique(bg[:, 0])) == b  # differs across seeds
+    again = simulate_imu(f[:5], w[:5], RATE, grade, rngs(range(5)))
+    assert np.array_equal(again.gyro_bias, d.gyro_bias[:5])  # same seed, same bias
+
+
+def test_scale_factor_and_misalignment():
+    grade = IDEAL.replace(name="sm", gyro_scale_sigma=1e-3, gyro_misalignment_sigma=2e-3,
+                          accel_scale_sigma=3e-3, accel_misalignment_sigma=5e-4)
+    b, n = 300, 4
+    r = np.random.default_rng(5)
+    f = r.normal(size=(b, n, 3)) * 10
+    w = r.normal(size=(b, n, 3))
+    d = simulate_imu(f, w, RATE, grade, rngs(range(b)))
+    eye = np.eye(3)
+    assert np.allclose(d.w_b, w @ (eye + d.gyro_scale_misalignment).mT, rtol=0, atol=1e-14)
+    assert np.allclose(d.f_b, f @ (eye + d.accel_scale_misalignment).mT, rtol=0, atol=1e-13)
+    off = ~np.eye(3, dtype=bool)
+    for m, s, mis in ((d.gyro_scale_misalignment, 1e-3, 2e-3), (d.accel_scale_misalignment, 3e-3, 5e-4)):
+        assert np.std(np.diagonal(m, axis1=1, axis2=2)) == pytest.approx(s, rel=0.1)
+        assert np.std(m[:, off]) == pytest.approx(mis, rel=0.1)
+
+
+def test_seed000_fixed_biases_are_the_mean_error():
+    g = IMU_GRADES["seed000"]
+    b, n = 4, 6000
+    f, w = static_truth(b, n)
+    d = simulate_imu(f, w, RATE, g, rngs(range(b)))
+    fa, fg = np.array(g.accel_bias_fixed), np.array(g.gyro_bias_fixed)
+    assert np.array_equal(fa, [0.0883, -0.1275, 0.0785]) and np.array_equal(fg, [-8.7e-4, 13e-4, -8.7e-4])
+    assert np.array_equal(d.accel_bias, np.broadcast_to(fa, (b, n, 3)))
+    assert np.array_equal(d.gyro_bias, np.broadcast_to(fg, (b, n, 3)))
+    ea, eg = (d.f_b - f).reshape(-1, 3), (d.w_b - w).reshape(-1, 3)
+    se_a, se_g = mg(3.0) / math.sqrt(b * n), dph(1.0) / math.sqrt(b * n)
+    assert np.all(np.abs(ea.mean(0) - fa) < 5 * se_a)
+    assert np.all(np.abs(eg.mean(0) - fg) < 5 * se_g)
+    assert np.std(ea - fa) == pytest.approx(mg(3.0), rel=0.02)
+    assert np.std(eg - fg) == pytest.approx(dph(1.0), rel=0.02)
+    assert not d.gyro_scale_misalignment.any()
+
+
+# ----------------------------------------------------------------------------- batching, dtype
+def _drive_profile(b, n):
+    speed = np.zeros((b, n))
+    speed[:, n // 3: 2 * n // 3] = 12.0
+    engine = np.ones((b, n), dtype=bool)
+    engine[:, 5 * n // 6:] = False
+    return speed, engine
+
+
+def test_batch_invariance_row_i_equals_single_run():
+    b, n = 6, 900
+    f, w = static_truth(b, n)
+    f = f + np.random.default_rng(2).normal(size=f.shape)
+    speed, engine = _drive_profile(b, n)
+    seeds = [11, 3, 7, 0, 42, 5]
+    kw = dict(engine_on=engine, speed=speed, vibration=Vibration())
+    full = simulate_imu(f, w, RATE, "consumer", rngs(seeds), **kw)
+    serial = simulate_imu(f, w, RATE, "consumer", rngs(seeds), workers=1, **kw)
+    for name in ("f_b", "w_b", "gyro_bias", "accel_bias", "gyro_scale_misalignment"):
+        assert np.array_equal(getattr(full, name), getattr(serial, name)), name
+    for i, s in enumerate(seeds):
+        one = simulate_imu(f[i:i + 1], w[i:i + 1], RATE, "consumer", rngs([s]),
+                           engine_on=engine[i:i + 1], speed=speed[i:i + 1], vibration=Vibration())
+        for name in ("f_b", "w_b", "gyro_bias", "accel_bias", "gyro_scale_misalignment", "accel_scale_misalignment"):
+            assert np.array_equal(getattr(one, name)[0], getattr(full, name)[i]), (name, i)
+    assert not np.array_equal(full.w_b[0], full.w_b[1])
+
+
+def test_float32_output():
+    b, n = 2, 500
+    f, w = static_truth(b, n)
+    d64 = simulate_imu(f, w, RATE, "industrial", rngs(range(b)))
+    d32 = simulate_imu(f, w, RATE, "industrial", rngs(range(b)), dtype=np.float32)
+    for name in ("f_b", "w_b", "gyro_bias", "accel_bias", "gyro_scale_misalignment", "accel_scale_misalignment"):
+        a32, a64 = getattr(d32, name), getattr(d64, name)
+        assert a32.dtype == np.float32, name
+        assert np.array_equal(a32, a64.astype(np.float32)), name
+    const = simulate_imu(f, w, RATE, "seed000", rngs(range(b)), dtype=np.float32)
+    assert const.gyro_bias.dtype == np.float32 and const.f_b.dtype == np.float32
+
+
+def test_error_streams_are_independent_of_other_terms():
+    """Changing one error term (or adding vibration) leaves the other realizations unchanged."""
+    b, n = 2, 800
+    f, w = static_truth(b, n)
+    base = IMU_GRADES["industrial"]
+    d1 = simulate_imu(f, w, RATE, base, rngs(range(b)))
+    d2 = simulate_imu(f, w, RATE, base.replace(gyro_arw=0.0), rngs(range(b)))
+    assert np.array_equal(d1.gyro_bias, d2.gyro_bias) and np.array_equal(d1.f_b, d2.f_b)
+    speed, engine = _drive_profile(b, n)
+    d3 = simulate_imu(f, w, RATE, base, rngs(range(b)), engine_on=engine, speed=speed, vibration=Vibration())
+    off = ~engine
+    assert np.array_equal(d3.f_b[off], d1.f_b[off]) and np.array_equal(d3.w_b[off], d1.w_b[off])
+    assert np.array_equal(d3.accel_bias, d1.accel_bias)
+    assert np.all(np.abs(d3.f_b[engine] - d1.f_b[engine]) > 0)
+
+
+# ----------------------------------------------------------------------------- vibration
+def test_sinusoid_interval_mean_matches_fine_grid_integration():
+    r = np.random.default_rng(0)
+    for _ in range(20):
+        a, fr, ph = r.uniform(0.1, 2), r.uniform(1, 120), r.uniform(0, 2 * np.pi)
+        t0, dt = r.uniform(0, 1000), r.choice([0.01, 0.1, 0.008])
+        om = 2 * np.pi * fr
+        t = np.linspace(t0, t0 + dt, 20001)
+        y = a * np.sin(om * t + ph)
+        numeric = np.sum((y[1:] + y[:-1]) * 0.5) / (len(t) - 1)  # trapezoid mean
+        closed = a * (np.cos(om * t0 + ph) - np.cos(om * (t0 + dt) + ph)) / (om * dt)
+        got = sinusoid_interval_mean(a, om, ph, t0, dt)
+        assert got == pytest.approx(numeric, abs=1e-7)
+        assert got == pytest.approx(closed, abs=1e-9)
+    assert sinusoid_interval_mean(1.0, 2 * np.pi * 100.0, 0.3, 2.0, 0.01) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_vibration_only_idle_with_engine_on_and_analytic_rms():
+    b, n = 3, 6000
+    f, w = static_truth(b, n)
+    speed, engine = _drive_profile(b, n)
+    idle_only = Vibration(engine_freq_hz_range=(25.0, 25.0), harmonic_ratio=0.0,
+                          idle_accel_rms_range=(0.2, 0.2), idle_gyro_rms_range=(deg(0.1), deg(0.1)),
+                          road_accel_rms_ref_range=(0.0, 0.0), road_gyro_rms_ref_range=(0.0, 0.0))
+    d = simulate_imu(f, w, RATE, "ideal", rngs(range(b)), engine_on=engine, speed=speed, vibration=idle_only)
+    vf, vw = d.f_b - f, d.w_b - w
+    idle = engine & (speed == 0)
+    assert not vf[~idle].any() and not vw[~idle].any()  # moving (no road level) and engine off
+    # interval mean of a 25 Hz sinusoid at 100 Hz: rms attenuated by sinc(w dt / 2)
+    att = math.sin(np.pi * 25 * DT) / (np.pi * 25 * DT)
+    assert np.sqrt(np.mean(vf[idle] ** 2, axis=0)) == pytest.approx([0.2 * att] * 3, rel=0.01)
+    assert np.sqrt(np.mean(vw[idle] ** 2, axis=0)) == pytest.approx([deg(0.1) * att] * 3, rel=0.01)
+    # with road vibration: also while moving, still nothing with the engine off
+    d2 = simulate_imu(f, w, RATE, "ideal", rngs(range(b)), engine_on=engine, speed=speed, vibration=Vibration())
+    moving = engine & (speed > 0)
+    assert not (d2.f_b - f)[~engine].any()
+    assert np.all(np.abs(d2.f_b - f)[moving] > 0) and np.all(np.abs(d2.w_b - w)[idle] > 0)
+    # the vehicle's own stream: simulate_imu applies exactly simulate_vibration's output
+    vr = lambda: row_generators(range(b), "vibration")  # noqa: E731
+    fv, wv = simulate_vibration(RATE, vr(), speed=speed, engine_on=engine)
+    d4 = simulate_imu(f, w, RATE, "ideal", rngs(range(b)), engine_on=engine, speed=speed, vibration=Vibration(),
+                      vibration_rngs=vr())
+    assert np.array_equal(d4.f_b, f + fv) and np.array_equal(d4.w_b, w + wv)
+    # disabled vibration: truth
+    d3 = simulate_imu(f, w, RATE, "ideal", rngs(range(b)), engine_on=engine, speed=speed, vibration=Vibration.none())
+    assert np.array_equal(d3.f_b, f)
+
+
+def test_engine_harmonic_aliases_into_interval_means():
+    n = 4000
+    vib = Vibration(engine_freq_hz_range=(35.0, 35.0), harmonic_ratio=1.0,
+                    idle_accel_rms_range=(0.3, 0.3), idle_gyro_rms_range=(0.0, 0.0))
+    fv, wv = simulate_vibration(RATE, rngs([4]), speed=np.zeros((1, n)), vibration=vib)
+    assert not wv.any()
+    spec = np.abs(np.fft.rfft(fv[0, :, 2]))
+    freqs = np.fft.rfftfreq(n, DT)
+    top2 = sorted(freqs[np.argsort(spec)[-2:]])
+    assert top2 == pytest.approx([30.0, 35.0])  # 70 Hz harmonic folds to 100 - 70 = 30 Hz
+    # each tone's amplitude is sqrt(2) * rms / sqrt(2) times its own sinc attenuation
+    amp = 2 * spec / n
+    for fr in (35.0, 70.0):
+        k = int(round(abs(RATE * round(fr / RATE) - fr) / (RATE / n)))
+        att = abs(math.sin(np.pi * fr * DT) / (np.pi * fr * DT))
+        assert amp[k] == pytest.approx(0.3 * att, rel=0.02)
+
+
+def test_road_vibration_grows_with_speed():
+    b, n = 4, 8000
+    speed = np.full((b, n), 10.0)
+    speed[:, n // 2:] = 20.0
+    vib = Vibration(road_accel_rms_ref_range=(0.4, 0.4), road_gyro_rms_ref_range=(deg(0.5), deg(0.5)),
+                    road_ref_speed_mps=20.0, road_speed_exponent=1.0)
+    fv, wv = simulate_vibration(RATE, rngs(range(b)), speed=speed, vibration=vib)
+    rms_lo = np.sqrt(np.mean(fv[:, : n // 2] ** 2))
+    rms_hi = np.sqrt(np.mean(fv[:, n // 2:] ** 2))
+    assert rms_hi == pytest.approx(0.4, rel=0.1)
+    assert rms_hi / rms_lo == pytest.approx(2.0, rel=0.1)
+    assert np.sqrt(np.mean(wv[:, n // 2:] ** 2)) == pytest.approx(deg(0.5), rel=0.1)
+    # band-limited, not white: strongly correlated at lag 1
+    x = fv[:, n // 2:, 0]
+    assert np.mean(x[:, 1:] * x[:, :-1]) / np.mean(x * x) > 0.3
+
+
+# ----------------------------------------------------------------------------- validation
+@pytest.mark.parametrize("field,value", [
+    ("gyro_arw", -1e-4), ("accel_vrw", float("nan")), ("gyro_bias_turn_on_sigma", float("inf")),
+    ("accel_bias_instability", -1.0), ("gyro_bias_tau_s", 0.0), ("accel_bias_tau_s", float("inf")),
+    ("gyro_scale_sigma", -1e-6), ("accel_misalignment_sigma", "x"),
+    ("gyro_bias_fixed", (1.0, 2.0)), ("accel_bias_fixed", (0.0, float("nan"), 0.0)),
+])
+def test_grade_validation_names_the_field(field, value):
+    with pytest.raises(ValueError, match=field):
+        IDEAL.replace(**{field: value})
+
+
+@pytest.mark.parametrize("field,value", [
+    ("engine_freq_hz_range", (30.0, 20.0)), ("idle_accel_rms_range", (-0.1, 0.2)),
+    ("idle_gyro_rms_range", (0.0, float("nan"))), ("harmonic_ratio", -0.5), ("road_damping", 1.0),
+    ("road_ref_speed_mps", 0.0), ("axis_weights", (1.0, 1.0)), ("stationary_speed_mps", -1.0),
+])
+def test_vibration_validation_names_the_field(field, value):
+    with pytest.raises(ValueError, match=field):
+        Vibration(**{field: value})
+
+
+def test_simulate_imu_bad_inputs_name_the_argument():
+    f, w = static_truth(2, 10)
+    r = rngs(range(2))
+    cases = [
+        (dict(f_true=f[..., :2]), "f_true"),
+        (dict(f_true=f[0]), "f_true"),
+        (dict(f_true=f[:, :0], w_true=w[:, :0]), "f_true"),
+        (dict(w_true=w[:, :5]), "w_true"),
+        (dict(rngs=r[:1]), "rngs"),
+        (dict(engine_on=np.ones((2, 9), bool), speed=np.zeros((2, 10)), vibration=Vibration()), "engine_on"),
+        (dict(speed=np.zeros((2, 11))), "speed"),
+        (dict(vibration=Vibration()), "speed"),
+        (dict(imu_rate_hz=0.0), "imu_rate_hz"),
+        (dict(dtype=np.int32), "dtype"),
+        (dict(grade="gold"), "known grades"),
+        (dict(workers=0), "workers"),
+        (dict(speed=np.zeros((2, 10)), vibration=Vibration(), vibration_rngs=r[:1]), "vibration_rngs"),
+    ]
+    for kw, match in cases:
+        args = dict(f_true=f, w_true=w, imu_rate_hz=RATE, grade="consumer", rngs=r)
+        args.update(kw)
+        with pytest.raises(ValueError, match=match):
+            simulate_imu(**args)
+    bad = f.copy()
+    bad[0, 3, 1] = np.nan
+    with pytest.raises(ValueError, match="f_true"):
+        simulate_imu(bad, w, RATE, "consumer", r)
