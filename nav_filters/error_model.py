@@ -50,14 +50,15 @@ the corrected sample too *large*). With ``C = C_eb_est``,
 
 ``Gamma = d g / d r`` is the gravity gradient; see :func:`gravity_gradient`.
 
-References: Groves (2013) sec 14.2.3 (ECEF INS error model), eq 3.34 and
-sec 3.2.2 (discretization of the system and of the noise), eq 14.82
-(trapezoidal ``Q_d``); Groves sec 9.4.2 (receiver clock states).
+References: Groves (2013) sec 14.2.3 (ECEF INS error model, eqs 14.48-14.50),
+sec 3.2 (discretization: ``Phi`` as a power series in ``F dt``, trapezoidal
+``Q_d``), sec 14.2.7 (bias and receiver-clock states; equation numbers are
+those of the 2nd edition as far as the implementer could check them).
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import Optional, Tuple, Union
 
 import numpy as np
@@ -107,7 +108,8 @@ class ProcessNoise:
     """Continuous-time process-noise power spectral densities (SI), validated.
 
     The four IMU fields accept a float (the same PSD on every body axis) or a
-    3-tuple (one per body axis x, y, z).
+    3-tuple (one per body axis x, y, z). Every PSD defaults to 0 (a perfect
+    IMU and clock), so ``ProcessNoise()`` is valid but models no process noise.
 
     Attributes
     ----------
@@ -135,8 +137,8 @@ class ProcessNoise:
         naming the field, for a negative, non-finite or badly shaped value.
     """
 
-    gyro_psd: PsdLike
-    accel_psd: PsdLike
+    gyro_psd: PsdLike = 0.0
+    accel_psd: PsdLike = 0.0
     gyro_bias_psd: PsdLike = 0.0
     accel_bias_psd: PsdLike = 0.0
     clock_bias_psd: float = 0.0
@@ -190,8 +192,11 @@ class ProcessNoise:
         Returns
         -------
         ProcessNoise with ``gyro_psd = arw^2``, ``accel_psd = vrw^2`` and the
-        Gauss-Markov driving PSDs ``2 sigma^2 / tau`` (Groves eq 14.84 /
-        first-order GM process of sec 3.2.2... ``E[b^2] = q tau / 2``).
+        Gauss-Markov driving PSDs ``2 sigma^2 / tau`` (a first-order
+        Gauss-Markov process ``db/dt = -b/tau + w`` with PSD ``q`` has the
+        stationary variance ``q tau / 2``; Groves sec 3.2 / App. J). The
+        data-sheet "bias instability" (Allan-deviation floor) is used as
+        ``sigma`` as given; convert beforehand if a different fit is wanted.
         """
         def sq(name, x):
             x = _check_psd(name, x, per_axis=True)
@@ -308,7 +313,8 @@ def _bias_rate(tau, name):
     return -1.0 / tau
 
 
-def system_matrix(C_eb, f_b, r_e, gyro_bias_tau_s=None, accel_bias_tau_s=None, *, gravity_form="point-mass"):
+def system_matrix(C_eb, f_b, r_e, gyro_bias_tau_s=None, accel_bias_tau_s=None, *, gravity_form="point-mass",
+                  out=None):
     """Continuous-time system matrix ``F`` of the 17-state error model (Groves eqs 14.48-14.50).
 
     For the convention ``x = truth - estimate`` (module docstring), with
@@ -330,6 +336,9 @@ def system_matrix(C_eb, f_b, r_e, gyro_bias_tau_s=None, accel_bias_tau_s=None, *
         Gauss-Markov correlation times [s]; ``None``: random walk.
     gravity_form : {"point-mass", "radial"}
         the ``Gamma`` of :func:`gravity_gradient`.
+    out : (B, 17, 17) array, optional
+        buffer of the result dtype to write into (zeroed first), e.g. the
+        previous step's ``F``; avoids a large allocation per call.
 
     Returns
     -------
@@ -343,7 +352,13 @@ def system_matrix(C_eb, f_b, r_e, gyro_bias_tau_s=None, accel_bias_tau_s=None, *
     ka = _bias_rate(accel_bias_tau_s, "accel_bias_tau_s")
     B = C.shape[0]
     W = OMEGA_IE
-    F = np.zeros((B, N_STATES, N_STATES), dtype=dtype)
+    if out is None:
+        F = np.zeros((B, N_STATES, N_STATES), dtype=dtype)
+    else:
+        F = out
+        if not isinstance(F, np.ndarray) or F.shape != (B, N_STATES, N_STATES) or F.dtype != dtype:
+            raise ValueError(f"out must be a {dtype} array of shape ({B}, {N_STATES}, {N_STATES})")
+        F.fill(0.0)
     # attitude: -Omega dpsi - C b_g
     F[:, 0, 1] = W
     F[:, 1, 0] = -W
@@ -399,12 +414,28 @@ def _noise_vectors(noise, dtype):
     return q, np.sqrt(q)
 
 
-def discretize(F, C_eb, noise, dt, order=2):
+def _outputs(out, B, dtype):
+    """Output buffers (fully overwritten by the caller): fresh arrays, or the caller's ``(Phi, Qd)``."""
+    if out is None:
+        return np.empty((B, N_STATES, N_STATES), dtype=dtype), np.empty((B, N_STATES, N_STATES), dtype=dtype)
+    try:
+        Phi, Qd = out
+    except (TypeError, ValueError):
+        raise ValueError("out must be a pair (Phi, Qd) of arrays") from None
+    for name, a in (("Phi", Phi), ("Qd", Qd)):
+        if not isinstance(a, np.ndarray) or a.shape != (B, N_STATES, N_STATES) or a.dtype != dtype:
+            raise ValueError(f"out {name} must be a {dtype} array of shape ({B}, {N_STATES}, {N_STATES})")
+    if Phi is Qd or np.shares_memory(Phi, Qd):
+        raise ValueError("out Phi and Qd must not share memory")
+    return Phi, Qd
+
+
+def discretize(F, C_eb, noise, dt, order=2, *, out=None):
     """Discrete transition matrix and process-noise covariance of the error model (generic ``F``).
 
     ``Phi = I + F dt + (F dt)^2 / 2`` (``order=2``; ``order=1``: ``I + F dt``),
-    a truncated ``expm(F dt)`` (Groves eq 3.34), and the trapezoidal
-    process-noise covariance (Groves eq 14.82 / 3.46)::
+    a truncated ``expm(F dt)`` (Groves sec 3.2), and the trapezoidal
+    process-noise covariance (Groves sec 3.2 / 14.2)::
 
         Q_d = 0.5 (Phi G Q_c G^T Phi^T + G Q_c G^T) dt.
 
@@ -416,9 +447,11 @@ def discretize(F, C_eb, noise, dt, order=2):
     (one float each) the first two blocks are ``q_g I`` and ``q_a I`` and
     ``C_eb`` is not used (this assumes ``C_eb`` orthonormal, as the INS keeps it).
 
-    This function works for any ``F`` (it multiplies full 17x17 matrices);
-    :func:`transition` is the fast closed-form equivalent for the ``F`` of
-    :func:`system_matrix`.
+    Cost: two stacked 17x17 products (``F dt F dt`` and ``M M^T`` with
+    ``M = Phi G Qc^{1/2}``) and a few elementwise passes. (A blockwise closed
+    form exploiting the sparsity of ``F`` was tried and measured no faster
+    with numpy: its ~150 small strided operations cost as much as the two
+    stacked products at B = 1024 and more below.)
 
     Parameters
     ----------
@@ -427,12 +460,22 @@ def discretize(F, C_eb, noise, dt, order=2):
     noise : ProcessNoise
     dt : float or (B,) propagation interval [s]
     order : {1, 2} truncation order of the ``Phi`` series
+    out : (Phi, Qd), optional
+        two (B, 17, 17) arrays of the dtype of ``F`` to write the result into
+        (e.g. the previous step's), saving two large allocations per call.
 
     Returns
     -------
     Phi : (B, 17, 17)
     Qd : (B, 17, 17) symmetric positive semi-definite
         both in the dtype of ``F``.
+
+    Notes
+    -----
+    The trapezoidal rule is exact to second order in ``dt``; its known
+    third-order defect is the position variance driven by accelerometer
+    white noise, ``q_a dt^3 / 2`` instead of the exact ``q_a dt^3 / 3``
+    (Van Loan), negligible next to the ``q_a dt`` velocity variance at IMU rates.
     """
     F = np.asarray(F)
     if not np.issubdtype(F.dtype, np.floating):
@@ -446,80 +489,57 @@ def discretize(F, C_eb, noise, dt, order=2):
     h = _dt_array(dt, dtype, B)
     q, sq = _noise_vectors(noise, dtype)
 
-    Fdt = F * h
+    Phi, Qd = _outputs(out, B, dtype)
+
+    Fdt = np.multiply(F, h)                  # the only large temporary
     if order == 2:
-        Phi = Fdt @ Fdt
+        np.matmul(Fdt, Fdt, out=Phi)
         Phi *= 0.5
         Phi += Fdt
     else:
-        Phi = Fdt
+        np.copyto(Phi, Fdt)
     idx = np.arange(N_STATES)
     Phi[:, idx, idx] += 1.0
 
-    # Phi G Qc G^T Phi^T = M M^T with M = Phi (G Qc^{1/2}) restricted to the driven columns.
-    M = Phi * sq
-    Qs = np.zeros((B, N_STATES, N_STATES), dtype=dtype)
-    Qs[:, idx, idx] = q
+    # Phi G Qc G^T Phi^T = M M^T with M = Phi G Qc^{1/2}
+    M = np.multiply(Phi, sq, out=Fdt)
     if not noise.isotropic:
         C = np.asarray(C_eb, dtype=dtype)
+        blocks = []
         for sl, psd in ((ATT, noise.gyro_psd), (VEL, noise.accel_psd)):
-            p = np.broadcast_to(np.asarray(psd, dtype=dtype), (3,))
-            CD = C * np.sqrt(p)                      # C diag(sqrt q)
+            CD = C * np.sqrt(np.broadcast_to(np.asarray(psd, dtype=dtype), (3,)))   # C diag(sqrt q)
             M[:, :, sl] = Phi[:, :, sl] @ CD
-            Qs[:, sl, sl] = CD @ np.swapaxes(CD, -1, -2)
-    driven = np.flatnonzero(sq > 0) if noise.isotropic else np.flatnonzero((sq > 0) | (idx < 6))
-    M = M[:, :, driven]
-    Qd = M @ np.swapaxes(M, -1, -2)
-    Qd += Qs
+            blocks.append((sl, CD @ np.swapaxes(CD, -1, -2)))
+    np.matmul(M, np.swapaxes(M, -1, -2), out=Qd)
+    if noise.isotropic:
+        Qd[:, idx, idx] += q
+    else:
+        Qd[:, idx[6:], idx[6:]] += q[6:]
+        for sl, blk in blocks:
+            Qd[:, sl, sl] += blk
     Qd *= 0.5 * h
-    Qd += np.swapaxes(Qd, -1, -2)
-    Qd *= 0.5
+    np.add(Qd, np.swapaxes(Qd, -1, -2), out=Fdt)     # exact symmetry
+    np.multiply(Fdt, 0.5, out=Qd)
     return Phi, Qd
 
 
-_OMEGA = np.array([[0.0, -OMEGA_IE, 0.0], [OMEGA_IE, 0.0, 0.0], [0.0, 0.0, 0.0]])
-_OMEGA2 = _OMEGA @ _OMEGA
-_I3 = np.eye(3)
+def transition(C_eb, f_b, r_e, noise, dt, order=2, *, gravity_form="point-mass", out=None):
+    """``(Phi, Qd)`` for one propagation step: ``discretize(system_matrix(...))`` in one call.
 
-
-def _sym(X):
-    return 0.5 * (X + np.swapaxes(X, -1, -2))
-
-
-def transition(C_eb, f_b, r_e, noise, dt, order=2, *, gravity_form="point-mass"):
-    """``(Phi, Qd)`` of the 17-state model in closed form: fast ``discretize(system_matrix(...))``.
-
-    Same result as ``discretize(system_matrix(C_eb, f_b, r_e, noise.gyro_bias_tau_s,
-    noise.accel_bias_tau_s, gravity_form=gravity_form), C_eb, noise, dt, order)``
-    (equal to rounding for an orthonormal ``C_eb``), but each block of
-    ``Phi = I + F dt + (F dt)^2 / 2`` is written from its closed form and
-    ``Qd = 0.5 (Phi G Qc G^T Phi^T + G Qc G^T) dt`` is assembled blockwise,
-    with only one small stacked product (the 9x6 white-noise factor times its
-    transpose); no 17x17 product is formed. With ``S = [(C f) x]``,
-    ``Omega = [w_ie x]``, ``h = dt^2/2`` (0 for ``order=1``) and
-    ``k_g = -1/tau_g`` (0 for a random walk), the nonzero blocks of ``Phi`` are::
-
-        AA = I - Omega dt + h Omega^2          AG  = ((-dt - h k_g) I + h Omega) C
-        VA = -S dt + h (S Omega + 2 Omega S)  VV  = I - 2 Omega dt + h (4 Omega^2 + Gamma)
-        VP = (dt I - 2 h Omega) Gamma         VG  = h S C
-        VBa = ((-dt - h k_a) I + 2 h Omega) C
-        PA = -h S    PV = dt I - 2 h Omega    PP = I + h Gamma    PBa = -h C
-        GG = (1 + k_g dt + h k_g^2) I         BaBa = (1 + k_a dt + h k_a^2) I
-        clock: [[1, dt], [0, 1]]
-
-    and the bias-noise parts of ``Qd`` use ``C C^T = I`` (e.g.
-    ``Phi_AG Phi_AG^T = M_g M_g^T``). Requires isotropic IMU PSDs (floats);
-    with per-axis PSDs it falls back to :func:`discretize`.
+    Builds ``F`` with the bias correlation times of ``noise`` (so the two
+    cannot disagree) and discretizes it (see :func:`system_matrix`,
+    :func:`discretize`).
 
     Parameters
     ----------
-    C_eb : (B, 3, 3) estimated body-to-ECEF DCM (orthonormal)
+    C_eb : (B, 3, 3) estimated body-to-ECEF DCM
     f_b : (B, 3) bias-corrected specific force [m/s^2]
     r_e : (B, 3) estimated ECEF position [m]
-    noise : ProcessNoise (also supplies the bias correlation times)
+    noise : ProcessNoise
     dt : float or (B,) [s]
     order : {1, 2}
     gravity_form : {"point-mass", "radial"}, see :func:`gravity_gradient`
+    out : (Phi, Qd), optional, see :func:`discretize`
 
     Returns
     -------
@@ -527,162 +547,5 @@ def transition(C_eb, f_b, r_e, noise, dt, order=2, *, gravity_form="point-mass")
     """
     if not isinstance(noise, ProcessNoise):
         raise TypeError(f"noise must be a ProcessNoise, got {type(noise).__name__}")
-    if order not in (1, 2):
-        raise ValueError(f"order must be 1 or 2, got {order!r}")
-    dtype = _float_dtype(C_eb, f_b, r_e)
-    C = np.asarray(C_eb, dtype=dtype)
-    f = np.asarray(f_b, dtype=dtype)
-    r = np.asarray(r_e, dtype=dtype)
-    per_axis = any(isinstance(getattr(noise, n), tuple)
-                   for n in ("gyro_psd", "accel_psd", "gyro_bias_psd", "accel_bias_psd"))
-    if per_axis:
-        F = system_matrix(C, f, r, noise.gyro_bias_tau_s, noise.accel_bias_tau_s, gravity_form=gravity_form)
-        return discretize(F, C, noise, dt, order)
-    B = C.shape[0]
-    T = _dt_array(dt, dtype, B)           # float or (B, 1, 1)
-    Tv = T if np.ndim(T) == 0 else T[:, :, 0]   # float or (B, 1) for row slices
-    h = 0.5 * T * T if order == 2 else 0.0
-    hv = 0.5 * Tv * Tv if order == 2 else 0.0
-    kg = _bias_rate(noise.gyro_bias_tau_s, "gyro_bias_tau_s")
-    ka = _bias_rate(noise.accel_bias_tau_s, "accel_bias_tau_s")
-    W = OMEGA_IE
-    hW = hv * W
-
-    a = np.einsum("bij,bj->bi", C, f)
-    a0, a1, a2 = a[:, 0], a[:, 1], a[:, 2]
-    S = np.zeros((B, 3, 3), dtype=dtype)
-    S[:, 0, 1] = -a2
-    S[:, 0, 2] = a1
-    S[:, 1, 0] = a2
-    S[:, 1, 2] = -a0
-    S[:, 2, 0] = -a1
-    S[:, 2, 1] = a0
-    Gam = gravity_gradient(r, gravity_form)
-
-    # ------------------------------- Phi -------------------------------
-    Phi = np.zeros((B, N_STATES, N_STATES), dtype=dtype)
-    Phi[:, 0:3, 0:3] = _I3 - T * _OMEGA + h * _OMEGA2
-    mg = -T - h * kg
-    blk = Phi[:, 0:3, 9:12]
-    np.multiply(mg, C, out=blk)
-    blk[:, 0, :] -= hW * C[:, 1, :]
-    blk[:, 1, :] += hW * C[:, 0, :]
-    P_AG = blk
-
-    blk = Phi[:, 3:6, 0:3]
-    np.multiply(-T, S, out=blk)
-    if order == 2:
-        blk[:, 2, :] += hW * a
-        blk[:, :, 2] += (2.0 * hW) * a
-        d = (3.0 * hW) * a2[:, None]
-        blk[:, 0, 0:1] -= d
-        blk[:, 1, 1:2] -= d
-        blk[:, 2, 2:3] -= d
-    P_VA = blk
-    Phi[:, 3:6, 3:6] = _I3 - 2.0 * T * _OMEGA + h * (4.0 * _OMEGA2 + Gam)
-    blk = Phi[:, 3:6, 6:9]
-    np.multiply(T, Gam, out=blk)
-    blk[:, 0, :] += (2.0 * hW) * Gam[:, 1, :]
-    blk[:, 1, :] -= (2.0 * hW) * Gam[:, 0, :]
-    SC = np.empty_like(C)
-    np.subtract(a1[:, None] * C[:, 2, :], a2[:, None] * C[:, 1, :], out=SC[:, 0, :])
-    np.subtract(a2[:, None] * C[:, 0, :], a0[:, None] * C[:, 2, :], out=SC[:, 1, :])
-    np.subtract(a0[:, None] * C[:, 1, :], a1[:, None] * C[:, 0, :], out=SC[:, 2, :])
-    P_VG = Phi[:, 3:6, 9:12]
-    np.multiply(h, SC, out=P_VG)
-    ma = -T - h * ka
-    blk = Phi[:, 3:6, 12:15]
-    np.multiply(ma, C, out=blk)
-    blk[:, 0, :] -= (2.0 * hW) * C[:, 1, :]
-    blk[:, 1, :] += (2.0 * hW) * C[:, 0, :]
-    P_VBa = blk
-
-    P_PA = Phi[:, 6:9, 0:3]
-    np.multiply(-h, S, out=P_PA)
-    Phi[:, 6:9, 3:6] = T * _I3 - 2.0 * h * _OMEGA
-    Phi[:, 6:9, 6:9] = _I3 + h * Gam
-    P_PBa = Phi[:, 6:9, 12:15]
-    np.multiply(-h, C, out=P_PBa)
-
-    phg = 1.0 + kg * Tv + hv * kg * kg
-    pha = 1.0 + ka * Tv + hv * ka * ka
-    for i in range(9, 12):
-        Phi[:, i, i] = phg if np.ndim(phg) == 0 else phg[:, 0]
-    for i in range(12, 15):
-        Phi[:, i, i] = pha if np.ndim(pha) == 0 else pha[:, 0]
-    Phi[:, 15, 15] = 1.0
-    Phi[:, 16, 16] = 1.0
-    Phi[:, 15, 16] = Tv if np.ndim(Tv) == 0 else Tv[:, 0]
-
-    # ------------------------------- Qd --------------------------------
-    # Qd = sum_j (dt/2) q_j Phi[:, j] Phi[:, j]^T + (dt/2) Qs; every q below carries dt/2.
-    half = 0.5 * T
-    qg = half * noise.gyro_psd
-    qa = half * noise.accel_psd
-    qbg = half * noise.gyro_bias_psd
-    qba = half * noise.accel_bias_psd
-    qc = 0.5 * Tv * noise.clock_bias_psd
-    qd = 0.5 * Tv * noise.clock_drift_psd
-
-    Qd = np.zeros((B, N_STATES, N_STATES), dtype=dtype)
-    # white gyro/accel noise: rows A, V, P of Phi's first six columns
-    L = Phi[:, 0:9, 0:6] * np.concatenate([np.broadcast_to(np.sqrt(qg), np.shape(qg)[:1] + (1, 3)),
-                                           np.broadcast_to(np.sqrt(qa), np.shape(qa)[:1] + (1, 3))], axis=-1)
-    WW = L @ np.swapaxes(L, -1, -2)
-    AA, AV, AP = WW[:, 0:3, 0:3], WW[:, 0:3, 3:6], WW[:, 0:3, 6:9]
-    VV, VP, PP = WW[:, 3:6, 3:6], WW[:, 3:6, 6:9], WW[:, 6:9, 6:9]
-
-    # bias driving noise (uses C C^T = I)
-    Mg = (-T - h * kg) * _I3 + h * _OMEGA
-    Ma = (-T - h * ka) * _I3 + 2.0 * h * _OMEGA
-    AA += qbg * (Mg @ np.swapaxes(Mg, -1, -2)) + qg * _I3
-    # Phi_AG Phi_VG^T = h Mg S^T = -h Mg S,  Mg S = mg S + h Omega S,  Omega S = a w^T - W a_z I
-    MgS = mg * S
-    if order == 2:
-        MgS[:, :, 2] += hW * a
-        dz = hW * a2[:, None]
-        MgS[:, 0, 0:1] -= dz
-        MgS[:, 1, 1:2] -= dz
-        MgS[:, 2, 2:3] -= dz
-    AV -= (qbg * h) * MgS
-    aa = np.einsum("bi,bj->bij", a, a)
-    an2 = np.einsum("bi,bi->b", a, a)
-    SSt = -aa
-    SSt[:, 0, 0] += an2
-    SSt[:, 1, 1] += an2
-    SSt[:, 2, 2] += an2
-    VV += (qbg * h * h) * SSt + qba * (Ma @ np.swapaxes(Ma, -1, -2)) + qa * _I3
-    VP -= (qba * h) * Ma
-    PP += (qba * h * h) * _I3
-
-    Qd[:, 0:3, 0:3] = _sym(AA)
-    Qd[:, 3:6, 3:6] = _sym(VV)
-    Qd[:, 6:9, 6:9] = _sym(PP)
-    Qd[:, 0:3, 3:6] = AV
-    Qd[:, 3:6, 0:3] = np.swapaxes(AV, -1, -2)
-    Qd[:, 0:3, 6:9] = AP
-    Qd[:, 6:9, 0:3] = np.swapaxes(AP, -1, -2)
-    Qd[:, 3:6, 6:9] = VP
-    Qd[:, 6:9, 3:6] = np.swapaxes(VP, -1, -2)
-    for rows, blk, qq, ph in ((slice(0, 3), P_AG, qbg, phg), (slice(3, 6), P_VG, qbg, phg)):
-        X = (qq * (ph if np.ndim(ph) == 0 else ph[:, :, None])) * blk
-        Qd[:, rows, 9:12] = X
-        Qd[:, 9:12, rows] = np.swapaxes(X, -1, -2)
-    for rows, blk in ((slice(3, 6), P_VBa), (slice(6, 9), P_PBa)):
-        X = (qba * (pha if np.ndim(pha) == 0 else pha[:, :, None])) * blk
-        Qd[:, rows, 12:15] = X
-        Qd[:, 12:15, rows] = np.swapaxes(X, -1, -2)
-    gg = qbg * (phg * phg + 1.0) if np.ndim(phg) == 0 else (qbg[:, :, 0] * (phg * phg + 1.0))[:, 0]
-    bb = qba * (pha * pha + 1.0) if np.ndim(pha) == 0 else (qba[:, :, 0] * (pha * pha + 1.0))[:, 0]
-    for i in range(9, 12):
-        Qd[:, i, i] = gg
-    for i in range(12, 15):
-        Qd[:, i, i] = bb
-    T2 = Tv * Tv
-    cc = qc + qd * T2 + qc if np.ndim(Tv) == 0 else (2.0 * qc + qd * T2)[:, 0]
-    cd = qd * Tv if np.ndim(Tv) == 0 else (qd * Tv)[:, 0]
-    Qd[:, 15, 15] = cc
-    Qd[:, 15, 16] = cd
-    Qd[:, 16, 15] = cd
-    Qd[:, 16, 16] = 2.0 * qd if np.ndim(Tv) == 0 else (2.0 * qd)[:, 0]
-    return Phi, Qd
+    F = system_matrix(C_eb, f_b, r_e, noise.gyro_bias_tau_s, noise.accel_bias_tau_s, gravity_form=gravity_form)
+    return discretize(F, C_eb, noise, dt, order, out=out)

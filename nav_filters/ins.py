@@ -18,10 +18,14 @@ The error-state convention that :func:`apply_correction` and
 ``r_true = r_est + dr``.
 
 Every function keeps the floating dtype of its inputs (``float32`` in ->
-``float32`` out). Note that ``float32`` cannot hold an ECEF position finer
-than about 0.5 m (its spacing at 6.4e6 m), so a ``float32`` INS accumulates
-position rounding of that size per step that moves; keep the navigation state
-in ``float64`` where metre-level accuracy matters.
+``float32`` out; mixed inputs give the wider type). Note that ``float32``
+cannot hold an ECEF position finer than 0.5 m (its spacing at 6.4e6 m): at
+100 Hz a moving vehicle's per-step displacement (~0.1-0.2 m) is mostly lost
+to rounding, so a ``float32`` INS state drifts by hundreds of metres per
+minute (measured: 650 m after 120 s on a 9-21 m/s path) while its attitude
+and velocity stay accurate. Keep ``r_e`` (and preferably the whole navigation
+state) in ``float64``; float32 IMU samples with a float64 state give a
+float64 result.
 
 References: P. D. Groves, *Principles of GNSS, Inertial, and Multisensor
 Integrated Navigation Systems*, 2nd ed. (2013), sec 5.2-5.3 (ECEF
@@ -50,7 +54,8 @@ __all__ = [
 
 # Above this squared rotation angle per step (rad^2; |dtheta| = 0.01 rad, i.e.
 # 1 rad/s at 100 Hz) the closed-form coefficients are evaluated with sin/cos;
-# below it their Taylor series to theta^4 is exact to < 3e-17.
+# below it their Taylor series to theta^4 is used (coefficient error
+# < th2^3 / 5040 = 2e-16, i.e. < 2e-18 rad of rotation per step).
 _SERIES_TH2 = 1e-4
 
 
@@ -121,11 +126,11 @@ _SKEW_SIGN = np.array([-1.0, 1.0, 1.0, -1.0, -1.0, 1.0])
 
 
 def _earth_rate_matrices_np(h):
-    """Earth-rate matrices for interval(s) ``h`` [s] (scalar or (B,)), float64.
+    """Earth-rate matrices for interval(s) ``h`` [s] (scalar or (B,)), float64, shape (..., 3, 3).
 
-    Returns ``C_z(w_ie h)`` and the right-multiplying (transposed) forms of
-    ``P = I - 2 Omega h + 2 Omega^2 h^2``, ``(I - Omega h)(I - 0.5 Omega h)``
-    and ``(I - Omega h) h`` (see :func:`mechanize`); ``Omega = [w_ie x]``.
+    Returns ``C_z(w_ie h)``, ``P = I - 2 Omega h + 2 Omega^2 h^2``,
+    ``(I - Omega h)(I - 0.5 Omega h)`` and ``(I - Omega h) h`` (see
+    :func:`mechanize`), ``Omega = [w_ie x]``, all for left multiplication.
     """
     h = np.asarray(h, dtype=np.float64)[..., None, None]
     Om = np.array([[0.0, -OMEGA_IE, 0.0], [OMEGA_IE, 0.0, 0.0], [0.0, 0.0, 0.0]])
@@ -158,10 +163,11 @@ def _earth_rate_matrices_batched(h):
 def orthonormalize_dcm(C):
     """One first-order orthonormalization step of direction-cosine matrices.
 
-    ``C <- C - 0.5 (C C^T - I) C`` (Groves eq 5.79 in matrix form; Titterton &
-    Weston sec 11.2.2). If ``C C^T = I + E`` with small symmetric ``E``, the
-    result has ``C C^T = I + O(E^2)``; applied every step it keeps a DCM
-    orthonormal to rounding level.
+    ``C <- C - 0.5 (C C^T - I) C`` (the first-order orthonormalization of
+    Groves sec 5.5 / Titterton & Weston sec 11.2, in matrix form). If
+    ``C C^T = I + E`` with small symmetric ``E``, the result has
+    ``C C^T = I + O(E^2)``; applied every step it keeps a DCM orthonormal to
+    rounding level.
 
     Parameters
     ----------
@@ -218,6 +224,17 @@ def mechanize(r_e, v_e, C_eb, f_b, w_b, dt, *, f_prev=None, w_prev=None, orthono
 
     which cancel those third-order terms exactly for linearly varying rates
     (the previous interval is assumed to have the same ``dt``).
+
+    Measured on an analytic land-vehicle trajectory (exact interval-mean
+    samples at 100 Hz, turns up to 19 deg/s, 3 m/s^2, 1-2 deg roll/pitch
+    oscillations): position error 9.6e-4 m after 60 s and 8.6e-2 m after
+    600 s with the single-sample scheme; 1.1e-5 m and 2.8e-4 m with the
+    two-sample corrections.
+
+    The velocity predictor-corrector above is evaluated in the algebraically
+    identical form ``v+ = P v + (I - Omega dt)(I - 0.5 Omega dt) u +
+    (I - Omega dt) g dt`` with ``P = I - 2 Omega dt + 2 Omega^2 dt^2`` and
+    ``u = C_eb dv_bb`` (three constant 3x3 matrices per ``dt``, cached).
 
     Re-orthonormalization: with ``orthonormalize=True`` the call ends with one
     step of :func:`orthonormalize_dcm` (two 3x3 products per row, about a
@@ -340,8 +357,8 @@ def apply_correction(r_e, v_e, C_eb, dx):
 
         C_eb <- exp([dx[:, 0:3] x]) C_eb,   v_e <- v_e + dx[:, 3:6],   r_e <- r_e + dx[:, 6:9]
 
-    (the multiplicative form of Groves eq 14.7 with the sign of this
-    convention). Inverse of :func:`navigation_error`:
+    (the multiplicative closed-loop correction of Groves sec 14.1, with the
+    sign of this convention). Inverse of :func:`navigation_error`:
     ``apply_correction(r, v, C, navigation_error(r_t, v_t, C_t, r, v, C)) == (r_t, v_t, C_t)``.
 
     Parameters

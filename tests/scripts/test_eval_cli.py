@@ -1,0 +1,58 @@
+"""eval.py honours the DESIGN.md section 4 contract: CLI, results.json schema, pairing, clear errors."""
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def run_eval(*args, cwd=ROOT):
+    return subprocess.run([sys.executable, str(ROOT / "eval.py"), *args], cwd=cwd, capture_output=True, text=True,
+                          timeout=600)
+
+
+def test_results_json_schema_and_outputs(tmp_path):
+    out = tmp_path / "r"
+    p = run_eval("--scenario", "seed000-sim", "--methods", "kf,kf+onestep", "--episodes", "3", "--seed", "7",
+                 "--out", str(out))
+    assert p.returncode == 0, p.stderr
+    res = json.loads((out / "results.json").read_text())
+    per = res["scenarios"]["seed000-sim"]
+    assert set(per) == {"kf", "kf+onestep"}
+    for m, r in per.items():
+        assert r["episodes"] == 3
+        for k in ("rmse_h_m", "rmse_3d_m", "max_h_m", "p95_h_m", "filter_time_per_epoch_s"):
+            assert isinstance(r[k], float) and r[k] >= 0
+        lo, hi = r["rmse_h_ci95_m"]
+        assert lo <= r["rmse_h_m"] * 1.0001 and r["rmse_h_m"] <= hi * 1.0001 or lo <= hi
+        assert isinstance(r["diverged"], int)
+        assert r["rmse_h_m"] <= r["rmse_3d_m"] + 1e-12 and r["p95_h_m"] <= r["max_h_m"] + 1e-12
+    for f in ("results.csv", "results.md", "error_vs_time_seed000-sim.png"):
+        assert (out / f).stat().st_size > 0
+    assert "| seed000-sim | kf |" in p.stdout
+
+
+def test_pairing_same_seed_same_result(tmp_path):
+    a = run_eval("--scenario", "seed000-sim", "--methods", "kf", "--episodes", "2", "--seed", "3", "--out",
+                 str(tmp_path / "a"), "--no-plots")
+    b = run_eval("--scenario", "seed000-sim", "--methods", "kf", "--episodes", "2", "--seed", "3", "--out",
+                 str(tmp_path / "b"), "--no-plots", "--batch-size", "1")
+    assert a.returncode == 0 and b.returncode == 0
+    ra = json.loads((tmp_path / "a" / "results.json").read_text())["scenarios"]["seed000-sim"]["kf"]
+    rb = json.loads((tmp_path / "b" / "results.json").read_text())["scenarios"]["seed000-sim"]["kf"]
+    for k in ("rmse_h_m", "max_h_m", "p95_h_m"):
+        assert ra[k] == pytest.approx(rb[k], rel=1e-9)
+
+
+@pytest.mark.parametrize("args, msg", [
+    (("--scenario", "mars"), "unknown scenario"),
+    (("--methods", "kf,ukf"), "unknown filter method"),
+    (("--episodes", "0"), "--episodes"),
+])
+def test_cli_errors_are_one_line_exit_2(tmp_path, args, msg):
+    p = run_eval(*args, "--out", str(tmp_path))
+    assert p.returncode == 2
+    assert msg in p.stderr and "Traceback" not in p.stderr
