@@ -89,7 +89,11 @@ def profile_propagate(B, dtype, n=50):
     t = time.perf_counter()
     for _ in range(n):
         Phi, Q = discretize(F, nav.C, nav.config.noise, 0.01, order=1)
-    out["discretize"] = (time.perf_counter() - t) / n
+    out["discretize (generic, trapezoid Q)"] = (time.perf_counter() - t) / n
+    t = time.perf_counter()
+    for _ in range(n):
+        Phi, Q = nav._transition(f, 0.01)
+    out["navigator fast path: F + Phi + Q"] = (time.perf_counter() - t) / n
     t = time.perf_counter()
     for _ in range(n):
         nav.form.predict(Phi, Q)

@@ -36,15 +36,20 @@ class NavigatorConfig:
 
     Attributes
     ----------
+    noise : continuous-time process-noise densities (SI) the filter assumes (required: a filter with
+        no process noise is never what a user meant).
     method : filter method name of DESIGN.md section 4 (e.g. ``'kf'``, ``'kf+onestep'``).
-    noise : continuous-time process-noise densities (SI) the filter assumes.
     use_pseudorange_rate : fuse pseudorange rates (Doppler) as well as pseudoranges.
-    phi_order : 1 or 2, order of the Taylor series of the transition matrix.
+    phi_order : 1 or 2, order of the Taylor series of the transition matrix. With 1 and isotropic IMU
+        noise densities the navigator takes its fast path: ``Phi = I + F dt`` built in place and the
+        first-order ``Q = G Q_c G^T dt`` (a constant diagonal; Groves eq 3.46 truncated), which differs
+        from the trapezoidal ``Q`` of :func:`~nav_filters.error_model.discretize` by O(F dt) ~ 1e-4
+        relative at 100 Hz.
     dtype : ``'float64'`` (default) or ``'float32'``: the filter's arithmetic.
     """
 
+    noise: ProcessNoise
     method: str = "kf"
-    noise: ProcessNoise = field(default_factory=ProcessNoise)
     use_pseudorange_rate: bool = True
     phi_order: int = 1
     dtype: str = "float64"
@@ -94,7 +99,10 @@ class Navigator:
         self.batch_size = B
         self.diverged = np.zeros(B, bool)
         self.time_since_update = 0.0
-        self._eye = np.broadcast_to(np.eye(N_STATES, dtype=dt_), (B, N_STATES, N_STATES))
+        self._F = np.zeros((B, N_STATES, N_STATES), dt_)
+        self._fast = config.phi_order == 1 and config.noise.isotropic
+        self._q = config.noise.diagonal().astype(dt_)
+        self._Q_cache = {}
         self._reset_accumulator()
 
     # ------------------------------------------------------------------ time
@@ -113,13 +121,11 @@ class Navigator:
         """
         f = np.asarray(f_raw, self.dtype) - self.ba
         w = np.asarray(w_raw, self.dtype) - self.bg
-        F = system_matrix(self.C, f, self.r.astype(self.dtype), self.config.noise.gyro_bias_tau_s,
-                          self.config.noise.accel_bias_tau_s)
-        Phi, Q = discretize(F, self.C, self.config.noise, dt, order=self.config.phi_order)
+        Phi, Q = self._transition(f, dt)
         if self.onestep:
             # seed 001 multiplication method: Phi_(k+n,k) = Phi_n ... Phi_1; Q accumulated alongside.
             if self._Phi_acc is None:
-                self._Phi_acc, self._Q_acc = Phi, Q
+                self._Phi_acc, self._Q_acc = Phi.copy(), np.array(Q)
             else:
                 self._Phi_acc = Phi @ self._Phi_acc
                 self._Q_acc = Phi @ self._Q_acc @ Phi.mT + Q
@@ -130,6 +136,22 @@ class Navigator:
         self.v, self.C = v.astype(self.dtype, copy=False), C.astype(self.dtype, copy=False)
         self.clk = self.clk + self.drift.astype(np.float64) * dt
         self.time_since_update += dt
+
+    def _transition(self, f, dt):
+        """Per-sample ``(Phi, Q)`` of the error model (fast path: see :class:`NavigatorConfig`)."""
+        noise = self.config.noise
+        F = system_matrix(self.C, f, self.r.astype(self.dtype), noise.gyro_bias_tau_s, noise.accel_bias_tau_s,
+                          out=self._F)
+        if not self._fast:
+            return discretize(F, self.C, noise, dt, order=self.config.phi_order)
+        F *= self.dtype.type(dt)
+        idx = np.arange(N_STATES)
+        F[:, idx, idx] += 1
+        Q = self._Q_cache.get(dt)
+        if Q is None:
+            Q = np.broadcast_to(np.diag(self._q * dt).astype(self.dtype), F.shape)
+            self._Q_cache[dt] = Q
+        return F, Q
 
     def flush_prediction(self):
         """Apply the accumulated one-step transition (``+onestep``) to the form; no-op otherwise."""
