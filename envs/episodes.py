@@ -130,9 +130,9 @@ def run_episodes(world: World, method: str = "kf", dtype="float64", progress=Non
     t0 = time.perf_counter()
     k = 0
     for j in range(M):
-        while k < ep[j]:
-            k += 1
-            nav.propagate(f_all[:, k], w_all[:, k], dt)
+        if ep[j] > k:
+            nav.propagate_epoch(f_all[:, k + 1:ep[j] + 1], w_all[:, k + 1:ep[j] + 1], dt)
+            k = ep[j]
         res, g = nav.update_gnss(gnss.sat_pos[:, j], gnss.sat_vel[:, j], gnss.pr[:, j], gnss.prr[:, j],
                                  gnss.pr_sigma[:, j], gnss.prr_sigma[:, j], gnss.mask[:, j])
         err_e[:, j] = nav.r - truth.r_e[:, k]

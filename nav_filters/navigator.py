@@ -2,16 +2,27 @@
 
 One :class:`Navigator` runs B independent navigation solutions in lock step:
 
-* ``propagate(f_raw, w_raw, dt)`` once per IMU sample: bias compensation, the
-  ECEF strapdown mechanization (:mod:`nav_filters.ins`), the 17-state
-  transition and process noise (:mod:`nav_filters.error_model`), and the
-  filter form's time update (every sample, or once per epoch with the
-  ``+onestep`` suffix: the product of the per-sample transitions is
-  accumulated, seed paper 001 eqs 19-20);
+* ``propagate_epoch(f_raw, w_raw, dt)`` (or ``propagate`` for one sample) for
+  the IMU samples between two GNSS epochs: bias compensation, the ECEF
+  strapdown mechanization and the 17-state transition, in one compiled call
+  (:mod:`nav_filters.kernels`, checked against the numpy reference
+  :func:`nav_filters.ins.mechanize` and
+  :func:`nav_filters.error_model.system_matrix`). The per-sample transitions
+  are composed over the epoch and handed to the filter form's ``predict`` once,
+  just before the update: exactly (``Phi_acc = Phi_n...Phi_1``, ``Q_acc``
+  propagated through every ``Phi_i``, identical to predicting at every sample)
+  or, with the ``+onestep`` suffix, as seed paper 001's one-step prediction of
+  P (eqs 19-20: the product of transitions and the summed process noise).
 * ``update_gnss(...)`` once per GNSS epoch: pseudorange / pseudorange-rate
   innovations (:mod:`nav_filters.measurements`), the form's measurement update,
   and closed-loop feedback of the estimated errors into the INS, the IMU bias
   estimates and the receiver clock.
+
+Precision: the navigation state (position, velocity, attitude, biases, clock)
+is float64 always (float32 cannot hold an ECEF position finer than 0.5 m); the
+``dtype`` of the config is the arithmetic of the *filter form* (covariance or
+its factors, gains), which is what the float32 comparisons of seed paper 000
+are about.
 
 Rows whose solution becomes non-finite are flagged in :attr:`Navigator.diverged`
 and frozen (their measurement updates are skipped), so one diverged row never
@@ -19,14 +30,15 @@ poisons the batch.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
-from .error_model import ATT, BA, BG, CLK, DRIFT, N_STATES, POS, VEL, ProcessNoise, discretize, system_matrix
+from .error_model import BA, BG, CLK, DRIFT, N_STATES, POS, ProcessNoise
 from .forms import UpdateResult, make_form, parse_method
 from .forms.base import check_dtype
-from .ins import apply_correction, mechanize
+from .ins import _earth_rate_matrices_np, apply_correction
+from .kernels import F_NONZERO, propagate_epoch
 from .measurements import dop, gnss_innovations
 
 
@@ -40,26 +52,22 @@ class NavigatorConfig:
         no process noise is never what a user meant).
     method : filter method name of DESIGN.md section 4 (e.g. ``'kf'``, ``'kf+onestep'``).
     use_pseudorange_rate : fuse pseudorange rates (Doppler) as well as pseudoranges.
-    phi_order : 1 or 2, order of the Taylor series of the transition matrix. With 1 and isotropic IMU
-        noise densities the navigator takes its fast path: ``Phi = I + F dt`` built in place and the
-        first-order ``Q = G Q_c G^T dt`` (a constant diagonal; Groves eq 3.46 truncated), which differs
-        from the trapezoidal ``Q`` of :func:`~nav_filters.error_model.discretize` by O(F dt) ~ 1e-4
-        relative at 100 Hz.
-    dtype : ``'float64'`` (default) or ``'float32'``: the filter's arithmetic.
+    dtype : ``'float64'`` (default) or ``'float32'``: the filter form's arithmetic.
+
+    The transition of one IMU sample is ``Phi = I + F dt`` with the first-order process noise
+    ``Q = G Q_c G^T dt`` (Groves eq 3.46 truncated; the trapezoidal form differs by O(F dt) ~ 1e-4
+    relative at 100 Hz).
     """
 
     noise: ProcessNoise
     method: str = "kf"
     use_pseudorange_rate: bool = True
-    phi_order: int = 1
     dtype: str = "float64"
 
     def __post_init__(self):
         parse_method(self.method)
         if not isinstance(self.noise, ProcessNoise):
             raise ValueError(f"noise must be a ProcessNoise, got {type(self.noise).__name__}")
-        if self.phi_order not in (1, 2):
-            raise ValueError(f"phi_order must be 1 or 2, got {self.phi_order!r}")
         check_dtype(self.dtype)
 
 
@@ -81,82 +89,79 @@ class Navigator:
         self.config = config
         self.dtype = check_dtype(config.dtype)
         _, self.onestep = parse_method(config.method)
-        dt_ = self.dtype
-        self.r = np.array(r_e, dtype=np.float64)  # positions stay float64: 6e6 m in float32 loses 0.5 m
-        B = self.r.shape[0]
+        f8 = np.float64
+        self.r = np.array(r_e, dtype=f8)
+        B = self.r.shape[0] if self.r.ndim == 2 else -1
         if self.r.shape != (B, 3):
             raise ValueError(f"r_e must have shape (B, 3), got {self.r.shape}")
-        self.v = np.array(v_e, dtype=dt_).reshape(B, 3)
-        self.C = np.array(C_eb, dtype=dt_).reshape(B, 3, 3)
-        self.clk = np.array(clock_bias_m, dtype=np.float64).reshape(B)
-        self.drift = np.array(clock_drift_mps, dtype=dt_).reshape(B)
-        self.bg = np.zeros((B, 3), dt_) if gyro_bias is None else np.array(gyro_bias, dt_).reshape(B, 3)
-        self.ba = np.zeros((B, 3), dt_) if accel_bias is None else np.array(accel_bias, dt_).reshape(B, 3)
+        self.v = np.array(v_e, dtype=f8).reshape(B, 3)
+        self.C = np.array(C_eb, dtype=f8).reshape(B, 3, 3)
+        self.clk = np.array(clock_bias_m, dtype=f8).reshape(B)
+        self.drift = np.array(clock_drift_mps, dtype=f8).reshape(B)
+        self.bg = np.zeros((B, 3)) if gyro_bias is None else np.array(gyro_bias, f8).reshape(B, 3)
+        self.ba = np.zeros((B, 3)) if accel_bias is None else np.array(accel_bias, f8).reshape(B, 3)
         P0 = np.asarray(P0)
         if P0.shape != (B, N_STATES, N_STATES):
             raise ValueError(f"P0 must have shape ({B}, {N_STATES}, {N_STATES}), got {P0.shape}")
-        self.form = make_form(config.method, P0, dtype=dt_)
+        self.form = make_form(config.method, P0, dtype=self.dtype)
         self.batch_size = B
         self.diverged = np.zeros(B, bool)
         self.time_since_update = 0.0
-        self._F = np.zeros((B, N_STATES, N_STATES), dt_)
-        self._fast = config.phi_order == 1 and config.noise.isotropic
-        self._q = config.noise.diagonal().astype(dt_)
-        self._Q_cache = {}
+        noise = config.noise
+        q = noise.diagonal()
+        self._qg = np.ascontiguousarray(q[0:3])
+        self._qa = np.ascontiguousarray(q[3:6])
+        self._qdiag = np.ascontiguousarray(q)
+        self._kg = 0.0 if noise.gyro_bias_tau_s is None else -1.0 / noise.gyro_bias_tau_s
+        self._ka = 0.0 if noise.accel_bias_tau_s is None else -1.0 / noise.accel_bias_tau_s
+        self._earth = {}
+        self._Phi_acc = np.zeros((B, N_STATES, N_STATES))
+        self._Q_acc = np.zeros((B, N_STATES, N_STATES))
         self._reset_accumulator()
 
     # ------------------------------------------------------------------ time
     def _reset_accumulator(self):
-        self._Phi_acc = None
-        self._Q_acc = None
+        self._Phi_acc.fill(0.0)
+        idx = np.arange(N_STATES)
+        self._Phi_acc[:, idx, idx] = 1.0
+        self._Q_acc.fill(0.0)
+        self._pending = 0
 
-    def propagate(self, f_raw, w_raw, dt: float):
-        """Advance all rows by one IMU sample.
+    def propagate_epoch(self, f_raw, w_raw, dt: float):
+        """Advance all rows by n IMU samples.
 
         Parameters
         ----------
-        f_raw, w_raw : (B, 3) measured mean specific force [m/s^2] and angular rate [rad/s]
-            over the sample interval.
-        dt : sample interval [s].
+        f_raw, w_raw : (B, n, 3) measured mean specific force [m/s^2] and angular rate [rad/s] over
+            each sample interval (raw: the navigator subtracts its bias estimates).
+        dt : sample interval [s] (> 0).
         """
-        f = np.asarray(f_raw, self.dtype) - self.ba
-        w = np.asarray(w_raw, self.dtype) - self.bg
-        Phi, Q = self._transition(f, dt)
-        if self.onestep:
-            # seed 001 multiplication method: Phi_(k+n,k) = Phi_n ... Phi_1; Q accumulated alongside.
-            if self._Phi_acc is None:
-                self._Phi_acc, self._Q_acc = Phi.copy(), np.array(Q)
-            else:
-                self._Phi_acc = Phi @ self._Phi_acc
-                self._Q_acc = Phi @ self._Q_acc @ Phi.mT + Q
-        else:
-            self.form.predict(Phi, Q)
-        r, v, C = mechanize(self.r, self.v, self.C, f, w, dt)
-        self.r = np.asarray(r, np.float64)
-        self.v, self.C = v.astype(self.dtype, copy=False), C.astype(self.dtype, copy=False)
-        self.clk = self.clk + self.drift.astype(np.float64) * dt
-        self.time_since_update += dt
+        f = np.ascontiguousarray(f_raw, dtype=np.float64)
+        w = np.ascontiguousarray(w_raw, dtype=np.float64)
+        B = self.batch_size
+        if f.ndim != 3 or f.shape[0] != B or f.shape[2] != 3 or w.shape != f.shape:
+            raise ValueError(f"f_raw and w_raw must both have shape ({B}, n, 3), got {f.shape} and {w.shape}")
+        dt = float(dt)
+        if not (dt > 0 and np.isfinite(dt)):
+            raise ValueError(f"dt must be a positive finite number of seconds, got {dt!r}")
+        mats = self._earth.get(dt)
+        if mats is None:
+            Cz, Pm, QH, Qh = _earth_rate_matrices_np(dt)
+            mats = self._earth[dt] = tuple(np.ascontiguousarray(m) for m in (Pm, QH, Qh, Cz))
+        propagate_epoch(self.r, self.v, self.C, self.bg, self.ba, self.clk, self.drift, f, w, dt, *mats,
+                        self._qg, self._qa, self._qdiag, self._kg, self._ka, self._Phi_acc, self._Q_acc,
+                        not self.onestep, False, F_NONZERO)
+        self._pending += f.shape[1]
+        self.time_since_update += dt * f.shape[1]
 
-    def _transition(self, f, dt):
-        """Per-sample ``(Phi, Q)`` of the error model (fast path: see :class:`NavigatorConfig`)."""
-        noise = self.config.noise
-        F = system_matrix(self.C, f, self.r.astype(self.dtype), noise.gyro_bias_tau_s, noise.accel_bias_tau_s,
-                          out=self._F)
-        if not self._fast:
-            return discretize(F, self.C, noise, dt, order=self.config.phi_order)
-        F *= self.dtype.type(dt)
-        idx = np.arange(N_STATES)
-        F[:, idx, idx] += 1
-        Q = self._Q_cache.get(dt)
-        if Q is None:
-            Q = np.broadcast_to(np.diag(self._q * dt).astype(self.dtype), F.shape)
-            self._Q_cache[dt] = Q
-        return F, Q
+    def propagate(self, f_raw, w_raw, dt: float):
+        """Advance all rows by one IMU sample: ``f_raw``, ``w_raw`` of shape (B, 3)."""
+        self.propagate_epoch(np.asarray(f_raw)[:, None, :], np.asarray(w_raw)[:, None, :], dt)
 
     def flush_prediction(self):
-        """Apply the accumulated one-step transition (``+onestep``) to the form; no-op otherwise."""
-        if self.onestep and self._Phi_acc is not None:
-            self.form.predict(self._Phi_acc, self._Q_acc)
+        """Hand the accumulated transition of the pending samples to the form's ``predict``."""
+        if self._pending:
+            self.form.predict(self._Phi_acc.astype(self.dtype), self._Q_acc.astype(self.dtype))
             self._reset_accumulator()
 
     # ----------------------------------------------------------- measurement
@@ -218,10 +223,9 @@ class Navigator:
 
     def _feedback(self, dx):
         """Closed-loop correction: add the error-state estimate to the nominal state (B, 17)."""
-        dx = np.where(self.diverged[:, None], 0, dx)
-        r, v, C = apply_correction(self.r, self.v, self.C, dx)
-        self.r = np.asarray(r, np.float64)
-        self.v, self.C = v.astype(self.dtype, copy=False), C.astype(self.dtype, copy=False)
+        dx = np.where(self.diverged[:, None], 0, np.asarray(dx, np.float64))
+        r, v, C = apply_correction(self.r, self.v, self.C, np.asarray(dx, np.float64))
+        self.r, self.v, self.C = (np.ascontiguousarray(a, np.float64) for a in (r, v, C))
         self.bg = self.bg + dx[:, BG]
         self.ba = self.ba + dx[:, BA]
         self.clk = self.clk + dx[:, CLK.start].astype(np.float64)

@@ -1,0 +1,1 @@
+"""Recorded GNSS data replayed through the same navigator (DESIGN.md section 6)."""

@@ -1,0 +1,280 @@
+"""Adaptive laws as filter forms that *compose* an inner filter form.
+
+An adaptive law (Sage-Husa, strong tracking, MA-STKF) is itself a
+:class:`~nav_filters.forms.base.FilterForm` that wraps an *inner* form (``kf``,
+and later ``svd-kf``, ``svd-srkf``, ``if``, ...) and talks to it only through
+the public interface: ``predict``, ``update``, ``covariance`` and
+``take_correction``. The same law therefore adapts every form (``svd-akf`` is
+Sage-Husa around ``svd-kf``), and no filter recursion is copied.
+
+Deferred prediction
+-------------------
+The laws need the measurement of an epoch *before* the epoch's time update is
+applied (the strong-tracking fading factor scales ``Phi P Phi^T`` by a factor
+computed from the innovations; the Sage-Husa law replaces the epoch's process
+noise by its adapted estimate). So :meth:`AdaptiveLaw.predict` does not touch
+the inner form; it composes the transitions of the epoch exactly::
+
+    Phi_acc <- Phi Phi_acc,     Q_acc <- Phi Q_acc Phi^T + Q,
+
+(the composition of the per-call predictions, so with neutral adaptation the
+wrapper reproduces the inner form to rounding) and propagates the wrapper's own
+error state ``x <- Phi x`` at once. At the next :meth:`update` the law chooses
+the epoch's fading factor ``lambda`` and process noise ``Q_k`` and hands the
+inner form one prediction::
+
+    inner.predict(sqrt(lambda) Phi_acc, Q_k)   # P <- lambda Phi P Phi^T + Q_k
+
+which any form can apply through its own ``predict``.
+
+Error state
+-----------
+The wrapper owns the error-state estimate ``x``; the inner form's ``x`` is kept
+at zero (the innovation handed to it is ``dz - H x`` and its correction
+``K (dz - H x)`` is taken back with ``take_correction`` after each update), so
+scaling ``Phi`` by ``sqrt(lambda)`` never scales the state, and the change of
+the inner state across an update is exactly the correction ``K dz`` that the
+Sage-Husa estimator needs (seed 000 eq 18).
+
+Per-row parameters
+------------------
+Each law declares its adaptive parameters (:class:`~.params.ParamSpec`); their
+values are (B,) arrays, one per batch row, initialized from the law's config
+and settable between steps with :meth:`AdaptiveLaw.set_params` (a scalar or a
+(B,) array; validated). :meth:`AdaptiveLaw.params` returns them and
+:meth:`AdaptiveLaw.adaptive_state` the current adaptive quantities (fading
+factor, weights, noise scales) as (B,) arrays for observations.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..forms.base import FilterForm, UpdateResult, symmetrize
+from .params import ParamSpec
+
+
+def resolve_inner(inner):
+    """The inner-form factory: a callable ``(P0, x0=None, dtype=None) -> FilterForm``, or a method name.
+
+    A name is looked up in :data:`nav_filters.forms.FORMS` (at construction time, so the registry may
+    itself register adaptive laws); an unknown name raises ``ValueError`` naming ``inner``.
+    """
+    if isinstance(inner, str):
+        from ..forms import FORMS  # late: forms/__init__ may import this package
+
+        if inner not in FORMS:
+            raise ValueError(f"inner must be a registered filter form, got {inner!r}; known: {sorted(FORMS)}")
+        return FORMS[inner]
+    if not callable(inner):
+        raise ValueError(f"inner must be a form name or a callable (P0, x0=None, dtype=None) -> FilterForm, "
+                         f"got {inner!r}")
+    return inner
+
+
+@dataclass
+class EpochContext:
+    """What the pending time update of an epoch is, before it is applied to the inner form.
+
+    Attributes
+    ----------
+    pending : whether a transition was accumulated since the last update (else Phi = I, Q = 0).
+    Phi : (B, n, n) accumulated transition, or None.
+    Q : (B, n, n) process noise the law will apply this epoch (nominal or adapted), or None.
+    prior : (B, n, n) ``Phi P_(k-1) Phi^T`` with ``P_(k-1)`` the inner covariance after the last update.
+    applied : whether the prediction has been handed to the inner form (an update that raised is
+        retried without applying it twice).
+    """
+
+    pending: bool
+    Phi: np.ndarray | None
+    Q: np.ndarray | None
+    prior: np.ndarray
+    applied: bool = False
+
+
+@dataclass
+class UpdatePlan:
+    """A law's decisions for one update (before the inner form is called).
+
+    Attributes
+    ----------
+    fade : (B,) fading factor ``lambda >= 1`` applied to ``Phi P Phi^T`` (1 where not fading).
+    R : (B, m, m) measurement covariance handed to the inner update.
+    mask : (B, m) rows handed to the inner update (a law may drop a row's whole epoch).
+    pending : law-specific values to commit once the inner update succeeded.
+    """
+
+    fade: np.ndarray
+    R: np.ndarray
+    mask: np.ndarray
+    pending: dict = field(default_factory=dict)
+
+
+class AdaptiveLaw(FilterForm):
+    """Base of the adaptive laws: a :class:`FilterForm` around an inner form (see the module docstring).
+
+    Parameters
+    ----------
+    P0 : (B, n, n) initial covariance.
+    x0 : (B, n) initial error state (default zeros).
+    dtype : float32 or float64 (default: P0's).
+    inner : the inner form: a method name of :data:`nav_filters.forms.FORMS` (default ``'kf'``) or a
+        callable ``(P0, x0=None, dtype=None) -> FilterForm``.
+    config : the law's frozen configuration dataclass (default: its defaults).
+
+    Subclasses set :attr:`PARAMS` (the per-row parameters, initialized from the config fields of the
+    same names), :attr:`config_class`, and implement :meth:`_plan` / :meth:`_commit` (and optionally
+    :meth:`_epoch_q`, :meth:`_init_state`, :meth:`_state`).
+    """
+
+    name = "adaptive"
+    PARAMS: tuple[ParamSpec, ...] = ()
+    config_class: type = type(None)
+
+    def __init__(self, P0, x0=None, dtype=None, *, inner="kf", config=None):
+        if config is None:
+            config = self.config_class()
+        if not isinstance(config, self.config_class):
+            raise ValueError(f"config must be a {self.config_class.__name__}, got {type(config).__name__}")
+        self.config = config
+        self._inner_factory = resolve_inner(inner)
+        super().__init__(P0, x0=x0, dtype=dtype)
+        B = self.batch_size
+        self._params = {p.name: p.check(getattr(config, p.name), B) for p in self.PARAMS}
+        self._Phi_acc = None
+        self._Q_acc = None
+        self._ctx: EpochContext | None = None
+        self._init_state()
+
+    # ----------------------------------------------------------- inner form
+    def _init_uncertainty(self, P0):
+        self.inner = self._inner_factory(P0, dtype=self.dtype)
+        if not isinstance(self.inner, FilterForm):
+            raise ValueError(f"inner must build a FilterForm, got {type(self.inner).__name__}")
+        if self.inner.batch_size != P0.shape[0] or self.inner.n != P0.shape[1]:
+            raise ValueError("inner form does not match P0's shape")
+
+    @property
+    def covariance(self) -> np.ndarray:
+        """(B, n, n) current covariance: the inner form's, with a pending (unfaded) time update applied."""
+        P = self.inner.covariance
+        if self._Phi_acc is None:
+            return P
+        Phi = self._Phi_acc
+        return symmetrize(Phi @ P @ Phi.mT + self._epoch_q(self._Q_acc))
+
+    # ------------------------------------------------------------ time update
+    def predict(self, Phi, Q):
+        """Accumulate a time update (applied to the inner form at the next :meth:`update`).
+
+        ``x <- Phi x`` at once; ``Phi_acc <- Phi Phi_acc``, ``Q_acc <- Phi Q_acc Phi^T + Q`` (exact
+        composition of successive predictions; seed 000 eqs 5-6 applied per call).
+
+        Parameters
+        ----------
+        Phi : (B, n, n) transition; Q : (B, n, n) process noise (anything broadcastable to it).
+        """
+        B, n = self.batch_size, self.n
+        Phi = np.asarray(Phi, self.dtype)
+        if Phi.shape != (B, n, n):
+            raise ValueError(f"Phi must have shape ({B}, {n}, {n}), got {Phi.shape}")
+        Q = np.asarray(Q, self.dtype)
+        try:
+            Q = np.broadcast_to(Q, (B, n, n))
+        except ValueError:
+            raise ValueError(f"Q must broadcast to ({B}, {n}, {n}), got {Q.shape}") from None
+        self._ctx = None
+        self.x = (Phi @ self.x[..., None])[..., 0]
+        if self._Phi_acc is None:
+            self._Phi_acc = Phi.copy()
+            self._Q_acc = np.array(Q)
+        else:
+            self._Phi_acc = Phi @ self._Phi_acc
+            self._Q_acc = Phi @ self._Q_acc @ Phi.mT + Q
+
+    def _open_epoch(self) -> EpochContext:
+        """Consume the accumulated transition into an :class:`EpochContext` (nothing applied yet)."""
+        P = self.inner.covariance
+        if self._Phi_acc is None:
+            return EpochContext(pending=False, Phi=None, Q=None, prior=P)
+        Phi, Q_acc = self._Phi_acc, self._Q_acc
+        self._Phi_acc = self._Q_acc = None
+        return EpochContext(pending=True, Phi=Phi, Q=self._epoch_q(Q_acc), prior=symmetrize(Phi @ P @ Phi.mT))
+
+    def _apply_prediction(self, ctx: EpochContext, fade):
+        """``inner.predict(sqrt(fade) Phi, Q)``: ``P <- fade Phi P Phi^T + Q`` (seed 003 eq 23)."""
+        if ctx.pending and not ctx.applied:
+            s = np.sqrt(np.asarray(fade, np.float64)).astype(self.dtype)
+            self.inner.predict(s[:, None, None] * ctx.Phi, ctx.Q)
+        ctx.applied = True
+
+    # ------------------------------------------------------ measurement update
+    def _update(self, dz, H, R, mask) -> UpdateResult:
+        r = dz - (H @ self.x[..., None])[..., 0]
+        if self._ctx is None:
+            self._ctx = self._open_epoch()
+        ctx = self._ctx
+        plan = self._plan(r, H, R, mask, ctx)
+        self._apply_prediction(ctx, plan.fade)
+        res = self.inner.update(r, H, plan.R, plan.mask)
+        dx = self.inner.take_correction()
+        self.x = self.x + dx
+        self._ctx = None
+        self._commit(plan, ctx, r, H, mask, dx)
+        return res
+
+    # --------------------------------------------------------------- params
+    def params(self) -> dict:
+        """The per-row adaptive parameters: ``{name: (B,) float64 array}`` (copies)."""
+        return {k: v.copy() for k, v in self._params.items()}
+
+    def set_params(self, **values):
+        """Set adaptive parameters between steps, per batch row.
+
+        Parameters
+        ----------
+        **values : ``name=value`` with a scalar (all rows) or a (B,) array; names from :attr:`PARAMS`.
+
+        Raises
+        ------
+        ValueError
+            unknown name, wrong shape, NaN or out-of-range value (names the parameter). Nothing is
+            changed if any value is invalid.
+        """
+        specs = {p.name: p for p in self.PARAMS}
+        checked = {}
+        for k, v in values.items():
+            if k not in specs:
+                raise ValueError(f"unknown adaptive parameter {k!r} for {type(self).__name__}; known: {sorted(specs)}")
+            checked[k] = specs[k].check(v, self.batch_size)
+        for k, v in checked.items():
+            changed = v != self._params[k]
+            self._params[k] = v
+            self._on_param_change(k, changed)
+
+    def adaptive_state(self) -> dict:
+        """Current adaptive quantities for observations: ``{name: (B,) float64 array}`` (copies)."""
+        return {k: np.array(v, np.float64) for k, v in self._state().items()}
+
+    # -------------------------------------------------------------- hooks
+    def _init_state(self):
+        """Allocate the law's per-row state."""
+
+    def _epoch_q(self, Q_acc) -> np.ndarray:
+        """Process noise to apply this epoch given the accumulated nominal one (default: nominal). No side effects."""
+        return Q_acc
+
+    def _plan(self, r, H, R, mask, ctx: EpochContext) -> UpdatePlan:
+        """Decide fading, measurement covariance and rows for this update (no state change)."""
+        return UpdatePlan(fade=np.ones(self.batch_size), R=R, mask=mask)
+
+    def _commit(self, plan: UpdatePlan, ctx: EpochContext, r, H, mask, dx):
+        """Commit the law's state after a successful inner update (``dx`` the correction ``K dz``)."""
+
+    def _on_param_change(self, name: str, changed_rows: np.ndarray):
+        """Called after ``set_params`` changed ``name`` on ``changed_rows`` (B,) bool."""
+
+    def _state(self) -> dict:
+        return {}

@@ -1,0 +1,304 @@
+"""Sage-Husa adaptive noise estimation around any filter form (``sage-husa``, ``svd-akf``, ``svd-asrkf``).
+
+The covariance-matching estimator of seed paper 000 (section 4.1, eqs 18-24,
+after Mohamed & Schwarz): at each measurement epoch ``k`` with a transition
+since the previous one,
+
+* process noise (eq 18, with the minus sign of eq 20)::
+
+      Q_hat_k = K dz dz^T K^T + P_k|k - Phi P_(k-1)|(k-1) Phi^T
+      Q_k     = (1 - d) Q_(k-1) + d Q_hat_k          (full, eq 22: ``svd-akf``)
+      Q_k     = (1 - d) Q_(k-1) + d diag(Q_hat_k)    (diagonal only, eq 21: ``svd-asrkf``)
+
+  ``K dz`` is the state correction of the update (the change of the error
+  state across it). ``E[Q_hat_k]`` equals the process noise actually applied,
+  so a right Q stays right in the mean.
+* measurement noise (the classic Sage-Husa R law,
+  ``R_k = (1 - d) R_(k-1) + d (dz dz^T - H P_k|k-1 H^T)``) as a variance *scale*
+  per measurement group (see below), adapted before the gain of the epoch is
+  computed (the classic order).
+
+Choices (the paper is silent or the navigator needs them)
+----------------------------------------------------------
+* **Epoch-level Q.** ``Q`` is adapted at measurement epochs, so it is the
+  process noise of a whole epoch (the composed ``Q_acc`` of the IMU samples
+  between two updates; see :mod:`nav_filters.adaptive.base`). Until a row's
+  first adaptation the nominal ``Q_acc`` is applied; from then on the adapted
+  epoch-level ``Q_k`` replaces it (this assumes a regular epoch interval, as
+  every scenario has). Updates with no transition since the previous one (a
+  second measurement in the same epoch) adapt R only.
+* **Weights.** ``d = (1 - b) / (1 - b^(j+1))`` at the j-th adaptation of a row
+  (j = 1, 2, ...): the nominal Q and R count as the first sample (the paper's
+  ``d_k = (1 - b)/(1 - b^k)`` with its k = j + 1), so the first estimate is
+  averaged with the nominal model (``d = 1/(1+b)``) instead of replacing it.
+  ``b = 1`` gives the running mean ``d = 1/(j+1)``; ``d -> 1 - b`` (eq 23).
+  The same ``d`` serves Q and R.
+* **Freezing (section 4.1).** Once ``|d_j - d_(j-1)| < d_freeze_tol``
+  (5e-4) ``d`` stays at its current value; a change of ``b`` unfreezes it.
+* **Lowering b (eq 24).** ``e_k = sum_ij Q_hat_k,ij^2``; when
+  ``e_k > jump_ratio * e_(k-1)`` (3, the paper's threshold) the row's
+  forgetting factor is lowered from the next epoch on:
+  ``1 - b <- b_jump_factor (1 - b)`` (doubled), never below ``b_min`` (0.9)
+  and never raised. The lowered value is what :meth:`SageHusa.params`
+  reports; an agent's ``set_params(b=...)`` overrides it.
+* **R groups.** The navigator's channels carry different satellites from one
+  epoch to the next, so a full ``R`` matrix cannot be tracked row by row. The
+  law adapts one variance scale per group (pseudoranges, pseudorange rates,
+  other rows; :func:`~.innovation.measurement_groups` infers them from the
+  ``CLK`` / ``DRIFT`` columns of H, or ``config.groups`` supplies them)
+  applied to the variances the receiver reports:
+  ``s_g <- (1 - d) s_g + d sum_g(dz_i^2 - (H P- H^T)_ii) / sum_g R_ii``.
+* **Positive definiteness.** R: the scale is clipped to
+  ``[r_scale_min, r_scale_max]``. Q: after each correction, the eigenvalues
+  of ``W Q W`` (``W = diag(Q_ref)^(-1/2)``, ``Q_ref`` the nominal epoch Q at the
+  row's first adaptation) are clipped to ``[q_floor, q_ceiling]``: Q stays
+  symmetric positive definite and within a bounded ratio of the nominal
+  model, in float32 as in float64 (also in the diagonal mode, whose eq 21 alone
+  does not guarantee it when ``diag(Q_hat)`` is negative).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Optional
+
+import numpy as np
+
+from ..forms.base import symmetrize
+from .base import AdaptiveLaw, EpochContext, UpdatePlan
+from .innovation import GROUP_NAMES, measurement_groups, quadratic_diag
+from .params import ParamSpec, check_option
+
+B_SPEC = ParamSpec("b", 0.0, 1.0, low_closed=False, high_closed=True, doc="Sage-Husa forgetting factor")
+
+
+@dataclass(frozen=True)
+class SageHusaConfig:
+    """Configuration of :class:`SageHusa`.
+
+    Attributes
+    ----------
+    b : initial forgetting factor in (0, 1] (per-row settable afterwards; paper: 0.95-0.99).
+    adapt_q, adapt_r : adapt the process noise / the measurement-noise scales.
+    diagonal_q : correct only with ``diag(Q_hat)`` (seed 000 eq 21, ``svd-asrkf``) instead of the full
+        ``Q_hat`` (eq 22, ``svd-akf``).
+    d_freeze_tol : freeze ``d`` once it changes by less than this (seed 000 sec 4.1: 5e-4; 0 never freezes).
+    jump_ratio : eq 24 threshold ``e_k > jump_ratio e_(k-1)`` for lowering b (3; ``inf`` disables).
+    b_jump_factor : on a jump, ``1 - b`` is multiplied by this (>= 1).
+    b_min : floor of the lowered forgetting factor, in (0, 1].
+    q_floor, q_ceiling : bounds of the eigenvalues of ``W Q W`` (Q relative to the nominal epoch Q).
+    r_scale_min, r_scale_max : bounds of the measurement-noise scales.
+    warmup_epochs : measurement epochs of a row before it starts adapting (the first innovations of a
+        filter started with a large P0 say nothing about Q or R; 0 adapts from the first epoch).
+    groups : optional callable ``(H, mask) -> (B, m) int`` ids in ``[0, 3)`` (-1 masked) replacing
+        :func:`~.innovation.measurement_groups`.
+    """
+
+    b: float = 0.98
+    adapt_q: bool = True
+    adapt_r: bool = True
+    diagonal_q: bool = False
+    d_freeze_tol: float = 5e-4
+    jump_ratio: float = 3.0
+    b_jump_factor: float = 2.0
+    b_min: float = 0.9
+    q_floor: float = 1e-3
+    q_ceiling: float = 1e4
+    r_scale_min: float = 1e-2
+    r_scale_max: float = 1e4
+    warmup_epochs: int = 10
+    groups: Optional[Callable] = None
+
+    def __post_init__(self):
+        o = type(self).__name__
+        B_SPEC.check(self.b, owner=o)
+        for name in ("adapt_q", "adapt_r", "diagonal_q"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise ValueError(f"{o}.{name} must be a bool, got {getattr(self, name)!r}")
+        check_option(o, "d_freeze_tol", self.d_freeze_tol, low=0.0)
+        check_option(o, "jump_ratio", self.jump_ratio, low=1.0, allow_inf=True)
+        check_option(o, "b_jump_factor", self.b_jump_factor, low=1.0)
+        check_option(o, "b_min", self.b_min, low=0.0, high=1.0, low_closed=False)
+        check_option(o, "q_floor", self.q_floor, low=0.0, low_closed=False)
+        check_option(o, "q_ceiling", self.q_ceiling, low=self.q_floor, low_closed=False)
+        check_option(o, "r_scale_min", self.r_scale_min, low=0.0, low_closed=False)
+        check_option(o, "r_scale_max", self.r_scale_max, low=self.r_scale_min)
+        w = self.warmup_epochs
+        if isinstance(w, bool) or not isinstance(w, (int, np.integer)) or w < 0:
+            raise ValueError(f"{o}.warmup_epochs must be an int >= 0, got {w!r}")
+        if self.groups is not None and not callable(self.groups):
+            raise ValueError(f"{o}.groups must be None or a callable (H, mask) -> (B, m) ids, got {self.groups!r}")
+
+
+def sage_husa_weight(b, j):
+    """Sage-Husa weight ``d = (1 - b) / (1 - b^(j+1))`` of the j-th adaptation (seed 000 eqs 21-23).
+
+    Parameters
+    ----------
+    b : (B,) forgetting factors in (0, 1]; j : (B,) adaptation counts (>= 1).
+
+    Returns
+    -------
+    (B,) float64 weights in (0, 1]; ``1/(j+1)`` where ``b == 1`` (the limit); ``-> 1 - b`` as j grows.
+    """
+    b = np.asarray(b, np.float64)
+    j = np.asarray(j, np.float64)
+    one = b >= 1.0
+    bb = np.where(one, 0.5, b)
+    d = (1.0 - bb) / (1.0 - bb ** (j + 1.0))
+    return np.where(one, 1.0 / (j + 1.0), d)
+
+
+def clip_relative_eigenvalues(Q, ref_diag, floor, ceiling):
+    """Project a symmetric Q onto ``floor <= eig(W Q W) <= ceiling``, ``W = diag(ref_diag)^(-1/2)``.
+
+    Parameters
+    ----------
+    Q : (B, n, n) symmetric; ref_diag : (B, n) positive reference variances; floor, ceiling : floats.
+
+    Returns
+    -------
+    (B, n, n) symmetric positive definite matrix (``Q`` itself where no eigenvalue is clipped, to rounding).
+    """
+    w = 1.0 / np.sqrt(ref_diag)
+    Qw = symmetrize(Q * w[:, :, None] * w[:, None, :])
+    vals, vecs = np.linalg.eigh(Qw)
+    vals = np.clip(vals, floor, ceiling)
+    Qw = (vecs * vals[:, None, :]) @ vecs.mT
+    return symmetrize(Qw / w[:, :, None] / w[:, None, :])
+
+
+class SageHusa(AdaptiveLaw):
+    """Sage-Husa adaptive Q and R estimation around an inner form (see the module docstring).
+
+    Parameters
+    ----------
+    P0, x0, dtype, inner : see :class:`~nav_filters.adaptive.base.AdaptiveLaw`.
+    config : :class:`SageHusaConfig`.
+
+    Per-row parameters: ``b`` (forgetting factor, (0, 1]).
+    Adaptive state (:meth:`adaptive_state`): ``d`` (current weight), ``b_effective`` (after the eq 24
+    lowering, same as ``params()['b']``), ``d_frozen`` (0/1), ``q_scale`` (``tr(W Q W)/n``: the
+    adapted epoch Q relative to the nominal, 1 before adapting), ``r_scale_pseudorange``,
+    ``r_scale_rate``, ``r_scale_other``, ``steps`` (adaptations so far).
+    """
+
+    name = "sage-husa"
+    PARAMS = (B_SPEC,)
+    config_class = SageHusaConfig
+
+    def _init_state(self):
+        B, n = self.batch_size, self.n
+        self._seen = np.zeros(B, np.int64)
+        self._step = np.zeros(B, np.int64)
+        self._d = np.ones(B)
+        self._frozen = np.zeros(B, bool)
+        self._e_prev = np.zeros(B)
+        self._b_used = self._params["b"].copy()
+        self._r_scale = np.ones((B, len(GROUP_NAMES)))
+        self._q_init = np.zeros(B, bool)
+        self._Q = np.zeros((B, n, n), self.dtype)
+        self._q_ref = np.ones((B, n))
+
+    def _epoch_q(self, Q_acc):
+        if not self.config.adapt_q or not self._q_init.any():
+            return Q_acc
+        return np.where(self._q_init[:, None, None], self._Q, Q_acc)
+
+    def _weights(self, active):
+        """This step's ``d`` per row and the new freeze flags (seed 000 eqs 21-23, sec 4.1)."""
+        j = self._step + 1
+        d_new = sage_husa_weight(self._params["b"], j)
+        d = np.where(self._frozen, self._d, d_new)
+        freeze = self._frozen | ((j >= 2) & (np.abs(d_new - self._d) < self.config.d_freeze_tol))
+        return np.where(active, d, self._d), np.where(active, freeze, self._frozen)
+
+    def _plan(self, r, H, R, mask, ctx: EpochContext) -> UpdatePlan:
+        has = mask.any(-1)
+        active = has & (self._seen >= self.config.warmup_epochs)
+        d, freeze = self._weights(active)
+        pending = {"d": d, "freeze": freeze, "has": has, "active": active}
+        if not self.config.adapt_r or not active.any():
+            return UpdatePlan(fade=np.ones(self.batch_size), R=R, mask=mask, pending=pending)
+        groups = (self.config.groups or measurement_groups)(H, mask)
+        groups = np.where(mask, np.asarray(groups), -1)
+        G = len(GROUP_NAMES)
+        onehot = (groups[..., None] == np.arange(G)).astype(np.float64)  # (B, m, G)
+        P_minus = ctx.prior + ctx.Q if ctx.pending else ctx.prior
+        # classic Sage-Husa R law as a per-group variance scale: E[dz_i^2] = (H P- H^T)_ii + s R_ii
+        excess = r.astype(np.float64) ** 2 - quadratic_diag(H, P_minus).astype(np.float64)
+        Rdiag = np.diagonal(R, axis1=1, axis2=2).astype(np.float64)
+        num = np.einsum("bm,bmg->bg", excess, onehot)
+        den = np.einsum("bm,bmg->bg", Rdiag, onehot)
+        used = onehot.sum(1) > 0
+        s_hat = num / np.where(used, den, 1.0)
+        s_new = (1.0 - d[:, None]) * self._r_scale + d[:, None] * s_hat
+        s_new = np.clip(s_new, self.config.r_scale_min, self.config.r_scale_max)
+        s_new = np.where(used & active[:, None], s_new, self._r_scale)
+        # scale of each row (1 on masked rows), applied as D^(1/2) R D^(1/2)
+        row_s = np.where(groups >= 0, np.take_along_axis(s_new, np.maximum(groups, 0), 1), 1.0)
+        sq = np.sqrt(row_s).astype(self.dtype)
+        pending["r_scale"] = s_new
+        return UpdatePlan(fade=np.ones(self.batch_size), R=R * sq[:, :, None] * sq[:, None, :], mask=mask,
+                          pending=pending)
+
+    def _commit(self, plan: UpdatePlan, ctx: EpochContext, r, H, mask, dx):
+        pend = plan.pending
+        active, d = pend["active"], pend["d"]
+        if "r_scale" in pend:
+            self._r_scale = pend["r_scale"]
+        rows = active & ctx.pending if self.config.adapt_q else np.zeros_like(active)
+        self._b_used = np.where(active, self._params["b"], self._b_used)
+        if rows.any():
+            self._adapt_q(rows, d, ctx, dx)
+        self._d = d
+        self._frozen = pend["freeze"]
+        self._step = self._step + active
+        self._seen = self._seen + pend["has"]
+
+    def _adapt_q(self, rows, d, ctx: EpochContext, dx):
+        """Seed 000 eqs 18-22 and 24 on ``rows`` (B,) bool."""
+        cfg = self.config
+        P_post = self.inner.covariance
+        # eq 18 (sign of eq 20): Q_hat = K dz dz^T K^T + P_k|k - Phi P_k-1 Phi^T, with K dz = dx
+        Q_hat = symmetrize(dx[:, :, None] * dx[:, None, :] + P_post - ctx.prior)
+        # eq 24: e_k = sum Q_hat^2; a jump above jump_ratio * e_(k-1) lowers b for this epoch's correction
+        e = np.sum(np.square(Q_hat.astype(np.float64)), axis=(1, 2))
+        jump = rows & (self._e_prev > 0) & (e > cfg.jump_ratio * self._e_prev)
+        if jump.any():
+            b = self._params["b"]
+            b_low = np.minimum(b, np.maximum(cfg.b_min, 1.0 - cfg.b_jump_factor * (1.0 - b)))
+            d = np.where(jump, np.maximum(d, sage_husa_weight(b_low, self._step + 1)), d)
+            self._b_used = np.where(jump, b_low, self._b_used)
+        self._e_prev = np.where(rows, e, self._e_prev)
+        Q_prev = ctx.Q  # the Q applied this epoch (nominal before the first adaptation)
+        first = rows & ~self._q_init
+        if first.any():
+            diag = np.diagonal(Q_prev, axis1=1, axis2=2).astype(np.float64)
+            top = np.max(diag, axis=1, keepdims=True)
+            ref = np.maximum(diag, 1e-12 * top)
+            ref = np.where(top > 0, ref, 1.0)
+            self._q_ref = np.where(first[:, None], ref, self._q_ref)
+        dd = d.astype(self.dtype)[:, None, None]
+        corr = Q_hat
+        if cfg.diagonal_q:
+            corr = np.zeros_like(Q_hat)
+            idx = np.arange(self.n)
+            corr[:, idx, idx] = np.diagonal(Q_hat, axis1=1, axis2=2)
+        Q_new = (1 - dd) * Q_prev + dd * corr  # eq 22 (full) / eq 21 (diagonal)
+        Q_new = clip_relative_eigenvalues(Q_new, self._q_ref, cfg.q_floor, cfg.q_ceiling).astype(self.dtype)
+        self._Q = np.where(rows[:, None, None], Q_new, self._Q)
+        self._q_init = self._q_init | rows
+
+    def _on_param_change(self, name, changed_rows):
+        if name == "b":
+            self._frozen = self._frozen & ~changed_rows
+
+    def _state(self):
+        n = self.n
+        w = 1.0 / np.sqrt(self._q_ref)
+        qs = np.einsum("bii,bi->b", self._Q.astype(np.float64), w * w) / n
+        out = {"d": self._d, "b_used": self._b_used, "d_frozen": self._frozen.astype(np.float64),
+               "q_scale": np.where(self._q_init, qs, 1.0), "steps": self._step.astype(np.float64)}
+        for g, gname in enumerate(GROUP_NAMES):
+            out[f"r_scale_{gname}"] = self._r_scale[:, g]
+        return out

@@ -1,0 +1,260 @@
+"""Strong tracking (``stkf``) and measurement-adaptive strong tracking (``ma-stkf``) around any filter form.
+
+Both scale the propagated covariance of an epoch by a suboptimal fading factor
+(seed paper 003 eqs 17-23)::
+
+    P_k|k-1 = lambda_k Phi P_(k-1) Phi^T + Q,    lambda_k = max(1, tr(N_k) / tr(M_k)),
+    N_k = C_k - H Q H^T - beta R,                 M_k = H Phi P_(k-1) Phi^T H^T,
+
+with ``C_k`` an estimate of the innovation covariance and ``beta`` a softening
+(weakening) factor. ``lambda`` is applied to the epoch's ``Phi P Phi^T``
+(``Phi`` the composed transition of the epoch, ``Q`` its composed process
+noise, which is not faded), through the inner form's own ``predict`` with
+``sqrt(lambda) Phi`` (:mod:`nav_filters.adaptive.base`).
+
+Innovation covariance across changing satellite sets
+----------------------------------------------------
+Only traces of ``C_k`` enter the laws, but a channel of the navigator carries
+different satellites from one epoch to the next and the number of used rows
+changes, so ``tr(C_k)`` cannot be smoothed as it stands (losing half the
+satellites would look like a drop of the innovation energy). Both laws
+therefore smooth the *ratio* of the innovation energy to the nominal predicted
+innovation trace of its own epoch, ``c_k ~ ||dz_k||^2 / tr(S_k)`` with
+``S_k = M_k + H Q H^T + R``, and use ``tr(C_k) = c_k tr(S_k)``. For a fixed
+measurement set with a steady ``S`` this is exactly the paper's recursion on
+``tr(C_k)``; a consistent filter has ``c_k ~ 1``.
+
+Updates with no transition since the previous update (a second measurement in
+the same epoch) update the statistics but apply no fading.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .base import AdaptiveLaw, EpochContext, UpdatePlan
+from .innovation import innovation_traces
+from .params import ParamSpec, check_option
+
+SOFTENING_SPEC = ParamSpec("softening", 0.0, 1e6, low_closed=False, high_closed=True,
+                           doc="softening factor beta of N_k = C_k - H Q H^T - beta R")
+RHO_SPEC = ParamSpec("rho", 0.0, 1.0, low_closed=False, high_closed=True,
+                     doc="STKF forgetting factor of the innovation covariance")
+MA_B_SPEC = ParamSpec("b", 0.0, 1.0, low_closed=False, high_closed=True,
+                      doc="MA-STKF asymptotic fading factor b of beta_k = beta_(k-1)/(beta_(k-1) + b)")
+FAULT_SPEC = ParamSpec("fault_threshold", 1.0, np.inf, low_closed=False, high_closed=True,
+                       doc="MA-STKF fault test ratio tr(C_k) > threshold * tr(predicted); inf disables")
+
+
+def fading_factor(tr_c, traces, softening, lambda_max):
+    """Suboptimal fading factor (seed 003 eqs 19-21; Zhou's STF).
+
+    Parameters
+    ----------
+    tr_c : (B,) trace of the innovation-covariance estimate ``C_k``.
+    traces : :class:`~.innovation.InnovationTraces` of the epoch (``tr M``, ``tr H Q H^T``, ``tr R``).
+    softening : (B,) softening factor beta (``N_k = C_k - H Q H^T - beta R``).
+    lambda_max : upper bound of lambda (a safeguard; the paper has none).
+
+    Returns
+    -------
+    (B,) float64 ``lambda_k = clip(tr(N_k) / tr(M_k), 1, lambda_max)``; 1 where ``tr(M_k) <= 0``.
+    """
+    tr_m = traces.tr_m.astype(np.float64)
+    tr_n = tr_c - traces.tr_q.astype(np.float64) - softening * traces.tr_r.astype(np.float64)  # eq 20
+    ok = tr_m > 0
+    lam = np.where(ok, tr_n / np.where(ok, tr_m, 1.0), 1.0)  # eq 19
+    return np.clip(lam, 1.0, lambda_max)
+
+
+@dataclass(frozen=True)
+class StrongTrackingConfig:
+    """Configuration of :class:`StrongTracking`.
+
+    Attributes
+    ----------
+    softening : initial softening factor beta (> 0; 1 = no softening; per-row settable).
+    rho : initial forgetting factor of the innovation covariance, (0, 1] (0.95; per-row settable).
+    lambda_max : upper bound of the fading factor (>= 1; 1 disables fading).
+    """
+
+    softening: float = 1.0
+    rho: float = 0.95
+    lambda_max: float = 1e3
+
+    def __post_init__(self):
+        o = type(self).__name__
+        SOFTENING_SPEC.check(self.softening, owner=o)
+        RHO_SPEC.check(self.rho, owner=o)
+        check_option(o, "lambda_max", self.lambda_max, low=1.0)
+
+
+class StrongTracking(AdaptiveLaw):
+    """``stkf``: strong tracking filter with a single suboptimal fading factor around an inner form.
+
+    Innovation covariance (Zhou's STF, as in the seed 003 brief): ``V_1 = dz dz^T``,
+    ``V_k = (rho V_(k-1) + dz dz^T) / (1 + rho)`` (on the normalized ratio, see the module docstring);
+    ``lambda_k`` of :func:`fading_factor` with ``C_k = V_k``.
+
+    Per-row parameters: ``softening`` (beta > 0), ``rho`` ((0, 1]).
+    Adaptive state: ``lambda`` (the last fading factor), ``innovation_ratio`` (``tr V_k / tr S_k``).
+    """
+
+    name = "stkf"
+    PARAMS = (SOFTENING_SPEC, RHO_SPEC)
+    config_class = StrongTrackingConfig
+
+    def _init_state(self):
+        B = self.batch_size
+        self._v = np.ones(B)
+        self._count = np.zeros(B, np.int64)
+        self._lambda = np.ones(B)
+
+    def _plan(self, r, H, R, mask, ctx: EpochContext) -> UpdatePlan:
+        has = mask.any(-1)
+        tr = innovation_traces(r, H, ctx.prior, ctx.Q, R, mask)
+        tr_s = tr.tr_s.astype(np.float64)
+        ratio = tr.energy.astype(np.float64) / np.where(has, tr_s, 1.0)
+        rho = self._params["rho"]
+        v = np.where(self._count == 0, ratio, (rho * self._v + ratio) / (1.0 + rho))
+        v = np.where(has, v, self._v)
+        lam = fading_factor(v * tr_s, tr, self._params["softening"], self.config.lambda_max)
+        lam = np.where(has & ctx.pending, lam, 1.0)
+        return UpdatePlan(fade=lam, R=R, mask=mask, pending={"v": v, "has": has})
+
+    def _commit(self, plan, ctx, r, H, mask, dx):
+        self._v = plan.pending["v"]
+        self._count = self._count + plan.pending["has"]
+        self._lambda = plan.fade
+
+    def _state(self):
+        return {"lambda": self._lambda, "innovation_ratio": self._v}
+
+
+@dataclass(frozen=True)
+class MeasurementAdaptiveSTKFConfig:
+    """Configuration of :class:`MeasurementAdaptiveSTKF`.
+
+    Attributes
+    ----------
+    b : initial asymptotic fading factor b of eq 11, (0, 1] (paper: 0.987; per-row settable).
+    softening : initial softening factor beta on R in ``N_k`` (1 = eq 20 as written; per-row settable).
+    fault_threshold : initial ratio of the eq 13 fault test (> 1, ``inf`` disables; per-row settable).
+    alpha_min, alpha_max : bounds of the measurement factor alpha_k of eq 16.
+    lambda_max : upper bound of the fading factor (>= 1; 1 disables fading).
+    max_consecutive_rejections : after this many consecutive rejected epochs a row's next epoch is
+        accepted (so a lasting change is tracked instead of being rejected for ever).
+    """
+
+    b: float = 0.987
+    softening: float = 1.0
+    fault_threshold: float = 3.0
+    alpha_min: float = 0.1
+    alpha_max: float = 1e4
+    lambda_max: float = 1e3
+    max_consecutive_rejections: int = 5
+
+    def __post_init__(self):
+        o = type(self).__name__
+        MA_B_SPEC.check(self.b, owner=o)
+        SOFTENING_SPEC.check(self.softening, owner=o)
+        FAULT_SPEC.check(self.fault_threshold, owner=o)
+        check_option(o, "alpha_min", self.alpha_min, low=0.0, low_closed=False)
+        check_option(o, "alpha_max", self.alpha_max, low=self.alpha_min)
+        check_option(o, "lambda_max", self.lambda_max, low=1.0)
+        m = self.max_consecutive_rejections
+        if isinstance(m, bool) or not isinstance(m, (int, np.integer)) or m < 0:
+            raise ValueError(f"{o}.max_consecutive_rejections must be an int >= 0, got {m!r}")
+
+
+class MeasurementAdaptiveSTKF(AdaptiveLaw):
+    """``ma-stkf``: measurement-adaptive strong tracking Kalman filter (seed paper 003, eqs 10-26).
+
+    At each measurement epoch, per row:
+
+    1. innovation covariance by asymptotic weighting (eqs 10-11)::
+
+           C_k = (1 - beta_k) C_(k-1) + beta_k dz dz^T,   beta_k = beta_(k-1) / (beta_(k-1) + b),
+
+       with ``beta = 1`` at a row's first measurement epoch (``C = dz dz^T``; the paper's initial
+       value 1) and ``beta_k -> 1 - b``; smoothed as the ratio ``c_k = tr C_k / tr S_k`` (module
+       docstring);
+    2. fault test (eq 13): the epoch is rejected (no measurement update, ``applied`` False) when
+       ``tr(C_k) > fault_threshold * tr(H (Phi P Phi^T + Q) H^T + alpha_(k-1) R)``. Choices: the
+       prediction uses the current measurement factor ``alpha_(k-1)`` (so a slow change of the
+       noise level, which alpha tracks, is not a fault; only a jump of C is), and a rejected
+       epoch is isolated: its innovation does not enter ``C`` (eq 10 is not committed), up to
+       ``max_consecutive_rejections`` in a row;
+    3. measurement factor (eq 16)
+       ``alpha_k = tr(C_k - H (Phi P Phi^T + Q) H^T) / tr(R_k)`` clipped to
+       ``[alpha_min, alpha_max]``; the update uses ``alpha_k R_k`` (eq 24);
+    4. fading factor (eqs 19-21) ``lambda_k = max(1, tr(N_k)/tr(M_k))``,
+       ``N_k = C_k - H Q H^T - beta R_k`` with the *reported* ``R_k`` (with ``alpha_k R_k`` it would be
+       identically 1 by eq 16) and ``beta`` the softening factor (1 as written), capped at
+       ``lambda_max``; ``P_k|k-1 = lambda_k Phi P Phi^T + Q`` (eq 23);
+    5. the inner form's update with ``alpha_k R_k`` (eqs 24-25; the inner form's own covariance
+       update, Joseph for ``kf``, stands for eq 26).
+
+    Per-row parameters: ``b`` ((0, 1]), ``softening`` (> 0), ``fault_threshold`` ((1, inf]).
+    Adaptive state: ``lambda``, ``alpha``, ``beta``, ``innovation_ratio`` (``c_k``), ``rejected`` (0/1,
+    the last epoch), ``rejections`` (consecutive rejected epochs).
+    """
+
+    name = "ma-stkf"
+    PARAMS = (MA_B_SPEC, SOFTENING_SPEC, FAULT_SPEC)
+    config_class = MeasurementAdaptiveSTKFConfig
+
+    def _init_state(self):
+        B = self.batch_size
+        self._c = np.ones(B)
+        self._beta = np.ones(B)
+        self._count = np.zeros(B, np.int64)
+        self._alpha = np.ones(B)
+        self._lambda = np.ones(B)
+        self._rejected = np.zeros(B, bool)
+        self._streak = np.zeros(B, np.int64)
+
+    def _plan(self, r, H, R, mask, ctx: EpochContext) -> UpdatePlan:
+        cfg = self.config
+        has = mask.any(-1)
+        tr = innovation_traces(r, H, ctx.prior, ctx.Q, R, mask)
+        tr_s = tr.tr_s.astype(np.float64)
+        tr_m, tr_q, tr_r = (a.astype(np.float64) for a in (tr.tr_m, tr.tr_q, tr.tr_r))
+        ratio = tr.energy.astype(np.float64) / np.where(has, tr_s, 1.0)
+        # eqs 10-11 (beta = 1 at the first epoch)
+        beta = np.where(self._count == 0, 1.0, self._beta / (self._beta + self._params["b"]))
+        c = (1.0 - beta) * self._c + beta * ratio
+        tr_c = c * tr_s
+        # eq 13: fault test against the predicted innovation trace with the current alpha
+        predicted = tr_m + tr_q + self._alpha * tr_r
+        fault = has & (tr_c > self._params["fault_threshold"] * predicted) & (self._streak < cfg.max_consecutive_rejections)
+        accept = has & ~fault
+        # eq 16: measurement factor
+        safe_r = np.where(tr_r > 0, tr_r, 1.0)
+        alpha = np.clip((tr_c - tr_m - tr_q) / safe_r, cfg.alpha_min, cfg.alpha_max)
+        alpha = np.where(accept, alpha, self._alpha)
+        # eqs 19-21: fading factor with the reported R
+        lam = fading_factor(tr_c, tr, self._params["softening"], cfg.lambda_max)
+        lam = np.where(accept & ctx.pending, lam, 1.0)
+        a = np.where(accept, alpha, 1.0).astype(R.dtype)
+        R_used = R * a[:, None, None]
+        # keep unit variance on masked rows (they change nothing, but stay the documented neutral rows)
+        idx = np.arange(R.shape[1])
+        R_used[:, idx, idx] = np.where(mask, R_used[:, idx, idx], 1)
+        pending = {"c": np.where(accept, c, self._c), "beta": np.where(accept, beta, self._beta),
+                   "alpha": alpha, "accept": accept, "fault": fault}
+        return UpdatePlan(fade=lam, R=R_used, mask=mask & ~fault[:, None], pending=pending)
+
+    def _commit(self, plan, ctx, r, H, mask, dx):
+        p = plan.pending
+        self._c, self._beta, self._alpha = p["c"], p["beta"], p["alpha"]
+        self._count = self._count + p["accept"]
+        has = mask.any(-1)
+        self._streak = np.where(p["fault"], self._streak + 1, np.where(has, 0, self._streak))
+        self._rejected = p["fault"]
+        self._lambda = plan.fade
+
+    def _state(self):
+        return {"lambda": self._lambda, "alpha": self._alpha, "beta": self._beta, "innovation_ratio": self._c,
+                "rejected": self._rejected.astype(np.float64), "rejections": self._streak.astype(np.float64)}

@@ -1,0 +1,388 @@
+"""SVD-based Kalman-filter forms: ``svd-srkf`` and ``svd-kf``.
+
+Both forms keep the covariance only through its singular value decomposition
+
+    ``P = U diag(D)^2 U^T``,  U (B, n, n) orthogonal,  D (B, n) >= 0 (singular values of the square root),
+
+so that P is symmetric positive semi-definite *by construction*, whatever the
+word length (seed paper 000, eq 4). Every factor is refreshed by a batched thin
+SVD (``np.linalg.svd(..., full_matrices=False)``) of a stacked "pre-array" ``A``
+with ``A^T A`` equal to the wanted covariance (or its inverse): with
+``A = W diag(s) V^T``, ``A^T A = V diag(s)^2 V^T``, so V and s are the new U and D.
+The left factor W is never used.
+
+``svd-srkf`` (:class:`SvdSquareRootKF`)
+    Wang, Libert & Manneback (1992), as in seed paper 000 eqs 4-16: the time
+    update factors ``Phi P Phi^T + Q`` (eqs 9-11, Q by Cholesky, eq 7), the
+    measurement update factors the posterior *information* matrix
+    ``P^-1 + H^T R^-1 H`` (eqs 12-14, ``R^-1 = L_R L_R^T`` eq 6), the gain is
+    ``K = U D^2 U^T H^T R^-1`` (eq 15).
+``svd-kf`` (:class:`SvdKalmanFilter`)
+    Kulikova & Tsyganova (2017), IET Control Theory Appl. 11(15), summarized in
+    seed paper 000 eq 17: Q and R are factored by their SVD (no Cholesky), the
+    innovation covariance ``S = H P H^T + R`` is factored by an SVD of its
+    pre-array, the gain follows from those factors, and the posterior factors
+    come from an SVD of the factored Joseph form, eq 17.
+
+Time update (both forms, seed 000 eqs 8-11): with a square root ``Q = L_Q L_Q^T``
+the pre-array is ``[D U^T Phi^T ; L_Q^T]`` (2n x n). (Eq 9 of the seed paper
+prints ``D U^T Phi``; the transpose of Phi is what makes ``A^T A = Phi P Phi^T + Q``.)
+
+Notes
+-----
+* Q may be only positive *semi*-definite (zero rows for states with no process
+  noise). ``svd-srkf`` tries the Cholesky factor (eq 7) and, when it fails, falls
+  back to the symmetric eigen-factor ``U_Q diag(sqrt(lambda))``, which is also an
+  exact ``L_Q`` with ``L_Q L_Q^T = Q``. A diagonal Q (checked cheaply) is factored
+  by ``sqrt`` of its diagonal, and a Q broadcast over the batch (stride 0, as the
+  navigator's constant Q) is factored once. An eigenvalue below
+  ``-10 n eps max|lambda|`` is not round-off: ``ValueError`` naming ``Q``.
+* The SVD of a symmetric PSD matrix (Q, R, P0) is its symmetric eigendecomposition;
+  it is computed with ``np.linalg.eigh``, which also exposes negative eigenvalues for
+  validation.
+* The square root of ``R^-1`` in ``svd-srkf`` (eq 6) is ``L_R = C^-T`` where
+  ``R = C C^T`` is the Cholesky factor of R: ``L_R L_R^T = R^-1`` exactly, without
+  forming ``R^-1``. A diagonal R (detected by counting non-zeros) uses
+  ``L_R = diag(1/sqrt(r))``.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .base import FilterForm, UpdateResult, symmetrize
+
+_PSD_TOL = 10.0  # negative eigenvalues down to -_PSD_TOL * n * eps * max|lambda| count as round-off
+
+
+# --------------------------------------------------------------------------- helpers
+def _batched_base(M, B, n, name, dtype):
+    """Validate a (B, n, n) (or broadcastable (n, n) / (1, n, n)) matrix and return its distinct rows.
+
+    Returns
+    -------
+    (B or 1, n, n) array in ``dtype``: a stride-0 broadcast over the batch (the navigator's constant Q)
+    is collapsed to its single row, so it is validated and factored once.
+
+    Raises
+    ------
+    ValueError
+        wrong shape or non-finite entries (names ``name``).
+    """
+    M = np.asarray(M)
+    if M.ndim == 2:
+        M = M[None]
+    if M.ndim != 3 or M.shape[1:] != (n, n) or M.shape[0] not in (1, B):
+        raise ValueError(f"{name} must have shape ({B}, {n}, {n}), got {M.shape}")
+    if M.shape[0] > 1 and M.strides[0] == 0:
+        M = M[:1]
+    M = M.astype(dtype, copy=False)
+    if not np.all(np.isfinite(M)):
+        raise ValueError(f"{name} contains non-finite values")
+    return M
+
+
+def _is_diagonal(M) -> bool:
+    """True when every off-diagonal entry of the (..., n, n) matrices is zero (one pass, no copy of M)."""
+    return np.count_nonzero(M) == np.count_nonzero(np.diagonal(M, axis1=-2, axis2=-1))
+
+
+def _check_eigenvalues(lam, name):
+    """``ValueError`` naming ``name`` if an eigenvalue (..., n) is negative beyond round-off; returns clipped ``lam``."""
+    eps = np.finfo(lam.dtype).eps
+    scale = np.max(np.abs(lam), axis=-1, keepdims=True)
+    tol = _PSD_TOL * lam.shape[-1] * eps * scale
+    bad = lam < -tol
+    if bad.any():
+        idx = np.argwhere(bad.any(-1))[0][0] if lam.ndim > 1 else 0
+        raise ValueError(f"{name} must be symmetric positive semi-definite: batch row {idx} has eigenvalue "
+                         f"{float(np.min(lam[idx] if lam.ndim > 1 else lam)):.3e} (largest {float(scale.ravel()[idx]):.3e})")
+    return np.maximum(lam, 0)
+
+
+def _sym_eig_factor(M, name):
+    """SVD (= symmetric eigendecomposition) of a symmetric PSD matrix: ``M = U_M diag(d) U_M^T``.
+
+    Used for Q and R by ``svd-kf`` (Kulikova & Tsyganova 2017; seed 000 sec 4.1 item 1) and for P0
+    (seed 000 eq 4).
+
+    Parameters
+    ----------
+    M : (B, k, k) symmetric (only the lower triangle is read).
+    name : argument name for the error message.
+
+    Returns
+    -------
+    U_M : (B, k, k) orthogonal; d : (B, k) eigenvalues >= 0 (round-off negatives clipped to 0).
+    """
+    lam, U = np.linalg.eigh(M)
+    return U, _check_eigenvalues(lam, name)
+
+
+def _sqrt_factor_rows(M, name, cholesky_first):
+    """Transposed square root ``L^T`` (rows of the pre-array) of a symmetric PSD matrix, ``L L^T = M``.
+
+    Parameters
+    ----------
+    M : (B', k, k) symmetric PSD (B' = 1 for a matrix shared by the batch).
+    name : argument name for the error message.
+    cholesky_first : try ``np.linalg.cholesky`` first (seed 000 eq 7, ``svd-srkf``); otherwise, and when
+        Cholesky fails (a PSD but singular M), use the SVD/eigen factor ``U_M diag(sqrt(d))`` (Kulikova &
+        Tsyganova 2017, ``svd-kf``).
+
+    Returns
+    -------
+    (B', k', k) ``L^T``; for a diagonal M only the rows of non-zero variances are kept (k' <= k, the zero
+    rows add nothing to ``A^T A``).
+    """
+    if _is_diagonal(M):
+        d = np.diagonal(M, axis1=-2, axis2=-1)
+        d = _check_eigenvalues(d, name)
+        keep = np.flatnonzero(np.any(d > 0, axis=0))
+        k = M.shape[-1]
+        Lt = np.zeros(M.shape[:-2] + (keep.size, k), M.dtype)
+        Lt[..., np.arange(keep.size), keep] = np.sqrt(d[..., keep])
+        return Lt
+    if cholesky_first:
+        try:
+            return np.linalg.cholesky(M).mT
+        except np.linalg.LinAlgError:
+            pass
+    U, d = _sym_eig_factor(M, name)
+    return np.sqrt(d)[..., :, None] * U.mT
+
+
+def svd_time_update(U, D, Phi, LQt):
+    """SVD time update of the covariance factors (seed 000 eqs 9-11; Wang, Libert & Manneback 1992).
+
+    Pre-array ``A = [D U^T Phi^T ; L_Q^T]`` ((n + k) x n) with ``A^T A = Phi P Phi^T + Q``; its thin SVD
+    ``A = W diag(s) V^T`` gives the predicted factors ``U <- V`` (eq 10), ``D <- s`` (eq 11).
+
+    Parameters
+    ----------
+    U : (B, n, n), D : (B, n) current factors, ``P = U diag(D)^2 U^T``.
+    Phi : (B, n, n) transition; LQt : (B or 1, k, n) ``L_Q^T`` with ``L_Q L_Q^T = Q``.
+
+    Returns
+    -------
+    U, D : (B, n, n), (B, n) predicted factors.
+    """
+    B, n = D.shape
+    k = LQt.shape[-2]
+    A = np.empty((B, n + k, n), D.dtype)
+    np.matmul(U.mT, Phi.mT, out=A[:, :n])
+    A[:, :n] *= D[:, :, None]
+    A[:, n:] = LQt
+    _, s, Vt = np.linalg.svd(A, full_matrices=False)
+    return Vt.mT, s
+
+
+def innovation_variance(M, R):
+    """Diagonal of ``S = H P H^T + R`` from ``M = D U^T H^T`` (B, n, m): ``sum_i M_ij^2 + R_jj``, (B, m)."""
+    return np.sum(M * M, axis=-2) + np.diagonal(R, axis1=-2, axis2=-1)
+
+
+# --------------------------------------------------------------------------- base of both forms
+class _SvdForm(FilterForm):
+    """Shared state of the SVD forms: factors ``U`` (B, n, n), ``D`` (B, n) with ``P = U D^2 U^T``."""
+
+    name = "svd-base"
+    _cholesky_q = False  # factor Q by Cholesky first (svd-srkf, eq 7) or by its SVD (svd-kf)
+
+    def _init_uncertainty(self, P0):
+        """Seed 000 eq 4: ``P0 = U D^2 U^T`` (SVD of the symmetric PSD P0); ``ValueError`` naming P0 if indefinite."""
+        U, lam = _sym_eig_factor(P0, "P0")
+        self.U = U
+        self.D = np.sqrt(lam)
+        self.last_correction = np.zeros_like(self.x)
+        self._P = None
+        self._q_cache = None
+
+    @property
+    def covariance(self):
+        """(B, n, n) ``P = (U D)(U D)^T`` (symmetric PSD by construction; cached until the next step)."""
+        if self._P is None:
+            UD = self.U * self.D[:, None, :]
+            self._P = symmetrize(UD @ UD.mT)
+        return self._P
+
+    def predict(self, Phi, Q):
+        """Time update ``x <- Phi x`` (seed 000 eq 8) and the SVD factor update, eqs 9-11.
+
+        Parameters
+        ----------
+        Phi : (B, n, n) finite transition matrix.
+        Q : (B, n, n) symmetric positive semi-definite process noise (a (n, n) or stride-0 broadcast Q is
+            factored once for the whole batch).
+
+        Raises
+        ------
+        ValueError
+            non-finite Phi or Q, wrong shapes, or Q with a negative eigenvalue beyond round-off.
+        """
+        B, n = self.batch_size, self.n
+        Phi = np.broadcast_to(_batched_base(Phi, B, n, "Phi", self.dtype), (B, n, n))
+        LQt = self._q_factor(_batched_base(Q, B, n, "Q", self.dtype))
+        self.x = (Phi @ self.x[..., None])[..., 0]
+        self.U, self.D = svd_time_update(self.U, self.D, Phi, LQt)
+        self._P = None
+
+    def _q_factor(self, Qb):
+        """``L_Q^T`` of the (B or 1, n, n) process noise, reused while Q is unchanged (compared by value).
+
+        The navigator passes the same constant Q at every IMU sample; comparing it with the last one costs
+        one pass over Q, factoring it (eq 7, or its SVD for ``svd-kf``) costs far more at B = 1.
+        """
+        cache = self._q_cache
+        if cache is not None and cache[0].shape == Qb.shape and np.array_equal(cache[0], Qb):
+            return cache[1]
+        LQt = _sqrt_factor_rows(symmetrize(Qb), "Q", cholesky_first=self._cholesky_q)
+        self._q_cache = (Qb.copy(), LQt)
+        return LQt
+
+    def _finish(self, r, dx, nis, ivar, mask):
+        """Apply the state correction ``dx = K r`` and pack the :class:`UpdateResult`."""
+        self.x = self.x + dx
+        self.last_correction = dx
+        self._P = None
+        n_used = mask.sum(-1)
+        return UpdateResult(nis=nis, n_used=n_used, innovation=r, innovation_var=ivar, applied=n_used > 0)
+
+
+# --------------------------------------------------------------------------- svd-srkf
+class SvdSquareRootKF(_SvdForm):
+    """``svd-srkf``: SVD-based square-root KF of Wang, Libert & Manneback (1992), seed 000 eqs 4-16.
+
+    State: error-state estimate ``x`` (B, n) and the factors ``U`` (B, n, n), ``D`` (B, n) of
+    ``P = U diag(D)^2 U^T``. The measurement update works on the information matrix
+    ``P^-1 = U D^-2 U^T``; a singular value of exactly 0 (a state known perfectly) is floored at
+    ``eps^2 max(D)`` (or ``sqrt(tiny)``) before it is inverted, so the update stays finite.
+
+    Attributes
+    ----------
+    U, D : covariance factors. last_correction : (B, n) ``K (dz - H x)`` of the last update
+        (seed 000 eq 16's increment, the ``K dz`` of eq 19).
+    """
+
+    name = "svd-srkf"
+    _cholesky_q = True
+
+    def _update(self, dz, H, R, mask):
+        """Measurement update, seed 000 eqs 6 and 12-16.
+
+        With ``L_R L_R^T = R^-1`` (eq 6), ``G = L_R^T H U`` (m x n) and ``e = L_R^T r`` (whitened residual
+        ``r = dz - H x``), the pre-array ``[G ; D^-1]`` ((m + n) x n) has SVD ``W diag(s) V^T`` (eq 12);
+        the posterior factors are ``U <- U V`` (eq 13), ``D <- 1/s`` (eq 14). The gain of eq 15 is applied to
+        the residual without forming K: ``K r = U D^2 U^T H^T L_R L_R^T r = U D^2 (G V)^T e`` (eq 16).
+
+        NIS is the Bayesian least-squares cost at its minimum,
+        ``r^T S^-1 r = |e - G dx_u|^2 + |dx_u / D_prior|^2`` with ``dx_u = U_prior^T K r`` (the residual of
+        the pre-array least-squares problem; no inverse of S, and no difference of squared norms).
+
+        Parameters/returns: see :meth:`FilterForm.update` (arrays already prepared).
+        """
+        B, m = dz.shape
+        dt = self.dtype
+        U, D = self.U, self.D
+        r = dz - (H @ self.x[..., None])[..., 0]
+        HU = H @ U  # (B, m, n)
+        if _is_diagonal(R):
+            w = 1 / np.sqrt(np.diagonal(R, axis1=1, axis2=2))  # L_R^T = diag(1/sqrt(r))
+            G = HU * w[..., None]
+            e = r * w
+        else:
+            try:
+                C = np.linalg.cholesky(R)  # R = C C^T, L_R = C^-T  =>  L_R L_R^T = R^-1 (eq 6)
+            except np.linalg.LinAlgError:
+                raise ValueError("R must be symmetric positive definite on the valid rows") from None
+            Ci = np.linalg.inv(C)  # lower triangular L_R^T
+            G = Ci @ HU
+            e = (Ci @ r[..., None])[..., 0]
+        eps = np.finfo(dt).eps
+        floor = np.maximum(eps * eps * D.max(-1, keepdims=True), np.sqrt(np.finfo(dt).tiny))
+        Dinv = 1 / np.maximum(D, floor)
+        n = self.n
+        A = np.zeros((B, m + n, n), dt)
+        A[:, :m] = G
+        A[:, m + np.arange(n), np.arange(n)] = Dinv
+        _, s, Vt = np.linalg.svd(A, full_matrices=False)  # eq 12
+        V = Vt.mT
+        D_post = 1 / s  # eq 14
+        GV = G @ V  # L_R^T H U_post
+        y = D_post**2 * (GV.mT @ e[..., None])[..., 0]  # U_post^T K r
+        dxu = (V @ y[..., None])[..., 0]  # U_prior^T K r
+        self.U = U @ V  # eq 13
+        self.D = D_post
+        dx = (self.U @ y[..., None])[..., 0]  # eqs 15-16
+        post_res = e - (GV @ y[..., None])[..., 0]
+        nis = np.sum(post_res**2, -1) + np.sum((dxu * Dinv) ** 2, -1)
+        ivar = innovation_variance((HU * D[:, None, :]).mT, R)
+        return self._finish(r, dx, nis, ivar, mask)
+
+
+# --------------------------------------------------------------------------- svd-kf
+class SvdKalmanFilter(_SvdForm):
+    """``svd-kf``: SVD-based KF of Kulikova & Tsyganova (2017), seed 000 sec 4.1 and eq 17.
+
+    Q and R are factored by their SVD (``R = U_R D_R U_R^T``), never by Cholesky; the posterior
+    covariance factors come from the factored Joseph form (eq 17), so P stays symmetric PSD.
+
+    Attributes
+    ----------
+    U, D : covariance factors. last_correction : (B, n) ``K (dz - H x)`` of the last update.
+    """
+
+    name = "svd-kf"
+    _cholesky_q = False
+
+    def _update(self, dz, H, R, mask):
+        """Measurement update (Kulikova & Tsyganova 2017, IET CTA 11(15); seed 000 eq 17).
+
+        1. ``R = U_R D_R U_R^T`` (SVD); innovation pre-array ``[D_R^{1/2} U_R^T ; D U^T H^T]`` ((m + n) x m)
+           with SVD ``W diag(sig) V_S^T``, so ``S = H P H^T + R = V_S diag(sig)^2 V_S^T``.
+        2. Gain ``K = P H^T S^-1 = U D M V_S diag(sig)^-2 V_S^T`` with ``M = D U^T H^T`` (n x m).
+        3. Posterior pre-array of the Joseph form (eq 17)
+           ``[D U^T (I - K H)^T ; D_R^{1/2} U_R^T K^T]`` ((n + m) x n), whose Gram matrix is
+           ``(I-KH) P (I-KH)^T + K R K^T``; its SVD gives ``U <- V``, ``D <- s``.
+
+        NIS ``= |diag(sig)^-1 V_S^T r|^2`` from the innovation factors (no inverse of S);
+        ``innovation_var = diag(S)``.
+        """
+        B, m = dz.shape
+        dt = self.dtype
+        n = self.n
+        U, D = self.U, self.D
+        r = dz - (H @ self.x[..., None])[..., 0]
+        M = D[:, :, None] * (U.mT @ H.mT)  # (B, n, m) = D U^T H^T
+        A = np.empty((B, m + n, m), dt)
+        diagonal_R = _is_diagonal(R)
+        if diagonal_R:
+            sqrt_r = np.sqrt(np.diagonal(R, axis1=1, axis2=2))  # U_R = I, D_R^{1/2} = sqrt(r)
+            A[:, :m] = 0
+            A[:, np.arange(m), np.arange(m)] = sqrt_r
+        else:
+            UR, dR = _sym_eig_factor(R, "R")
+            if np.any(dR <= 0):
+                raise ValueError("R must be symmetric positive definite on the valid rows")
+            sqrtR_t = np.sqrt(dR)[..., :, None] * UR.mT  # D_R^{1/2} U_R^T
+            A[:, :m] = sqrtR_t
+        A[:, m:] = M
+        _, sig, VSt = np.linalg.svd(A, full_matrices=False)  # S = V_S sig^2 V_S^T
+        f = (VSt @ r[..., None])[..., 0] / sig  # whitened innovation: NIS = |f|^2
+        nis = np.sum(f * f, -1)
+        MV = M @ VSt.mT  # (B, n, m)
+        UD = U * D[:, None, :]
+        K = UD @ ((MV / (sig * sig)[:, None, :]) @ VSt)  # P H^T S^-1
+        dx = (UD @ (MV @ (f / sig)[..., None]))[..., 0]  # K r
+        A2 = np.empty((B, n + m, n), dt)
+        np.subtract(UD.mT, M @ K.mT, out=A2[:, :n])  # D U^T (I - K H)^T
+        if diagonal_R:
+            np.multiply(sqrt_r[:, :, None], K.mT, out=A2[:, n:])  # D_R^{1/2} K^T
+        else:
+            np.matmul(sqrtR_t, K.mT, out=A2[:, n:])  # D_R^{1/2} U_R^T K^T
+        _, s, Vt = np.linalg.svd(A2, full_matrices=False)  # eq 17 factored
+        self.U, self.D = Vt.mT, s
+        ivar = innovation_variance(M, R)
+        return self._finish(r, dx, nis, ivar, mask)
+
+
+__all__ = ["SvdSquareRootKF", "SvdKalmanFilter", "svd_time_update", "innovation_variance"]

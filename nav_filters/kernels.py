@@ -1,0 +1,278 @@
+"""Compiled (numba) inner loop of the navigator: one GNSS epoch of IMU samples for all rows.
+
+The per-IMU-sample work of a tightly coupled navigator (bias compensation,
+strapdown mechanization, error-model transition) runs 100 times per GNSS epoch
+and cannot be made fast with numpy calls (each costs ~1 us of overhead, and a
+step needs dozens). :func:`propagate_epoch` does it in one compiled call,
+parallel over the batch rows.
+
+It implements *the same equations* as the numpy reference functions, which
+stay the readable specification and are checked against this kernel in
+``tests/nav_filters/test_kernels.py``:
+
+* mechanization: :func:`nav_filters.ins.mechanize` (single-sample scheme);
+* transition: ``Phi = I + F dt`` with ``F`` of
+  :func:`nav_filters.error_model.system_matrix` (point-mass gravity gradient),
+  and ``Q_d = G Q_c G^T dt`` (first order; Groves eq 3.46 truncated);
+* gravity: :func:`earth.wgs84.gravity_ecef` (J2 + centrifugal).
+
+Covariance accumulation over the samples of an epoch (the form's ``predict``
+is then called once with the result):
+
+``exact=True``
+    ``Phi_acc <- Phi_i Phi_acc``, ``Q_acc <- Phi_i Q_acc Phi_i^T + Q_i``: the
+    exact composition of the per-sample predictions, so ``predict(Phi_acc,
+    Q_acc)`` equals predicting at every IMU sample (in exact arithmetic) for
+    every filter form.
+``exact=False``
+    seed paper 001 (one-step prediction of P, multiplication method, eqs
+    19-20): ``Phi_acc <- Phi_i Phi_acc`` and ``Q_acc <- Q_acc + Q_i`` (the
+    process noise is not propagated through the transitions).
+
+Products with ``F`` use its fixed sparsity pattern (:data:`F_NONZERO`).
+"""
+from __future__ import annotations
+
+import numpy as np
+import numba as nb
+
+from earth.wgs84 import A as _A, GM as _GM, J2 as _J2, OMEGA_IE as _W
+
+N = 17
+
+# Structural non-zeros of F (row, col), in the order _fill_F writes them.
+F_NONZERO = np.array(
+    [(0, 1), (1, 0)] + [(i, 9 + j) for i in range(3) for j in range(3)]          # -Omega, -C (gyro bias)
+    + [(3, 1), (3, 2), (4, 0), (4, 2), (5, 0), (5, 1), (3, 4), (4, 3)]            # -[a x], -2 Omega
+    + [(3 + i, 6 + j) for i in range(3) for j in range(3)]                        # Gamma
+    + [(3 + i, 12 + j) for i in range(3) for j in range(3)]                       # -C (accel bias)
+    + [(6, 3), (7, 4), (8, 5)]                                                    # position <- velocity
+    + [(i, i) for i in range(9, 15)] + [(15, 16)],                                # bias decay, clock
+    dtype=np.int64)
+
+
+@nb.njit(cache=True, inline="always")
+def _gravity(x, y, z, out):
+    """earth.wgs84.gravity_ecef for one position (J2 gravitation + centrifugal), into out[0:3]."""
+    r2 = x * x + y * y + z * z
+    r = np.sqrt(r2)
+    zr2 = z * z / r2
+    k = 1.5 * _J2 * _A * _A / r2
+    m = -_GM / (r2 * r)
+    fxy = 1.0 + k * (1.0 - 5.0 * zr2)
+    out[0] = m * x * fxy + _W * _W * x
+    out[1] = m * y * fxy + _W * _W * y
+    out[2] = m * z * (1.0 + k * (3.0 - 5.0 * zr2))
+
+
+@nb.njit(cache=True)
+def _fill_F(F, C, f, r, kg, ka):
+    """Write system_matrix(C, f, r, tau_g, tau_a) for one row into the zeroed (17, 17) F."""
+    F[0, 1] = _W
+    F[1, 0] = -_W
+    for i in range(3):
+        for j in range(3):
+            F[i, 9 + j] = -C[i, j]
+            F[3 + i, 12 + j] = -C[i, j]
+    a0 = C[0, 0] * f[0] + C[0, 1] * f[1] + C[0, 2] * f[2]
+    a1 = C[1, 0] * f[0] + C[1, 1] * f[1] + C[1, 2] * f[2]
+    a2 = C[2, 0] * f[0] + C[2, 1] * f[1] + C[2, 2] * f[2]
+    F[3, 1] = a2
+    F[3, 2] = -a1
+    F[4, 0] = -a2
+    F[4, 2] = a0
+    F[5, 0] = a1
+    F[5, 1] = -a0
+    F[3, 4] = 2.0 * _W
+    F[4, 3] = -2.0 * _W
+    r2 = r[0] * r[0] + r[1] * r[1] + r[2] * r[2]
+    k = _GM / (r2 * np.sqrt(r2))
+    for i in range(3):
+        for j in range(3):
+            F[3 + i, 6 + j] = 3.0 * k * r[i] * r[j] / r2
+    F[3, 6] -= k - _W * _W
+    F[4, 7] -= k - _W * _W
+    F[5, 8] -= k
+    F[6, 3] = 1.0
+    F[7, 4] = 1.0
+    F[8, 5] = 1.0
+    for i in range(9, 12):
+        F[i, i] = kg
+    for i in range(12, 15):
+        F[i, i] = ka
+    F[15, 16] = 1.0
+
+
+@nb.njit(cache=True, inline="always")
+def _sparse_left(F, X, T, nz):
+    """T = F @ X using only the structural non-zeros nz of F."""
+    T[:, :] = 0.0
+    for p in range(nz.shape[0]):
+        i = nz[p, 0]
+        j = nz[p, 1]
+        fij = F[i, j]
+        for c in range(N):
+            T[i, c] += fij * X[j, c]
+
+
+def _propagate_epoch(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, Cz, qg, qa, qdiag, kg, ka,
+                    Phi_acc, Q_acc, exact, orthonormalize, nz):
+    """Advance every row by the n IMU samples of ``f_raw[:, :n]``, accumulating the transition.
+
+    Parameters
+    ----------
+    r : (B, 3) float64 ECEF position [m] (in/out); v : (B, 3) velocity [m/s] (in/out);
+    C : (B, 3, 3) attitude C_eb (in/out); bg, ba : (B, 3) bias estimates (in);
+    clk : (B,) float64 clock bias [m] (in/out); drift : (B,) clock drift [m/s] (in);
+    f_raw, w_raw : (B, n, 3) raw IMU interval means [m/s^2], [rad/s];
+    h : sample interval [s]; Av, Au, Ag, Cz : (3, 3) Earth-rate matrices of ins.mechanize for h
+        (left-multiplying: v+ = Av v + Au u + Ag g dt-scaled as in ins.mechanize);
+    qg, qa : (3,) gyro / accelerometer white-noise PSDs per body axis; qdiag : (17,) PSDs of the other states;
+    kg, ka : -1/tau of the bias Gauss-Markov processes (0 for random walk);
+    Phi_acc, Q_acc : (B, 17, 17) accumulators (in/out); exact : bool (see module docstring);
+    orthonormalize : bool, re-orthonormalize C every sample (float32); nz : F_NONZERO.
+    """
+    B = f_raw.shape[0]
+    n = f_raw.shape[1]
+    for b in nb.prange(B):
+        F = np.zeros((N, N))
+        T = np.zeros((N, N))
+        T2 = np.zeros((N, N))
+        fc = np.empty(3)
+        wc = np.empty(3)
+        rr = np.empty(3)
+        g = np.empty(3)
+        Cb = np.empty((3, 3))
+        FQFt = np.zeros((N, N))
+        uu = np.empty(3)
+        vn = np.empty(3)
+        Ex = np.empty((3, 3))
+        CE = np.empty((3, 3))
+        CC = np.empty((3, 3))
+        for i in range(3):
+            rr[i] = r[b, i]
+            for j in range(3):
+                Cb[i, j] = C[b, i, j]
+        vb = np.empty(3)
+        for i in range(3):
+            vb[i] = v[b, i]
+        for k in range(n):
+            for i in range(3):
+                fc[i] = f_raw[b, k, i] - ba[b, i]
+                wc[i] = w_raw[b, k, i] - bg[b, i]
+            # ---- covariance: Phi = I + F h at the state of the interval start ----
+            F[:, :] = 0.0
+            _fill_F(F, Cb, fc, rr, kg, ka)
+            _sparse_left(F, Phi_acc[b], T, nz)
+            if exact:
+                _sparse_left(F, Q_acc[b], T2, nz)          # T2 = F Q
+                # Q <- Q + h (F Q + Q F^T) + h^2 F Q F^T   (= Phi Q Phi^T)
+                for i in range(N):
+                    for c in range(N):
+                        Q_acc[b, i, c] += h * (T2[i, c] + T2[c, i])
+                # F (F Q)^T = F Q F^T, using T2^T as the right factor
+                FQFt[:, :] = 0.0
+                for p in range(nz.shape[0]):
+                    i = nz[p, 0]
+                    j = nz[p, 1]
+                    fij = F[i, j]
+                    for c in range(N):
+                        FQFt[i, c] += fij * T2[c, j]
+                for i in range(N):
+                    for c in range(N):
+                        Q_acc[b, i, c] += h * h * FQFt[i, c]
+            for i in range(N):
+                for c in range(N):
+                    Phi_acc[b, i, c] += h * T[i, c]
+            # process noise of this sample: C diag(qg) C^T, C diag(qa) C^T, diag(qdiag)
+            for i in range(3):
+                for j in range(3):
+                    sg = 0.0
+                    sa = 0.0
+                    for m in range(3):
+                        sg += Cb[i, m] * qg[m] * Cb[j, m]
+                        sa += Cb[i, m] * qa[m] * Cb[j, m]
+                    Q_acc[b, i, j] += sg * h
+                    Q_acc[b, 3 + i, 3 + j] += sa * h
+            for i in range(6, N):
+                Q_acc[b, i, i] += qdiag[i] * h
+            # ---- mechanization (ins.mechanize, single-sample scheme) ----
+            d0 = wc[0] * h
+            d1 = wc[1] * h
+            d2 = wc[2] * h
+            u0 = fc[0] * h
+            u1 = fc[1] * h
+            u2 = fc[2] * h
+            th2 = d0 * d0 + d1 * d1 + d2 * d2
+            if th2 < 1e-4:
+                ca = 1.0 - th2 / 6.0 + th2 * th2 / 120.0
+                cb = 0.5 - th2 / 24.0 + th2 * th2 / 720.0
+                cc = 1.0 / 6.0 - th2 / 120.0 + th2 * th2 / 5040.0
+            else:
+                th = np.sqrt(th2)
+                ca = np.sin(th) / th
+                cb = (1.0 - np.cos(th)) / th2
+                cc = (1.0 - ca) / th2
+            tdv = d0 * u0 + d1 * u1 + d2 * u2
+            e0 = (1.0 - cc * th2) * u0 + cb * (d1 * u2 - d2 * u1) + cc * tdv * d0
+            e1 = (1.0 - cc * th2) * u1 + cb * (d2 * u0 - d0 * u2) + cc * tdv * d1
+            e2 = (1.0 - cc * th2) * u2 + cb * (d0 * u1 - d1 * u0) + cc * tdv * d2
+            for i in range(3):
+                uu[i] = Cb[i, 0] * e0 + Cb[i, 1] * e1 + Cb[i, 2] * e2
+            _gravity(rr[0] + 0.5 * h * vb[0], rr[1] + 0.5 * h * vb[1], rr[2] + 0.5 * h * vb[2], g)
+            for i in range(3):
+                vn[i] = (Av[i, 0] * vb[0] + Av[i, 1] * vb[1] + Av[i, 2] * vb[2]
+                         + Au[i, 0] * uu[0] + Au[i, 1] * uu[1] + Au[i, 2] * uu[2]
+                         + Ag[i, 0] * g[0] + Ag[i, 1] * g[1] + Ag[i, 2] * g[2])
+            for i in range(3):
+                rr[i] += 0.5 * h * (vb[i] + vn[i])
+                vb[i] = vn[i]
+            # attitude: C+ = Cz C exp([d x]) with exp = (1 - cb th2) I + ca [d x] + cb d d^T
+            Ex[0, 0] = 1.0 - cb * th2 + cb * d0 * d0
+            Ex[1, 1] = 1.0 - cb * th2 + cb * d1 * d1
+            Ex[2, 2] = 1.0 - cb * th2 + cb * d2 * d2
+            Ex[0, 1] = -ca * d2 + cb * d0 * d1
+            Ex[1, 0] = ca * d2 + cb * d0 * d1
+            Ex[0, 2] = ca * d1 + cb * d0 * d2
+            Ex[2, 0] = -ca * d1 + cb * d0 * d2
+            Ex[1, 2] = -ca * d0 + cb * d1 * d2
+            Ex[2, 1] = ca * d0 + cb * d1 * d2
+            for i in range(3):
+                for j in range(3):
+                    CE[i, j] = Cb[i, 0] * Ex[0, j] + Cb[i, 1] * Ex[1, j] + Cb[i, 2] * Ex[2, j]
+            for i in range(3):
+                for j in range(3):
+                    Cb[i, j] = Cz[i, 0] * CE[0, j] + Cz[i, 1] * CE[1, j] + Cz[i, 2] * CE[2, j]
+            if orthonormalize:
+                # C <- 1.5 C - 0.5 (C C^T) C
+                for i in range(3):
+                    for j in range(3):
+                        CC[i, j] = Cb[i, 0] * Cb[j, 0] + Cb[i, 1] * Cb[j, 1] + Cb[i, 2] * Cb[j, 2]
+                for i in range(3):
+                    for j in range(3):
+                        CE[i, j] = 1.5 * Cb[i, j] - 0.5 * (CC[i, 0] * Cb[0, j] + CC[i, 1] * Cb[1, j] + CC[i, 2] * Cb[2, j])
+                for i in range(3):
+                    for j in range(3):
+                        Cb[i, j] = CE[i, j]
+            clk[b] += drift[b] * h
+        for i in range(3):
+            r[b, i] = rr[i]
+            v[b, i] = vb[i]
+            for j in range(3):
+                C[b, i, j] = Cb[i, j]
+
+
+_serial = nb.njit(cache=True)(_propagate_epoch)
+_parallel = nb.njit(cache=True, parallel=True)(_propagate_epoch)
+
+PARALLEL_MIN_BATCH = 64
+"""Below this batch size the serial kernel is used: a parallel launch costs more than it saves, and on
+2 cores its worker threads compete with BLAS threads still spinning after the caller's last matmul."""
+
+
+def propagate_epoch(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, Cz, qg, qa, qdiag, kg, ka,
+                    Phi_acc, Q_acc, exact, orthonormalize, nz):
+    """Compiled epoch propagation (see :func:`_propagate_epoch`); parallel over rows for B >= 64."""
+    kern = _parallel if f_raw.shape[0] >= PARALLEL_MIN_BATCH else _serial
+    kern(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, Cz, qg, qa, qdiag, kg, ka,
+         Phi_acc, Q_acc, exact, orthonormalize, nz)
