@@ -165,7 +165,27 @@ class Navigator:
             self._reset_accumulator()
 
     # ----------------------------------------------------------- measurement
-    def update_gnss(self, sat_pos, sat_vel, pr, prr, pr_sigma, prr_sigma, mask) -> tuple[UpdateResult, np.ndarray]:
+    def update(self, dz, H, R, mask) -> UpdateResult:
+        """Closed-loop update with any stacked measurement (GNSS rows, constraints, or both).
+
+        Flushes the pending prediction, runs the form's update on the rows that have not
+        diverged, and feeds the estimated errors back into the nominal state.
+
+        Parameters
+        ----------
+        dz : (B, m) innovations; H : (B, m, 17); R : (B, m) variances or (B, m, m); mask : (B, m) bool.
+        """
+        self.flush_prediction()
+        mask = np.asarray(mask, bool) & ~self.diverged[:, None]
+        try:
+            res = self.form.update(dz, H, R, mask)
+        except np.linalg.LinAlgError:
+            res = self._update_isolating_failures(dz, H, R, mask)
+        self._feedback(self.form.take_correction())
+        return res
+
+    def update_gnss(self, sat_pos, sat_vel, pr, prr, pr_sigma, prr_sigma, mask,
+                    extra=None) -> tuple[UpdateResult, np.ndarray]:
         """Tightly coupled update with one GNSS epoch and closed-loop feedback.
 
         Parameters
@@ -174,52 +194,50 @@ class Navigator:
         pr, prr : (B, C) pseudorange [m], pseudorange rate [m/s] (``prr`` may be None).
         pr_sigma, prr_sigma : (B, C) measurement standard deviations [m], [m/s].
         mask : (B, C) bool valid channels.
+        extra : optional ``(dz, H, R, mask)`` block (e.g. ZUPT/NHC from
+            :mod:`nav_filters.constraints`) fused into the same update.
 
         Returns
         -------
-        result : :class:`~nav_filters.forms.UpdateResult`
+        result : :class:`~nav_filters.forms.UpdateResult` (rows ``[pr..., prr..., extra...]``)
         gdop : (B,) geometric DOP of the used satellites (inf below 4).
         """
-        self.flush_prediction()
         mask = np.asarray(mask, bool) & ~self.diverged[:, None]
         pr_var = np.square(np.asarray(pr_sigma, np.float64))
         prr_var = None if prr_sigma is None else np.square(np.asarray(prr_sigma, np.float64))
         dz, H, R, row_mask, u = gnss_innovations(
             self.r, self.v, self.clk, self.drift, sat_pos, sat_vel, pr, prr, pr_var, prr_var, mask,
             use_rate=self.config.use_pseudorange_rate, dtype=self.dtype)
-        try:
-            res = self.form.update(dz, H, R, row_mask)
-        except np.linalg.LinAlgError:
-            res = self._update_isolating_failures(dz, H, R, row_mask)
-        self._feedback(self.form.take_correction())
+        if extra is not None:
+            from .constraints import stack_measurements
+            dz, H, R, row_mask = stack_measurements((dz, H, R, row_mask), extra, dtype=self.dtype)
+        res = self.update(dz, H, R, row_mask)
         if np.any(mask.any(-1)):
             self.time_since_update = 0.0
         return res, dop(u, mask)
 
-    def _update_isolating_failures(self, dz, H, R, row_mask):
-        """Retry an update after flagging rows whose covariance is no longer positive definite."""
-        P = self.form.covariance
-        bad = ~np.all(np.isfinite(P), axis=(1, 2))
-        ok = ~bad
-        try:
-            np.linalg.cholesky(H[ok] @ P[ok] @ H[ok].mT + (np.eye(R.shape[1]) * R[ok][:, None, :]))
-        except np.linalg.LinAlgError:
-            bad[:] = True
-            for b in range(self.batch_size):
-                try:
-                    S = H[b] @ P[b] @ H[b].T + np.diag(R[b])
-                    np.linalg.cholesky(S)
-                    bad[b] = not np.all(np.isfinite(S))
-                except np.linalg.LinAlgError:
-                    bad[b] = True
+    def _update_isolating_failures(self, dz, H, R, mask):
+        """Retry an update after flagging the rows whose innovation covariance is not positive definite."""
+        P = np.asarray(self.form.covariance, np.float64)
+        Rf = np.asarray(R, np.float64)
+        if Rf.ndim == 2:
+            Rf = np.einsum("bi,ij->bij", np.where(mask, Rf, 1.0), np.eye(Rf.shape[1]))
+        bad = np.zeros(self.batch_size, bool)
+        for b in range(self.batch_size):
+            Hb = np.where(mask[b][:, None], H[b], 0.0)
+            S = Hb @ P[b] @ Hb.T + Rf[b]
+            try:
+                np.linalg.cholesky(S)
+                bad[b] = not np.all(np.isfinite(S))
+            except np.linalg.LinAlgError:
+                bad[b] = True
         self.diverged |= bad
-        row_mask = row_mask & ~bad[:, None]
+        mask = mask & ~bad[:, None]
         if bad.all():
-            B, m = row_mask.shape
-            z = np.zeros(B)
-            return UpdateResult(nis=z, n_used=np.zeros(B, int), innovation=np.zeros((B, m)),
+            B, m = mask.shape
+            return UpdateResult(nis=np.zeros(B), n_used=np.zeros(B, int), innovation=np.zeros((B, m)),
                                 innovation_var=np.ones((B, m)), applied=np.zeros(B, bool))
-        return self.form.update(dz, H, R, row_mask)
+        return self.form.update(dz, H, R, mask)
 
     def _feedback(self, dx):
         """Closed-loop correction: add the error-state estimate to the nominal state (B, 17)."""

@@ -84,12 +84,19 @@ def invert_transition(Phi):
 def process_noise_factor(Q):
     """Square-root factor ``G`` (B, n, r) with ``G G^T = Q`` for a positive semi-definite ``Q``.
 
-    Seed paper 000, eq 40: ``Q = U_Q D_Q^2 U_Q^T`` (SVD = eigendecomposition of a
-    symmetric PSD matrix), ``G = U_Q D_Q``. A diagonal ``Q`` (the common case) is
-    factored without a decomposition, ``G = diag(sqrt(q))`` restricted to the
-    columns where some batch row has ``q > 0``, so ``r`` may be smaller than
-    ``n``; zero rows of ``Q`` (noise-free states) give zero rows of ``G`` and
-    need no ``Q^-1``.
+    Seed paper 000, eq 40 factors ``Q = U_Q D_Q^2 U_Q^T`` (SVD = eigendecomposition
+    of a symmetric PSD matrix) and uses ``G = U_Q D_Q``; every form here only needs
+    *some* ``G`` with ``G G^T = Q`` (the pre-arrays' Gram matrices are what
+    matter), so the cheapest sound factor is taken:
+
+    1. the rows/columns of ``Q`` that are zero in every batch row (noise-free
+       states) are dropped, so they become zero rows of ``G`` and no ``Q^-1`` is
+       ever needed;
+    2. a diagonal remainder gives ``G = diag(sqrt(q))`` (no decomposition);
+    3. otherwise a Cholesky factor of the remainder (``r`` = number of kept
+       states), and only if that is singular (a PSD ``Q`` of lower rank) the
+       eigendecomposition of eq 40, ``G = U_Q D_Q`` with rounding-level negative
+       eigenvalues clipped to zero.
 
     Parameters
     ----------
@@ -98,27 +105,38 @@ def process_noise_factor(Q):
     Raises
     ------
     ValueError
-        ``Q`` has an eigenvalue below ``-sqrt(eps) * max|eigenvalue|`` (not PSD);
-        rounding-level negative eigenvalues are clipped to zero.
+        ``Q`` has a negative diagonal entry or an eigenvalue below
+        ``-sqrt(eps) * max|eigenvalue|`` (not positive semi-definite).
     """
     B, n, _ = Q.shape
     idx = np.arange(n)
     diag = Q[:, idx, idx]
-    off = Q.copy()
-    off[:, idx, idx] = 0
-    eps = np.finfo(Q.dtype).eps
-    if not np.any(off):
-        if np.any(diag < 0):
-            raise ValueError("Q must be positive semi-definite (negative diagonal entry)")
-        cols = np.flatnonzero(np.any(diag > 0, axis=0))
-        G = np.zeros((B, n, cols.size), Q.dtype)
-        G[:, cols, np.arange(cols.size)] = np.sqrt(diag[:, cols])
+    if np.any(diag < 0):
+        raise ValueError("Q must be positive semi-definite (negative diagonal entry)")
+    nz = np.any(Q != 0, axis=0)
+    keep = np.flatnonzero(nz.any(0) | nz.any(1))
+    r = keep.size
+    G = np.zeros((B, n, r), Q.dtype)
+    if r == 0:
         return G
-    lam, V = np.linalg.eigh(symmetrize(Q))
+    Qk = Q[:, keep][:, :, keep]
+    off = Qk.copy()
+    off[:, np.arange(r), np.arange(r)] = 0
+    if not np.any(off):
+        G[:, keep, np.arange(r)] = np.sqrt(diag[:, keep])
+        return G
+    Qk = symmetrize(Qk)
+    try:
+        G[:, keep] = np.linalg.cholesky(Qk)
+        return G
+    except np.linalg.LinAlgError:
+        pass
+    lam, V = np.linalg.eigh(Qk)
     scale = np.max(np.abs(lam), axis=-1, keepdims=True)
-    if np.any(lam < -np.sqrt(eps) * scale):
+    if np.any(lam < -np.sqrt(np.finfo(Q.dtype).eps) * scale):
         raise ValueError("Q must be positive semi-definite (it has a clearly negative eigenvalue)")
-    return V * np.sqrt(np.maximum(lam, 0))[:, None, :]
+    G[:, keep] = V * np.sqrt(np.maximum(lam, 0))[:, None, :]
+    return G
 
 
 def whiten_measurement(dz, H, R):
@@ -314,7 +332,7 @@ class InformationFilter(InformationForm):
             S = G.mT @ MG
             r = S.shape[-1]
             S[:, np.arange(r), np.arange(r)] += 1
-            J = np.linalg.solve(S, MG.mT).mT
+            J = MG @ np.linalg.inv(S)  # S = I + G^T M G is SPD with eigenvalues >= 1: inverse well conditioned
             L = -(J @ G.mT)
             L[:, np.arange(self.n), np.arange(self.n)] += 1
             self.Y = symmetrize(L @ M @ L.mT + J @ J.mT)
