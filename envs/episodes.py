@@ -139,7 +139,7 @@ def run_episodes(world: World, method: str = "kf", dtype="float64", progress=Non
         verr_e[:, j] = nav.v - truth.v_e[:, k]
         e = np.concatenate([-verr_e[:, j], -err_e[:, j]], 1)
         P = np.asarray(nav.covariance, np.float64)[:, pv][:, :, pv]
-        ok = ~nav.diverged
+        ok = ~nav.diverged & np.isfinite(P).all((1, 2))  # NEES undefined while a state is unobserved
         if ok.any():
             sol = np.linalg.solve(P[ok], e[ok][..., None])[..., 0]
             nees[ok, j] = np.sum(e[ok] * sol, -1)

@@ -106,7 +106,8 @@ class Navigator:
         self.form = make_form(config.method, P0, dtype=self.dtype)
         self.batch_size = B
         self.diverged = np.zeros(B, bool)
-        self.time_since_update = 0.0
+        self.time_since_update = np.zeros(B)
+        """(B,) seconds since each row's last GNSS update with at least one satellite."""
         noise = config.noise
         q = noise.diagonal()
         self._qg = np.ascontiguousarray(q[0:3])
@@ -212,8 +213,7 @@ class Navigator:
             from .constraints import stack_measurements
             dz, H, R, row_mask = stack_measurements((dz, H, R, row_mask), extra, dtype=self.dtype)
         res = self.update(dz, H, R, row_mask)
-        if np.any(mask.any(-1)):
-            self.time_since_update = 0.0
+        self.time_since_update[mask.any(-1)] = 0.0
         return res, dop(u, mask)
 
     def _update_isolating_failures(self, dz, H, R, mask):
@@ -249,9 +249,24 @@ class Navigator:
         self.clk = self.clk + dx[:, CLK.start].astype(np.float64)
         self.drift = self.drift + dx[:, DRIFT.start]
         finite = np.isfinite(self.r).all(1) & np.isfinite(self.v).all(1) & np.isfinite(self.C).all((1, 2))
-        P = self.form.covariance
-        finite &= np.isfinite(np.diagonal(P, axis1=1, axis2=2)).all(1) & (np.diagonal(P, axis1=1, axis2=2) > 0).all(1)
+        # +inf variance = a direction the information forms have not observed yet (srif from zero
+        # information), not a divergence; NaN or a non-positive variance is.
+        d = np.diagonal(self.form.covariance, axis1=1, axis2=2)
+        finite &= ~np.isnan(d).any(1) & (d > 0).all(1)
         self.diverged |= ~finite
+
+    def replace_rows(self, rows, other: "Navigator") -> None:
+        """Overwrite batch rows ``rows`` with the state of ``other`` (a navigator of len(rows) rows, same
+        config): the nominal state, the filter form (:meth:`FilterForm.replace_rows`), the pending
+        transition and the divergence flags. Used to reset single rows of a running batch."""
+        rows = np.asarray(rows, dtype=np.intp)
+        if other.config != self.config:
+            raise ValueError("replace_rows needs a navigator with the same config")
+        self.flush_prediction()
+        other.flush_prediction()
+        for name in ("r", "v", "C", "clk", "drift", "bg", "ba", "diverged", "time_since_update"):
+            getattr(self, name)[rows] = getattr(other, name)
+        self.form.replace_rows(rows, other.form)
 
     # ----------------------------------------------------------------- views
     @property

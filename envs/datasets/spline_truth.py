@@ -189,7 +189,7 @@ def truth_from_fit(fit: SplineFit, imu_rate_hz: float = 100.0, batch_size: int =
     Parameters
     ----------
     fit : SplineFit
-    imu_rate_hz : IMU rate [Hz], > 0. The grid covers ``[fit.t0, fit.t1]``.
+    imu_rate_hz : IMU rate [Hz], > 0. The grid covers ``[fit.t0, fit.t1]`` to within half a sample.
     batch_size : B; every row is the same trajectory (the arrays are read-only broadcast views).
     min_speed_mps : speed below which the attitude is interpolated, not taken from the velocity [m/s].
 
@@ -207,7 +207,7 @@ def truth_from_fit(fit: SplineFit, imu_rate_hz: float = 100.0, batch_size: int =
             or not math.isfinite(min_speed_mps) or min_speed_mps <= 0:
         raise ValueError(f"min_speed_mps must be a finite number > 0, got {min_speed_mps!r}")
     dt = 1.0 / float(imu_rate_hz)
-    N = int(math.floor((fit.t1 - fit.t0) / dt + 1e-9)) + 1
+    N = int(round((fit.t1 - fit.t0) / dt)) + 1                # ends within dt/2 of fit.t1 (tiny extrapolation)
     if N < 2:
         raise ValueError(f"the reference spans {fit.t1 - fit.t0} s: shorter than one IMU interval ({dt} s)")
     th = fit.t0 + 0.5 * dt * np.arange(2 * N - 1)          # half-step grid: nodes and interval midpoints

@@ -150,6 +150,7 @@ class AdaptiveLaw(FilterForm):
 
     # ----------------------------------------------------------- inner form
     def _init_uncertainty(self, P0):
+        self._p0_diag = np.diagonal(P0, axis1=1, axis2=2).astype(np.float64).copy()
         self.inner = self._inner_factory(P0, dtype=self.dtype)
         if not isinstance(self.inner, FilterForm):
             raise ValueError(f"inner must build a FilterForm, got {type(self.inner).__name__}")
@@ -204,11 +205,42 @@ class AdaptiveLaw(FilterForm):
         return EpochContext(pending=True, Phi=Phi, Q=self._epoch_q(Q_acc), prior=symmetrize(Phi @ P @ Phi.mT))
 
     def _apply_prediction(self, ctx: EpochContext, fade):
-        """``inner.predict(sqrt(fade) Phi, Q)``: ``P <- fade Phi P Phi^T + Q`` (seed 003 eq 23)."""
+        """``inner.predict(D Phi, Q)`` with ``D = diag(sqrt(fade))``: ``P <- D Phi P Phi^T D + Q``.
+
+        ``fade`` (B,) is one fading factor per row (seed 003 eq 23: ``lambda Phi P Phi^T``), or (B, n)
+        one per state (multiple fading factors; the congruence keeps P positive definite).
+        """
         if ctx.pending and not ctx.applied:
-            s = np.sqrt(np.asarray(fade, np.float64)).astype(self.dtype)
-            self.inner.predict(s[:, None, None] * ctx.Phi, ctx.Q)
+            f = np.asarray(fade, np.float64)
+            s = np.sqrt(f if f.ndim == 2 else f[:, None]).astype(self.dtype)
+            if np.all(s == 1):
+                self.inner.predict(ctx.Phi, ctx.Q)
+            else:
+                self.inner.predict(s[:, :, None] * ctx.Phi, ctx.Q)
         ctx.applied = True
+
+    def capped_fading(self, lam, prior, cap):
+        """Per-state fading factors ``lambda_i = min(lambda, max(1, cap P0_ii / (Phi P Phi^T)_ii))``.
+
+        A safeguard (not in seed 003): a single fading factor inflates every state alike, also those
+        the measurements barely observe (attitude, biases), which then grow without bound while the
+        innovations stay large (NLOS); capping each state's faded variance at ``cap`` times its
+        initial variance keeps the linearized error model valid.
+
+        Parameters
+        ----------
+        lam : (B,) fading factors >= 1; prior : (B, n, n) ``Phi P Phi^T``; cap : float (> 0, inf: no cap).
+
+        Returns
+        -------
+        (B,) ``lam`` itself when ``cap`` is inf, else (B, n).
+        """
+        lam = np.asarray(lam, np.float64)
+        if np.isinf(cap):
+            return lam
+        d = np.diagonal(prior, axis1=1, axis2=2).astype(np.float64)
+        room = np.where(d > 0, cap * self._p0_diag / np.where(d > 0, d, 1.0), np.inf)
+        return np.minimum(lam[:, None], np.maximum(1.0, room))
 
     # ------------------------------------------------------ measurement update
     def _update(self, dz, H, R, mask) -> UpdateResult:

@@ -77,7 +77,8 @@ class SageHusaConfig:
 
     Attributes
     ----------
-    b : initial forgetting factor in (0, 1] (per-row settable afterwards; paper: 0.95-0.99).
+    b : initial forgetting factor in (0, 1] (per-row settable afterwards; paper: 0.95-0.99, 'a relatively
+        large forgetting factor because the initial matrix Q is generally accurate').
     adapt_q, adapt_r : adapt the process noise / the measurement-noise scales.
     diagonal_q : correct only with ``diag(Q_hat)`` (seed 000 eq 21, ``svd-asrkf``) instead of the full
         ``Q_hat`` (eq 22, ``svd-akf``).
@@ -93,7 +94,7 @@ class SageHusaConfig:
         :func:`~.innovation.measurement_groups`.
     """
 
-    b: float = 0.98
+    b: float = 0.99
     adapt_q: bool = True
     adapt_r: bool = True
     diagonal_q: bool = False
@@ -102,7 +103,7 @@ class SageHusaConfig:
     b_jump_factor: float = 2.0
     b_min: float = 0.9
     q_floor: float = 1e-3
-    q_ceiling: float = 1e4
+    q_ceiling: float = 100.0
     r_scale_min: float = 1e-2
     r_scale_max: float = 1e4
     warmup_epochs: int = 10
@@ -288,6 +289,16 @@ class SageHusa(AdaptiveLaw):
         Q_new = clip_relative_eigenvalues(Q_new, self._q_ref, cfg.q_floor, cfg.q_ceiling).astype(self.dtype)
         self._Q = np.where(rows[:, None, None], Q_new, self._Q)
         self._q_init = self._q_init | rows
+
+    def adapted_process_noise(self):
+        """The adapted epoch-level process noise.
+
+        Returns
+        -------
+        Q : (B, n, n) copy of the adapted epoch Q (zeros on rows not adapted yet).
+        adapted : (B,) bool, rows whose Q has been adapted at least once (the others apply the nominal Q).
+        """
+        return self._Q.copy(), self._q_init.copy()
 
     def _on_param_change(self, name, changed_rows):
         if name == "b":

@@ -18,11 +18,12 @@ Only traces of ``C_k`` enter the laws, but a channel of the navigator carries
 different satellites from one epoch to the next and the number of used rows
 changes, so ``tr(C_k)`` cannot be smoothed as it stands (losing half the
 satellites would look like a drop of the innovation energy). Both laws
-therefore smooth the *ratio* of the innovation energy to the nominal predicted
-innovation trace of its own epoch, ``c_k ~ ||dz_k||^2 / tr(S_k)`` with
-``S_k = M_k + H Q H^T + R``, and use ``tr(C_k) = c_k tr(S_k)``. For a fixed
-measurement set with a steady ``S`` this is exactly the paper's recursion on
-``tr(C_k)``; a consistent filter has ``c_k ~ 1``.
+therefore smooth the innovation energy *per unit of reported measurement
+variance*, ``c_k ~ ||dz_k||^2 / tr(R_k)``, and use ``tr(C_k) = c_k tr(R_k)``.
+For a fixed measurement set with fixed reported variances this is exactly the
+paper's recursion on ``tr(C_k)``. (Normalizing by ``tr(S_k)`` instead would
+feed the fading back into itself: a faded, larger P raises ``tr(S_k)`` and so
+the whole smoothed history.)
 
 Updates with no transition since the previous update (a second measurement in
 the same epoch) update the statistics but apply no fading.
@@ -77,17 +78,22 @@ class StrongTrackingConfig:
     softening : initial softening factor beta (> 0; 1 = no softening; per-row settable).
     rho : initial forgetting factor of the innovation covariance, (0, 1] (0.95; per-row settable).
     lambda_max : upper bound of the fading factor (>= 1; 1 disables fading).
+    fading_cap : per-state cap of the faded variance, in units of the initial variance ``P0_ii``
+        (:meth:`~nav_filters.adaptive.base.AdaptiveLaw.capped_fading`; ``inf`` applies the single
+        factor of the paper uncapped).
     """
 
     softening: float = 1.0
     rho: float = 0.95
     lambda_max: float = 1e3
+    fading_cap: float = 1.0
 
     def __post_init__(self):
         o = type(self).__name__
         SOFTENING_SPEC.check(self.softening, owner=o)
         RHO_SPEC.check(self.rho, owner=o)
         check_option(o, "lambda_max", self.lambda_max, low=1.0)
+        check_option(o, "fading_cap", self.fading_cap, low=0.0, low_closed=False, allow_inf=True)
 
 
 class StrongTracking(AdaptiveLaw):
@@ -98,7 +104,7 @@ class StrongTracking(AdaptiveLaw):
     ``lambda_k`` of :func:`fading_factor` with ``C_k = V_k``.
 
     Per-row parameters: ``softening`` (beta > 0), ``rho`` ((0, 1]).
-    Adaptive state: ``lambda`` (the last fading factor), ``innovation_ratio`` (``tr V_k / tr S_k``).
+    Adaptive state: ``lambda`` (the last fading factor), ``innovation_ratio`` (``tr V_k / tr R_k``).
     """
 
     name = "stkf"
@@ -114,19 +120,20 @@ class StrongTracking(AdaptiveLaw):
     def _plan(self, r, H, R, mask, ctx: EpochContext) -> UpdatePlan:
         has = mask.any(-1)
         tr = innovation_traces(r, H, ctx.prior, ctx.Q, R, mask)
-        tr_s = tr.tr_s.astype(np.float64)
-        ratio = tr.energy.astype(np.float64) / np.where(has, tr_s, 1.0)
+        tr_r = tr.tr_r.astype(np.float64)
+        ratio = tr.energy.astype(np.float64) / np.where(has, tr_r, 1.0)
         rho = self._params["rho"]
         v = np.where(self._count == 0, ratio, (rho * self._v + ratio) / (1.0 + rho))
         v = np.where(has, v, self._v)
-        lam = fading_factor(v * tr_s, tr, self._params["softening"], self.config.lambda_max)
+        lam = fading_factor(v * tr_r, tr, self._params["softening"], self.config.lambda_max)
         lam = np.where(has & ctx.pending, lam, 1.0)
-        return UpdatePlan(fade=lam, R=R, mask=mask, pending={"v": v, "has": has})
+        fade = self.capped_fading(lam, ctx.prior, self.config.fading_cap)
+        return UpdatePlan(fade=fade, R=R, mask=mask, pending={"v": v, "has": has, "lambda": lam})
 
     def _commit(self, plan, ctx, r, H, mask, dx):
         self._v = plan.pending["v"]
         self._count = self._count + plan.pending["has"]
-        self._lambda = plan.fade
+        self._lambda = plan.pending["lambda"]
 
     def _state(self):
         return {"lambda": self._lambda, "innovation_ratio": self._v}
@@ -145,6 +152,11 @@ class MeasurementAdaptiveSTKFConfig:
     lambda_max : upper bound of the fading factor (>= 1; 1 disables fading).
     max_consecutive_rejections : after this many consecutive rejected epochs a row's next epoch is
         accepted (so a lasting change is tracked instead of being rejected for ever).
+    fading_cap : per-state cap of the faded variance in units of ``P0_ii`` (see
+        :class:`StrongTrackingConfig`; ``inf``: the paper's single uncapped factor).
+    fading_uses_alpha : the measurement noise subtracted in ``N_k`` (eq 20) is the current noise
+        model ``alpha_(k-1) R_k`` (True, default) or the reported ``R_k`` as printed (False); see
+        :class:`MeasurementAdaptiveSTKF`.
     """
 
     b: float = 0.987
@@ -154,15 +166,20 @@ class MeasurementAdaptiveSTKFConfig:
     alpha_max: float = 1e4
     lambda_max: float = 1e3
     max_consecutive_rejections: int = 5
+    fading_cap: float = 1.0
+    fading_uses_alpha: bool = True
 
     def __post_init__(self):
         o = type(self).__name__
+        if not isinstance(self.fading_uses_alpha, (bool, np.bool_)):
+            raise ValueError(f"{o}.fading_uses_alpha must be a bool, got {self.fading_uses_alpha!r}")
         MA_B_SPEC.check(self.b, owner=o)
         SOFTENING_SPEC.check(self.softening, owner=o)
         FAULT_SPEC.check(self.fault_threshold, owner=o)
         check_option(o, "alpha_min", self.alpha_min, low=0.0, low_closed=False)
         check_option(o, "alpha_max", self.alpha_max, low=self.alpha_min)
         check_option(o, "lambda_max", self.lambda_max, low=1.0)
+        check_option(o, "fading_cap", self.fading_cap, low=0.0, low_closed=False, allow_inf=True)
         m = self.max_consecutive_rejections
         if isinstance(m, bool) or not isinstance(m, (int, np.integer)) or m < 0:
             raise ValueError(f"{o}.max_consecutive_rejections must be an int >= 0, got {m!r}")
@@ -178,7 +195,7 @@ class MeasurementAdaptiveSTKF(AdaptiveLaw):
            C_k = (1 - beta_k) C_(k-1) + beta_k dz dz^T,   beta_k = beta_(k-1) / (beta_(k-1) + b),
 
        with ``beta = 1`` at a row's first measurement epoch (``C = dz dz^T``; the paper's initial
-       value 1) and ``beta_k -> 1 - b``; smoothed as the ratio ``c_k = tr C_k / tr S_k`` (module
+       value 1) and ``beta_k -> 1 - b``; smoothed as the ratio ``c_k = tr C_k / tr R_k`` (module
        docstring);
     2. fault test (eq 13): the epoch is rejected (no measurement update, ``applied`` False) when
        ``tr(C_k) > fault_threshold * tr(H (Phi P Phi^T + Q) H^T + alpha_(k-1) R)``. Choices: the
@@ -190,9 +207,15 @@ class MeasurementAdaptiveSTKF(AdaptiveLaw):
        ``alpha_k = tr(C_k - H (Phi P Phi^T + Q) H^T) / tr(R_k)`` clipped to
        ``[alpha_min, alpha_max]``; the update uses ``alpha_k R_k`` (eq 24);
     4. fading factor (eqs 19-21) ``lambda_k = max(1, tr(N_k)/tr(M_k))``,
-       ``N_k = C_k - H Q H^T - beta R_k`` with the *reported* ``R_k`` (with ``alpha_k R_k`` it would be
-       identically 1 by eq 16) and ``beta`` the softening factor (1 as written), capped at
-       ``lambda_max``; ``P_k|k-1 = lambda_k Phi P Phi^T + Q`` (eq 23);
+       ``N_k = C_k - H Q H^T - beta alpha_(k-1) R_k`` with ``beta`` the softening factor (1 as
+       written), capped at ``lambda_max`` and per state by ``fading_cap``;
+       ``P_k|k-1 = lambda_k Phi P Phi^T + Q`` (eq 23). Choice: eq 20 prints the reported ``R_k``,
+       but once eq 24 uses ``alpha_k R_k`` that counts the same innovation excess twice, as
+       measurement noise (alpha) *and* as model mismatch (lambda), so a lasting rise of the noise
+       level fades P for ever (and ``alpha_k R_k`` itself would make lambda identically 1 by eq 16);
+       the noise model the epoch starts with, ``alpha_(k-1) R_k``, makes lambda react to a *jump*
+       of the innovations relative to the adapted noise. ``fading_uses_alpha=False`` gives the
+       printed form;
     5. the inner form's update with ``alpha_k R_k`` (eqs 24-25; the inner form's own covariance
        update, Joseph for ``kf``, stands for eq 26).
 
@@ -219,13 +242,12 @@ class MeasurementAdaptiveSTKF(AdaptiveLaw):
         cfg = self.config
         has = mask.any(-1)
         tr = innovation_traces(r, H, ctx.prior, ctx.Q, R, mask)
-        tr_s = tr.tr_s.astype(np.float64)
         tr_m, tr_q, tr_r = (a.astype(np.float64) for a in (tr.tr_m, tr.tr_q, tr.tr_r))
-        ratio = tr.energy.astype(np.float64) / np.where(has, tr_s, 1.0)
+        ratio = tr.energy.astype(np.float64) / np.where(has, tr_r, 1.0)
         # eqs 10-11 (beta = 1 at the first epoch)
         beta = np.where(self._count == 0, 1.0, self._beta / (self._beta + self._params["b"]))
         c = (1.0 - beta) * self._c + beta * ratio
-        tr_c = c * tr_s
+        tr_c = c * tr_r
         # eq 13: fault test against the predicted innovation trace with the current alpha
         predicted = tr_m + tr_q + self._alpha * tr_r
         fault = has & (tr_c > self._params["fault_threshold"] * predicted) & (self._streak < cfg.max_consecutive_rejections)
@@ -235,7 +257,8 @@ class MeasurementAdaptiveSTKF(AdaptiveLaw):
         alpha = np.clip((tr_c - tr_m - tr_q) / safe_r, cfg.alpha_min, cfg.alpha_max)
         alpha = np.where(accept, alpha, self._alpha)
         # eqs 19-21: fading factor with the reported R
-        lam = fading_factor(tr_c, tr, self._params["softening"], cfg.lambda_max)
+        soft = self._params["softening"] * (self._alpha if cfg.fading_uses_alpha else 1.0)
+        lam = fading_factor(tr_c, tr, soft, cfg.lambda_max)
         lam = np.where(accept & ctx.pending, lam, 1.0)
         a = np.where(accept, alpha, 1.0).astype(R.dtype)
         R_used = R * a[:, None, None]
@@ -243,8 +266,9 @@ class MeasurementAdaptiveSTKF(AdaptiveLaw):
         idx = np.arange(R.shape[1])
         R_used[:, idx, idx] = np.where(mask, R_used[:, idx, idx], 1)
         pending = {"c": np.where(accept, c, self._c), "beta": np.where(accept, beta, self._beta),
-                   "alpha": alpha, "accept": accept, "fault": fault}
-        return UpdatePlan(fade=lam, R=R_used, mask=mask & ~fault[:, None], pending=pending)
+                   "alpha": alpha, "accept": accept, "fault": fault, "lambda": lam}
+        fade = self.capped_fading(lam, ctx.prior, cfg.fading_cap)
+        return UpdatePlan(fade=fade, R=R_used, mask=mask & ~fault[:, None], pending=pending)
 
     def _commit(self, plan, ctx, r, H, mask, dx):
         p = plan.pending
@@ -253,7 +277,7 @@ class MeasurementAdaptiveSTKF(AdaptiveLaw):
         has = mask.any(-1)
         self._streak = np.where(p["fault"], self._streak + 1, np.where(has, 0, self._streak))
         self._rejected = p["fault"]
-        self._lambda = plan.fade
+        self._lambda = p["lambda"]
 
     def _state(self):
         return {"lambda": self._lambda, "alpha": self._alpha, "beta": self._beta, "innovation_ratio": self._c,

@@ -8,9 +8,16 @@ of the form, and :func:`parse_method` splits it off.
 from __future__ import annotations
 
 from .base import FilterForm, UpdateResult, prepare_measurement
+from .information import InformationFilter, SvdInformationFilter
 from .kf import KalmanFilter
+from .srif import SquareRootInformationFilter
 
-FORMS: dict[str, type[FilterForm]] = {"kf": KalmanFilter}
+FORMS: dict[str, type[FilterForm]] = {
+    "kf": KalmanFilter,
+    "if": InformationFilter,
+    "svd-if": SvdInformationFilter,
+    "srif": SquareRootInformationFilter,
+}
 """Registered forms by method name."""
 
 ONESTEP_SUFFIX = "+onestep"
@@ -33,4 +40,5 @@ def make_form(method: str, P0, x0=None, dtype=None) -> FilterForm:
     return FORMS[base](P0, x0=x0, dtype=dtype)
 
 
-__all__ = ["FilterForm", "UpdateResult", "KalmanFilter", "FORMS", "parse_method", "make_form", "prepare_measurement"]
+__all__ = ["FilterForm", "UpdateResult", "KalmanFilter", "InformationFilter", "SvdInformationFilter",
+           "SquareRootInformationFilter", "FORMS", "parse_method", "make_form", "prepare_measurement"]

@@ -90,7 +90,7 @@ def prepare_measurement(dz, H, R, mask, dtype):
     if mask.shape != (B, m):
         raise ValueError(f"mask must have shape ({B}, {m}), got {mask.shape}")
     Rdiag = R if R.ndim == 2 else np.diagonal(R, axis1=1, axis2=2)
-    for name, arr in (("dz", dz), ("H", H.reshape(B, m, -1)), ("R", Rdiag)):
+    for name, arr in (("dz", dz), ("H", H.reshape(B, m, H.shape[2])), ("R", Rdiag)):
         bad = ~np.isfinite(arr)
         if arr.ndim == 3:
             bad = bad.any(-1)
@@ -172,6 +172,30 @@ class FilterForm(ABC):
         if H.shape[2] != self.n:
             raise ValueError(f"H must have {self.n} columns, got {H.shape[2]}")
         return self._update(dz, H, R, mask)
+
+    def replace_rows(self, rows, other: "FilterForm") -> None:
+        """Overwrite batch rows ``rows`` with the rows of ``other`` (a form of the same class, B' = len(rows)).
+
+        Generic over every form: each per-row array attribute (leading axis B) is copied, and nested
+        forms (adaptive laws wrap an inner form) recurse. Forms must therefore keep all per-row state in
+        arrays with a leading batch axis (no per-batch Python scalars that differ between rows). Used by
+        the environments to reset single rows of a running batch.
+        """
+        rows = np.asarray(rows, dtype=np.intp)
+        if type(other) is not type(self):
+            raise ValueError(f"cannot replace rows of a {type(self).__name__} with a {type(other).__name__}")
+        if other.batch_size != rows.size:
+            raise ValueError(f"other has {other.batch_size} rows, expected {rows.size}")
+        for name, value in vars(self).items():
+            ov = getattr(other, name, None)
+            if isinstance(value, FilterForm):
+                value.replace_rows(rows, ov)
+            elif (isinstance(value, np.ndarray) and value.ndim >= 1 and value.shape[0] == self.batch_size
+                  and isinstance(ov, np.ndarray) and ov.shape == (rows.size,) + value.shape[1:]):
+                if not value.flags.writeable:
+                    value = value.copy()
+                    setattr(self, name, value)
+                value[rows] = ov
 
     def take_correction(self) -> np.ndarray:
         """Return the error-state estimate (B, n) and reset it to zero (closed-loop feedback)."""

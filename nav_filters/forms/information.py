@@ -203,7 +203,8 @@ class InformationForm(FilterForm):
 
     Subclasses implement ``_solve_state()`` (the (B, n) estimate from the stored
     information) and ``_set_state(x)`` (reset the information vector so that it
-    encodes ``x``), and call :meth:`_changed` after every predict / update.
+    encodes ``x``, and cache ``x`` with :meth:`_keep_x` when reading it back
+    would return it), and call :meth:`_changed` after every predict / update.
 
     ``form.x`` is computed on first access after a change and cached *read-only*
     (writing into it could not reach the information vector); assign
@@ -228,12 +229,28 @@ class InformationForm(FilterForm):
         value.flags.writeable = False
         if self._ready:
             self._set_state(value)
-        self._x = value  # also holds x0 until _init_uncertainty has run
+        else:
+            self._x = value  # holds x0 until _init_uncertainty has run
+
+    def _keep_x(self, x):
+        """Cache ``x`` (read-only) as the current estimate after ``_set_state`` encoded it exactly."""
+        x = np.asarray(x)
+        x.flags.writeable = False
+        self._x = x
 
     def _changed(self):
         """Drop the derived quantities (x, covariance, factor views) after a state change."""
         self._x = None
         self._cache = {}
+
+    def replace_rows(self, rows, other) -> None:
+        """Copy batch rows from ``other`` (base-class behaviour), then drop the derived caches of all rows.
+
+        The cached x / covariance / factor views are derived from the information arrays, so they
+        are recomputed from the copied rows instead of being copied or left stale.
+        """
+        super().replace_rows(rows, other)
+        self._changed()
 
     def take_correction(self) -> np.ndarray:
         x = np.array(self.x)
@@ -288,7 +305,7 @@ class InformationFilter(InformationForm):
         self.Y = symmetrize(Linv.mT @ Linv)
         self._changed()
         self._set_state(x0)
-        self._x, self._ready = x0, True
+        self._ready = True
 
     # -- derived ------------------------------------------------------------------
     def _chol_inv(self):
@@ -308,7 +325,7 @@ class InformationFilter(InformationForm):
 
     def _set_state(self, x):
         self.y = (self.Y @ x[..., None])[..., 0]
-        self._x = None
+        self._keep_x(x)
 
     @property
     def covariance(self):
@@ -396,7 +413,7 @@ class SvdInformationFilter(InformationForm):
         self.D = 1.0 / np.sqrt(lam)
         self._changed()
         self._set_state(x0)
-        self._x, self._ready = x0, True
+        self._ready = True
 
     def _solve_state(self):
         Uty = (self.U.mT @ self.y[..., None])[..., 0]
@@ -405,7 +422,7 @@ class SvdInformationFilter(InformationForm):
     def _set_state(self, x):
         Utx = (self.U.mT @ x[..., None])[..., 0]
         self.y = (self.U @ (Utx * self.D ** 2)[..., None])[..., 0]
-        self._x = None
+        self._keep_x(x)
 
     @property
     def covariance(self):

@@ -59,6 +59,11 @@ class SquareRootInformationFilter(InformationForm):
         [ I_r                   0               | 0 ]          [ *  *    | * ]
         [ -R_inf Phi^-1 G    R_inf Phi^-1       | z ]  = Q_h * [ 0  R_-  | z_- ]
 
+    so that ``R_-^T R_- = M - M G (G^T M G + I_r)^-1 G^T M`` with
+    ``M = Phi^-T Y Phi^-1``: eq 13, whose printed second term carries a stray
+    ``I_{k-1} Phi^-1`` (``M I_{k-1} Phi^-1 Gamma`` instead of ``M Gamma``; the
+    printed product is not even dimensionally an information matrix).
+
     Measurement update (seed 002 sec 4(3); the text's ``R_k^-1 H_k`` must be
     the whitened ``R_k^-1/2 H_k`` for the Gram matrix to be ``H^T R^-1 H``)::
 
@@ -111,9 +116,9 @@ class SquareRootInformationFilter(InformationForm):
             # rows of the zero-information states are unit rows: zero them.
             R = np.where(self._free0[:, :, None], 0, R)
         self.R_inf = R
-        self.z = (R @ x0[..., None])[..., 0]
         self._changed()
-        self._x, self._ready = (None if self._free0 is not None and self._free0.any() else x0), True
+        self._set_state(x0)
+        self._ready = True
 
     @classmethod
     def from_information(cls, R0, z0=None, dtype=None) -> "SquareRootInformationFilter":
@@ -193,7 +198,10 @@ class SquareRootInformationFilter(InformationForm):
 
     def _set_state(self, x):
         self.z = (self.R_inf @ x[..., None])[..., 0]
-        self._x = None
+        if self._views()["full"].all():  # else x is re-solved: its undetermined components are not kept
+            self._keep_x(x)
+        else:
+            self._x = None
 
     @property
     def covariance(self):

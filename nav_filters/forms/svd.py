@@ -32,14 +32,15 @@ Notes
 -----
 * Q may be only positive *semi*-definite (zero rows for states with no process
   noise). ``svd-srkf`` tries the Cholesky factor (eq 7) and, when it fails, falls
-  back to the symmetric eigen-factor ``U_Q diag(sqrt(lambda))``, which is also an
-  exact ``L_Q`` with ``L_Q L_Q^T = Q``. A diagonal Q (checked cheaply) is factored
-  by ``sqrt`` of its diagonal, and a Q broadcast over the batch (stride 0, as the
-  navigator's constant Q) is factored once. An eigenvalue below
-  ``-10 n eps max|lambda|`` is not round-off: ``ValueError`` naming ``Q``.
-* The SVD of a symmetric PSD matrix (Q, R, P0) is its symmetric eigendecomposition;
-  it is computed with ``np.linalg.eigh``, which also exposes negative eigenvalues for
-  validation.
+  back to the SVD factor ``U_Q diag(sqrt(s_Q))``, which is also an exact ``L_Q``
+  with ``L_Q L_Q^T = Q``. A diagonal Q (checked cheaply: counting non-zeros) is
+  factored by ``sqrt`` of its diagonal, a Q broadcast over the batch (stride 0)
+  is factored once, and an unchanged Q (compared by value) reuses its factor.
+  Negative eigenvalues beyond round-off (their magnitudes summing to more than
+  ``10 n eps max(s_Q)``) raise ``ValueError`` naming ``Q``.
+* The SVD of a symmetric PSD matrix (Q, R, P0) is its eigendecomposition; it is
+  computed with ``np.linalg.svd`` and validated by ``sum(s) - trace = 2 sum|lambda_-|``
+  (see :func:`_sym_svd_factor`).
 * The square root of ``R^-1`` in ``svd-srkf`` (eq 6) is ``L_R = C^-T`` where
   ``R = C C^T`` is the Cholesky factor of R: ``L_R L_R^T = R^-1`` exactly, without
   forming ``R^-1``. A diagonal R (detected by counting non-zeros) uses
@@ -51,7 +52,7 @@ import numpy as np
 
 from .base import FilterForm, UpdateResult, symmetrize
 
-_PSD_TOL = 10.0  # negative eigenvalues down to -_PSD_TOL * n * eps * max|lambda| count as round-off
+_PSD_TOL = 10.0  # negative eigenvalues summing to at most _PSD_TOL * n * eps * max|lambda| count as round-off
 
 
 # --------------------------------------------------------------------------- helpers
@@ -60,8 +61,8 @@ def _batched_base(M, B, n, name, dtype):
 
     Returns
     -------
-    (B or 1, n, n) array in ``dtype``: a stride-0 broadcast over the batch (the navigator's constant Q)
-    is collapsed to its single row, so it is validated and factored once.
+    (B or 1, n, n) array in ``dtype``: a stride-0 broadcast over the batch (one Q for all rows) is
+    collapsed to its single row, so it is validated and factored once.
 
     Raises
     ------
@@ -86,36 +87,55 @@ def _is_diagonal(M) -> bool:
     return np.count_nonzero(M) == np.count_nonzero(np.diagonal(M, axis1=-2, axis2=-1))
 
 
-def _check_eigenvalues(lam, name):
-    """``ValueError`` naming ``name`` if an eigenvalue (..., n) is negative beyond round-off; returns clipped ``lam``."""
-    eps = np.finfo(lam.dtype).eps
-    scale = np.max(np.abs(lam), axis=-1, keepdims=True)
-    tol = _PSD_TOL * lam.shape[-1] * eps * scale
-    bad = lam < -tol
+def _check_diagonal(d, name):
+    """``ValueError`` naming ``name`` if a variance of the diagonal (B', k) is negative beyond round-off;
+    returns ``d`` with the round-off negatives clipped to 0."""
+    eps = np.finfo(d.dtype).eps
+    scale = np.max(np.abs(d), axis=-1, keepdims=True)
+    bad = d < -_PSD_TOL * d.shape[-1] * eps * scale
     if bad.any():
-        idx = np.argwhere(bad.any(-1))[0][0] if lam.ndim > 1 else 0
-        raise ValueError(f"{name} must be symmetric positive semi-definite: batch row {idx} has eigenvalue "
-                         f"{float(np.min(lam[idx] if lam.ndim > 1 else lam)):.3e} (largest {float(scale.ravel()[idx]):.3e})")
-    return np.maximum(lam, 0)
+        b, j = np.argwhere(bad)[0]
+        raise ValueError(f"{name} must be positive semi-definite: batch row {b} has diagonal entry {j} = "
+                         f"{float(d[b, j]):.3e}")
+    return np.maximum(d, 0)
 
 
-def _sym_eig_factor(M, name):
-    """SVD (= symmetric eigendecomposition) of a symmetric PSD matrix: ``M = U_M diag(d) U_M^T``.
+def _sym_svd_factor(M, name):
+    """SVD of a symmetric PSD matrix, ``M = U_M diag(s) U_M^T``, validated.
 
-    Used for Q and R by ``svd-kf`` (Kulikova & Tsyganova 2017; seed 000 sec 4.1 item 1) and for P0
-    (seed 000 eq 4).
+    Used for Q and R by ``svd-kf`` (Kulikova & Tsyganova 2017: "SVD of Q and R instead of Cholesky", seed
+    000 sec 4.1 item 1), for P0 (seed 000 eq 4) and as ``svd-srkf``'s fallback square root of a PSD Q whose
+    Cholesky factorization fails. Computed by ``np.linalg.svd`` (LAPACK gesdd): for a symmetric PSD matrix
+    the SVD is the eigendecomposition (and gesdd avoids the multi-threaded slowdown of numpy's batched
+    ``eigh`` for k >= 26 seen with OpenBLAS on a loaded machine).
+
+    Validation without eigenvalues: for symmetric M, ``sum(s) - trace(M) = 2 * sum |negative eigenvalues|``
+    (the nuclear norm is the sum of ``|lambda|``, the trace the sum of ``lambda``), so an indefinite M is
+    recognized whatever the multiplicity of its singular values.
 
     Parameters
     ----------
-    M : (B, k, k) symmetric (only the lower triangle is read).
+    M : (B', k, k) symmetric.
     name : argument name for the error message.
 
     Returns
     -------
-    U_M : (B, k, k) orthogonal; d : (B, k) eigenvalues >= 0 (round-off negatives clipped to 0).
+    U_M : (B', k, k) orthogonal; s : (B', k) singular values = eigenvalues (>= 0).
+
+    Raises
+    ------
+    ValueError
+        the negative eigenvalues of a row sum to more than ``10 k eps max(s)`` in magnitude.
     """
-    lam, U = np.linalg.eigh(M)
-    return U, _check_eigenvalues(lam, name)
+    U, s, _ = np.linalg.svd(M)
+    neg = 0.5 * (np.sum(s, -1) - np.trace(M, axis1=-2, axis2=-1))
+    tol = _PSD_TOL * M.shape[-1] * np.finfo(M.dtype).eps * np.max(s, -1)
+    bad = neg > tol
+    if bad.any():
+        b = int(np.flatnonzero(bad)[0])
+        raise ValueError(f"{name} must be symmetric positive semi-definite: in batch row {b} its negative "
+                         f"eigenvalues sum to {-float(neg[b]):.3e} (largest singular value {float(s[b].max()):.3e})")
+    return U, s
 
 
 def _sqrt_factor_rows(M, name, cholesky_first):
@@ -126,28 +146,36 @@ def _sqrt_factor_rows(M, name, cholesky_first):
     M : (B', k, k) symmetric PSD (B' = 1 for a matrix shared by the batch).
     name : argument name for the error message.
     cholesky_first : try ``np.linalg.cholesky`` first (seed 000 eq 7, ``svd-srkf``); otherwise, and when
-        Cholesky fails (a PSD but singular M), use the SVD/eigen factor ``U_M diag(sqrt(d))`` (Kulikova &
+        Cholesky fails (a PSD but singular M), use the SVD factor ``U_M diag(sqrt(s))`` (Kulikova &
         Tsyganova 2017, ``svd-kf``).
 
     Returns
     -------
-    (B', k', k) ``L^T``; for a diagonal M only the rows of non-zero variances are kept (k' <= k, the zero
-    rows add nothing to ``A^T A``).
+    (B', k', k) ``L^T``. Rows/columns of M that are zero in every batch row are left out before the
+    factorization (so a PSD Q whose only singular part is the zero rows of noise-free states still has a
+    Cholesky factor), and for a diagonal M only the rows of non-zero variances are kept: k' <= k, the
+    dropped rows would add nothing to ``A^T A``.
     """
     if _is_diagonal(M):
-        d = np.diagonal(M, axis1=-2, axis2=-1)
-        d = _check_eigenvalues(d, name)
+        d = _check_diagonal(np.diagonal(M, axis1=-2, axis2=-1), name)
         keep = np.flatnonzero(np.any(d > 0, axis=0))
         k = M.shape[-1]
         Lt = np.zeros(M.shape[:-2] + (keep.size, k), M.dtype)
         Lt[..., np.arange(keep.size), keep] = np.sqrt(d[..., keep])
+        return Lt
+    k = M.shape[-1]
+    nz = np.flatnonzero(np.any(M != 0, axis=(0, -1)))  # states with process noise in some batch row
+    if nz.size < k:  # zero rows/columns (clock states without noise): factor the non-zero block only
+        sub = _sqrt_factor_rows(M[:, nz][:, :, nz], name, cholesky_first)
+        Lt = np.zeros(sub.shape[:-1] + (k,), M.dtype)
+        Lt[..., nz] = sub
         return Lt
     if cholesky_first:
         try:
             return np.linalg.cholesky(M).mT
         except np.linalg.LinAlgError:
             pass
-    U, d = _sym_eig_factor(M, name)
+    U, d = _sym_svd_factor(M, name)
     return np.sqrt(d)[..., :, None] * U.mT
 
 
@@ -190,20 +218,21 @@ class _SvdForm(FilterForm):
 
     def _init_uncertainty(self, P0):
         """Seed 000 eq 4: ``P0 = U D^2 U^T`` (SVD of the symmetric PSD P0); ``ValueError`` naming P0 if indefinite."""
-        U, lam = _sym_eig_factor(P0, "P0")
+        U, lam = _sym_svd_factor(P0, "P0")
         self.U = U
         self.D = np.sqrt(lam)
         self.last_correction = np.zeros_like(self.x)
-        self._P = None
-        self._q_cache = None
+        self._q_cache = None  # (Q, L_Q^T) of the last predict: a cache keyed by the value of Q, not row state
 
     @property
     def covariance(self):
-        """(B, n, n) ``P = (U D)(U D)^T`` (symmetric PSD by construction; cached until the next step)."""
-        if self._P is None:
-            UD = self.U * self.D[:, None, :]
-            self._P = symmetrize(UD @ UD.mT)
-        return self._P
+        """(B, n, n) ``P = (U D)(U D)^T``, symmetric PSD by construction.
+
+        Computed on each access (not cached: all per-row state lives in ``x``, ``U``, ``D`` so that
+        :meth:`FilterForm.replace_rows` can copy rows without leaving a stale copy behind).
+        """
+        UD = self.U * self.D[:, None, :]
+        return symmetrize(UD @ UD.mT)
 
     def predict(self, Phi, Q):
         """Time update ``x <- Phi x`` (seed 000 eq 8) and the SVD factor update, eqs 9-11.
@@ -224,13 +253,12 @@ class _SvdForm(FilterForm):
         LQt = self._q_factor(_batched_base(Q, B, n, "Q", self.dtype))
         self.x = (Phi @ self.x[..., None])[..., 0]
         self.U, self.D = svd_time_update(self.U, self.D, Phi, LQt)
-        self._P = None
 
     def _q_factor(self, Qb):
         """``L_Q^T`` of the (B or 1, n, n) process noise, reused while Q is unchanged (compared by value).
 
-        The navigator passes the same constant Q at every IMU sample; comparing it with the last one costs
-        one pass over Q, factoring it (eq 7, or its SVD for ``svd-kf``) costs far more at B = 1.
+        A caller that passes the same constant Q at every step pays one comparison instead of a factorization
+        (eq 7, or the SVD of Q for ``svd-kf``); a Q changed in place is detected by the comparison.
         """
         cache = self._q_cache
         if cache is not None and cache[0].shape == Qb.shape and np.array_equal(cache[0], Qb):
@@ -243,7 +271,6 @@ class _SvdForm(FilterForm):
         """Apply the state correction ``dx = K r`` and pack the :class:`UpdateResult`."""
         self.x = self.x + dx
         self.last_correction = dx
-        self._P = None
         n_used = mask.sum(-1)
         return UpdateResult(nis=nis, n_used=n_used, innovation=r, innovation_var=ivar, applied=n_used > 0)
 
@@ -360,7 +387,7 @@ class SvdKalmanFilter(_SvdForm):
             A[:, :m] = 0
             A[:, np.arange(m), np.arange(m)] = sqrt_r
         else:
-            UR, dR = _sym_eig_factor(R, "R")
+            UR, dR = _sym_svd_factor(symmetrize(R), "R")
             if np.any(dR <= 0):
                 raise ValueError("R must be symmetric positive definite on the valid rows")
             sqrtR_t = np.sqrt(dR)[..., :, None] * UR.mT  # D_R^{1/2} U_R^T

@@ -24,12 +24,15 @@ def random_spd(rng, B, n, log10_lo=-2.0, log10_hi=2.0):
 
 
 def random_psd_q(rng, B, n, kind):
-    """Process noise of several shapes; clock/bias-like zero rows (15, 16) in all but 'full-pd'."""
+    """Process noise of several shapes, most with zero rows like the noise-free clock/bias states."""
     if kind == "full-pd":
         return random_spd(rng, B, n, -4, -2)
-    if kind == "full-zero-rows":  # PSD, singular: Cholesky fails, svd-srkf takes its eigen factor
+    if kind == "full-zero-rows":  # PSD, singular only through the zero rows: factored on the non-zero block
         L = 0.05 * rng.normal(size=(B, n, n))
-        L[:, 15:] = 0
+        L[:, [9, 15, 16]] = 0  # a constant gyro bias and the clock states
+        return L @ L.mT
+    if kind == "rank-deficient":  # PSD of rank n - 5, no zero row: Cholesky fails, svd-srkf uses the SVD factor
+        L = 0.05 * rng.normal(size=(B, n, n - 5))
         return L @ L.mT
     q = 10 ** rng.uniform(-4, -2, size=n)
     q[15:] = 0
@@ -71,7 +74,7 @@ def test_random_linear_gaussian_systems_match_kf(form_cls):
     x0 = rng.normal(size=(B, N))
     ref, svd = KalmanFilter(P0, x0=x0), form_cls(P0, x0=x0)
     np.testing.assert_allclose(svd.covariance, P0, rtol=0, atol=1e-12 * np.abs(P0).max())
-    q_kinds = ["full-zero-rows", "diag-broadcast", "full-pd", "diag", "zero", "full-zero-rows"]
+    q_kinds = ["full-zero-rows", "diag-broadcast", "rank-deficient", "full-pd", "diag", "zero", "full-zero-rows"]
     for k, q_kind in enumerate(q_kinds):
         Phi = np.eye(N) + 0.3 / np.sqrt(N) * rng.normal(size=(B, N, N))
         Q = random_psd_q(rng, B, N, q_kind)
@@ -98,18 +101,20 @@ def test_random_linear_gaussian_systems_match_kf(form_cls):
     assert np.all(svd.x == 0)
 
 
-def test_srkf_takes_the_eigen_factor_when_cholesky_of_q_fails():
-    """A PSD Q with zero rows has no Cholesky factor; svd-srkf must still predict exactly."""
+@pytest.mark.parametrize("form_cls", SVD_FORMS, ids=lambda c: c.name)
+@pytest.mark.parametrize("q_kind", ["rank-deficient", "full-zero-rows"])
+def test_singular_psd_q_is_factored_exactly(form_cls, q_kind):
+    """A PSD Q without a Cholesky factor (rank n - 5, or zero rows of noise-free states): exact prediction."""
     rng = np.random.default_rng(21)
     B = 3
-    Q = random_psd_q(rng, B, N, "full-zero-rows")
+    Q = random_psd_q(rng, B, N, q_kind)
     with pytest.raises(np.linalg.LinAlgError):
         np.linalg.cholesky(Q)
     P0 = random_spd(rng, B, N)
     Phi = np.eye(N) + 0.1 * rng.normal(size=(B, N, N))
-    srkf = SvdSquareRootKF(P0)
-    srkf.predict(Phi, Q)
-    np.testing.assert_allclose(srkf.covariance, Phi @ P0 @ Phi.mT + Q, rtol=0, atol=1e-12 * np.abs(P0).max())
+    f = form_cls(P0)
+    f.predict(Phi, Q)
+    np.testing.assert_allclose(f.covariance, Phi @ P0 @ Phi.mT + Q, rtol=0, atol=1e-12 * np.abs(P0).max())
 
 
 @pytest.mark.parametrize("form_cls", SVD_FORMS, ids=lambda c: c.name)

@@ -1,0 +1,144 @@
+"""Configuration of the GNSS/INS tuning environments (frozen dataclasses, validated).
+
+The action of an environment sets one or more *parameters* of the running
+adaptive filter. Each is described by a :class:`ParamSpec`: its name on the
+filter (``form.set_params(name=...)``), its physical range, and the map from
+the agent's action ``a`` in [-1, 1] to that range:
+
+=========  ==================================================================
+map        parameter value for action ``a``
+=========  ==================================================================
+``log1m``  ``1 - exp(lerp(log(1 - high), log(1 - low)))`` evaluated at ``-a``,
+           i.e. ``log(1 - p)`` is linear in ``a``; ``a = -1 -> low``, ``a = 1 -> high``
+           (forgetting factors close to 1: equal action steps = equal memory ratios)
+``log``    ``exp(lerp(log low, log high))``: log-uniform scale factors
+``linear`` ``lerp(low, high)``
+=========  ==================================================================
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .sim.scenarios import Scenario, get_scenario
+
+REWARDS = ("horizontal", "log", "3d", "advantage")
+ZUPT_CHOICES = ("none", "truth")
+MAPS = ("log1m", "log", "linear")
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One filter parameter driven by one action component (see module docstring)."""
+
+    name: str
+    low: float
+    high: float
+    map: str = "linear"
+    default: float = 0.0
+    description: str = ""
+
+    def __post_init__(self):
+        if self.map not in MAPS:
+            raise ValueError(f"ParamSpec.map must be one of {MAPS}, got {self.map!r}")
+        for f in ("low", "high", "default"):
+            v = getattr(self, f)
+            if not (isinstance(v, (int, float)) and math.isfinite(v)):
+                raise ValueError(f"ParamSpec.{f} must be a finite number, got {v!r}")
+        if not self.low < self.high:
+            raise ValueError(f"ParamSpec {self.name}: low ({self.low}) must be < high ({self.high})")
+        if not self.low <= self.default <= self.high:
+            raise ValueError(f"ParamSpec {self.name}: default {self.default} outside [{self.low}, {self.high}]")
+        if self.map == "log1m" and not (self.high < 1.0):
+            raise ValueError(f"ParamSpec {self.name}: a log1m parameter needs high < 1, got {self.high}")
+        if self.map == "log" and not (self.low > 0):
+            raise ValueError(f"ParamSpec {self.name}: a log parameter needs low > 0, got {self.low}")
+
+    def to_value(self, a):
+        """Physical value(s) for action component(s) ``a`` in [-1, 1] (clipped)."""
+        a = np.clip(np.asarray(a, np.float64), -1.0, 1.0)
+        s = 0.5 * (a + 1.0)
+        if self.map == "linear":
+            return self.low + s * (self.high - self.low)
+        if self.map == "log":
+            return np.exp(np.log(self.low) + s * (np.log(self.high) - np.log(self.low)))
+        lo, hi = np.log(1.0 - self.low), np.log(1.0 - self.high)
+        return 1.0 - np.exp(lo + s * (hi - lo))
+
+    def to_action(self, value):
+        """Inverse of :meth:`to_value`: the action component that gives ``value``."""
+        v = np.asarray(value, np.float64)
+        if self.map == "linear":
+            s = (v - self.low) / (self.high - self.low)
+        elif self.map == "log":
+            s = (np.log(v) - np.log(self.low)) / (np.log(self.high) - np.log(self.low))
+        else:
+            lo, hi = np.log(1.0 - self.low), np.log(1.0 - self.high)
+            s = (np.log(1.0 - v) - lo) / (hi - lo)
+        return 2.0 * s - 1.0
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    """Constructor arguments of the environments (validated; errors name the field).
+
+    Attributes
+    ----------
+    scenario : scenario name or :class:`~envs.sim.scenarios.Scenario`.
+    method : filter method (DESIGN.md section 4, ``+onestep`` allowed); must accept the env's parameters.
+    imu_grade : override of the scenario's IMU grade (None: keep).
+    episode_length_s : episode length [s] (overrides the scenario duration).
+    gnss_rate_hz : override of the scenario's GNSS rate [Hz] (None: keep). One env step = one GNSS epoch.
+    reward : ``'horizontal'`` (-horizontal error [m]), ``'log'`` (-ln(error [m] + 0.1)), ``'3d'``
+        (-3D error [m]) or ``'advantage'`` (error of a reference filter with fixed default parameters on the
+        same data minus the agent's error [m]).
+    history : number of stacked observation frames (>= 1).
+    zupt : ``'none'`` or ``'truth'`` (zero-velocity update at epochs where the truth is stationary).
+    dtype : filter arithmetic, ``'float64'`` or ``'float32'``.
+    divergence_bound_m : horizontal error [m] beyond which an episode terminates as diverged.
+    """
+
+    scenario: object = "noise-burst"
+    method: str = "sage-husa"
+    imu_grade: str | None = None
+    episode_length_s: float = 120.0
+    gnss_rate_hz: float | None = None
+    reward: str = "horizontal"
+    history: int = 1
+    zupt: str = "none"
+    dtype: str = "float64"
+    divergence_bound_m: float = 1000.0
+
+    def __post_init__(self):
+        if self.reward not in REWARDS:
+            raise ValueError(f"EnvConfig.reward must be one of {REWARDS}, got {self.reward!r}")
+        if self.zupt not in ZUPT_CHOICES:
+            raise ValueError(f"EnvConfig.zupt must be one of {ZUPT_CHOICES}, got {self.zupt!r}")
+        if not (isinstance(self.history, int) and self.history >= 1):
+            raise ValueError(f"EnvConfig.history must be an int >= 1, got {self.history!r}")
+        if self.dtype not in ("float64", "float32"):
+            raise ValueError(f"EnvConfig.dtype must be 'float64' or 'float32', got {self.dtype!r}")
+        for f in ("episode_length_s", "divergence_bound_m"):
+            v = getattr(self, f)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ValueError(f"EnvConfig.{f} must be a positive finite number, got {v!r}")
+        if not isinstance(self.method, str):
+            raise ValueError(f"EnvConfig.method must be a string, got {self.method!r}")
+        self.resolve_scenario()  # validates scenario, imu_grade, gnss_rate_hz
+
+    def resolve_scenario(self) -> Scenario:
+        """The scenario with this config's overrides applied."""
+        if not isinstance(self.scenario, (str, Scenario)):
+            raise ValueError(f"EnvConfig.scenario must be a scenario name or a Scenario, got {self.scenario!r}")
+        over = {"duration_s": float(self.episode_length_s)}
+        if self.imu_grade is not None:
+            over["imu_grade"] = self.imu_grade
+        if self.gnss_rate_hz is not None:
+            over["gnss_rate_hz"] = float(self.gnss_rate_hz)
+        return get_scenario(self.scenario, **over)
+
+    def replace(self, **kw) -> "EnvConfig":
+        return dataclasses.replace(self, **kw)

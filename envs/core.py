@@ -1,0 +1,340 @@
+"""The batched episode core behind every GNSS/INS tuning environment.
+
+:class:`TuningCore` runs B episodes in one batched navigator. The single
+environment is a core with B = 1 and the native vector environment a core with
+B = num_envs, so row i of a vector env seeded ``s`` equals the single env seeded
+``s + i`` by construction (and by test). Rows are reset independently
+(:meth:`TuningCore.reset_rows`): a new world is drawn for those rows only and
+spliced into the running batch (:meth:`nav_filters.navigator.Navigator.replace_rows`).
+
+One step = one GNSS epoch: the action sets the filter parameters, the IMU
+samples since the previous epoch are integrated (compiled kernel), then the
+epoch's tightly coupled update runs. The observation is built from quantities
+the filter has, never from the truth; the truth only scores it.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from earth import C_en, ecef_to_geodetic
+from nav_filters.constraints import zupt as zupt_block
+from nav_filters.forms import parse_method
+
+from .config import EnvConfig, ParamSpec
+from .episodes import navigator_for
+from .sim.world import generate_world
+
+# --------------------------------------------------------------------------- observation layout
+OBS_FEATURES = (
+    # name, low, high, description
+    ("nis_pr", 0.0, 100.0, "pseudorange NIS per measurement, sum(dz^2 / S_ii) / n (0 without satellites)"),
+    ("nis_prr", 0.0, 100.0, "pseudorange-rate NIS per measurement (0 without satellites or Doppler)"),
+    ("nis_pr_ema", 0.0, 100.0, "exponential moving average (alpha 0.1) of nis_pr over epochs with satellites"),
+    ("nis_prr_ema", 0.0, 100.0, "exponential moving average (alpha 0.1) of nis_prr"),
+    ("log_innov_pr", 0.0, 4.0, "log10(1 + RMS pseudorange innovation [m])"),
+    ("log_innov_prr", 0.0, 4.0, "log10(1 + RMS pseudorange-rate innovation [m/s])"),
+    ("sats_frac", 0.0, 1.0, "satellites used / receiver channels"),
+    ("gdop", 0.0, 5.0, "GDOP / 10 (5 = no fix: fewer than 4 satellites)"),
+    ("log_pos_var", -4.0, 8.0, "log10 of the trace of the position covariance [m^2]"),
+    ("time_since_update", 0.0, 10.0, "seconds since the last epoch with satellites / 60"),
+    ("outage", 0.0, 1.0, "1 if this epoch had no satellite"),
+    ("zupt", 0.0, 1.0, "1 if a zero-velocity update was applied at this epoch"),
+    ("speed", 0.0, 10.0, "INS speed [m/s] / 10"),
+)
+"""Per-frame observation features after the parameter values (all float32, clipped to [low, high])."""
+
+EMA_ALPHA = 0.1
+ZUPT_SIGMA_MPS = 0.02
+LOG_REWARD_OFFSET_M = 0.1
+
+
+@dataclass
+class StepResult:
+    """Batched result of one core step (arrays of length B)."""
+
+    obs: np.ndarray
+    reward: np.ndarray
+    terminated: np.ndarray
+    truncated: np.ndarray
+    info: dict
+
+
+class TuningCore:
+    """B episodes of adaptive-parameter tuning in one batched navigator.
+
+    Parameters
+    ----------
+    config : EnvConfig
+    specs : the filter parameters the action sets (one action component each).
+    batch_size : B.
+    """
+
+    def __init__(self, config: EnvConfig, specs: tuple[ParamSpec, ...], batch_size: int):
+        if not (isinstance(batch_size, (int, np.integer)) and batch_size >= 1):
+            raise ValueError(f"batch_size must be a positive int, got {batch_size!r}")
+        self.config = config
+        self.specs = tuple(specs)
+        self.B = int(batch_size)
+        self.scenario = config.resolve_scenario()
+        parse_method(config.method)
+        self.k = len(self.specs)
+        self.frame_dim = self.k + len(OBS_FEATURES)
+        self.obs_dim = self.frame_dim * config.history
+        lo = np.r_[-np.ones(self.k), [f[1] for f in OBS_FEATURES]]
+        hi = np.r_[np.ones(self.k), [f[2] for f in OBS_FEATURES]]
+        self.frame_low, self.frame_high = lo.astype(np.float32), hi.astype(np.float32)
+        self.obs_low = np.tile(self.frame_low, config.history)
+        self.obs_high = np.tile(self.frame_high, config.history)
+        self.default_action = np.array([s.to_action(s.default) for s in self.specs], np.float64)
+        self.nav = None
+        self.ref = None
+        self.seeds = [None] * self.B
+
+    # ------------------------------------------------------------------ reset
+    def _make_nav(self, world, method):
+        nav = navigator_for(world, method, dtype=self.config.dtype)
+        if not hasattr(nav.form, "set_params"):
+            raise ValueError(f"method {method!r} has no adjustable parameters "
+                             f"({', '.join(s.name for s in self.specs)}); choose an adaptive method")
+        return nav
+
+    def _set_params(self, nav, rows, action):
+        """Set the filter parameters of every row of ``nav`` from the (B, k) actions."""
+        vals = {s.name: s.to_value(action[:, i]) for i, s in enumerate(self.specs)}
+        nav.form.set_params(**vals)
+
+    def reset_rows(self, rows, seeds) -> np.ndarray:
+        """Start new episodes on ``rows`` with world ``seeds``; returns their observations (len(rows), obs_dim)."""
+        rows = np.asarray(rows, np.intp)
+        seeds = [int(s) for s in seeds]
+        world = generate_world(self.scenario, seeds)
+        nav = self._make_nav(world, self.config.method)
+        act = np.broadcast_to(self.default_action, (rows.size, self.k)).copy()
+        self._set_params(nav, None, act)
+        ref = None
+        if self.config.reward == "advantage":
+            ref = self._make_nav(world, self.config.method)
+            self._set_params(ref, None, act)
+        if self.nav is None:
+            if rows.size != self.B or not np.array_equal(rows, np.arange(self.B)):
+                raise ValueError("the first reset must cover every row")
+            self._alloc(world)
+            self.nav, self.ref = nav, ref
+        else:
+            self.nav.replace_rows(rows, nav)
+            if ref is not None:
+                self.ref.replace_rows(rows, ref)
+        self._store_world(rows, world)
+        for i, s in zip(rows, seeds):
+            self.seeds[i] = s
+        self.t[rows] = 0
+        self.action[rows] = act
+        self.ema[rows] = 1.0
+        self.sq_err_sum[rows] = 0.0
+        self.max_err[rows] = 0.0
+        self.est_track[rows] = np.nan
+        frame = self._initial_frame(rows)
+        self.frames[rows] = frame[:, None, :]
+        return self.frames[rows].reshape(rows.size, -1).copy()
+
+    def _alloc(self, world):
+        B = self.B
+        g = world.gnss
+        N = world.imu.f_b.shape[1]
+        M, C = g.pr.shape[1], g.pr.shape[2]
+        self.epoch_idx = world.epoch_idx
+        self.M, self.C = M, C
+        self.dt = 1.0 / self.scenario.imu_rate_hz
+        self.f = np.zeros((B, N, 3))
+        self.w = np.zeros((B, N, 3))
+        self.sat_pos = np.zeros((B, M, C, 3))
+        self.sat_vel = np.zeros((B, M, C, 3))
+        self.pr, self.prr, self.pr_sigma, self.prr_sigma = (np.zeros((B, M, C)) for _ in range(4))
+        self.gmask = np.zeros((B, M, C), bool)
+        self.truth_r = np.zeros((B, M, 3))
+        self.truth_Cne = np.zeros((B, M, 3, 3))
+        self.truth_still = np.zeros((B, M), bool)
+        self.origin = np.zeros((B, 3))
+        self.origin_Cne = np.zeros((B, 3, 3))
+        self.t = np.zeros(B, np.int64)
+        self.action = np.zeros((B, self.k))
+        self.ema = np.ones((B, 2))
+        self.sq_err_sum = np.zeros(B)
+        self.max_err = np.zeros(B)
+        self.frames = np.zeros((B, self.config.history, self.frame_dim), np.float32)
+        self.est_track = np.full((B, M, 3), np.nan)
+
+    def _store_world(self, rows, world):
+        g, tr = world.gnss, world.truth
+        self.f[rows] = world.imu.f_b
+        self.w[rows] = world.imu.w_b
+        self.sat_pos[rows], self.sat_vel[rows] = g.sat_pos, g.sat_vel
+        self.pr[rows], self.prr[rows] = g.pr, g.prr
+        self.pr_sigma[rows], self.prr_sigma[rows] = g.pr_sigma, g.prr_sigma
+        self.gmask[rows] = g.mask
+        ep = world.epoch_idx
+        self.truth_r[rows] = tr.r_e[:, ep]
+        lat, lon, _ = ecef_to_geodetic(tr.r_e[:, ep])
+        self.truth_Cne[rows] = np.swapaxes(C_en(lat, lon), -1, -2)
+        self.truth_still[rows] = tr.speed[:, ep] == 0.0
+        self.origin[rows] = tr.r_e[:, 0]
+        lat0, lon0, _ = ecef_to_geodetic(tr.r_e[:, 0])
+        self.origin_Cne[rows] = np.swapaxes(C_en(lat0, lon0), -1, -2)
+
+    def _initial_frame(self, rows):
+        n = rows.size
+        feat = np.zeros((n, len(OBS_FEATURES)))
+        P = np.asarray(self.nav.covariance, np.float64)[rows]
+        feat[:, 2:4] = 1.0
+        feat[:, 7] = 5.0
+        feat[:, 8] = np.log10(np.trace(P[:, 6:9, 6:9], axis1=1, axis2=2))
+        feat[:, 12] = np.linalg.norm(self.nav.v[rows], axis=1) / 10.0
+        return self._clip_frame(np.concatenate([self.action[rows], feat], 1))
+
+    def _clip_frame(self, frame):
+        frame = np.nan_to_num(frame, nan=0.0, posinf=1e30, neginf=-1e30)
+        return np.clip(frame, self.frame_low, self.frame_high).astype(np.float32)
+
+    # ------------------------------------------------------------------- step
+    def check_actions(self, actions) -> np.ndarray:
+        """(B, k) float array, finite; ``ValueError`` naming the problem otherwise. Out-of-range values are
+        clipped to [-1, 1] (documented behaviour), NaN/inf raise."""
+        a = np.asarray(actions, dtype=np.float64)
+        if a.shape == (self.k,) and self.B == 1:
+            a = a[None]
+        if a.shape != (self.B, self.k):
+            raise ValueError(f"action must have shape ({self.k},) per env (batch {self.B}), got {np.shape(actions)}")
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"action contains NaN or inf: {a}")
+        return np.clip(a, -1.0, 1.0)
+
+    def step(self, actions) -> StepResult:
+        """Apply the actions, integrate to the next GNSS epoch, update, and score every row."""
+        a = self.check_actions(actions)
+        if self.nav is None:
+            raise RuntimeError("reset() must be called before step()")
+        if np.any(self.t >= self.M):
+            raise RuntimeError("step() on a finished episode: reset those rows first")
+        self.action[:] = a
+        self._set_params(self.nav, None, a)
+        j = self.t  # per-row epoch index (rows may be at different epochs after partial resets)
+        h_err, e3, res, zflag = self._advance(self.nav, j)
+        if self.ref is not None:
+            self._set_params(self.ref, None, np.broadcast_to(self.default_action, a.shape))
+            ref_h, ref_3d, _, _ = self._advance(self.ref, j)
+        rows = np.arange(self.B)
+        self.est_track[rows, j] = self.nav.r
+        bound = self.config.divergence_bound_m
+        diverged = self.nav.diverged | ~np.isfinite(h_err) | (h_err > bound)
+        cfg = self.config
+        if cfg.reward == "horizontal":
+            reward = -h_err
+        elif cfg.reward == "3d":
+            reward = -e3
+        elif cfg.reward == "log":
+            reward = -np.log(h_err + LOG_REWARD_OFFSET_M)
+        else:
+            reward = np.where(np.isfinite(ref_h), np.minimum(ref_h, bound), bound) - h_err
+        penalty = {"horizontal": -bound, "3d": -bound, "log": -np.log(bound + LOG_REWARD_OFFSET_M),
+                   "advantage": -bound}[cfg.reward]
+        reward = np.where(diverged, penalty, reward)
+        hf = np.where(np.isfinite(h_err), np.minimum(h_err, bound), bound)
+        self.sq_err_sum += hf ** 2
+        self.max_err = np.maximum(self.max_err, hf)
+        self.t += 1
+        truncated = (self.t >= self.M) & ~diverged
+        terminated = diverged
+        frame = self._frame(res, zflag)
+        self.frames[:, :-1] = self.frames[:, 1:]
+        self.frames[:, -1] = frame
+        info = {
+            "horizontal_error_m": h_err, "error_3d_m": e3, "diverged": diverged,
+            "nis_pr": frame[:, self.k + 0].astype(np.float64), "nis_prr": frame[:, self.k + 1].astype(np.float64),
+            "n_sats": self._last_nsat.copy(), "zupt": zflag,
+        }
+        for i, s in enumerate(self.specs):
+            info[s.name] = s.to_value(a[:, i])
+        if self.ref is not None:
+            info["reference_horizontal_error_m"] = ref_h
+        return StepResult(obs=self.frames.reshape(self.B, -1).copy(), reward=reward, terminated=terminated,
+                          truncated=truncated, info=info)
+
+    def episode_metrics(self, rows) -> list[dict]:
+        """Metrics of the episodes of ``rows`` so far (call at the end of an episode)."""
+        out = []
+        for i in np.atleast_1d(rows):
+            n = max(int(self.t[i]), 1)
+            out.append({"rmse_h_m": float(np.sqrt(self.sq_err_sum[i] / n)), "max_h_m": float(self.max_err[i]),
+                        "epochs": int(self.t[i]), "seed": self.seeds[i]})
+        return out
+
+    def _advance(self, nav, j):
+        """Integrate each row to its epoch j[row] and run the update; rows share the IMU rate."""
+        B = self.B
+        rows = np.arange(B)
+        ep = self.epoch_idx
+        start = np.where(j > 0, ep[np.maximum(j - 1, 0)], 0)
+        stop = ep[np.minimum(j, self.M - 1)]
+        if np.all(start == start[0]):
+            nav.propagate_epoch(self.f[:, start[0] + 1:stop[0] + 1], self.w[:, start[0] + 1:stop[0] + 1], self.dt)
+        else:  # rows at different epochs (after partial resets): gather each row's samples
+            n = int((stop - start).max())
+            idx = start[:, None] + 1 + np.arange(n)[None, :]
+            nav.propagate_epoch(self.f[rows[:, None], idx], self.w[rows[:, None], idx], self.dt)
+        jj = np.minimum(j, self.M - 1)
+        g = (self.sat_pos[rows, jj], self.sat_vel[rows, jj], self.pr[rows, jj], self.prr[rows, jj],
+             self.pr_sigma[rows, jj], self.prr_sigma[rows, jj], self.gmask[rows, jj])
+        zflag = np.zeros(B, bool)
+        extra = None
+        if self.config.zupt == "truth":
+            zflag = self.truth_still[rows, jj]
+            extra = zupt_block(nav.v, nav.C, ZUPT_SIGMA_MPS, zflag)
+        res, gdop = nav.update_gnss(*g, extra=extra)
+        err = nav.r - self.truth_r[rows, jj]
+        ned = (self.truth_Cne[rows, jj] @ err[..., None])[..., 0]
+        h = np.hypot(ned[:, 0], ned[:, 1])
+        e3 = np.linalg.norm(ned, axis=1)
+        if nav is self.nav:
+            self._last_res, self._last_gdop, self._last_mask = res, gdop, g[6] & ~nav.diverged[:, None]
+            self._last_nsat = self._last_mask.sum(1)
+        return h, e3, res, zflag
+
+    def _frame(self, res, zflag):
+        C = self.C
+        mask = self._last_mask
+        n = mask.sum(1)
+        dz2 = np.asarray(res.innovation, np.float64) ** 2
+        S = np.asarray(res.innovation_var, np.float64)
+        nis = np.zeros((self.B, 2))
+        rms = np.zeros((self.B, 2))
+        groups = [slice(0, C)]
+        if self.nav.config.use_pseudorange_rate:
+            groups.append(slice(C, 2 * C))
+        for gi, sl in enumerate(groups):
+            m = mask
+            nn = np.maximum(n, 1)
+            nis[:, gi] = np.where(n > 0, np.sum(np.where(m, dz2[:, sl] / S[:, sl], 0.0), 1) / nn, 0.0)
+            rms[:, gi] = np.where(n > 0, np.sqrt(np.sum(np.where(m, dz2[:, sl], 0.0), 1) / nn), 0.0)
+        has = n > 0
+        self.ema[has] = (1 - EMA_ALPHA) * self.ema[has] + EMA_ALPHA * nis[has]
+        P = np.asarray(self.nav.covariance, np.float64)
+        feat = np.stack([
+            nis[:, 0], nis[:, 1], self.ema[:, 0], self.ema[:, 1],
+            np.log10(1.0 + rms[:, 0]), np.log10(1.0 + rms[:, 1]),
+            n / C, np.minimum(self._last_gdop, 50.0) / 10.0,
+            np.log10(np.maximum(np.trace(P[:, 6:9, 6:9], axis1=1, axis2=2), 1e-12)),
+            self.nav.time_since_update / 60.0, (n == 0).astype(float), zflag.astype(float),
+            np.linalg.norm(self.nav.v, axis=1) / 10.0,
+        ], 1)
+        return self._clip_frame(np.concatenate([self.action, feat], 1))
+
+    # ------------------------------------------------------------------ views
+    def track_ned(self, row: int):
+        """(truth, estimate) horizontal tracks of ``row`` so far, NED metres from its start: (n, 2) each."""
+        n = int(self.t[row])
+        C0 = self.origin_Cne[row]
+        tr = (C0 @ (self.truth_r[row, :n] - self.origin[row]).T).T
+        es = (C0 @ (self.est_track[row, :n] - self.origin[row]).T).T
+        return tr[:, :2], es[:, :2]

@@ -1,0 +1,230 @@
+"""Replay recorded GNSS epochs through the navigator: a :class:`~envs.sim.world.World` built from real data.
+
+A replay world has exactly the fields of a simulated one, so
+:func:`envs.episodes.run_episodes`, the environments and ``eval.py`` cannot
+tell the difference:
+
+* ``truth`` and the *synthesized* IMU: the recording's reference trajectory
+  as a smoothing spline with the consistent ideal IMU
+  (:mod:`envs.datasets.spline_truth`), corrupted by
+  :func:`envs.sim.imu.simulate_imu` with the chosen grade and the vehicle
+  vibration model, from each row's seed (streams ``"imu"`` and
+  ``"vibration"``, as in :func:`envs.sim.world.generate_world`). The IMU is
+  synthetic; the GNSS errors are the recorded ones, identical in every row;
+* ``gnss``: the recorded pseudoranges as :class:`~envs.sim.gnss.GnssData`
+  (rows are read-only broadcast views of one recording). There is no Doppler
+  in these recordings: ``prr``, ``prr_sigma`` and ``prr_error_mps`` are
+  ``None`` and the measurement vector has pseudorange rows only. ``nlos`` is
+  all False (unknown). ``clock_bias_m`` / ``clock_drift_mps`` are a
+  *reference* clock, not a truth: see :func:`reference_clock`. ``t0_gps`` is
+  NaN where the recording has no absolute time (smartLoc);
+* ``epoch_idx``: each epoch at the IMU sample nearest to its time stamp (the
+  update happens up to half an IMU interval, 5 ms at 100 Hz, away from the
+  measurement time: <= 5 cm at smartLoc's 10 m/s);
+* ``init``: truth plus errors drawn from the scenario's
+  :class:`~envs.sim.scenarios.InitialErrors` (stream ``"init"``), as for a
+  simulated world; the clock from the reference clock.
+
+The :class:`~envs.sim.scenarios.Scenario` of a replay world is a descriptor
+only: ``imu_rate_hz``, ``imu_grade``, ``vibration``, ``receiver.clock`` (the
+filter's clock model: a TCXO) and ``initial`` are used; its ``drive``,
+``constellation``, ``events`` describe nothing (``drive='urban'`` is a
+placeholder) and ``gnss_rate_hz`` is the nominal rate (the recorded epochs
+are irregular: smartLoc 0.2 or 0.3 s apart).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.interpolate import make_smoothing_spline
+
+from earth import C_en, ecef_to_geodetic
+from earth.ranging import range_and_rate
+
+from ..sim.gnss import ClockModel, GnssData, ReceiverConfig
+from ..sim.imu import IMU_GRADES, Vibration, simulate_imu
+from ..sim.rng import as_seeds, row_generators
+from ..sim.scenarios import InitialErrors, Scenario
+from ..sim.world import World, _initial_estimate
+from .epochs import GnssEpochs
+from .smartloc import POTSDAMER_PLATZ, load_smartloc
+from .spline_truth import SplineFit, fit_positions, truth_from_fit
+
+__all__ = ["SMARTLOC_SCENARIO", "reference_clock", "gnss_data_from_epochs", "replay_world", "smartloc_scenario",
+           "load_smartloc_world"]
+
+SMARTLOC_SCENARIO = "smartloc-potsdamer-platz"
+
+
+def reference_clock(epochs: GnssEpochs, r_e, v_e=None, lam=None):
+    """A reference receiver clock (bias and drift) of recorded epochs, from the known receiver positions.
+
+    Recorded data have no true clock. Per epoch, with the position fixed at
+    the reference ``r_e``, the clock bias is the median of ``pr - rho`` over
+    the channels whose C/N0 is at least the epoch's median C/N0 (strong
+    signals: fewer NLOS; the median resists the remaining ones); the series is
+    then smoothed by a cubic smoothing spline in time (GCV when ``lam`` is
+    None), whose derivative is the drift (epochs without a valid channel get
+    the spline's value). It includes the common-mode part of
+    the recorded errors; it is what the initial clock estimate is drawn
+    around and what ``pr_error_m`` is relative to.
+
+    Parameters
+    ----------
+    epochs : GnssEpochs (M epochs, at least 5).
+    r_e : (M, 3) receiver ECEF position at the epochs [m]; v_e : (M, 3) or None (zero) [m/s].
+    lam : smoothing parameter or None (GCV).
+
+    Returns
+    -------
+    bias : (M,) [m]; drift : (M,) [m/s].
+    """
+    r_e = np.asarray(r_e, np.float64)
+    M = epochs.n_epochs
+    if r_e.shape != (M, 3):
+        raise ValueError(f"r_e must have shape ({M}, 3), got {r_e.shape}")
+    if M < 5:
+        raise ValueError(f"reference_clock needs at least 5 epochs, got {M}")
+    v_e = np.zeros_like(r_e) if v_e is None else np.asarray(v_e, np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rho, _, _ = range_and_rate(epochs.sat_pos, epochs.sat_vel, r_e, v_e)
+    d = np.where(epochs.mask, epochs.pr - rho, np.nan)
+    cn = np.where(epochs.mask, epochs.cn0, np.nan)
+    has = epochs.mask.any(-1)
+    if has.sum() < 5:
+        raise ValueError(f"reference_clock needs at least 5 epochs with a valid channel, got {int(has.sum())}")
+    d, cn = d[has], cn[has]
+    strong = cn >= np.nanmedian(cn, axis=-1, keepdims=True)
+    raw = np.nanmedian(np.where(strong, d, np.nan), axis=-1)
+    spl = make_smoothing_spline(epochs.t[has], raw, lam=lam)
+    return spl(epochs.t), spl.derivative()(epochs.t)
+
+
+def gnss_data_from_epochs(epochs: GnssEpochs, r_e, batch_size: int, clock_bias_m, clock_drift_mps,
+                          t_offset: float = 0.0) -> GnssData:
+    """Recorded epochs as the simulated receiver's :class:`GnssData` (pseudoranges only; module docstring).
+
+    Parameters
+    ----------
+    epochs : GnssEpochs (M epochs, C channels).
+    r_e : (M, 3) reference receiver position at the epochs [m] (azimuths, ``pr_error_m``).
+    batch_size : B rows (read-only broadcast views of the one recording).
+    clock_bias_m, clock_drift_mps : (M,) reference clock [m], [m/s].
+    t_offset : subtracted from the epoch times (the world's time origin) [s].
+    """
+    M, C = epochs.mask.shape
+    r_e = np.asarray(r_e, np.float64)
+    if r_e.shape != (M, 3):
+        raise ValueError(f"r_e must have shape ({M}, 3), got {r_e.shape}")
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rho, _, u = range_and_rate(epochs.sat_pos, epochs.sat_vel, r_e, np.zeros_like(r_e))
+    lat, lon, _ = ecef_to_geodetic(r_e)
+    u_n = (np.swapaxes(C_en(lat, lon), -1, -2)[:, None] @ np.nan_to_num(u)[..., None])[..., 0]
+    az = np.mod(np.arctan2(u_n[..., 1], u_n[..., 0]), 2 * np.pi)
+    m = epochs.mask
+    bias = np.asarray(clock_bias_m, np.float64)
+    drift = np.asarray(clock_drift_mps, np.float64)
+    err = np.where(m, epochs.pr - np.nan_to_num(rho) - bias[:, None], 0.0)
+    B = batch_size
+
+    def bc(x):
+        x = np.asarray(x)
+        return np.broadcast_to(x[None], (B,) + x.shape)
+
+    return GnssData(t=epochs.t - t_offset, t0_gps=np.full(B, np.nan if epochs.t0_gps is None else
+                                                          epochs.t0_gps + t_offset),
+                    sat_pos=bc(epochs.sat_pos), sat_vel=bc(epochs.sat_vel), pr=bc(epochs.pr), prr=None,
+                    pr_sigma=bc(np.where(m, epochs.pr_sigma, 0.0)), prr_sigma=None, mask=bc(m),
+                    prn=bc(np.where(m, epochs.sat_id, -1)), elevation=bc(np.where(m, epochs.elevation, 0.0)),
+                    azimuth=bc(np.where(m, az, 0.0)), clock_bias_m=bc(bias), clock_drift_mps=bc(drift),
+                    nlos=bc(np.zeros((M, C), bool)), pr_error_m=bc(err), prr_error_mps=None)
+
+
+def replay_world(scenario: Scenario, epochs: GnssEpochs, fit: SplineFit, seeds, dtype=np.float64,
+                 min_speed_mps: float = 1.0) -> World:
+    """A :class:`World` replaying ``epochs`` along the reference trajectory ``fit`` (module docstring).
+
+    Parameters
+    ----------
+    scenario : the descriptor (imu_rate_hz, imu_grade, vibration, receiver.clock, initial are used).
+    epochs : recorded epochs; those outside the reference span ``[fit.t0, fit.t1]`` are dropped.
+    fit : the reference trajectory.
+    seeds : int or B non-negative ints (IMU noise, vibration and initial errors per row).
+    dtype : float dtype of the IMU samples.
+    min_speed_mps : see :func:`~envs.datasets.spline_truth.truth_from_fit`.
+    """
+    if not isinstance(scenario, Scenario):
+        raise ValueError(f"scenario must be a Scenario, got {type(scenario).__name__}")
+    seeds = as_seeds(seeds)
+    B = len(seeds)
+    rate = scenario.imu_rate_hz
+    truth = truth_from_fit(fit, rate, batch_size=B, min_speed_mps=min_speed_mps)
+    t_last = fit.t0 + truth.t[-1]
+    epochs = epochs.window(fit.t0, t_last + 0.5 / rate)
+    idx = np.rint((epochs.t - fit.t0) * rate).astype(np.int64)
+    idx = np.minimum(idx, truth.t.size - 1)
+    if np.any(np.diff(idx) <= 0):
+        raise ValueError(f"imu_rate_hz = {rate} puts two GNSS epochs on one IMU sample: raise the IMU rate")
+    r_ep = fit.position(epochs.t)
+    bias, drift = reference_clock(epochs, r_ep, fit.velocity(epochs.t))
+    gnss = gnss_data_from_epochs(epochs, r_ep, B, bias, drift, t_offset=fit.t0)
+    imu = simulate_imu(truth.f_b, truth.w_b, rate, IMU_GRADES[scenario.imu_grade], row_generators(seeds, "imu"),
+                       engine_on=truth.engine_on, speed=truth.speed, vibration=scenario.vibration, dtype=dtype,
+                       vibration_rngs=row_generators(seeds, "vibration"))
+    init = _initial_estimate(scenario, truth, gnss, row_generators(seeds, "init"))
+    return World(scenario=scenario, seeds=seeds, truth=truth, imu=imu, gnss=gnss, epoch_idx=idx, init=init)
+
+
+def smartloc_scenario(imu_grade: str = "industrial", imu_rate_hz: float = 100.0, duration_s: float = 282.8,
+                      start=(52.5046, 13.3737, 76.0), vibration: Vibration | None = None,
+                      initial: InitialErrors | None = None, clock: ClockModel | None = None) -> Scenario:
+    """The descriptor :class:`Scenario` of the smartLoc Potsdamer Platz replay (module docstring)."""
+    return Scenario(name=SMARTLOC_SCENARIO, duration_s=duration_s, imu_rate_hz=imu_rate_hz, gnss_rate_hz=5.0,
+                    imu_grade=imu_grade, drive="urban", start=tuple(start),
+                    vibration=Vibration() if vibration is None else vibration,
+                    receiver=ReceiverConfig(clock=ClockModel.tcxo() if clock is None else clock),
+                    initial=InitialErrors() if initial is None else initial,
+                    description="replay: smartLoc Berlin Potsdamer Platz recorded GPS+GLONASS pseudoranges "
+                                "(urban), IMU synthesized from the SPAN ground truth")
+
+
+def load_smartloc_world(seeds, imu_grade: str = "industrial", imu_rate_hz: float = 100.0, folder=None,
+                        name: str = POTSDAMER_PLATZ, systems=(1, 4), min_elevation_deg: float = 0.0,
+                        min_cn0_dbhz: float = 0.0, vibration: Vibration | None = None,
+                        initial: InitialErrors | None = None, duration_s: float | None = None, dtype=np.float64,
+                        data=None) -> World:
+    """The ``smartloc-potsdamer-platz`` replay world for ``seeds`` (B rows, one IMU-noise draw each).
+
+    Parameters
+    ----------
+    seeds : int or sequence of B non-negative ints.
+    imu_grade : a key of :data:`envs.sim.imu.IMU_GRADES` (the synthesized IMU).
+    imu_rate_hz : IMU rate [Hz] (100: every recorded epoch lands within 5 ms of an IMU sample).
+    folder, name : the smartLoc folder (default ``../shared/data/smartloc``) and recording stem.
+    systems, min_elevation_deg, min_cn0_dbhz : measurement selection (:meth:`SmartLocData.epochs`).
+    vibration, initial : scenario overrides (defaults: :class:`Vibration`, :class:`InitialErrors`).
+    duration_s : replay only the first ``duration_s`` seconds (>= 2 s); None: the whole recording.
+    dtype : float dtype of the IMU samples.
+    data : an already loaded :class:`~envs.datasets.smartloc.SmartLocData` (skips reading the files).
+
+    Returns
+    -------
+    World (``gnss.prr`` is None: run the navigator on pseudoranges only).
+    """
+    if imu_grade not in IMU_GRADES:
+        raise ValueError(f"imu_grade {imu_grade!r} is unknown; known: {sorted(IMU_GRADES)}")
+    data = load_smartloc(folder, name) if data is None else data
+    gt = data.ground_truth
+    keep = np.ones(gt.t.size, bool)
+    if duration_s is not None:
+        if isinstance(duration_s, bool) or not isinstance(duration_s, (int, float)) or not duration_s >= 2.0:
+            raise ValueError(f"duration_s must be a number >= 2 s or None, got {duration_s!r}")
+        keep = gt.t <= gt.t[0] + duration_s
+    fit = fit_positions(gt.t[keep], gt.r_e[keep])
+    lat, lon, h = ecef_to_geodetic(gt.r_e[0])
+    scen = smartloc_scenario(imu_grade, imu_rate_hz, duration_s=max(fit.t1 - fit.t0, 1.0),
+                             start=(math.degrees(lat), math.degrees(lon), float(h)), vibration=vibration,
+                             initial=initial)
+    ep = data.epochs(systems=systems, min_elevation_deg=min_elevation_deg, min_cn0_dbhz=min_cn0_dbhz)
+    return replay_world(scen, ep, fit, seeds, dtype=dtype)

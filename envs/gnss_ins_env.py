@@ -1,0 +1,202 @@
+"""Gymnasium environments: an agent sets the adaptive parameter of a running tightly coupled GNSS/INS filter.
+
+## Description
+
+A simulated vehicle (IMU + GNSS receiver, see :mod:`envs.sim`) is navigated by
+a batched tightly coupled error-state Kalman filter (:mod:`nav_filters`). The
+filter is an *adaptive* one of the literature (Sage-Husa, STKF, MA-STKF) whose
+hand-tuned constant is now the agent's action, chosen anew at every GNSS epoch
+from the filter's own health signals. The reward is the negative position error
+against the simulated truth.
+
+| id | action sets | default method |
+|---|---|---|
+| ``GnssIns/SageHusa-v0`` | the Sage-Husa forgetting factor ``b`` | ``sage-husa`` (any Sage-Husa form: ``svd-akf``, ``svd-asrkf``) |
+| ``GnssIns/STKF-v0`` | the strong-tracking softening factor | ``stkf`` |
+| ``GnssIns/MASTKF-v0`` | MA-STKF ``b`` and its fading-factor scaling | ``ma-stkf`` |
+
+## Action Space
+
+``Box(-1, 1, shape=(k,), float32)``, one component per parameter, mapped to the
+parameter's range (:class:`envs.config.ParamSpec`; the table of each env class
+lists them). Values outside [-1, 1] are clipped; NaN or inf raise ``ValueError``.
+The action is applied before the epoch's measurement update.
+
+## Observation Space
+
+``Box(low, high, shape=(history * (k + 13),), float32)``, finite bounds, values
+clipped to them. Each frame (newest last when ``history > 1``) holds the current
+parameter actions (k values in [-1, 1]) followed by (:data:`envs.core.OBS_FEATURES`):
+
+| idx | name | range | meaning |
+|---|---|---|---|
+| k+0 | nis_pr | 0-100 | pseudorange NIS per measurement: sum(dz^2/S_ii)/n |
+| k+1 | nis_prr | 0-100 | pseudorange-rate NIS per measurement |
+| k+2 | nis_pr_ema | 0-100 | moving average (alpha 0.1) of nis_pr |
+| k+3 | nis_prr_ema | 0-100 | moving average of nis_prr |
+| k+4 | log_innov_pr | 0-4 | log10(1 + RMS pseudorange innovation [m]) |
+| k+5 | log_innov_prr | 0-4 | log10(1 + RMS pseudorange-rate innovation [m/s]) |
+| k+6 | sats_frac | 0-1 | satellites used / channels |
+| k+7 | gdop | 0-5 | GDOP / 10 (5: no fix) |
+| k+8 | log_pos_var | -4-8 | log10 trace of the position covariance [m^2] |
+| k+9 | time_since_update | 0-10 | seconds since the last epoch with satellites / 60 |
+| k+10 | outage | 0-1 | 1 if no satellite at this epoch |
+| k+11 | zupt | 0-1 | 1 if a zero-velocity update was applied |
+| k+12 | speed | 0-10 | INS speed [m/s] / 10 |
+
+Only quantities the filter has enter the observation, never the truth.
+
+## Rewards
+
+``reward='horizontal'`` (default): ``-horizontal error [m]`` at the epoch.
+``'log'``: ``-ln(error + 0.1 m)``. ``'3d'``: ``-3D error [m]``. ``'advantage'``:
+the horizontal error of a reference filter (same method, default parameters,
+same data) minus the agent's. A diverged epoch gets the penalty
+``-divergence_bound_m`` (``-ln(bound + 0.1)`` for ``'log'``).
+
+## Starting State
+
+A new world (trajectory, IMU errors, satellites, receiver errors, initial
+estimate errors) drawn from the scenario with the episode's seed; parameters at
+their defaults.
+
+## Episode End
+
+* Termination: the filter diverged (non-finite state or covariance, or
+  horizontal error above ``divergence_bound_m``, default 1000 m); ``info["diverged"]``.
+* Truncation: the last GNSS epoch of the episode (``episode_length_s``, default 120 s).
+
+At the end, ``info["episode_metrics"]`` holds the episode's horizontal RMSE and maximum.
+
+## Arguments
+
+:class:`envs.config.EnvConfig` fields as keyword arguments: ``scenario``,
+``method``, ``imu_grade``, ``episode_length_s``, ``gnss_rate_hz``, ``reward``,
+``history``, ``zupt`` (``'none'``, ``'truth'``), ``dtype``,
+``divergence_bound_m``; plus ``render_mode`` (``'ansi'``, ``'rgb_array'``).
+
+## Version History
+
+* v0: initial version.
+"""
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from .config import EnvConfig, ParamSpec
+from .core import TuningCore
+
+SAGE_HUSA_PARAMS = (ParamSpec("b", 0.90, 0.9999, "log1m", 0.98,
+                              "Sage-Husa forgetting factor; log(1 - b) linear in the action"),)
+STKF_PARAMS = (ParamSpec("softening", 0.2, 5.0, "log", 1.0,
+                         "strong-tracking softening factor beta (scales R in N_k); log-uniform"),)
+MASTKF_PARAMS = (ParamSpec("b", 0.90, 0.9999, "log1m", 0.987, "MA-STKF asymptotic forgetting factor b"),
+                 ParamSpec("fading_scale", 0.2, 5.0, "log", 1.0, "scaling of the MA-STKF fading factor"))
+
+
+def make_config(defaults: dict, kwargs: dict) -> EnvConfig:
+    """An EnvConfig from an env's defaults and the user's kwargs (unknown kwargs -> ValueError naming them)."""
+    fields = set(EnvConfig.__dataclass_fields__)
+    bad = set(kwargs) - fields
+    if bad:
+        raise ValueError(f"unknown environment argument(s) {sorted(bad)}; known: {sorted(fields)}")
+    return EnvConfig(**{**defaults, **kwargs})
+
+
+class GnssInsTuningEnv(gym.Env):
+    """Base class of the tuning environments (see the module docstring for the tables)."""
+
+    metadata = {"render_modes": ["ansi", "rgb_array"], "render_fps": 4}
+    PARAMS: tuple[ParamSpec, ...] = SAGE_HUSA_PARAMS
+    DEFAULTS: dict = {"method": "sage-husa"}
+
+    def __init__(self, render_mode: str | None = None, **kwargs):
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
+        self.config = make_config(self.DEFAULTS, kwargs)
+        self.render_mode = render_mode
+        self.core = TuningCore(self.config, self.PARAMS, 1)
+        k = self.core.k
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(k,), dtype=np.float32)
+        self.observation_space = spaces.Box(self.core.obs_low, self.core.obs_high, dtype=np.float32)
+        self._last = None
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        world_seed = int(self.np_random.integers(0, 2**31 - 1))
+        obs = self.core.reset_rows(np.array([0]), [world_seed])
+        self._last = None
+        return obs[0], {"seed": world_seed}
+
+    def step(self, action):
+        res = self.core.step(np.asarray(action)[None] if np.ndim(action) == 1 else action)
+        self._last = res
+        info = {k: (float(v[0]) if np.asarray(v).dtype.kind == "f" else (bool(v[0]) if np.asarray(v).dtype == bool
+                                                                             else int(v[0])))
+                for k, v in res.info.items()}
+        terminated, truncated = bool(res.terminated[0]), bool(res.truncated[0])
+        if terminated or truncated:
+            info["episode_metrics"] = self.core.episode_metrics([0])[0]
+        return res.obs[0], float(res.reward[0]), terminated, truncated, info
+
+    def render(self):
+        if self.render_mode is None:
+            gym.logger.warn("render() called without a render_mode")
+            return None
+        if self.render_mode == "ansi":
+            return self._render_ansi()
+        return self._render_rgb()
+
+    def _render_ansi(self) -> str:
+        c = self.core
+        if self._last is None:
+            return f"t=0 s  scenario={c.scenario.name}  method={self.config.method}\n"
+        i = self._last.info
+        params = "  ".join(f"{s.name}={i[s.name][0]:.5g}" for s in c.specs)
+        return (f"epoch {int(c.t[0]):4d}/{c.M}  err_h={i['horizontal_error_m'][0]:7.2f} m  "
+                f"nis_pr={i['nis_pr'][0]:6.2f}  sats={int(i['n_sats'][0]):2d}  {params}\n")
+
+    def _render_rgb(self) -> np.ndarray:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+        truth, est = self.core.track_ned(0)
+        fig, (a1, a2) = plt.subplots(1, 2, figsize=(8, 3.6), dpi=80)
+        a1.plot(truth[:, 1], truth[:, 0], "k-", lw=1.5, label="truth")
+        a1.plot(est[:, 1], est[:, 0], "r.", ms=3, label="estimate")
+        a1.set_xlabel("east [m]"), a1.set_ylabel("north [m]"), a1.axis("equal"), a1.legend(loc="best")
+        err = np.hypot(*(est - truth).T) if len(truth) else np.zeros(0)
+        a2.plot(np.arange(1, len(err) + 1) / self.core.scenario.gnss_rate_hz, err, "r-")
+        a2.set_xlabel("time [s]"), a2.set_ylabel("horizontal error [m]"), a2.grid(alpha=0.3)
+        fig.tight_layout()
+        fig.canvas.draw()
+        img = np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
+        plt.close(fig)
+        return img
+
+
+class SageHusaEnv(GnssInsTuningEnv):
+    """``GnssIns/SageHusa-v0``: the action sets the Sage-Husa forgetting factor ``b`` in [0.90, 0.9999]
+    (``log(1 - b)`` linear in the action; default b = 0.98 <-> action -0.44). Methods: ``sage-husa``,
+    ``svd-akf``, ``svd-asrkf`` (``+onestep`` allowed)."""
+
+    PARAMS = SAGE_HUSA_PARAMS
+    DEFAULTS = {"method": "sage-husa"}
+
+
+class StkfEnv(GnssInsTuningEnv):
+    """``GnssIns/STKF-v0``: the action sets the strong-tracking softening factor in [0.2, 5] (log-uniform,
+    default 1)."""
+
+    PARAMS = STKF_PARAMS
+    DEFAULTS = {"method": "stkf"}
+
+
+class MaStkfEnv(GnssInsTuningEnv):
+    """``GnssIns/MASTKF-v0``: the action sets the MA-STKF forgetting factor ``b`` in [0.90, 0.9999] (default
+    0.987) and the fading-factor scaling in [0.2, 5] (default 1)."""
+
+    PARAMS = MASTKF_PARAMS
+    DEFAULTS = {"method": "ma-stkf"}
