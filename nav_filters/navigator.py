@@ -177,6 +177,7 @@ class Navigator:
         dz : (B, m) innovations; H : (B, m, 17); R : (B, m) variances or (B, m, m); mask : (B, m) bool.
         """
         self.flush_prediction()
+        self._check_state()
         mask = np.asarray(mask, bool) & ~self.diverged[:, None]
         try:
             res = self.form.update(dz, H, R, mask)
@@ -203,6 +204,7 @@ class Navigator:
         result : :class:`~nav_filters.forms.UpdateResult` (rows ``[pr..., prr..., extra...]``)
         gdop : (B,) geometric DOP of the used satellites (inf below 4).
         """
+        self._check_state()
         mask = np.asarray(mask, bool) & ~self.diverged[:, None]
         pr_var = np.square(np.asarray(pr_sigma, np.float64))
         prr_var = None if prr_sigma is None else np.square(np.asarray(prr_sigma, np.float64))
@@ -253,7 +255,34 @@ class Navigator:
         # information), not a divergence; NaN or a non-positive variance is.
         d = np.diagonal(self.form.covariance, axis1=1, axis2=2)
         finite &= ~np.isnan(d).any(1) & (d > 0).all(1)
+        newly = ~finite & ~self.diverged
         self.diverged |= ~finite
+        if newly.any():
+            self._park(np.flatnonzero(newly))
+
+    def _check_state(self):
+        """Flag and park rows whose nominal state became non-finite (before any innovation is formed)."""
+        bad = ~(np.isfinite(self.r).all(1) & np.isfinite(self.v).all(1) & np.isfinite(self.C).all((1, 2))
+                & np.isfinite(self.clk) & np.isfinite(self.drift)) & ~self.diverged
+        if bad.any():
+            self.diverged |= bad
+            self._park(np.flatnonzero(bad))
+
+    def _park(self, rows):
+        """Freeze diverged rows at a neutral finite state (flagged in :attr:`diverged`, never updated again)
+        so that the batched LAPACK calls of every form never see a NaN: one diverged row must not stop
+        the others."""
+        from earth.wgs84 import A as _A
+        n = rows.size
+        self.r[rows] = (_A, 0.0, 0.0)
+        self.v[rows] = 0.0
+        self.C[rows] = np.eye(3)
+        self.bg[rows] = 0.0
+        self.ba[rows] = 0.0
+        self.clk[rows] = 0.0
+        self.drift[rows] = 0.0
+        eye = np.broadcast_to(np.eye(N_STATES), (n, N_STATES, N_STATES)).copy()
+        self.form.replace_rows(rows, make_form(self.config.method, eye, dtype=self.dtype))
 
     def replace_rows(self, rows, other: "Navigator") -> None:
         """Overwrite batch rows ``rows`` with the state of ``other`` (a navigator of len(rows) rows, same

@@ -49,12 +49,17 @@ Choices (the paper is silent or the navigator needs them)
   applied to the variances the receiver reports:
   ``s_g <- (1 - d) s_g + d sum_g(dz_i^2 - (H P- H^T)_ii) / sum_g R_ii``.
 * **Positive definiteness.** R: the scale is clipped to
-  ``[r_scale_min, r_scale_max]``. Q: after each correction, the eigenvalues
-  of ``W Q W`` (``W = diag(Q_ref)^(-1/2)``, ``Q_ref`` the nominal epoch Q at the
-  row's first adaptation) are clipped to ``[q_floor, q_ceiling]``: Q stays
-  symmetric positive definite and within a bounded ratio of the nominal
-  model, in float32 as in float64 (also in the diagonal mode, whose eq 21 alone
-  does not guarantee it when ``diag(Q_hat)`` is negative).
+  ``[r_scale_min, r_scale_max]``. Q: the recursion of eqs 21/22 runs on the
+  raw average (which may be indefinite: a single ``Q_hat`` is dominated by
+  sampling noise of the size of ``P``, far above Q), and the Q *applied* is its
+  projection: the eigenvalues of ``W Q W`` (``W = diag(Q_ref)^(-1/2)``,
+  ``Q_ref`` the nominal epoch Q at the row's first adaptation) are clipped to
+  ``[q_floor, q_ceiling]``. The applied Q is symmetric positive definite and
+  within a bounded ratio of the nominal model, in float32 as in float64 (also
+  in the diagonal mode, whose eq 21 alone does not guarantee it when
+  ``diag(Q_hat)`` is negative). Clipping the average itself at every step
+  would rectify the noise and bias Q upward (measured: a 4x too small Q was
+  "corrected" to 25x).
 """
 from __future__ import annotations
 
@@ -198,6 +203,7 @@ class SageHusa(AdaptiveLaw):
         self._r_scale = np.ones((B, len(GROUP_NAMES)))
         self._q_init = np.zeros(B, bool)
         self._Q = np.zeros((B, n, n), self.dtype)
+        self._Q_raw = np.zeros((B, n, n), self.dtype)
         self._q_ref = np.ones((B, n))
 
     def _epoch_q(self, Q_acc):
@@ -271,22 +277,25 @@ class SageHusa(AdaptiveLaw):
             d = np.where(jump, np.maximum(d, sage_husa_weight(b_low, self._step + 1)), d)
             self._b_used = np.where(jump, b_low, self._b_used)
         self._e_prev = np.where(rows, e, self._e_prev)
-        Q_prev = ctx.Q  # the Q applied this epoch (nominal before the first adaptation)
         first = rows & ~self._q_init
         if first.any():
-            diag = np.diagonal(Q_prev, axis1=1, axis2=2).astype(np.float64)
+            # the nominal epoch Q applied so far is the first sample of the average (and the reference of W)
+            Q_nom = ctx.Q
+            diag = np.diagonal(Q_nom, axis1=1, axis2=2).astype(np.float64)
             top = np.max(diag, axis=1, keepdims=True)
             ref = np.maximum(diag, 1e-12 * top)
             ref = np.where(top > 0, ref, 1.0)
             self._q_ref = np.where(first[:, None], ref, self._q_ref)
+            self._Q_raw = np.where(first[:, None, None], Q_nom, self._Q_raw)
         dd = d.astype(self.dtype)[:, None, None]
         corr = Q_hat
         if cfg.diagonal_q:
             corr = np.zeros_like(Q_hat)
             idx = np.arange(self.n)
             corr[:, idx, idx] = np.diagonal(Q_hat, axis1=1, axis2=2)
-        Q_new = (1 - dd) * Q_prev + dd * corr  # eq 22 (full) / eq 21 (diagonal)
-        Q_new = clip_relative_eigenvalues(Q_new, self._q_ref, cfg.q_floor, cfg.q_ceiling).astype(self.dtype)
+        Q_raw = (1 - dd) * self._Q_raw + dd * corr  # eq 22 (full) / eq 21 (diagonal)
+        Q_new = clip_relative_eigenvalues(Q_raw, self._q_ref, cfg.q_floor, cfg.q_ceiling).astype(self.dtype)
+        self._Q_raw = np.where(rows[:, None, None], Q_raw, self._Q_raw)
         self._Q = np.where(rows[:, None, None], Q_new, self._Q)
         self._q_init = self._q_init | rows
 

@@ -11,9 +11,12 @@ from .base import FilterForm, UpdateResult, prepare_measurement
 from .information import InformationFilter, SvdInformationFilter
 from .kf import KalmanFilter
 from .srif import SquareRootInformationFilter
+from .svd import SvdKalmanFilter, SvdSquareRootKF
 
 FORMS: dict[str, type[FilterForm]] = {
     "kf": KalmanFilter,
+    "svd-srkf": SvdSquareRootKF,
+    "svd-kf": SvdKalmanFilter,
     "if": InformationFilter,
     "svd-if": SvdInformationFilter,
     "srif": SquareRootInformationFilter,
@@ -41,4 +44,4 @@ def make_form(method: str, P0, x0=None, dtype=None) -> FilterForm:
 
 
 __all__ = ["FilterForm", "UpdateResult", "KalmanFilter", "InformationFilter", "SvdInformationFilter",
-           "SquareRootInformationFilter", "FORMS", "parse_method", "make_form", "prepare_measurement"]
+           "SquareRootInformationFilter", "SvdSquareRootKF", "SvdKalmanFilter", "FORMS", "parse_method", "make_form", "prepare_measurement"]

@@ -165,3 +165,25 @@ def test_zupt_block_fused_with_gnss_pins_a_stopped_vehicle():
         errs[use_zupt] = np.abs(nav.v - w.truth.v_e[:, k]).max()
     assert w.truth.speed[:, :k + 1].max() == 0.0
     assert errs[True] < 0.03 and errs[True] < 0.5 * errs[False], errs
+
+
+@pytest.mark.parametrize("method", ["kf", "svd-kf"])
+def test_a_diverged_row_is_parked_and_the_others_go_on(method):
+    """Poison one row's state with NaN: it is flagged and frozen; the other rows keep the results of a clean run."""
+    from envs.episodes import navigator_for
+    w = generate_world("seed000-sim", [0, 1, 2])
+    clean = navigator_for(w, method)
+    nav = navigator_for(w, method)
+    g, k = w.gnss, 0
+    for j, kk in enumerate(w.epoch_idx[:10]):
+        for n in (clean, nav):
+            n.propagate_epoch(w.imu.f_b[:, k + 1:kk + 1], w.imu.w_b[:, k + 1:kk + 1], 0.01)
+        k = kk
+        if j == 4:
+            nav.v[1] = np.nan
+        for n in (clean, nav):
+            n.update_gnss(g.sat_pos[:, j], g.sat_vel[:, j], g.pr[:, j], g.prr[:, j], g.pr_sigma[:, j],
+                          g.prr_sigma[:, j], g.mask[:, j])
+    assert nav.diverged.tolist() == [False, True, False] and not clean.diverged.any()
+    assert np.all(np.isfinite(nav.covariance))
+    np.testing.assert_allclose(nav.r[[0, 2]], clean.r[[0, 2]], rtol=0, atol=1e-6)
