@@ -1,8 +1,10 @@
 """Replay recorded GNSS epochs through the navigator: a :class:`~envs.sim.world.World` built from real data.
 
 A replay world has exactly the fields of a simulated one, so
-:func:`envs.episodes.run_episodes`, the environments and ``eval.py`` cannot
-tell the difference:
+:func:`envs.episodes.run_episodes`, the environments and ``eval.py`` run it
+like any other (they only have to pass ``gnss.prr is None`` through to
+:meth:`~nav_filters.navigator.Navigator.update_gnss`, which then stacks
+pseudorange rows only):
 
 * ``truth`` and the *synthesized* IMU: the recording's reference trajectory
   as a smoothing spline with the consistent ideal IMU
@@ -34,7 +36,9 @@ are irregular: smartLoc 0.2 or 0.3 s apart).
 """
 from __future__ import annotations
 
+import functools
 import math
+from pathlib import Path
 
 import numpy as np
 from scipy.interpolate import make_smoothing_spline
@@ -48,33 +52,39 @@ from ..sim.rng import as_seeds, row_generators
 from ..sim.scenarios import InitialErrors, Scenario
 from ..sim.world import World, _initial_estimate
 from .epochs import GnssEpochs
-from .smartloc import POTSDAMER_PLATZ, load_smartloc
+from .smartloc import POTSDAMER_PLATZ, load_smartloc, smartloc_dir
 from .spline_truth import SplineFit, fit_positions, truth_from_fit
 
-__all__ = ["SMARTLOC_SCENARIO", "reference_clock", "gnss_data_from_epochs", "replay_world", "smartloc_scenario",
-           "load_smartloc_world"]
+__all__ = ["SMARTLOC_SCENARIO", "RINEX_SCENARIO", "reference_clock", "gnss_data_from_epochs", "replay_world",
+           "smartloc_scenario", "load_smartloc_world", "load_rinex_world"]
 
 SMARTLOC_SCENARIO = "smartloc-potsdamer-platz"
+RINEX_SCENARIO = "rinex"
 
 
-def reference_clock(epochs: GnssEpochs, r_e, v_e=None, lam=None):
+def reference_clock(epochs: GnssEpochs, r_e, v_e=None, lam: float | None = 10.0):
     """A reference receiver clock (bias and drift) of recorded epochs, from the known receiver positions.
 
     Recorded data have no true clock. Per epoch, with the position fixed at
     the reference ``r_e``, the clock bias is the median of ``pr - rho`` over
     the channels whose C/N0 is at least the epoch's median C/N0 (strong
     signals: fewer NLOS; the median resists the remaining ones); the series is
-    then smoothed by a cubic smoothing spline in time (GCV when ``lam`` is
-    None), whose derivative is the drift (epochs without a valid channel get
-    the spline's value). It includes the common-mode part of
-    the recorded errors; it is what the initial clock estimate is drawn
-    around and what ``pr_error_m`` is relative to.
+    then smoothed by a cubic smoothing spline in time (Reinsch 1967), whose
+    derivative is the drift; epochs without a valid channel get the spline's
+    value. The default ``lam = 10`` (time in s, bias in m) passes periods
+    longer than ~20 s at 5 Hz: on smartLoc the per-epoch medians still carry
+    metres of NLOS noise, and generalized cross-validation (``lam=None``, 1 s
+    slower) keeps a drift wandering between -77 and -22 m/s, not what a TCXO
+    does in 5 minutes (with ``lam = 10``: between -54 and -44 m/s). The reference
+    includes the common-mode part of the recorded errors; it is what the
+    initial clock estimate is drawn around and what ``pr_error_m`` is
+    relative to.
 
     Parameters
     ----------
     epochs : GnssEpochs (M epochs, at least 5).
     r_e : (M, 3) receiver ECEF position at the epochs [m]; v_e : (M, 3) or None (zero) [m/s].
-    lam : smoothing parameter or None (GCV).
+    lam : smoothing parameter (> 0), or None for generalized cross-validation.
 
     Returns
     -------
@@ -214,7 +224,7 @@ def load_smartloc_world(seeds, imu_grade: str = "industrial", imu_rate_hz: float
     """
     if imu_grade not in IMU_GRADES:
         raise ValueError(f"imu_grade {imu_grade!r} is unknown; known: {sorted(IMU_GRADES)}")
-    data = load_smartloc(folder, name) if data is None else data
+    data = _load_smartloc_cached(folder, name) if data is None else data
     gt = data.ground_truth
     keep = np.ones(gt.t.size, bool)
     if duration_s is not None:
@@ -227,4 +237,71 @@ def load_smartloc_world(seeds, imu_grade: str = "industrial", imu_rate_hz: float
                              start=(math.degrees(lat), math.degrees(lon), float(h)), vibration=vibration,
                              initial=initial)
     ep = data.epochs(systems=systems, min_elevation_deg=min_elevation_deg, min_cn0_dbhz=min_cn0_dbhz)
+    return replay_world(scen, ep, fit, seeds, dtype=dtype)
+
+
+def _load_smartloc_cached(folder, name):
+    """:func:`load_smartloc` memoized on the files' paths, sizes and modification times (environment resets)."""
+    folder = smartloc_dir() if folder is None else Path(folder)
+    key = []
+    for suffix in ("_Input.txt", "_GT.txt"):
+        p = (folder / f"{name}{suffix}").resolve()
+        st = p.stat() if p.is_file() else None
+        key.append((str(p), None if st is None else (st.st_size, st.st_mtime_ns)))
+    return _cached(tuple(key), str(folder), name)
+
+
+@functools.lru_cache(maxsize=4)
+def _cached(key, folder, name):
+    data = load_smartloc(folder, name)
+    for part in (data.pseudoranges, data.odometry, data.ground_truth):   # shared: make it read-only
+        for v in vars(part).values():
+            if isinstance(v, np.ndarray):
+                v.flags.writeable = False
+    return data
+
+
+def load_rinex_world(obs_path, nav_path, truth_csv, seeds, imu_grade: str = "industrial", systems=("G",),
+                     imu_rate_hz: float = 100.0, interval_s: float | None = None, elevation_mask_deg: float = 10.0,
+                     sigma0_m: float = 1.5, vibration: Vibration | None = None,
+                     initial: InitialErrors | None = None, dtype=np.float64, name: str = RINEX_SCENARIO) -> World:
+    """A replay world from a RINEX observation file, its navigation file and a truth CSV (generic RINEX scenario).
+
+    The pseudoranges are corrected as in :func:`envs.datasets.rinex.rinex_epochs` (broadcast orbits and
+    clocks, Klobuchar, Saastamoinen); the truth trajectory is the CSV of :mod:`envs.datasets.truth_csv`
+    (GPS week, time of week, ECEF), smoothed as in :mod:`envs.datasets.spline_truth`; the IMU is synthesized
+    with ``imu_grade``. Epochs outside the truth's time span are dropped.
+
+    Parameters
+    ----------
+    obs_path, nav_path : RINEX 3 observation and navigation files.
+    truth_csv : the reference trajectory.
+    seeds : int or B non-negative ints.
+    imu_grade : a key of :data:`envs.sim.imu.IMU_GRADES`.
+    systems : RINEX system letters; default GPS only: the navigator has one receiver-clock state, so with
+        several systems their inter-system biases (a few metres for a u-blox receiver: Galileo -4 m, BeiDou
+        +9 m against GPS on the Reach M2 file) act as measurement errors.
+    imu_rate_hz, interval_s, elevation_mask_deg, sigma0_m : rates and the measurement model.
+    vibration, initial : scenario overrides; dtype : IMU sample dtype; name : the scenario name.
+    """
+    from .rinex import load_nav, load_obs, rinex_epochs
+    from .truth_csv import load_truth_csv
+
+    if imu_grade not in IMU_GRADES:
+        raise ValueError(f"imu_grade {imu_grade!r} is unknown; known: {sorted(IMU_GRADES)}")
+    obs = load_obs(obs_path, systems=systems, interval_s=interval_s)
+    nav = load_nav(nav_path, week_ref=obs.week_ref)
+    t_truth, r_truth = load_truth_csv(truth_csv, obs.week_ref)
+    ep = rinex_epochs(obs, nav, elevation_mask_deg=elevation_mask_deg, sigma0_m=sigma0_m)
+    fit = fit_positions(t_truth - ep.t0_gps, r_truth)
+    if fit.t1 < ep.t[0] or fit.t0 > ep.t[-1]:
+        raise ValueError(f"{truth_csv}: the truth spans GPS time of week [{t_truth[0]:.1f}, {t_truth[-1]:.1f}] s, "
+                         f"the observations [{ep.t0_gps:.1f}, {ep.t0_gps + ep.t[-1]:.1f}] s: no overlap")
+    lat, lon, h = ecef_to_geodetic(r_truth[0])
+    scen = Scenario(name=name, duration_s=max(fit.t1 - fit.t0, 1.0), imu_rate_hz=imu_rate_hz, gnss_rate_hz=1.0,
+                    imu_grade=imu_grade, drive="open", start=(math.degrees(lat), math.degrees(lon), float(h)),
+                    vibration=Vibration() if vibration is None else vibration,
+                    receiver=ReceiverConfig(clock=ClockModel.tcxo()),
+                    initial=InitialErrors() if initial is None else initial,
+                    description=f"replay: {ep.source}, truth {Path(truth_csv).name}, IMU synthesized ({imu_grade})")
     return replay_world(scen, ep, fit, seeds, dtype=dtype)

@@ -46,7 +46,7 @@ from earth.wgs84 import C_LIGHT, C_en
 
 from .atmosphere import F_L1, klobuchar_delay, saastamoinen_delay
 from .ephemeris import BEIDOU_GEO_PRNS, WEEK_S, KeplerEphemeris, satellite_states, select_ephemeris
-from .epochs import SYS_BEIDOU, SYS_GALILEO, SYS_GLONASS, SYS_GPS, SYSTEM_LETTERS, GnssEpochs
+from .epochs import SYSTEM_LETTERS, GnssEpochs
 from .errors import DatasetFormatError, require_file
 from .spp import solve_spp
 

@@ -105,6 +105,27 @@ class SmartLocOdometry:
     turn_rate_var: np.ndarray
     line: np.ndarray
 
+    def frd_at(self, t):
+        """Forward speed and yaw rate in the body FRD convention at times ``t``, for an odometer update.
+
+        Linear interpolation between the recorded samples (held beyond the ends); the yaw rate is
+        returned about the body z axis pointing *down* (FRD, positive = right turn): the recorded z
+        turn rate (about up) with its sign flipped.
+
+        Parameters
+        ----------
+        t : (n,) times [s] (the recording's time stamps).
+
+        Returns
+        -------
+        speed : (n,) [m/s]; yaw_rate : (n,) [rad/s]; speed_var : (n,) [m^2/s^2]; yaw_rate_var : (n,) [rad^2/s^2].
+        """
+        t = np.asarray(t, np.float64)
+        if self.t.size == 0:
+            raise ValueError("no odometry rows")
+        return (np.interp(t, self.t, self.velocity[:, 0]), -np.interp(t, self.t, self.turn_rate[:, 2]),
+                np.interp(t, self.t, self.velocity_var[:, 0]), np.interp(t, self.t, self.turn_rate_var[:, 2]))
+
 
 @dataclass(frozen=True)
 class SmartLocGroundTruth:

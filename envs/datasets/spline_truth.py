@@ -19,7 +19,7 @@ Position
     residual exceeds ``outlier_m`` gets weight ``1e-6`` and the spline is
     refitted (``passes`` times). The spline *is* the truth from then on; its
     distance to the recorded inliers is reported (:attr:`SplineFit.residual_m`,
-    about 1 cm rms on smartLoc Potsdamer Platz).
+    2 cm rms on smartLoc Potsdamer Platz, 8 points down-weighted).
 
 Attitude (assumed: the recording has none)
     Body FRD with x along the velocity and roll 0 about it (a car without
@@ -114,8 +114,8 @@ def fit_positions(t, r_e, lam: float = 0.01, outlier_m: float = 0.25, passes: in
     t : (G,) strictly increasing times [s], G >= 5.
     r_e : (G, 3) ECEF positions [m].
     lam : smoothing parameter (time in s, positions in m), > 0. The default
-        0.01 keeps smartLoc's SPAN truth within ~1 cm rms and its acceleration
-        below ~3 m/s^2, jerk below ~7 m/s^3.
+        0.01 keeps smartLoc's SPAN truth within 2 cm rms (inliers) and its
+        acceleration below ~3 m/s^2, jerk below ~7 m/s^3.
     outlier_m : residual [m] above which a point is down-weighted, > 0.
     passes : refits after down-weighting, >= 1.
 

@@ -124,9 +124,10 @@ def solve_spp(sat_pos, pr, mask, sigma=None, system=None, r0=None, max_iter: int
         if reject_m is None:
             break
         n_sys = (onehot * used[..., None]).any(1).sum(-1)
-        spare = used.sum(-1) > 3 + n_sys + 0
-        med = np.array([np.median(s[u]) if u.any() else 1.0 for s, u in zip(sigma, used)])
-        score = np.where(used, np.abs(res) / sigma * med[:, None], -np.inf)
+        spare = used.sum(-1) > 3 + n_sys                              # one more than the minimum
+        with np.errstate(invalid="ignore", divide="ignore"):
+            med = np.nan_to_num(np.nanmedian(np.where(used, sigma, np.nan), axis=-1), nan=1.0)
+            score = np.where(used, np.abs(res) / np.where(used, sigma, 1.0) * med[:, None], -np.inf)
         worst = np.argmax(score, -1)
         drop = spare & (score[np.arange(N), worst] > reject_m)
         if not drop.any():

@@ -1,11 +1,14 @@
 """Adaptive laws as filter forms that *compose* an inner filter form.
 
 An adaptive law (Sage-Husa, strong tracking, MA-STKF) is itself a
-:class:`~nav_filters.forms.base.FilterForm` that wraps an *inner* form (``kf``,
-and later ``svd-kf``, ``svd-srkf``, ``if``, ...) and talks to it only through
-the public interface: ``predict``, ``update``, ``covariance`` and
-``take_correction``. The same law therefore adapts every form (``svd-akf`` is
-Sage-Husa around ``svd-kf``), and no filter recursion is copied.
+:class:`~nav_filters.forms.base.FilterForm` that wraps an *inner* form (any
+registered form: ``kf``, ``svd-kf``, ``svd-srkf``, ``if``, ``svd-if``,
+``srif``) and talks to it only through the public interface: ``predict``,
+``update``, ``covariance`` and ``take_correction``. The same law therefore
+adapts every form (``svd-akf`` is Sage-Husa around ``svd-kf``), and no filter
+recursion is copied. The laws read the inner covariance, so it must be finite
+(an information form started from zero information has infinite variances
+until its first updates; wrap it only with a finite ``P0``).
 
 Deferred prediction
 -------------------
@@ -256,6 +259,29 @@ class AdaptiveLaw(FilterForm):
         self._ctx = None
         self._commit(plan, ctx, r, H, mask, dx)
         return res
+
+    # ------------------------------------------------------------- row reset
+    def replace_rows(self, rows, other: "AdaptiveLaw") -> None:
+        """Overwrite batch rows ``rows`` with the rows of ``other`` (same law, ``len(rows)`` rows).
+
+        The generic copy of :meth:`FilterForm.replace_rows` (per-row arrays, the inner form) plus what
+        it cannot see: the per-row parameters, and a pending (deferred) transition present on only one
+        side (a row without one gets ``Phi = I``, ``Q = 0``).
+        """
+        rows = np.asarray(rows, dtype=np.intp)
+        super().replace_rows(rows, other)
+        if self._Phi_acc is not None or other._Phi_acc is not None:
+            if self._Phi_acc is None:
+                self._Phi_acc = np.broadcast_to(np.eye(self.n, dtype=self.dtype), (self.batch_size, self.n, self.n)).copy()
+                self._Q_acc = np.zeros((self.batch_size, self.n, self.n), self.dtype)
+            if other._Phi_acc is None:
+                self._Phi_acc[rows] = np.eye(self.n, dtype=self.dtype)
+                self._Q_acc[rows] = 0
+            else:
+                self._Phi_acc[rows] = other._Phi_acc
+                self._Q_acc[rows] = other._Q_acc
+        for name, value in other._params.items():
+            self._params[name][rows] = value
 
     # --------------------------------------------------------------- params
     def params(self) -> dict:

@@ -25,6 +25,20 @@ paper's recursion on ``tr(C_k)``. (Normalizing by ``tr(S_k)`` instead would
 feed the fading back into itself: a faded, larger P raises ``tr(S_k)`` and so
 the whole smoothed history.)
 
+Safeguards (not in the paper)
+-----------------------------
+A single fading factor inflates every error state alike, also those the
+measurements barely observe (attitude, IMU biases): while the innovations stay
+large (NLOS in a street canyon) those variances grow geometrically, epoch after
+epoch, until the linearized error model breaks (measured on ``urban``, 8
+episodes: the uncapped STKF reached attitude sigmas of 100+ degrees and km
+position errors, one episode diverged). Hence ``lambda <= lambda_max`` and a
+per-state cap, ``fading_cap`` times the state's initial variance ``P0_ii``
+(default 1: fading never makes a state more uncertain than it was at the
+start), applied as per-state factors ``D = diag(sqrt(lambda_i))``,
+``P <- D Phi P Phi^T D + Q`` (:meth:`~.base.AdaptiveLaw.capped_fading`).
+``fading_cap=inf`` gives the paper's single factor.
+
 Updates with no transition since the previous update (a second measurement in
 the same epoch) update the statistics but apply no fading.
 """
@@ -44,11 +58,13 @@ RHO_SPEC = ParamSpec("rho", 0.0, 1.0, low_closed=False, high_closed=True,
                      doc="STKF forgetting factor of the innovation covariance")
 MA_B_SPEC = ParamSpec("b", 0.0, 1.0, low_closed=False, high_closed=True,
                       doc="MA-STKF asymptotic fading factor b of beta_k = beta_(k-1)/(beta_(k-1) + b)")
+FADING_SCALE_SPEC = ParamSpec("fading_scale", 0.0, 1e6, low_closed=False, high_closed=True,
+                              doc="MA-STKF scaling of the fading factor, lambda = max(1, s tr(N_k)/tr(M_k))")
 FAULT_SPEC = ParamSpec("fault_threshold", 1.0, np.inf, low_closed=False, high_closed=True,
                        doc="MA-STKF fault test ratio tr(C_k) > threshold * tr(predicted); inf disables")
 
 
-def fading_factor(tr_c, traces, softening, lambda_max):
+def fading_factor(tr_c, traces, softening, lambda_max, scale=1.0):
     """Suboptimal fading factor (seed 003 eqs 19-21; Zhou's STF).
 
     Parameters
@@ -57,15 +73,16 @@ def fading_factor(tr_c, traces, softening, lambda_max):
     traces : :class:`~.innovation.InnovationTraces` of the epoch (``tr M``, ``tr H Q H^T``, ``tr R``).
     softening : (B,) softening factor beta (``N_k = C_k - H Q H^T - beta R``).
     lambda_max : upper bound of lambda (a safeguard; the paper has none).
+    scale : (B,) or scalar multiplier of the ratio (1 as written).
 
     Returns
     -------
-    (B,) float64 ``lambda_k = clip(tr(N_k) / tr(M_k), 1, lambda_max)``; 1 where ``tr(M_k) <= 0``.
+    (B,) float64 ``lambda_k = clip(scale tr(N_k) / tr(M_k), 1, lambda_max)``; 1 where ``tr(M_k) <= 0``.
     """
     tr_m = traces.tr_m.astype(np.float64)
     tr_n = tr_c - traces.tr_q.astype(np.float64) - softening * traces.tr_r.astype(np.float64)  # eq 20
     ok = tr_m > 0
-    lam = np.where(ok, tr_n / np.where(ok, tr_m, 1.0), 1.0)  # eq 19
+    lam = np.where(ok, scale * tr_n / np.where(ok, tr_m, 1.0), 1.0)  # eq 19
     return np.clip(lam, 1.0, lambda_max)
 
 
@@ -99,7 +116,7 @@ class StrongTrackingConfig:
 class StrongTracking(AdaptiveLaw):
     """``stkf``: strong tracking filter with a single suboptimal fading factor around an inner form.
 
-    Innovation covariance (Zhou's STF, as in the seed 003 brief): ``V_1 = dz dz^T``,
+    Innovation covariance (Zhou's STF, seed 003 ref [17]): ``V_1 = dz dz^T``,
     ``V_k = (rho V_(k-1) + dz dz^T) / (1 + rho)`` (on the normalized ratio, see the module docstring);
     ``lambda_k`` of :func:`fading_factor` with ``C_k = V_k``.
 
@@ -147,6 +164,8 @@ class MeasurementAdaptiveSTKFConfig:
     ----------
     b : initial asymptotic fading factor b of eq 11, (0, 1] (paper: 0.987; per-row settable).
     softening : initial softening factor beta on R in ``N_k`` (1 = eq 20 as written; per-row settable).
+    fading_scale : initial multiplier s of the fading ratio, ``lambda = max(1, s tr(N_k)/tr(M_k))``
+        (1 = eq 19 as written; per-row settable).
     fault_threshold : initial ratio of the eq 13 fault test (> 1, ``inf`` disables; per-row settable).
     alpha_min, alpha_max : bounds of the measurement factor alpha_k of eq 16.
     lambda_max : upper bound of the fading factor (>= 1; 1 disables fading).
@@ -157,10 +176,15 @@ class MeasurementAdaptiveSTKFConfig:
     fading_uses_alpha : the measurement noise subtracted in ``N_k`` (eq 20) is the current noise
         model ``alpha_(k-1) R_k`` (True, default) or the reported ``R_k`` as printed (False); see
         :class:`MeasurementAdaptiveSTKF`.
+    warmup_epochs : measurement epochs of a row that only feed ``C_k`` (eqs 10-11) before alpha,
+        lambda and the fault test act (``alpha = lambda = 1``): the first ``C_k`` rest on one or two
+        innovations, and innovations far below a conservative ``P0`` would drive alpha to its floor
+        and then flag the next ordinary epochs as faults. 0: act from the first epoch.
     """
 
     b: float = 0.987
     softening: float = 1.0
+    fading_scale: float = 1.0
     fault_threshold: float = 3.0
     alpha_min: float = 0.1
     alpha_max: float = 1e4
@@ -168,6 +192,7 @@ class MeasurementAdaptiveSTKFConfig:
     max_consecutive_rejections: int = 5
     fading_cap: float = 1.0
     fading_uses_alpha: bool = True
+    warmup_epochs: int = 10
 
     def __post_init__(self):
         o = type(self).__name__
@@ -175,14 +200,16 @@ class MeasurementAdaptiveSTKFConfig:
             raise ValueError(f"{o}.fading_uses_alpha must be a bool, got {self.fading_uses_alpha!r}")
         MA_B_SPEC.check(self.b, owner=o)
         SOFTENING_SPEC.check(self.softening, owner=o)
+        FADING_SCALE_SPEC.check(self.fading_scale, owner=o)
         FAULT_SPEC.check(self.fault_threshold, owner=o)
         check_option(o, "alpha_min", self.alpha_min, low=0.0, low_closed=False)
         check_option(o, "alpha_max", self.alpha_max, low=self.alpha_min)
         check_option(o, "lambda_max", self.lambda_max, low=1.0)
         check_option(o, "fading_cap", self.fading_cap, low=0.0, low_closed=False, allow_inf=True)
-        m = self.max_consecutive_rejections
-        if isinstance(m, bool) or not isinstance(m, (int, np.integer)) or m < 0:
-            raise ValueError(f"{o}.max_consecutive_rejections must be an int >= 0, got {m!r}")
+        for name in ("max_consecutive_rejections", "warmup_epochs"):
+            m = getattr(self, name)
+            if isinstance(m, bool) or not isinstance(m, (int, np.integer)) or m < 0:
+                raise ValueError(f"{o}.{name} must be an int >= 0, got {m!r}")
 
 
 class MeasurementAdaptiveSTKF(AdaptiveLaw):
@@ -208,7 +235,8 @@ class MeasurementAdaptiveSTKF(AdaptiveLaw):
        ``[alpha_min, alpha_max]``; the update uses ``alpha_k R_k`` (eq 24);
     4. fading factor (eqs 19-21) ``lambda_k = max(1, tr(N_k)/tr(M_k))``,
        ``N_k = C_k - H Q H^T - beta alpha_(k-1) R_k`` with ``beta`` the softening factor (1 as
-       written), capped at ``lambda_max`` and per state by ``fading_cap``;
+       written), the ratio multiplied by ``fading_scale`` (1 as written), capped at ``lambda_max``
+       and per state by ``fading_cap``;
        ``P_k|k-1 = lambda_k Phi P Phi^T + Q`` (eq 23). Choice: eq 20 prints the reported ``R_k``,
        but once eq 24 uses ``alpha_k R_k`` that counts the same innovation excess twice, as
        measurement noise (alpha) *and* as model mismatch (lambda), so a lasting rise of the noise
@@ -219,13 +247,14 @@ class MeasurementAdaptiveSTKF(AdaptiveLaw):
     5. the inner form's update with ``alpha_k R_k`` (eqs 24-25; the inner form's own covariance
        update, Joseph for ``kf``, stands for eq 26).
 
-    Per-row parameters: ``b`` ((0, 1]), ``softening`` (> 0), ``fault_threshold`` ((1, inf]).
+    Per-row parameters: ``b`` ((0, 1]), ``softening`` (> 0), ``fading_scale`` (> 0, multiplies the
+    ratio of eq 19), ``fault_threshold`` ((1, inf]).
     Adaptive state: ``lambda``, ``alpha``, ``beta``, ``innovation_ratio`` (``c_k``), ``rejected`` (0/1,
     the last epoch), ``rejections`` (consecutive rejected epochs).
     """
 
     name = "ma-stkf"
-    PARAMS = (MA_B_SPEC, SOFTENING_SPEC, FAULT_SPEC)
+    PARAMS = (MA_B_SPEC, SOFTENING_SPEC, FADING_SCALE_SPEC, FAULT_SPEC)
     config_class = MeasurementAdaptiveSTKFConfig
 
     def _init_state(self):
@@ -249,17 +278,19 @@ class MeasurementAdaptiveSTKF(AdaptiveLaw):
         c = (1.0 - beta) * self._c + beta * ratio
         tr_c = c * tr_r
         # eq 13: fault test against the predicted innovation trace with the current alpha
+        acting = has & (self._count >= cfg.warmup_epochs)
         predicted = tr_m + tr_q + self._alpha * tr_r
-        fault = has & (tr_c > self._params["fault_threshold"] * predicted) & (self._streak < cfg.max_consecutive_rejections)
+        fault = (acting & (tr_c > self._params["fault_threshold"] * predicted)
+                 & (self._streak < cfg.max_consecutive_rejections))
         accept = has & ~fault
         # eq 16: measurement factor
         safe_r = np.where(tr_r > 0, tr_r, 1.0)
         alpha = np.clip((tr_c - tr_m - tr_q) / safe_r, cfg.alpha_min, cfg.alpha_max)
-        alpha = np.where(accept, alpha, self._alpha)
-        # eqs 19-21: fading factor with the reported R
+        alpha = np.where(accept & acting, alpha, self._alpha)
+        # eqs 19-21: fading factor (N_k with the current noise model alpha_(k-1) R_k, or the reported R_k)
         soft = self._params["softening"] * (self._alpha if cfg.fading_uses_alpha else 1.0)
-        lam = fading_factor(tr_c, tr, soft, cfg.lambda_max)
-        lam = np.where(accept & ctx.pending, lam, 1.0)
+        lam = fading_factor(tr_c, tr, soft, cfg.lambda_max, scale=self._params["fading_scale"])
+        lam = np.where(accept & acting & ctx.pending, lam, 1.0)
         a = np.where(accept, alpha, 1.0).astype(R.dtype)
         R_used = R * a[:, None, None]
         # keep unit variance on masked rows (they change nothing, but stay the documented neutral rows)

@@ -45,3 +45,8 @@ def make_form(method: str, P0, x0=None, dtype=None) -> FilterForm:
 
 __all__ = ["FilterForm", "UpdateResult", "KalmanFilter", "InformationFilter", "SvdInformationFilter",
            "SquareRootInformationFilter", "SvdSquareRootKF", "SvdKalmanFilter", "FORMS", "parse_method", "make_form", "prepare_measurement"]
+
+# Adaptive laws compose the forms above (they import this module), so they register last.
+from ..adaptive import ADAPTIVE_METHODS  # noqa: E402
+
+FORMS.update(ADAPTIVE_METHODS)
