@@ -54,7 +54,7 @@ def fail(msg: str) -> "None":
 
 def main(argv=None) -> dict:
     args = build_parser().parse_args(argv)
-    from envs.sim.scenarios import SCENARIOS, get_scenario
+    from envs.worlds import make_world, scenario_names
     from nav_filters.forms import parse_method
 
     scenarios = args.scenario or list(DEFAULT_SCENARIOS)
@@ -62,8 +62,8 @@ def main(argv=None) -> dict:
     if not methods:
         fail("--methods is empty")
     for s in scenarios:
-        if s not in SCENARIOS:
-            fail(f"unknown scenario {s!r}; known: {', '.join(sorted(SCENARIOS))}")
+        if s not in scenario_names():
+            fail(f"unknown scenario {s!r}; known: {', '.join(scenario_names())}")
     for m in methods:
         try:
             parse_method(m)
@@ -76,7 +76,6 @@ def main(argv=None) -> dict:
 
     from envs.episodes import run_episodes
     from envs.metrics import summarize
-    from envs.sim.world import generate_world
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -85,12 +84,14 @@ def main(argv=None) -> dict:
                                            "methods": methods, "episode_seeds": seeds}}
     curves = {}
     for s in scenarios:
-        scen = get_scenario(s)
         logs = {m: [] for m in methods}
         t_start = time.perf_counter()
         for c0 in range(0, len(seeds), args.batch_size):
             chunk = seeds[c0:c0 + args.batch_size]
-            world = generate_world(scen, chunk)
+            try:
+                world = make_world(s, chunk)
+            except FileNotFoundError as e:
+                fail(f"scenario {s!r} needs a recorded data set: {e}")
             for m in methods:
                 done = c0 + len(chunk)
                 print(f"\r[{s}] {m:<14s} episodes {c0 + 1}-{done}/{len(seeds)} ...", end="", flush=True, file=sys.stderr)

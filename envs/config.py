@@ -133,6 +133,12 @@ class EnvConfig:
         """The scenario with this config's overrides applied."""
         if not isinstance(self.scenario, (str, Scenario)):
             raise ValueError(f"EnvConfig.scenario must be a scenario name or a Scenario, got {self.scenario!r}")
+        from .worlds import REPLAY_SCENARIOS
+        if isinstance(self.scenario, str) and self.scenario in REPLAY_SCENARIOS:
+            if self.gnss_rate_hz is not None:
+                raise ValueError("EnvConfig.gnss_rate_hz cannot be changed for a recorded data set")
+            from .datasets.replay import smartloc_scenario
+            return smartloc_scenario(self.imu_grade or "industrial", duration_s=float(self.episode_length_s))
         over = {"duration_s": float(self.episode_length_s)}
         if self.imu_grade is not None:
             over["imu_grade"] = self.imu_grade

@@ -24,7 +24,7 @@ from nav_filters.forms import parse_method
 
 from .config import EnvConfig, ParamSpec
 from .episodes import navigator_for
-from .sim.world import generate_world
+from .worlds import REPLAY_SCENARIOS, make_world
 
 # --------------------------------------------------------------------------- observation layout
 OBS_FEATURES = (
@@ -46,6 +46,8 @@ OBS_FEATURES = (
 """Per-frame observation features after the parameter values (all float32, clipped to [low, high])."""
 
 EMA_ALPHA = 0.1
+STILL_SPEED_MPS = 0.05
+"""True speed below which the ``zupt='truth'`` option declares the vehicle stationary [m/s]."""
 ZUPT_SIGMA_MPS = 0.02
 LOG_REWARD_OFFSET_M = 0.1
 
@@ -109,7 +111,11 @@ class TuningCore:
         """Start new episodes on ``rows`` with world ``seeds``; returns their observations (len(rows), obs_dim)."""
         rows = np.asarray(rows, np.intp)
         seeds = [int(s) for s in seeds]
-        world = generate_world(self.scenario, seeds)
+        if isinstance(self.config.scenario, str) and self.config.scenario in REPLAY_SCENARIOS:
+            world = make_world(self.config.scenario, seeds, imu_grade=self.config.imu_grade,
+                               duration_s=self.config.episode_length_s)
+        else:
+            world = make_world(self.scenario, seeds)
         nav = self._make_nav(world, self.config.method)
         act = np.broadcast_to(self.default_action, (rows.size, self.k)).copy()
         self._set_params(nav, None, act)
@@ -145,6 +151,7 @@ class TuningCore:
         N = world.imu.f_b.shape[1]
         M, C = g.pr.shape[1], g.pr.shape[2]
         self.epoch_idx = world.epoch_idx
+        self.has_rate = g.prr is not None  # recorded data sets may have no Doppler
         self.M, self.C = M, C
         self.dt = 1.0 / self.scenario.imu_rate_hz
         self.f = np.zeros((B, N, 3))
@@ -171,14 +178,15 @@ class TuningCore:
         self.f[rows] = world.imu.f_b
         self.w[rows] = world.imu.w_b
         self.sat_pos[rows], self.sat_vel[rows] = g.sat_pos, g.sat_vel
-        self.pr[rows], self.prr[rows] = g.pr, g.prr
-        self.pr_sigma[rows], self.prr_sigma[rows] = g.pr_sigma, g.prr_sigma
+        self.pr[rows], self.pr_sigma[rows] = g.pr, g.pr_sigma
+        if g.prr is not None:
+            self.prr[rows], self.prr_sigma[rows] = g.prr, g.prr_sigma
         self.gmask[rows] = g.mask
         ep = world.epoch_idx
         self.truth_r[rows] = tr.r_e[:, ep]
         lat, lon, _ = ecef_to_geodetic(tr.r_e[:, ep])
         self.truth_Cne[rows] = np.swapaxes(C_en(lat, lon), -1, -2)
-        self.truth_still[rows] = tr.speed[:, ep] == 0.0
+        self.truth_still[rows] = tr.stationary(STILL_SPEED_MPS)[:, ep]
         self.origin[rows] = tr.r_e[:, 0]
         lat0, lon0, _ = ecef_to_geodetic(tr.r_e[:, 0])
         self.origin_Cne[rows] = np.swapaxes(C_en(lat0, lon0), -1, -2)
@@ -284,8 +292,10 @@ class TuningCore:
             idx = start[:, None] + 1 + np.arange(n)[None, :]
             nav.propagate_epoch(self.f[rows[:, None], idx], self.w[rows[:, None], idx], self.dt)
         jj = np.minimum(j, self.M - 1)
-        g = (self.sat_pos[rows, jj], self.sat_vel[rows, jj], self.pr[rows, jj], self.prr[rows, jj],
-             self.pr_sigma[rows, jj], self.prr_sigma[rows, jj], self.gmask[rows, jj])
+        rate = self.has_rate
+        g = (self.sat_pos[rows, jj], self.sat_vel[rows, jj], self.pr[rows, jj],
+             self.prr[rows, jj] if rate else None, self.pr_sigma[rows, jj],
+             self.prr_sigma[rows, jj] if rate else None, self.gmask[rows, jj])
         zflag = np.zeros(B, bool)
         extra = None
         if self.config.zupt == "truth":
@@ -310,7 +320,7 @@ class TuningCore:
         nis = np.zeros((self.B, 2))
         rms = np.zeros((self.B, 2))
         groups = [slice(0, C)]
-        if self.nav.config.use_pseudorange_rate:
+        if self.nav.config.use_pseudorange_rate and self.has_rate:
             groups.append(slice(C, 2 * C))
         for gi, sl in enumerate(groups):
             m = mask

@@ -133,8 +133,10 @@ def run_episodes(world: World, method: str = "kf", dtype="float64", progress=Non
         if ep[j] > k:
             nav.propagate_epoch(f_all[:, k + 1:ep[j] + 1], w_all[:, k + 1:ep[j] + 1], dt)
             k = ep[j]
-        res, g = nav.update_gnss(gnss.sat_pos[:, j], gnss.sat_vel[:, j], gnss.pr[:, j], gnss.prr[:, j],
-                                 gnss.pr_sigma[:, j], gnss.prr_sigma[:, j], gnss.mask[:, j])
+        prr = None if gnss.prr is None else gnss.prr[:, j]  # recorded data may have no Doppler
+        prr_sigma = None if gnss.prr_sigma is None else gnss.prr_sigma[:, j]
+        res, g = nav.update_gnss(gnss.sat_pos[:, j], gnss.sat_vel[:, j], gnss.pr[:, j], prr,
+                                 gnss.pr_sigma[:, j], prr_sigma, gnss.mask[:, j])
         err_e[:, j] = nav.r - truth.r_e[:, k]
         verr_e[:, j] = nav.v - truth.v_e[:, k]
         e = np.concatenate([-verr_e[:, j], -err_e[:, j]], 1)

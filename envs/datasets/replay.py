@@ -50,7 +50,7 @@ from ..sim.gnss import ClockModel, GnssData, ReceiverConfig
 from ..sim.imu import IMU_GRADES, Vibration, simulate_imu
 from ..sim.rng import as_seeds, row_generators
 from ..sim.scenarios import InitialErrors, Scenario
-from ..sim.world import World, _initial_estimate
+from ..sim.world import World, initial_estimate
 from .epochs import GnssEpochs
 from .smartloc import POTSDAMER_PLATZ, load_smartloc, smartloc_dir
 from .spline_truth import SplineFit, fit_positions, truth_from_fit
@@ -182,7 +182,7 @@ def replay_world(scenario: Scenario, epochs: GnssEpochs, fit: SplineFit, seeds, 
     imu = simulate_imu(truth.f_b, truth.w_b, rate, IMU_GRADES[scenario.imu_grade], row_generators(seeds, "imu"),
                        engine_on=truth.engine_on, speed=truth.speed, vibration=scenario.vibration, dtype=dtype,
                        vibration_rngs=row_generators(seeds, "vibration"))
-    init = _initial_estimate(scenario, truth, gnss, row_generators(seeds, "init"))
+    init = initial_estimate(scenario, truth, gnss, row_generators(seeds, "init"))
     return World(scenario=scenario, seeds=seeds, truth=truth, imu=imu, gnss=gnss, epoch_idx=idx, init=init)
 
 

@@ -694,8 +694,10 @@ class GnssData:
         """The sub-batch of rows ``idx`` (int, slice or index array); ``t`` is shared."""
         if isinstance(idx, (int, np.integer)):
             idx = slice(int(idx), int(idx) + 1)
-        return GnssData(**{f.name: (getattr(self, f.name) if f.name == "t" else getattr(self, f.name)[idx])
-                           for f in fields(self)})
+        def take(name):
+            v = getattr(self, name)
+            return v if (name == "t" or v is None) else v[idx]
+        return GnssData(**{f.name: take(f.name) for f in fields(self)})
 
 
 # =============================================================================

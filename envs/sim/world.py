@@ -73,7 +73,7 @@ class World:
         return IMU_GRADES[self.scenario.imu_grade]
 
 
-def _initial_estimate(scen: Scenario, truth: Truth, gnss: GnssData, rngs) -> InitialEstimate:
+def initial_estimate(scen: Scenario, truth: Truth, gnss: GnssData, rngs) -> InitialEstimate:
     ie = scen.initial
     B = truth.batch_size
     r0, v0, C0 = truth.r_e[:, 0].astype(np.float64), truth.v_e[:, 0].astype(np.float64), truth.C_eb[:, 0]
@@ -128,5 +128,5 @@ def generate_world(scenario, seeds, dtype=np.float64) -> World:
     at = truth.take(epoch_idx)
     gnss = simulate_gnss(truth.t[epoch_idx], at.r_e, at.v_e, at.heading, scen.constellation, scen.receiver,
                          scen.events, row_generators(seeds, "gnss"))
-    init = _initial_estimate(scen, truth, gnss, row_generators(seeds, "init"))
+    init = initial_estimate(scen, truth, gnss, row_generators(seeds, "init"))
     return World(scenario=scen, seeds=seeds, truth=truth, imu=imu, gnss=gnss, epoch_idx=epoch_idx, init=init)

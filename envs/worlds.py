@@ -1,0 +1,50 @@
+"""One entry point for worlds by scenario name: simulated presets and replayed recordings alike.
+
+``make_world(name, seeds)`` returns a :class:`envs.sim.world.World` for either a
+simulated scenario (:data:`envs.sim.scenarios.SCENARIOS`) or a recorded data set
+(:data:`REPLAY_SCENARIOS`: recorded GNSS, IMU synthesized from the recorded
+ground truth with the chosen IMU grade). The simulated world (``envs.sim``)
+never imports the dataset loaders; this module sits above both.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .sim.scenarios import SCENARIOS, Scenario
+from .sim.world import World, generate_world
+
+REPLAY_SCENARIOS = ("smartloc-potsdamer-platz",)
+"""Recorded data sets usable by name (they need ../shared/data; see README)."""
+
+
+def scenario_names() -> list[str]:
+    """Every scenario name: simulated presets, then recorded data sets."""
+    return sorted(SCENARIOS) + list(REPLAY_SCENARIOS)
+
+
+def make_world(scenario, seeds, dtype=np.float64, imu_grade: str | None = None,
+               duration_s: float | None = None) -> World:
+    """A batched world for ``scenario`` (a name of :func:`scenario_names` or a Scenario) and ``seeds``.
+
+    ``imu_grade`` and ``duration_s`` override the scenario's (for a recording: the synthesized IMU's grade,
+    and a prefix of the recording).
+    """
+    if isinstance(scenario, str) and scenario in REPLAY_SCENARIOS:
+        from .datasets.replay import load_smartloc_world
+        kw = {}
+        if imu_grade is not None:
+            kw["imu_grade"] = imu_grade
+        if duration_s is not None:
+            kw["duration_s"] = duration_s
+        return load_smartloc_world(seeds, dtype=dtype, **kw)
+    if not isinstance(scenario, (str, Scenario)):
+        raise ValueError(f"scenario must be a name or a Scenario, got {scenario!r}")
+    if isinstance(scenario, str) and scenario not in SCENARIOS:
+        raise ValueError(f"unknown scenario {scenario!r}; known: {scenario_names()}")
+    over = {}
+    if imu_grade is not None:
+        over["imu_grade"] = imu_grade
+    if duration_s is not None:
+        over["duration_s"] = float(duration_s)
+    from .sim.scenarios import get_scenario
+    return generate_world(get_scenario(scenario, **over), seeds, dtype=dtype)
