@@ -1,16 +1,23 @@
-"""Paired Monte Carlo comparison of navigation filters (DESIGN.md section 4).
+"""Paired Monte Carlo comparison of navigation filters and tuning policies (DESIGN.md section 4).
 
 Usage::
 
-    python eval.py --scenario open-sky --methods kf --episodes 4 --seed 7 --out results/demo
+    python eval.py --scenario urban --scenario noise-burst \\
+                   --methods kf,sage-husa,stkf,ma-stkf,tuned:runs/x/tuning.json,ppo:runs/x/model.zip \\
+                   --episodes 50 --seed 0 --out results/DIR [--reference kf] [--note docs/results.md]
+    python eval.py --experiment seed000 --episodes 20 --out results/seed000
 
-Episode k of every method sees the same truth and the same sensor errors (the
-world is generated once per scenario from the episode seeds and each method
-runs on it). Prints a table and writes ``OUT/results.json`` plus
-``OUT/results.csv``, ``OUT/results.md`` and ``OUT/error_vs_time_<scenario>.png``.
+Method specs: a filter method (``kf``, ``svd-akf+onestep``, ...), an adaptive method with fixed parameters
+(``sage-husa[b=0.995]``), the optimized fixed parameter (``tuned:<tuning.json>`` from ``train.py tune``), or
+a learned policy (``<algo>:<model.zip>`` from ``train.py rl``). Episode k of every method sees the same
+truth and sensor errors (the worlds are drawn from the episode seeds ``seed * 1_000_003 + k``).
 
-With no arguments it runs the default comparison: ``open-sky``, ``urban`` and
-``outage`` with ``kf``, 8 episodes, seed 0, into ``results/default``.
+Prints a table and writes ``OUT/results.json`` (schema of DESIGN.md plus the paired difference to the
+reference method), ``results.csv``, ``results.md`` and PNG plots per scenario: error vs time (median and
+10-90% band), CDF of the horizontal error, bar chart of RMSE with 95% CIs, and one trajectory.
+
+With no arguments it runs the default comparison: ``noise-burst``, ``urban`` and ``open-sky`` with ``kf``,
+``sage-husa``, ``stkf`` and ``ma-stkf``, 8 episodes, seed 0, into ``results/default``.
 """
 from __future__ import annotations
 
@@ -22,8 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
-DEFAULT_SCENARIOS = ("open-sky", "urban", "outage")
-DEFAULT_METHODS = ("kf",)
+DEFAULT_SCENARIOS = ("noise-burst", "urban", "open-sky")
+DEFAULT_METHODS = ("kf", "sage-husa", "stkf", "ma-stkf")
 
 
 def episode_seeds(seed: int, episodes: int) -> list[int]:
@@ -37,72 +44,108 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scenario", action="append", metavar="NAME",
                    help=f"scenario name (repeatable); default: {', '.join(DEFAULT_SCENARIOS)}")
     p.add_argument("--methods", default=",".join(DEFAULT_METHODS),
-                   help="comma-separated filter methods (DESIGN.md section 4), e.g. kf,kf+onestep")
+                   help="comma-separated method specs (see above)")
+    p.add_argument("--reference", default=None, help="method for the paired differences (default: the first)")
     p.add_argument("--episodes", type=int, default=8, help="Monte Carlo episodes per scenario (default 8)")
     p.add_argument("--seed", type=int, default=0, help="base seed (default 0)")
     p.add_argument("--batch-size", type=int, default=64, help="episodes run together in one batched navigator")
     p.add_argument("--dtype", choices=("float64", "float32"), default="float64", help="filter arithmetic")
     p.add_argument("--out", default="results/default", help="output directory (default results/default)")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    p.add_argument("--note", default=None, metavar="PATH", help="also write a Markdown results note to PATH")
+    p.add_argument("--experiment", default=None, metavar="NAME",
+                   help="run a seed-paper reproduction instead: seed000, seed001 or seed003")
     return p
 
 
-def fail(msg: str) -> "None":
+def fail(msg: str):
     print(f"eval.py: error: {msg}", file=sys.stderr)
     raise SystemExit(2)
 
 
+def _split_methods(text: str) -> list[str]:
+    """Split on commas outside brackets (``sage-husa[b=0.99,x=1],kf``)."""
+    out, depth, cur = [], 0, ""
+    for ch in text:
+        depth += ch == "["
+        depth -= ch == "]"
+        if ch == "," and depth == 0:
+            out.append(cur.strip())
+            cur = ""
+        else:
+            cur += ch
+    if cur.strip():
+        out.append(cur.strip())
+    return out
+
+
 def main(argv=None) -> dict:
     args = build_parser().parse_args(argv)
-    from envs.worlds import make_world, scenario_names
-    from nav_filters.forms import parse_method
-
-    scenarios = args.scenario or list(DEFAULT_SCENARIOS)
-    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
-    if not methods:
-        fail("--methods is empty")
-    for s in scenarios:
-        if s not in scenario_names():
-            fail(f"unknown scenario {s!r}; known: {', '.join(scenario_names())}")
-    for m in methods:
-        try:
-            parse_method(m)
-        except ValueError as e:
-            fail(str(e))
     if args.episodes < 1:
         fail("--episodes must be >= 1")
     if args.batch_size < 1:
         fail("--batch-size must be >= 1")
-
-    from envs.episodes import run_episodes
-    from envs.metrics import summarize
-
     out = Path(args.out)
+    if args.experiment:
+        return run_experiment_cli(args, out)
+    from agents.methods import parse_method_spec
+    from envs.worlds import make_world, scenario_names
+
+    scenarios = args.scenario or list(DEFAULT_SCENARIOS)
+    specs = _split_methods(args.methods)
+    if not specs:
+        fail("--methods is empty")
+    for s in scenarios:
+        if s not in scenario_names():
+            fail(f"unknown scenario {s!r}; known: {', '.join(scenario_names())}")
+    methods = []
+    for m in specs:
+        try:
+            methods.append(parse_method_spec(m))
+        except (ValueError, FileNotFoundError) as e:
+            fail(str(e))
+    ref = args.reference or specs[0]
+    if ref not in specs:
+        fail(f"--reference {ref!r} is not one of --methods")
+
+    from envs.episodes import EpisodeLog  # noqa: F401
+    from envs.metrics import paired_difference, summarize
+
     out.mkdir(parents=True, exist_ok=True)
     seeds = episode_seeds(args.seed, args.episodes)
     results = {"scenarios": {}, "config": {"episodes": args.episodes, "seed": args.seed, "dtype": args.dtype,
-                                           "methods": methods, "episode_seeds": seeds}}
-    curves = {}
+                                           "methods": specs, "reference": ref, "episode_seeds": seeds}}
+    curves, tracks = {}, {}
     for s in scenarios:
-        logs = {m: [] for m in methods}
+        logs = {m.label: [] for m in methods}
         t_start = time.perf_counter()
+        n_done = 0
         for c0 in range(0, len(seeds), args.batch_size):
             chunk = seeds[c0:c0 + args.batch_size]
             try:
                 world = make_world(s, chunk)
             except FileNotFoundError as e:
                 fail(f"scenario {s!r} needs a recorded data set: {e}")
+            if c0 == 0:
+                tracks[s] = _truth_track(world)
             for m in methods:
-                done = c0 + len(chunk)
-                print(f"\r[{s}] {m:<14s} episodes {c0 + 1}-{done}/{len(seeds)} ...", end="", flush=True, file=sys.stderr)
-                logs[m].append(run_episodes(world, m, dtype=args.dtype))
-        print(f"\r[{s}] done in {time.perf_counter() - t_start:.1f} s" + " " * 40, file=sys.stderr)
+                print(f"\r[{s}] {m.label[:40]:<40s} episodes {c0 + 1}-{c0 + len(chunk)}/{len(seeds)}"
+                      f"  ({time.perf_counter() - t_start:.0f} s)", end="", flush=True, file=sys.stderr)
+                logs[m.label].append(m.run(world, dtype=args.dtype))
+            n_done += len(chunk)
+        print(f"\r[{s}] {len(methods)} methods x {n_done} episodes in {time.perf_counter() - t_start:.1f} s"
+              + " " * 30, file=sys.stderr)
         results["scenarios"][s] = {}
         curves[s] = {}
         for m in methods:
-            log = _concat(logs[m])
-            results["scenarios"][s][m] = summarize(log)
-            curves[s][m] = log
+            log = _concat(logs[m.label])
+            r = summarize(log)
+            curves[s][m.label] = log
+            results["scenarios"][s][m.label] = r
+        for m in methods:
+            if m.label != ref:
+                results["scenarios"][s][m.label]["paired_vs_reference"] = paired_difference(
+                    curves[s][m.label], curves[s][ref])
     (out / "results.json").write_text(json.dumps(results, indent=2))
     table = format_table(results)
     print(table)
@@ -111,8 +154,38 @@ def main(argv=None) -> dict:
     if not args.no_plots:
         for s, per in curves.items():
             plot_error_vs_time(s, per, out / f"error_vs_time_{s}.png")
+            plot_cdf(s, per, out / f"cdf_{s}.png")
+            plot_bars(s, results["scenarios"][s], out / f"rmse_bars_{s}.png")
+            plot_trajectory(s, per, tracks[s], out / f"trajectory_{s}.png")
+    if args.note:
+        write_note(results, Path(args.note), out, " ".join(sys.argv[1:]) if argv is None else " ".join(argv))
     print(f"wrote {out / 'results.json'}")
     return results
+
+
+def run_experiment_cli(args, out: Path) -> dict:
+    try:
+        from envs.experiments import EXPERIMENTS, run_experiment
+    except ImportError as e:  # pragma: no cover
+        fail(f"experiments are not available: {e}")
+    if args.experiment not in EXPERIMENTS:
+        fail(f"unknown experiment {args.experiment!r}; known: {', '.join(EXPERIMENTS)}")
+    out.mkdir(parents=True, exist_ok=True)
+    res, report = run_experiment(args.experiment, episodes=args.episodes, seed=args.seed, out_dir=out)
+    (out / "results.json").write_text(json.dumps(res, indent=2, default=float))
+    (out / "report.md").write_text(report + "\n")
+    print(report)
+    print(f"wrote {out / 'report.md'}")
+    return res
+
+
+def _truth_track(world):
+    """Row 0's true horizontal track (north, east) [m] at the epochs, from its start."""
+    from earth import C_en, ecef_to_geodetic
+    r = world.truth.r_e[0, world.epoch_idx]
+    lat, lon, _ = ecef_to_geodetic(world.truth.r_e[0, 0])
+    d = (C_en(lat, lon).T @ (r - world.truth.r_e[0, 0]).T).T
+    return d[:, :2]
 
 
 def _concat(logs):
@@ -132,8 +205,8 @@ def _concat(logs):
 
 
 COLUMNS = [("rmse_h_m", "RMSE h [m]"), ("rmse_h_ci95_m", "95% CI [m]"), ("rmse_3d_m", "RMSE 3D [m]"),
-           ("p95_h_m", "p95 h [m]"), ("max_h_m", "max h [m]"), ("mean_nees_pv", "NEES pv"),
-           ("filter_time_per_epoch_s", "ms/epoch"), ("diverged", "div")]
+           ("p95_h_m", "p95 h [m]"), ("max_h_m", "max h [m]"), ("filter_time_per_epoch_s", "ms/epoch"),
+           ("diverged", "div")]
 
 
 def _fmt(key, v):
@@ -146,35 +219,66 @@ def _fmt(key, v):
     return f"{v:.2f}"
 
 
+def _fmt_pair(r):
+    p = r.get("paired_vs_reference")
+    if not p:
+        return "(reference)"
+    lo, hi = p["diff_rmse_h_ci95_m"]
+    return f"{p['diff_rmse_h_m']:+.2f} [{lo:+.2f}, {hi:+.2f}] ({100 * p['rel_diff']:+.1f}%)"
+
+
 def format_table(results: dict) -> str:
-    """Markdown table of every scenario x method."""
-    head = "| scenario | method | episodes | " + " | ".join(c[1] for c in COLUMNS) + " |"
-    sep = "|" + "---|" * (3 + len(COLUMNS))
+    """Markdown table of every scenario x method, with the paired difference to the reference."""
+    head = ("| scenario | method | episodes | " + " | ".join(c[1] for c in COLUMNS)
+            + f" | vs {results['config']['reference']}: dRMSE h [m] (95% CI) |")
+    sep = "|" + "---|" * (4 + len(COLUMNS))
     rows = [head, sep]
     for s, per in results["scenarios"].items():
         for m, r in per.items():
-            rows.append(f"| {s} | {m} | {r['episodes']} | " + " | ".join(_fmt(k, r[k]) for k, _ in COLUMNS) + " |")
+            rows.append(f"| {s} | {m} | {r['episodes']} | " + " | ".join(_fmt(k, r[k]) for k, _ in COLUMNS)
+                        + f" | {_fmt_pair(r)} |")
     return "\n".join(rows)
 
 
 def write_csv(results: dict, path: Path) -> None:
     keys = [k for k, _ in COLUMNS]
-    lines = ["scenario,method,episodes," + ",".join(k if k != "rmse_h_ci95_m" else "rmse_h_ci95_lo_m,rmse_h_ci95_hi_m" for k in keys)]
+    lines = ["scenario,method,episodes," + ",".join(k if k != "rmse_h_ci95_m" else "rmse_h_ci95_lo_m,rmse_h_ci95_hi_m"
+                                                  for k in keys) + ",diff_rmse_h_m,diff_lo_m,diff_hi_m"]
     for s, per in results["scenarios"].items():
         for m, r in per.items():
             vals = []
             for k in keys:
                 vals += [f"{r[k][0]:.6g}", f"{r[k][1]:.6g}"] if k == "rmse_h_ci95_m" else [f"{r[k]:.6g}"]
-            lines.append(f"{s},{m},{r['episodes']}," + ",".join(vals))
+            p = r.get("paired_vs_reference")
+            vals += ([f"{p['diff_rmse_h_m']:.6g}", f"{p['diff_rmse_h_ci95_m'][0]:.6g}",
+                      f"{p['diff_rmse_h_ci95_m'][1]:.6g}"] if p else ["0", "0", "0"])
+            lines.append(f"\"{s}\",\"{m}\",{r['episodes']}," + ",".join(vals))
     path.write_text("\n".join(lines) + "\n")
+
+
+def write_note(results: dict, path: Path, out: Path, cmd: str) -> None:
+    """A Markdown results note generated from results.json (never typed by hand)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    c = results["config"]
+    lines = ["# navgym results", "",
+             f"Generated by `python eval.py {cmd}` ({time.strftime('%Y-%m-%d')}); "
+             f"{c['episodes']} paired episodes per scenario, seed {c['seed']}, filter arithmetic {c['dtype']}.",
+             f"Differences are paired against `{c['reference']}`: bootstrap 95% CI over episodes.", "",
+             format_table(results), "",
+             f"Plots and raw numbers: `{out}` (results.json, results.csv, *.png).", ""]
+    path.write_text("\n".join(lines))
+
+
+def _mpl():
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    return plt
 
 
 def plot_error_vs_time(scenario: str, logs: dict, path: Path) -> None:
     """Median and 10-90% band of the horizontal error vs time, one colour per method."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = _mpl()
     fig, ax = plt.subplots(figsize=(8, 4), dpi=110)
     for m, log in logs.items():
         h = log.horizontal_error[~log.diverged]
@@ -182,14 +286,74 @@ def plot_error_vs_time(scenario: str, logs: dict, path: Path) -> None:
             continue
         med = np.median(h, 0)
         lo, hi = np.quantile(h, [0.1, 0.9], axis=0)
-        (line,) = ax.plot(log.t, med, label=f"{m} (median)")
-        ax.fill_between(log.t, lo, hi, color=line.get_color(), alpha=0.2)
+        (line,) = ax.plot(log.t, med, label=m, lw=1.2)
+        ax.fill_between(log.t, lo, hi, color=line.get_color(), alpha=0.15)
     ax.set_xlabel("time [s]")
     ax.set_ylabel("horizontal position error [m]")
-    ax.set_title(f"{scenario}: horizontal error, median and 10-90% band")
+    ax.set_title(f"{scenario}: horizontal error, median and 10-90% band over episodes")
     ax.set_yscale("log")
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend()
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def plot_cdf(scenario: str, logs: dict, path: Path) -> None:
+    """Empirical CDF of the horizontal error over all epochs and episodes."""
+    plt = _mpl()
+    fig, ax = plt.subplots(figsize=(6, 4), dpi=110)
+    for m, log in logs.items():
+        h = np.sort(log.horizontal_error[~log.diverged].ravel())
+        if h.size:
+            ax.plot(h, np.arange(1, h.size + 1) / h.size, label=m, lw=1.2)
+    ax.set_xscale("log")
+    ax.set_xlabel("horizontal position error [m]")
+    ax.set_ylabel("fraction of epochs")
+    ax.set_title(f"{scenario}: CDF of the horizontal error")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def plot_bars(scenario: str, per: dict, path: Path) -> None:
+    """Horizontal RMSE per method with its bootstrap 95% CI."""
+    plt = _mpl()
+    names = list(per)
+    v = np.array([per[m]["rmse_h_m"] for m in names])
+    lo = np.array([per[m]["rmse_h_ci95_m"][0] for m in names])
+    hi = np.array([per[m]["rmse_h_ci95_m"][1] for m in names])
+    fig, ax = plt.subplots(figsize=(max(5, 1.1 * len(names)), 4), dpi=110)
+    ax.bar(range(len(names)), v, yerr=[np.maximum(v - lo, 0), np.maximum(hi - v, 0)], capsize=4, color="tab:blue",
+           alpha=0.8)
+    ax.set_xticks(range(len(names)))
+    ax.set_xticklabels([n if len(n) < 24 else n[:21] + "..." for n in names], rotation=20, ha="right", fontsize=8)
+    ax.set_ylabel("horizontal RMSE [m]")
+    ax.set_title(f"{scenario}: RMSE with 95% bootstrap CI")
+    ax.grid(True, axis="y", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def plot_trajectory(scenario: str, logs: dict, truth_ne, path: Path) -> None:
+    """Episode 0: the true track and each method's estimate (north/east from the start)."""
+    plt = _mpl()
+    fig, ax = plt.subplots(figsize=(6, 6), dpi=110)
+    ax.plot(truth_ne[:, 1], truth_ne[:, 0], "k-", lw=2, label="truth")
+    for m, log in logs.items():
+        if log.diverged[0]:
+            continue
+        est = truth_ne + log.pos_err_ned[0, :, :2]
+        ax.plot(est[:, 1], est[:, 0], ".", ms=2, label=m)
+    ax.set_xlabel("east [m]")
+    ax.set_ylabel("north [m]")
+    ax.set_title(f"{scenario}: episode 0 trajectory")
+    ax.axis("equal")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, markerscale=4)
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)

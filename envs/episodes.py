@@ -102,7 +102,8 @@ class EpisodeLog:
         return np.linalg.norm(self.pos_err_ned, axis=-1)
 
 
-def run_episodes(world: World, method: str = "kf", dtype="float64", progress=None, **config) -> EpisodeLog:
+def run_episodes(world: World, method: str = "kf", dtype="float64", progress=None, params: dict | None = None,
+                 **config) -> EpisodeLog:
     """Run the navigator over every IMU sample and GNSS epoch of ``world``.
 
     Parameters
@@ -111,9 +112,16 @@ def run_episodes(world: World, method: str = "kf", dtype="float64", progress=Non
     method : filter method name (DESIGN.md section 4).
     dtype : filter arithmetic, ``'float64'`` or ``'float32'``.
     progress : optional callable ``progress(n_epochs_done)`` called after each epoch.
+    params : fixed parameters of an adaptive method, ``{name: scalar or (B,) array}`` (e.g. ``{"b": 0.995}``),
+        set once before the first epoch (``ValueError`` for a method without parameters).
     **config : further :class:`NavigatorConfig` fields.
     """
     nav = navigator_for(world, method, dtype, **config)
+    if params:
+        if not hasattr(nav.form, "set_params"):
+            raise ValueError(f"method {method!r} has no parameters to set ({sorted(params)})")
+        nav.form.set_params(**{k: np.broadcast_to(np.asarray(v, float), (world.batch_size,)).copy()
+                               for k, v in params.items()})
     imu, gnss, truth = world.imu, world.gnss, world.truth
     ep = world.epoch_idx
     B, M = world.batch_size, len(ep)

@@ -112,7 +112,7 @@ class SageHusaConfig:
         :func:`~.innovation.measurement_groups`.
     """
 
-    b: float = 0.99
+    b: float = 0.98
     adapt_q: bool = True
     adapt_r: bool = True
     diagonal_q: bool = False

@@ -23,6 +23,8 @@ def test_results_json_schema_and_outputs(tmp_path):
     per = res["scenarios"]["seed000-sim"]
     assert set(per) == {"kf", "kf+onestep"}
     for m, r in per.items():
+        r = dict(r)
+        r.pop("paired_vs_reference", None)
         assert r["episodes"] == 3
         for k in ("rmse_h_m", "rmse_3d_m", "max_h_m", "p95_h_m", "filter_time_per_epoch_s"):
             assert isinstance(r[k], float) and r[k] >= 0
@@ -33,6 +35,9 @@ def test_results_json_schema_and_outputs(tmp_path):
     for f in ("results.csv", "results.md", "error_vs_time_seed000-sim.png"):
         assert (out / f).stat().st_size > 0
     assert "| seed000-sim | kf |" in p.stdout
+    assert per["kf+onestep"]["paired_vs_reference"]["episodes"] == 3
+    for f in ("cdf_seed000-sim.png", "rmse_bars_seed000-sim.png", "trajectory_seed000-sim.png"):
+        assert (out / f).stat().st_size > 0
 
 
 def test_pairing_same_seed_same_result(tmp_path):

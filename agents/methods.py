@@ -1,0 +1,94 @@
+"""Method specifications of eval.py: what to run for each name in ``--methods``.
+
+=============================  ===================================================================
+spec                           meaning
+=============================  ===================================================================
+``kf``, ``svd-akf+onestep``    a filter method of DESIGN.md section 4 with its own rule and defaults
+``sage-husa[b=0.995]``         an adaptive method with parameters fixed at the given values
+``tuned:<tuning.json>``        the optimized fixed parameter written by ``train.py tune``
+``<algo>:<model.zip>``         a learned policy (``ppo``, ``sac``, ``td3``, ``recurrentppo``) trained by
+                               ``train.py rl``; its env and env kwargs come from ``config.json`` beside it
+=============================  ===================================================================
+
+Every method runs on the same episode seeds, so episode k of every method sees the same world.
+"""
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+
+from envs.episodes import run_episodes
+from nav_filters.forms import parse_method
+
+from .policies import ALGOS, Sb3Policy
+from .rollout import run_policy_episodes
+from .tuning import load_tuning
+
+_PARAMS = re.compile(r"^(?P<m>[^\[\]]+)\[(?P<p>[^\]]*)\]$")
+
+
+@dataclass
+class FilterMethod:
+    """A filter method (optionally with fixed parameters)."""
+
+    label: str
+    method: str
+    params: dict = field(default_factory=dict)
+
+    def run(self, world, dtype="float64"):
+        return run_episodes(world, self.method, dtype=dtype, params=self.params or None)
+
+
+@dataclass
+class PolicyMethod:
+    """A learned policy run through its environment on the eval worlds."""
+
+    label: str
+    algo: str
+    path: str
+    policy: Sb3Policy
+
+    def run(self, world, dtype="float64"):
+        if self.policy.env_id is None:
+            raise ValueError(f"{self.path}: no config.json beside the model naming its environment")
+        kw = dict(self.policy.env_kwargs)
+        kw.update(scenario=world.scenario.name if world.scenario.name in _replay() else world.scenario,
+                  episode_length_s=float(world.scenario.duration_s), dtype=dtype)
+        return run_policy_episodes(self.policy.env_id, kw, self.policy, world.seeds)
+
+
+def _replay():
+    from envs.worlds import REPLAY_SCENARIOS
+    return REPLAY_SCENARIOS
+
+
+def parse_method_spec(spec: str):
+    """A :class:`FilterMethod` or :class:`PolicyMethod` for an eval.py method spec (``ValueError`` /
+    ``FileNotFoundError`` with a one-line message for a bad one)."""
+    spec = spec.strip()
+    if ":" in spec:
+        kind, path = spec.split(":", 1)
+        if kind == "tuned":
+            t = load_tuning(path)
+            params = dict(t.get("fixed", {}))
+            params[t["param"]] = t["best"]
+            return FilterMethod(spec, t["method"], params)
+        if kind.lower() in ALGOS:
+            return PolicyMethod(spec, kind.lower(), path, Sb3Policy.load(path, kind.lower()))
+        raise ValueError(f"unknown method prefix {kind!r} in {spec!r}; use 'tuned:' or one of {', '.join(ALGOS)}")
+    m = _PARAMS.match(spec)
+    if m:
+        method = m.group("m")
+        parse_method(method)
+        params = {}
+        for item in filter(None, (x.strip() for x in m.group("p").split(","))):
+            if "=" not in item:
+                raise ValueError(f"bad parameter {item!r} in {spec!r}: expected name=value")
+            k, v = item.split("=", 1)
+            try:
+                params[k.strip()] = float(v)
+            except ValueError:
+                raise ValueError(f"bad value {v!r} for {k!r} in {spec!r}") from None
+        return FilterMethod(spec, method, params)
+    parse_method(spec)
+    return FilterMethod(spec, spec)

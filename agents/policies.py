@@ -1,0 +1,102 @@
+"""Policies that drive the tuning environments: ``act(obs) -> action`` for a batch of observations.
+
+* :class:`ConstantPolicy` -- a fixed action (a fixed filter parameter, e.g. Sage-Husa ``b = 0.98``).
+* :class:`Sb3Policy` -- a trained stable-baselines3 / sb3-contrib model (``model.zip``), with the
+  ``vecnormalize.pkl`` observation statistics saved beside it when training used them, and recurrent
+  state for ``RecurrentPPO``.
+"""
+from __future__ import annotations
+
+import json
+import pickle
+from pathlib import Path
+
+import numpy as np
+
+ALGOS = ("ppo", "sac", "td3", "recurrentppo")
+
+
+def algo_class(algo: str):
+    """The SB3 / sb3-contrib class of ``algo`` (``ValueError`` for an unknown name)."""
+    algo = algo.lower()
+    if algo == "ppo":
+        from stable_baselines3 import PPO
+        return PPO
+    if algo == "sac":
+        from stable_baselines3 import SAC
+        return SAC
+    if algo == "td3":
+        from stable_baselines3 import TD3
+        return TD3
+    if algo == "recurrentppo":
+        from sb3_contrib import RecurrentPPO
+        return RecurrentPPO
+    raise ValueError(f"unknown algorithm {algo!r}; known: {', '.join(ALGOS)}")
+
+
+class ConstantPolicy:
+    """Always the same action (B, k) for any observation batch."""
+
+    def __init__(self, action):
+        self.action = np.atleast_1d(np.asarray(action, np.float32))
+
+    def reset(self, batch_size: int):
+        pass
+
+    def act(self, obs):
+        return np.broadcast_to(self.action, (obs.shape[0], self.action.size)).copy()
+
+
+class Sb3Policy:
+    """A trained model: ``Sb3Policy.load("runs/x/model.zip", algo="ppo")``.
+
+    ``config.json`` beside the model (written by ``train.py rl``) gives the env id and env kwargs the policy
+    was trained on (:attr:`env_id`, :attr:`env_kwargs`).
+    """
+
+    def __init__(self, model, algo: str, obs_rms=None, clip_obs: float = 10.0, epsilon: float = 1e-8,
+                 env_id: str | None = None, env_kwargs: dict | None = None):
+        self.model, self.algo = model, algo
+        self.obs_rms, self.clip_obs, self.epsilon = obs_rms, clip_obs, epsilon
+        self.env_id, self.env_kwargs = env_id, dict(env_kwargs or {})
+        self._state = None
+        self._start = None
+
+    @classmethod
+    def load(cls, path, algo: str):
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"model file not found: {path}")
+        model = algo_class(algo).load(str(path), device="cpu")
+        obs_rms, clip, eps = None, 10.0, 1e-8
+        vn = path.parent / "vecnormalize.pkl"
+        if vn.is_file():
+            with open(vn, "rb") as f:
+                venv = pickle.load(f)
+            if getattr(venv, "norm_obs", False):
+                obs_rms, clip, eps = venv.obs_rms, venv.clip_obs, venv.epsilon
+        env_id, env_kwargs = None, {}
+        cfg = path.parent / "config.json"
+        if cfg.is_file():
+            c = json.loads(cfg.read_text())
+            env_id, env_kwargs = c.get("env"), c.get("env_kwargs", {})
+        return cls(model, algo, obs_rms, clip, eps, env_id, env_kwargs)
+
+    def reset(self, batch_size: int):
+        self._state = None
+        self._start = np.ones(batch_size, bool)
+
+    def _normalize(self, obs):
+        if self.obs_rms is None:
+            return obs
+        return np.clip((obs - self.obs_rms.mean) / np.sqrt(self.obs_rms.var + self.epsilon),
+                       -self.clip_obs, self.clip_obs).astype(np.float32)
+
+    def act(self, obs):
+        o = self._normalize(np.asarray(obs, np.float32))
+        if self.algo == "recurrentppo":
+            a, self._state = self.model.predict(o, state=self._state, episode_start=self._start, deterministic=True)
+            self._start = np.zeros(o.shape[0], bool)
+        else:
+            a, _ = self.model.predict(o, deterministic=True)
+        return np.asarray(a, np.float32).reshape(o.shape[0], -1)

@@ -1,0 +1,66 @@
+"""Run a policy on B paired episodes through the batched env core (the same worlds as eval.py's filters)."""
+from __future__ import annotations
+
+import time
+
+import gymnasium as gym
+import numpy as np
+
+import envs  # noqa: F401  (registers the ids)
+from envs.core import TuningCore
+from envs.episodes import EpisodeLog
+from envs.gnss_ins_env import make_config
+
+
+def env_class(env_id: str):
+    """The single-env class registered under ``env_id`` (``ValueError`` for an unknown id)."""
+    if env_id not in gym.registry:
+        raise ValueError(f"unknown environment id {env_id!r}; known: {sorted(envs.ENV_IDS)}")
+    ep = gym.registry[env_id].entry_point
+    mod, name = ep.split(":")
+    import importlib
+    return getattr(importlib.import_module(mod), name)
+
+
+def run_policy_episodes(env_id: str, env_kwargs: dict, policy, seeds, progress=None) -> EpisodeLog:
+    """Run ``policy`` for one full episode on each world seed, all rows in one batched core.
+
+    Parameters
+    ----------
+    env_id : a registered id (its parameter specs and defaults).
+    env_kwargs : :class:`envs.config.EnvConfig` fields (scenario, episode_length_s, method, ...).
+    policy : an object with ``reset(B)`` and ``act(obs (B, obs_dim)) -> (B, k)``.
+    seeds : the world seeds (the same seeds give the same worlds as ``envs.worlds.make_world``).
+
+    Returns
+    -------
+    EpisodeLog : positions errors from the core's tracks; NEES and velocity errors are NaN (the env does
+    not keep them), ``filter_time_s`` includes the policy's inference.
+    """
+    cls = env_class(env_id)
+    cfg = make_config(cls.DEFAULTS, env_kwargs)
+    seeds = [int(s) for s in seeds]
+    B = len(seeds)
+    core = TuningCore(cfg, cls.PARAMS, B)
+    obs = core.reset_rows(np.arange(B), seeds)
+    policy.reset(B)
+    nis = np.zeros((B, core.M))
+    nsat = np.zeros((B, core.M), int)
+    diverged = np.zeros(B, bool)
+    t0 = time.perf_counter()
+    for j in range(core.M):
+        res = core.step(policy.act(obs))
+        obs = res.obs
+        nis[:, j] = res.info["nis_pr"]
+        nsat[:, j] = res.info["n_sats"]
+        diverged |= res.terminated
+        if progress is not None:
+            progress(j + 1)
+    elapsed = time.perf_counter() - t0
+    err = core.est_track - core.truth_r
+    ned = (core.truth_Cne @ err[..., None])[..., 0]
+    t = np.asarray(core.epoch_idx, float) * core.dt
+    nan = np.full((B, core.M), np.nan)
+    return EpisodeLog(t=t, pos_err_ned=ned, vel_err_ned=np.full((B, core.M, 3), np.nan), nees_pv=nan, nis=nis,
+                      n_used=nsat, n_sats=nsat, gdop=nan.copy(), diverged=diverged | ~np.isfinite(ned).all((1, 2)),
+                      filter_time_s=elapsed)

@@ -1,0 +1,172 @@
+"""``train.py rl``: train a tuning policy with stable-baselines3 on the native vector env.
+
+The training loop is SB3's; this module builds what goes around it, explicitly:
+the native batched vector env behind the SB3 adapter (:mod:`envs.sb3`), optional
+``VecNormalize``, ``VecMonitor`` episode statistics, periodic evaluation on
+held-out seeds with the best model kept (``EvalCallback``), checkpoints,
+tensorboard + CSV logs, a progress bar, and ``runs/DIR/`` with ``model.zip``,
+``vecnormalize.pkl`` (when used) and the exact ``config.json``.
+
+Hyperparameters come from (later wins): the algorithm's defaults in
+:data:`DEFAULT_HYPERPARAMS`, the ``--quick`` preset, an RL Zoo style YAML file
+(``--config``: ``{env_id: {n_timesteps, policy, n_envs, normalize, env_kwargs, <algo kwargs>}}``),
+and the command line (``--timesteps``, ``--n-envs``, ``--env-kwargs``).
+"""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .policies import ALGOS, algo_class
+
+EVAL_SEED_OFFSET = 900_000
+"""Evaluation during training uses world seeds from here (held out from training and from eval.py)."""
+
+DEFAULT_HYPERPARAMS = {
+    "ppo": dict(policy="MlpPolicy", n_steps=128, batch_size=256, n_epochs=10, learning_rate=3e-4, gamma=0.95,
+                gae_lambda=0.9, ent_coef=0.0, policy_kwargs=dict(net_arch=[64, 64])),
+    "recurrentppo": dict(policy="MlpLstmPolicy", n_steps=128, batch_size=256, n_epochs=10, learning_rate=3e-4,
+                         gamma=0.95, gae_lambda=0.9, policy_kwargs=dict(lstm_hidden_size=32, net_arch=[64])),
+    "sac": dict(policy="MlpPolicy", learning_rate=3e-4, buffer_size=100_000, batch_size=256, gamma=0.95,
+                learning_starts=1000, policy_kwargs=dict(net_arch=[64, 64])),
+    "td3": dict(policy="MlpPolicy", learning_rate=3e-4, buffer_size=100_000, batch_size=256, gamma=0.95,
+                learning_starts=1000, policy_kwargs=dict(net_arch=[64, 64])),
+}
+QUICK = dict(n_timesteps=24_576, n_envs=8, env_kwargs=dict(episode_length_s=60.0), eval_freq=1536, eval_episodes=8,
+             hyper=dict(ppo=dict(n_steps=64, batch_size=256, n_epochs=5),
+                        recurrentppo=dict(n_steps=64, batch_size=256, n_epochs=5),
+                        sac=dict(learning_starts=512), td3=dict(learning_starts=512)))
+
+
+def load_zoo_config(path, env_id: str) -> dict:
+    """The entry for ``env_id`` of an RL Zoo style YAML hyperparameter file (``ValueError`` naming the file)."""
+    import yaml
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"config file not found: {path}")
+    try:
+        data = yaml.safe_load(path.read_text()) or {}
+    except yaml.YAMLError as e:
+        raise ValueError(f"{path}: not valid YAML ({e})") from None
+    if not isinstance(data, dict) or env_id not in data or not isinstance(data[env_id], dict):
+        raise ValueError(f"{path}: no mapping for {env_id!r} (top-level keys: {sorted(data) if isinstance(data, dict) else data})")
+    return dict(data[env_id])
+
+
+class _ProgressBar:
+    """A tqdm progress bar over timesteps as an SB3 callback (no dependency on 'rich')."""
+
+    def __new__(cls, total):
+        from stable_baselines3.common.callbacks import BaseCallback
+        from tqdm import tqdm
+
+        class Bar(BaseCallback):
+            def _on_training_start(self):
+                self.bar = tqdm(total=total, unit="step", desc="train", dynamic_ncols=True, mininterval=1.0)
+                self.done = 0
+
+            def _on_step(self):
+                self.bar.update(self.num_timesteps - self.done)  # tqdm rate-limits the redraws
+                self.done = self.num_timesteps
+                return True
+
+            def _on_training_end(self):
+                self.bar.update(self.num_timesteps - self.done)
+                self.bar.close()
+
+        return Bar()
+
+
+def train_rl(env_id: str, algo: str, out, timesteps: int | None = None, seed: int = 0, n_envs: int | None = None,
+             env_kwargs: dict | None = None, config_file=None, quick: bool = False, normalize: bool | None = None,
+             progress: bool = True, eval_episodes: int | None = None) -> dict:
+    """Train ``algo`` on ``env_id``; writes ``out/model.zip`` and ``out/config.json``; returns the config."""
+    import envs  # noqa: F401
+    from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback, EvalCallback
+    from stable_baselines3.common.logger import configure
+    from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
+
+    from envs.sb3 import make_sb3_vec_env
+    from .rollout import env_class
+
+    algo = algo.lower()
+    if algo not in ALGOS:
+        raise ValueError(f"unknown algorithm {algo!r}; known: {', '.join(ALGOS)}")
+    env_class(env_id)
+    hyper = dict(DEFAULT_HYPERPARAMS[algo])
+    settings = dict(n_timesteps=100_000, n_envs=16, normalize=True, env_kwargs={}, eval_freq=10_000,
+                    eval_episodes=16)
+    if quick:
+        settings.update(n_timesteps=QUICK["n_timesteps"], n_envs=QUICK["n_envs"], eval_freq=QUICK["eval_freq"],
+                        eval_episodes=QUICK["eval_episodes"], env_kwargs=dict(QUICK["env_kwargs"]))
+        hyper.update(QUICK["hyper"].get(algo, {}))
+    if config_file is not None:
+        zoo = load_zoo_config(config_file, env_id)
+        for k in ("n_timesteps", "n_envs", "normalize", "eval_freq", "eval_episodes"):
+            if k in zoo:
+                settings[k] = zoo.pop(k)
+        settings["env_kwargs"].update(zoo.pop("env_kwargs", {}) or {})
+        hyper.update(zoo)
+    if timesteps is not None:
+        settings["n_timesteps"] = int(timesteps)
+    if n_envs is not None:
+        settings["n_envs"] = int(n_envs)
+    if normalize is not None:
+        settings["normalize"] = bool(normalize)
+    if eval_episodes is not None:
+        settings["eval_episodes"] = int(eval_episodes)
+    settings["env_kwargs"].update(env_kwargs or {})
+    settings["n_timesteps"] = int(float(settings["n_timesteps"]))
+    if settings["n_timesteps"] < 1 or settings["n_envs"] < 1:
+        raise ValueError("--timesteps and --n-envs must be positive")
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    ekw = settings["env_kwargs"]
+    venv = VecMonitor(make_sb3_vec_env(env_id, settings["n_envs"], seed=seed * 10_007, **ekw))
+    n_eval = max(1, min(settings["eval_episodes"], 16))
+    eval_env = VecMonitor(make_sb3_vec_env(env_id, n_eval, seed=EVAL_SEED_OFFSET + 1000 * seed, **ekw))
+    if settings["normalize"]:
+        venv = VecNormalize(venv, norm_obs=True, norm_reward=True, gamma=hyper.get("gamma", 0.99))
+        eval_env = VecNormalize(eval_env, norm_obs=True, norm_reward=False, training=False)
+    cls = algo_class(algo)
+    policy = hyper.pop("policy")
+    model = cls(policy, venv, seed=seed, device="cpu", verbose=0, **hyper)
+    fmt = ["csv"]
+    try:
+        import tensorboard  # noqa: F401
+        fmt.append("tensorboard")
+    except ImportError:
+        pass
+    model.set_logger(configure(str(out / "logs"), fmt))
+    per_env = max(settings["eval_freq"] // settings["n_envs"], 1)
+    callbacks = [
+        EvalCallback(eval_env, n_eval_episodes=n_eval, eval_freq=per_env, best_model_save_path=str(out / "best"),
+                     log_path=str(out / "eval"), deterministic=True, verbose=0),
+        CheckpointCallback(save_freq=max(per_env * 4, 1), save_path=str(out / "checkpoints"), name_prefix="model",
+                           save_vecnormalize=settings["normalize"]),
+    ]
+    if progress:
+        callbacks.append(_ProgressBar(settings["n_timesteps"]))
+    config = {"env": env_id, "algo": algo, "seed": seed, "env_kwargs": ekw, "policy": policy,
+              "hyperparameters": hyper, **{k: v for k, v in settings.items() if k != "env_kwargs"},
+              "train_seed_base": seed * 10_007, "eval_seed_base": EVAL_SEED_OFFSET + 1000 * seed}
+    (out / "config.json").write_text(json.dumps(config, indent=2, default=str))
+    t0 = time.perf_counter()
+    model.learn(total_timesteps=settings["n_timesteps"], callback=CallbackList(callbacks))
+    wall = time.perf_counter() - t0
+    model.save(str(out / "model.zip"))
+    if settings["normalize"]:
+        venv.save(str(out / "vecnormalize.pkl"))
+    config["wall_time_s"] = wall
+    config["env_steps_per_s"] = settings["n_timesteps"] / wall
+    ev = out / "eval" / "evaluations.npz"
+    if ev.is_file():
+        d = np.load(ev)
+        config["eval_mean_reward_last"] = float(d["results"][-1].mean())
+        config["eval_mean_reward_best"] = float(d["results"].mean(1).max())
+    (out / "config.json").write_text(json.dumps(config, indent=2, default=str))
+    return config

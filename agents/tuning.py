@@ -1,0 +1,105 @@
+"""The optimized fixed-parameter baseline: one constant parameter, tuned on training seeds, frozen.
+
+A learned tuning policy is only credible against the best *constant* setting of the same parameter,
+chosen on training episodes and evaluated on held-out ones (an optimized fixed filter erases most
+apparent learned gains). :func:`tune_fixed_parameter` evaluates a grid of values on the training seeds in
+one batched navigator (each grid value is a block of rows with the same worlds: the parameters are per
+row) and writes the result file that ``eval.py`` reads as ``tuned:<path>``.
+"""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from envs.episodes import run_episodes
+from envs.gnss_ins_env import make_config
+from envs.worlds import REPLAY_SCENARIOS, make_world
+
+from .rollout import env_class
+
+TRAIN_SEED_OFFSET = 500_000
+"""Training seeds of the tuner start here: disjoint from eval.py's episode seeds (``seed * 1_000_003 + k``
+for k < 500000)."""
+
+
+def default_grid(spec, n: int = 13) -> np.ndarray:
+    """``n`` values spanning the parameter's range, uniform in the parameter's action map."""
+    return np.array([spec.to_value(a) for a in np.linspace(-1.0, 1.0, n)])
+
+
+def world_for(cfg, seeds):
+    """The world of an env config (same scenario, overrides and length as the env core) for ``seeds``."""
+    if isinstance(cfg.scenario, str) and cfg.scenario in REPLAY_SCENARIOS:
+        return make_world(cfg.scenario, seeds, imu_grade=cfg.imu_grade, duration_s=cfg.episode_length_s)
+    return make_world(cfg.resolve_scenario(), seeds)
+
+
+def tune_fixed_parameter(env_id: str, env_kwargs: dict | None = None, param: str | None = None, grid=None,
+                         n_train: int = 16, seed: int = 0, progress: bool = False) -> dict:
+    """Grid search of one constant filter parameter on training seeds.
+
+    Parameters
+    ----------
+    env_id : registered env id (its method, parameter ranges and defaults).
+    env_kwargs : EnvConfig fields (scenario, episode_length_s, method, ...).
+    param : the parameter to tune (default: the env's first); the others stay at their defaults.
+    grid : values to try (default :func:`default_grid`).
+    n_train : training episodes per grid value; seeds ``TRAIN_SEED_OFFSET + 1000 * seed + k``.
+
+    Returns
+    -------
+    dict with the env, method, parameter, grid, per-value horizontal RMSE [m] (diverged episodes count
+    with the divergence bound), the best value and the training seeds.
+    """
+    env_kwargs = dict(env_kwargs or {})
+    cls = env_class(env_id)
+    cfg = make_config(cls.DEFAULTS, env_kwargs)
+    specs = {s.name: s for s in cls.PARAMS}
+    param = param or cls.PARAMS[0].name
+    if param not in specs:
+        raise ValueError(f"{env_id} has no parameter {param!r}; known: {sorted(specs)}")
+    grid = default_grid(specs[param]) if grid is None else np.asarray(grid, float)
+    seeds = [TRAIN_SEED_OFFSET + 1000 * seed + k for k in range(n_train)]
+    G, n = grid.size, len(seeds)
+    t0 = time.perf_counter()
+    world = world_for(cfg, seeds * G)
+    params = {s.name: np.full(G * n, s.default) for s in cls.PARAMS}
+    params[param] = np.repeat(grid, n)
+    log = run_episodes(world, cfg.method, dtype=cfg.dtype, params=params)
+    bound = cfg.divergence_bound_m
+    h = np.where(np.isfinite(log.horizontal_error), np.minimum(log.horizontal_error, bound), bound)
+    h[log.diverged] = bound
+    rmse = np.sqrt((h ** 2).reshape(G, n, -1).mean(axis=(1, 2)))
+    best = int(np.argmin(rmse))
+    out = {"env": env_id, "env_kwargs": env_kwargs, "method": cfg.method, "param": param,
+           "fixed": {s.name: s.default for s in cls.PARAMS if s.name != param},
+           "grid": grid.tolist(), "rmse_h_m": rmse.tolist(), "diverged": log.diverged.reshape(G, n).sum(1).tolist(),
+           "best": float(grid[best]), "best_rmse_h_m": float(rmse[best]), "train_seeds": seeds,
+           "wall_time_s": time.perf_counter() - t0}
+    if progress:
+        print(f"tuned {param} of {cfg.method} on {n} training episodes x {G} values in {out['wall_time_s']:.1f} s: "
+              f"best {param} = {out['best']:.6g} (RMSE {out['best_rmse_h_m']:.3f} m)")
+    return out
+
+
+def save_tuning(result: dict, path) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(result, indent=2))
+    return path
+
+
+def load_tuning(path) -> dict:
+    """Read a tuning result file (``FileNotFoundError`` / ``ValueError`` naming the file when unusable)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"tuning file not found: {path}")
+    try:
+        d = json.loads(path.read_text())
+        d["method"], d["param"], d["best"]
+    except (json.JSONDecodeError, KeyError, TypeError) as e:
+        raise ValueError(f"{path}: not a tuning result file ({e})") from None
+    return d

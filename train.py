@@ -1,0 +1,133 @@
+"""One entry point for training (DESIGN.md section 4).
+
+    python train.py rl   --env GnssIns/SageHusa-v0 --algo ppo --timesteps N --seed S --out runs/DIR
+    python train.py rl   --env GnssIns/SageHusa-v0 --algo ppo --quick --out runs/quick
+    python train.py tune --env GnssIns/SageHusa-v0 --out runs/DIR          # the optimized fixed parameter
+    python train.py zupt --model lstm --seed S --out runs/DIR              # zero-velocity detector
+
+``rl`` writes ``runs/DIR/model.zip`` (stable-baselines3), ``config.json`` (the exact settings),
+``vecnormalize.pkl`` (when observations are normalized), ``best/best_model.zip`` (best held-out
+evaluation), ``checkpoints/`` and ``logs/`` (CSV + tensorboard). ``tune`` writes ``runs/DIR/tuning.json``
+for ``eval.py --methods tuned:runs/DIR/tuning.json``. ``zupt`` writes the detector's weights and
+``metrics.json``.
+
+The environments also train unchanged under RL Zoo:
+``python -m rl_zoo3.train --gym-packages envs --env GnssIns/SageHusa-v0 --algo ppo``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+
+def fail(msg: str):
+    print(f"train.py: error: {msg}", file=sys.stderr)
+    raise SystemExit(2)
+
+
+def parse_env_kwargs(items) -> dict:
+    """``key=value`` strings -> dict; values parsed as YAML scalars (numbers, booleans, strings)."""
+    import yaml
+    out = {}
+    for item in items or []:
+        if "=" not in item:
+            fail(f"--env-kwargs expects key=value, got {item!r}")
+        k, v = item.split("=", 1)
+        try:
+            out[k.strip()] = yaml.safe_load(v)
+        except yaml.YAMLError:
+            fail(f"--env-kwargs: cannot parse the value of {k!r}: {v!r}")
+    return out
+
+
+def check_env_kwargs(env_id: str, kwargs: dict):
+    """Validate env kwargs by building the env's config (one-line error, exit 2)."""
+    from agents.rollout import env_class
+    from envs.gnss_ins_env import make_config
+    try:
+        make_config(env_class(env_id).DEFAULTS, kwargs)
+    except ValueError as e:
+        fail(str(e))
+
+
+def build_parser():
+    p = argparse.ArgumentParser(prog="train.py", description="Train tuning policies, the optimized fixed "
+                                "parameter, and zero-velocity detectors.")
+    sub = p.add_subparsers(dest="cmd", required=True)
+    rl = sub.add_parser("rl", help="train an RL tuning policy (stable-baselines3)")
+    rl.add_argument("--env", default="GnssIns/SageHusa-v0", help="environment id (default GnssIns/SageHusa-v0)")
+    rl.add_argument("--algo", default="ppo", help="ppo, sac, td3 or recurrentppo (default ppo)")
+    rl.add_argument("--timesteps", type=float, default=None, help="total environment steps")
+    rl.add_argument("--seed", type=int, default=0)
+    rl.add_argument("--n-envs", type=int, default=None, help="rows of the native vector env")
+    rl.add_argument("--env-kwargs", nargs="*", metavar="KEY=VALUE", help="environment arguments")
+    rl.add_argument("--config", default=None, help="RL Zoo style YAML hyperparameter file")
+    rl.add_argument("--quick", action="store_true", help="a small run that finishes in a few minutes on 2 cores")
+    rl.add_argument("--no-normalize", action="store_true", help="no VecNormalize")
+    rl.add_argument("--no-progress", action="store_true")
+    rl.add_argument("--out", required=True, help="output directory runs/DIR")
+    tu = sub.add_parser("tune", help="the optimized fixed-parameter baseline (grid search on training seeds)")
+    tu.add_argument("--env", default="GnssIns/SageHusa-v0")
+    tu.add_argument("--env-kwargs", nargs="*", metavar="KEY=VALUE")
+    tu.add_argument("--param", default=None, help="parameter to tune (default: the env's first)")
+    tu.add_argument("--n-train", type=int, default=16, help="training episodes per grid value (default 16)")
+    tu.add_argument("--grid-size", type=int, default=13)
+    tu.add_argument("--seed", type=int, default=0)
+    tu.add_argument("--out", required=True)
+    zu = sub.add_parser("zupt", help="train a zero-velocity detector")
+    zu.add_argument("--model", required=True, choices=("mlp", "lstm"))
+    zu.add_argument("--seed", type=int, default=0)
+    zu.add_argument("--quick", action="store_true")
+    zu.add_argument("--out", required=True)
+    return p
+
+
+def main(argv=None):
+    args = build_parser().parse_args(argv)
+    if args.cmd == "rl":
+        from agents.policies import ALGOS
+        if args.algo.lower() not in ALGOS:
+            fail(f"unknown algorithm {args.algo!r}; known: {', '.join(ALGOS)}")
+        import envs
+        if args.env not in envs.ENV_IDS:
+            fail(f"unknown environment {args.env!r}; known: {', '.join(sorted(envs.ENV_IDS))}")
+        ekw = parse_env_kwargs(args.env_kwargs)
+        check_env_kwargs(args.env, ekw)
+        from agents.training import train_rl
+        try:
+            cfg = train_rl(args.env, args.algo, args.out, timesteps=args.timesteps, seed=args.seed,
+                           n_envs=args.n_envs, env_kwargs=ekw, config_file=args.config, quick=args.quick,
+                           normalize=False if args.no_normalize else None, progress=not args.no_progress)
+        except (ValueError, FileNotFoundError) as e:
+            fail(str(e))
+        print(f"trained {cfg['algo']} on {cfg['env']} for {cfg['n_timesteps']} steps in {cfg['wall_time_s']:.0f} s "
+              f"({cfg['env_steps_per_s']:.0f} env-steps/s); model: {Path(args.out) / 'model.zip'}")
+    elif args.cmd == "tune":
+        import envs
+        if args.env not in envs.ENV_IDS:
+            fail(f"unknown environment {args.env!r}; known: {', '.join(sorted(envs.ENV_IDS))}")
+        ekw = parse_env_kwargs(args.env_kwargs)
+        check_env_kwargs(args.env, ekw)
+        from agents.rollout import env_class
+        from agents.tuning import default_grid, save_tuning, tune_fixed_parameter
+        specs = {s.name: s for s in env_class(args.env).PARAMS}
+        param = args.param or next(iter(specs))
+        if param not in specs:
+            fail(f"{args.env} has no parameter {param!r}; known: {', '.join(specs)}")
+        res = tune_fixed_parameter(args.env, ekw, param, default_grid(specs[param], args.grid_size),
+                                   n_train=args.n_train, seed=args.seed, progress=True)
+        path = save_tuning(res, Path(args.out) / "tuning.json")
+        print(f"wrote {path}")
+    else:
+        try:
+            from agents.zupt_training import train_zupt_detector
+        except ImportError as e:
+            fail(f"zero-velocity detector training is not available: {e}")
+        metrics = train_zupt_detector(args.model, args.seed, Path(args.out), quick=args.quick, progress=True)
+        print(json.dumps(metrics, indent=2, default=str))
+
+
+if __name__ == "__main__":
+    main()
