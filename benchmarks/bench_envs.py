@@ -70,7 +70,10 @@ def _core(env):
 
 
 def bench_env(method, B, steps, episode_s, scenario, warmup=2):
-    """(reset seconds, steps/s over ``steps`` timed steps after ``warmup`` untimed ones)."""
+    """(reset seconds, steps/s, CPU ms per step) over ``steps`` timed steps after ``warmup`` untimed ones.
+
+    The CPU time (all threads of the process) is the load-robust figure on a shared machine: with other
+    jobs on the cores the wall rate drops, the CPU time per step much less."""
     env = _make(method, B, episode_s, scenario)
     if warmup + steps >= episode_s * 1.0:  # 1 Hz GNSS by default: stay inside one episode
         raise ValueError(f"warmup + steps ({warmup + steps}) must stay below the episode length ({episode_s} epochs)")
@@ -80,12 +83,12 @@ def bench_env(method, B, steps, episode_s, scenario, warmup=2):
     acts = _actions(env.action_space, warmup + steps)
     for a in acts[:warmup]:
         env.step(a)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     for a in acts[warmup:]:
         env.step(a)
-    dt = time.perf_counter() - t0
+    dt, dc = time.perf_counter() - t0, time.process_time() - c0
     env.close()
-    return t_reset, B * steps / dt
+    return t_reset, B * steps / dt, 1e3 * dc / steps
 
 
 class StageTimer:
@@ -174,12 +177,12 @@ def main(argv=None):
             return 20 if B == 1 else 5
         return 40 if B == 1 else (20 if B <= 16 else 8)
 
-    hdr = f"{'method':10s} {'B':>5s} {'reset [s]':>10s} {'steps/s':>12s} {'ms/step':>9s}"
+    hdr = f"{'method':10s} {'B':>5s} {'reset [s]':>10s} {'steps/s':>12s} {'ms/step':>9s} {'cpu ms/step':>12s}"
     print("\n" + hdr + "\n" + "-" * len(hdr))
     for m in args.methods:
         for B in [1] + batches:
-            t_reset, rate = bench_env(m, B, n_steps(B), args.episode_s, args.scenario)
-            print(f"{m:10s} {B:5d} {t_reset:10.2f} {rate:12.0f} {1e3 * B / rate:9.2f}", flush=True)
+            t_reset, rate, cpu = bench_env(m, B, n_steps(B), args.episode_s, args.scenario)
+            print(f"{m:10s} {B:5d} {t_reset:10.2f} {rate:12.0f} {1e3 * B / rate:9.2f} {cpu:12.2f}", flush=True)
 
     if args.no_profile:
         return

@@ -18,6 +18,7 @@ iteration (3 passes: error < 1e-9 m for GNSS orbits).
 """
 from __future__ import annotations
 
+import numba as nb
 import numpy as np
 
 from .wgs84 import C_LIGHT, OMEGA_IE
@@ -67,3 +68,52 @@ def range_and_rate(sat_pos, sat_vel, rx_pos, rx_vel, iterations: int = 3):
     vr = rv + _omega_cross(rp)
     rho_dot = np.sum(u * (vs - vr), -1)
     return rho, rho_dot, u
+
+
+@nb.njit(cache=True)
+def range_rate_pair(sx, sy, sz, svx, svy, svz, rx, ry, rz, rvx, rvy, rvz, iterations, u):
+    """Compiled :func:`range_and_rate` for one receiver / satellite pair (same equations, same order).
+
+    The scalar form that compiled measurement kernels call per channel (Groves eqs 8.36, 8.46); the
+    numpy :func:`range_and_rate` stays the reference (agreement test in ``tests/earth``).
+
+    Parameters
+    ----------
+    sx, sy, sz, svx, svy, svz : satellite ECEF position [m] / velocity [m/s] at transmission time.
+    rx, ry, rz, rvx, rvy, rvz : receiver ECEF position [m] / velocity [m/s] at reception time.
+    iterations : light-time iterations (3 in the navigator).
+    u : (3,) output, unit line of sight receiver -> satellite (ECEF at reception time).
+
+    Returns
+    -------
+    rho : geometric range [m]; rho_dot : range rate [m/s].
+    """
+    dx = sx - rx
+    dy = sy - ry
+    dz = sz - rz
+    rho = np.sqrt(dx * dx + dy * dy + dz * dz)
+    for _ in range(iterations):
+        theta = OMEGA_IE * rho / C_LIGHT
+        c = np.cos(theta)
+        s = np.sin(theta)
+        dx = (c * sx + s * sy) - rx
+        dy = (-s * sx + c * sy) - ry
+        dz = sz - rz
+        rho = np.sqrt(dx * dx + dy * dy + dz * dz)
+    theta = OMEGA_IE * rho / C_LIGHT
+    c = np.cos(theta)
+    s = np.sin(theta)
+    u[0] = dx / rho
+    u[1] = dy / rho
+    u[2] = dz / rho
+    # v_s + Omega x r_s, rotated by C_z(theta); v_r + Omega x r_r
+    wx = svx + -OMEGA_IE * sy
+    wy = svy + OMEGA_IE * sx
+    wz = svz + 0.0
+    vsx = c * wx + s * wy
+    vsy = -s * wx + c * wy
+    vrx = rvx + -OMEGA_IE * ry
+    vry = rvy + OMEGA_IE * rx
+    vrz = rvz + 0.0
+    rho_dot = u[0] * (vsx - vrx) + u[1] * (vsy - vry) + u[2] * (wz - vrz)
+    return rho, rho_dot

@@ -20,19 +20,27 @@ IMU (no lever arm).
 
 Rows are stacked ``[pr_1..pr_C, prr_1..prr_C]`` (m = 2C), or pseudoranges only
 (m = C) when rates are not used or not available. Padded channels are masked.
+
+Speed: the navigator calls the compiled :func:`gnss_innovations` and :func:`dop`
+(one numba call each instead of ~40 numpy calls; the innovation kernel also
+builds only the non-zeros of H). The numpy functions
+:func:`gnss_innovations_reference` and :func:`dop_reference` are the readable
+specification, and ``tests/nav_filters/test_measurements.py`` asserts that the
+compiled ones agree with them.
 """
 from __future__ import annotations
 
+import numba as nb
 import numpy as np
 
-from earth.ranging import range_and_rate
+from earth.ranging import range_and_rate, range_rate_pair
 
 from .error_model import CLK, DRIFT, N_STATES, POS, VEL
 
 
-def gnss_innovations(r_e, v_e, clk_m, drift_mps, sat_pos, sat_vel, pr, prr, pr_var, prr_var, mask,
-                     use_rate: bool = True, dtype=np.float64):
-    """Innovations, measurement matrix and variances of one tightly coupled epoch.
+def gnss_innovations_reference(r_e, v_e, clk_m, drift_mps, sat_pos, sat_vel, pr, prr, pr_var, prr_var, mask,
+                               use_rate: bool = True, dtype=np.float64):
+    """Innovations, measurement matrix and variances of one tightly coupled epoch (numpy reference).
 
     Parameters
     ----------
@@ -75,8 +83,8 @@ def gnss_innovations(r_e, v_e, clk_m, drift_mps, sat_pos, sat_vel, pr, prr, pr_v
     return dz.astype(dtype), H.astype(dtype), R.astype(dtype), row_mask, u
 
 
-def dop(u, mask):
-    """Geometric dilution of precision from lines of sight.
+def dop_reference(u, mask):
+    """Geometric dilution of precision from lines of sight (numpy reference of :func:`dop`).
 
     Parameters
     ----------
@@ -93,3 +101,139 @@ def dop(u, mask):
     A = np.where(ok[:, None, None], A, np.eye(4))
     tr = np.trace(np.linalg.inv(A), axis1=1, axis2=2)
     return np.where(ok, np.sqrt(np.abs(tr)), np.inf)
+
+
+# ----------------------------------------------------------------------------- compiled versions
+_POS0, _VEL0, _CLK0, _DRIFT0 = POS.start, VEL.start, CLK.start, DRIFT.start
+
+
+@nb.njit(cache=True)
+def _innovations_kernel(r, v, clk, drift, sat_pos, sat_vel, pr, prr, pr_var, prr_var, mask, with_rate,
+                        dz, H, R, row_mask, u):
+    """Fill dz, H (zeroed by the caller), R, row_mask, u for every row and channel (see the reference)."""
+    B, C = mask.shape
+    uu = np.empty(3)
+    for b in range(B):
+        for j in range(C):
+            rho, rho_dot = range_rate_pair(sat_pos[b, j, 0], sat_pos[b, j, 1], sat_pos[b, j, 2],
+                                           sat_vel[b, j, 0], sat_vel[b, j, 1], sat_vel[b, j, 2],
+                                           r[b, 0], r[b, 1], r[b, 2], v[b, 0], v[b, 1], v[b, 2], 3, uu)
+            m = mask[b, j]
+            for i in range(3):
+                u[b, j, i] = uu[i]
+                H[b, j, _POS0 + i] = -uu[i]
+            H[b, j, _CLK0] = 1.0
+            dz[b, j] = pr[b, j] - (rho + clk[b]) if m else 0.0
+            R[b, j] = pr_var[b, j] if m else 1.0
+            row_mask[b, j] = m
+            if with_rate:
+                k = C + j
+                for i in range(3):
+                    H[b, k, _VEL0 + i] = -uu[i]
+                H[b, k, _DRIFT0] = 1.0
+                dz[b, k] = prr[b, j] - (rho_dot + drift[b]) if m else 0.0
+                R[b, k] = prr_var[b, j] if m else 1.0
+                row_mask[b, k] = m
+
+
+def _f64(a):
+    return np.ascontiguousarray(a, dtype=np.float64)
+
+
+def gnss_innovations(r_e, v_e, clk_m, drift_mps, sat_pos, sat_vel, pr, prr, pr_var, prr_var, mask,
+                     use_rate: bool = True, dtype=np.float64):
+    """Innovations, measurement matrix and variances of one tightly coupled epoch (compiled).
+
+    Same arguments, returns and equations as :func:`gnss_innovations_reference` (seed paper 000 eqs 2-3
+    linearized; ranging by Groves eqs 8.36, 8.46 through :func:`earth.ranging.range_rate_pair`); agrees
+    with it to rounding (test).
+    """
+    mask = np.ascontiguousarray(mask, dtype=bool)
+    B, C = mask.shape
+    with_rate = bool(use_rate and prr is not None)
+    m = 2 * C if with_rate else C
+    dt = np.dtype(dtype)
+    dz = np.empty((B, m), dt)
+    H = np.zeros((B, m, N_STATES), dt)
+    R = np.empty((B, m), dt)
+    row_mask = np.empty((B, m), bool)
+    u = np.empty((B, C, 3))
+    pr64 = _f64(pr)
+    if with_rate:
+        prr64, prr_var64 = _f64(prr), _f64(prr_var)
+    else:
+        prr64 = prr_var64 = pr64
+    _innovations_kernel(_f64(r_e), _f64(v_e), _f64(clk_m), _f64(drift_mps), _f64(sat_pos), _f64(sat_vel),
+                        pr64, prr64, _f64(pr_var), prr_var64, mask, with_rate, dz, H, R, row_mask, u)
+    return dz, H, R, row_mask, u
+
+
+@nb.njit(cache=True)
+def _dop_kernel(u, mask, out):
+    """GDOP per row: trace((G^T G)^-1) = ||L^-1||_F^2 with G^T G = L L^T (Cholesky); inf below 4 satellites
+    or for a degenerate geometry (G^T G not positive definite)."""
+    B, C = mask.shape
+    A = np.empty((4, 4))
+    g = np.empty(4)
+    for b in range(B):
+        n = 0
+        A[:, :] = 0.0
+        for j in range(C):
+            if mask[b, j]:
+                n += 1
+                g[0] = -u[b, j, 0]
+                g[1] = -u[b, j, 1]
+                g[2] = -u[b, j, 2]
+                g[3] = 1.0
+                for i in range(4):
+                    for k in range(4):
+                        A[i, k] += g[i] * g[k]
+        if n < 4:
+            out[b] = np.inf
+            continue
+        ok = True
+        for k in range(4):  # in-place Cholesky, lower triangle
+            d = A[k, k]
+            for p in range(k):
+                d -= A[k, p] * A[k, p]
+            if not d > 0.0:
+                ok = False
+                break
+            A[k, k] = np.sqrt(d)
+            for i in range(k + 1, 4):
+                s = A[i, k]
+                for p in range(k):
+                    s -= A[i, p] * A[k, p]
+                A[i, k] = s / A[k, k]
+        if not ok:
+            out[b] = np.inf
+            continue
+        tr = 0.0
+        for c in range(4):  # column c of L^-1 by forward substitution
+            for i in range(4):
+                g[i] = 0.0
+            for i in range(c, 4):
+                s = 1.0 if i == c else 0.0
+                for p in range(c, i):
+                    s -= A[i, p] * g[p]
+                g[i] = s / A[i, i]
+                tr += g[i] * g[i]
+        out[b] = np.sqrt(tr)
+
+
+def dop(u, mask):
+    """Geometric dilution of precision (compiled; same definition as :func:`dop_reference`).
+
+    Parameters
+    ----------
+    u : (B, C, 3) unit lines of sight; mask : (B, C) bool.
+
+    Returns
+    -------
+    gdop : (B,) sqrt(trace((G^T G)^-1)) with G = [-u, 1] over the used satellites (Langley's GDOP);
+        ``inf`` with fewer than 4 satellites or a degenerate geometry.
+    """
+    mask = np.ascontiguousarray(mask, dtype=bool)
+    out = np.empty(mask.shape[0])
+    _dop_kernel(_f64(u), mask, out)
+    return out

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 
 from .error_model import BA, BG, CLK, DRIFT, N_STATES, POS, ProcessNoise
@@ -242,7 +243,25 @@ class Navigator:
         return self.form.update(dz, H, R, mask)
 
     def _feedback(self, dx):
-        """Closed-loop correction: add the error-state estimate to the nominal state (B, 17)."""
+        """Closed-loop correction: add the error-state estimate to the nominal state (B, 17).
+
+        Compiled (:func:`_feedback_kernel`); :meth:`_feedback_reference` is the numpy specification
+        (agreement test in ``tests/nav_filters/test_kernels.py``)."""
+        dx = np.ascontiguousarray(dx, np.float64)
+        P = self.form.covariance
+        B = self.batch_size
+        r, v, bg, ba = (np.empty((B, 3)) for _ in range(4))
+        C = np.empty((B, 3, 3))
+        clk, drift = np.empty(B), np.empty(B)
+        finite = np.empty(B, bool)
+        _feedback_kernel(self.r, self.v, self.C, self.bg, self.ba, self.clk, self.drift, dx, self.diverged,
+                         P, r, v, C, bg, ba, clk, drift, finite)
+        self.r, self.v, self.C, self.bg, self.ba, self.clk, self.drift = r, v, C, bg, ba, clk, drift
+        self._flag_diverged(finite)
+
+    def _feedback_reference(self, dx):
+        """Numpy reference of :meth:`_feedback` (Groves sec 14.1 closed-loop correction through
+        :func:`nav_filters.ins.apply_correction`)."""
         dx = np.where(self.diverged[:, None], 0, np.asarray(dx, np.float64))
         r, v, C = apply_correction(self.r, self.v, self.C, np.asarray(dx, np.float64))
         self.r, self.v, self.C = (np.ascontiguousarray(a, np.float64) for a in (r, v, C))
@@ -255,6 +274,9 @@ class Navigator:
         # information), not a divergence; NaN or a non-positive variance is.
         d = np.diagonal(self.form.covariance, axis1=1, axis2=2)
         finite &= ~np.isnan(d).any(1) & (d > 0).all(1)
+        self._flag_diverged(finite)
+
+    def _flag_diverged(self, finite):
         newly = ~finite & ~self.diverged
         self.diverged |= ~finite
         if newly.any():
@@ -306,6 +328,76 @@ class Navigator:
     def position_sigma(self) -> np.ndarray:
         """(B, 3) one-sigma ECEF position uncertainty [m]."""
         return np.sqrt(np.maximum(np.diagonal(self.form.covariance, axis1=1, axis2=2)[:, POS], 0))
+
+
+@nb.njit(cache=True)
+def _feedback_kernel(r, v, C, bg, ba, clk, drift, dx, diverged, P, r2, v2, C2, bg2, ba2, clk2, drift2, finite):
+    """Compiled closed-loop feedback (same operations, in the same order, as :meth:`Navigator._feedback_reference`).
+
+    ``C2 = exp([phi x]) C`` (Rodrigues, :func:`earth.rotations.exp_so3`, Taylor series below 1e-4 rad),
+    ``v2 = v + dv``, ``r2 = r + dr``, biases and clock plus their corrections (Groves sec 14.1, with the
+    correction-to-add convention of :mod:`nav_filters.error_model`); rows flagged ``diverged`` are copied
+    unchanged. ``finite[b]``: the new nominal state is finite and P's diagonal has no NaN and is positive
+    (+inf is an unobserved direction of an information form, not a divergence).
+    """
+    B = r.shape[0]
+    n = P.shape[1]
+    S = np.empty((3, 3))
+    E = np.empty((3, 3))
+    for b in range(B):
+        if diverged[b]:
+            for i in range(3):
+                r2[b, i] = r[b, i]
+                v2[b, i] = v[b, i]
+                bg2[b, i] = bg[b, i]
+                ba2[b, i] = ba[b, i]
+                for j in range(3):
+                    C2[b, i, j] = C[b, i, j]
+            clk2[b] = clk[b]
+            drift2[b] = drift[b]
+        else:
+            p0 = dx[b, 0]
+            p1 = dx[b, 1]
+            p2 = dx[b, 2]
+            th2 = p0 * p0 + p1 * p1 + p2 * p2
+            th = np.sqrt(th2)
+            if th < 1e-4:
+                a = 1.0 - th2 / 6.0 + th2 * th2 / 120.0
+                c = 0.5 - th2 / 24.0 + th2 * th2 / 720.0
+            else:
+                a = np.sin(th) / th
+                c = (1.0 - np.cos(th)) / (th * th)
+            S[0, 0] = 0.0
+            S[0, 1] = -p2
+            S[0, 2] = p1
+            S[1, 0] = p2
+            S[1, 1] = 0.0
+            S[1, 2] = -p0
+            S[2, 0] = -p1
+            S[2, 1] = p0
+            S[2, 2] = 0.0
+            for i in range(3):
+                for j in range(3):
+                    ss = S[i, 0] * S[0, j] + S[i, 1] * S[1, j] + S[i, 2] * S[2, j]
+                    E[i, j] = ((1.0 if i == j else 0.0) + a * S[i, j]) + c * ss
+            for i in range(3):
+                for j in range(3):
+                    C2[b, i, j] = E[i, 0] * C[b, 0, j] + E[i, 1] * C[b, 1, j] + E[i, 2] * C[b, 2, j]
+                r2[b, i] = r[b, i] + dx[b, 6 + i]
+                v2[b, i] = v[b, i] + dx[b, 3 + i]
+                bg2[b, i] = bg[b, i] + dx[b, 9 + i]
+                ba2[b, i] = ba[b, i] + dx[b, 12 + i]
+            clk2[b] = clk[b] + dx[b, 15]
+            drift2[b] = drift[b] + dx[b, 16]
+        ok = True
+        for i in range(3):
+            ok = ok and np.isfinite(r2[b, i]) and np.isfinite(v2[b, i])
+            for j in range(3):
+                ok = ok and np.isfinite(C2[b, i, j])
+        for i in range(n):
+            d = P[b, i, i]
+            ok = ok and (not np.isnan(d)) and d > 0
+        finite[b] = ok
 
 
 __all__ = ["Navigator", "NavigatorConfig", "ATT", "VEL", "POS"]

@@ -24,6 +24,7 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 
 SUPPORTED_DTYPES = (np.float32, np.float64)
@@ -59,6 +60,67 @@ def check_dtype(dtype) -> np.dtype:
 
 def prepare_measurement(dz, H, R, mask, dtype):
     """Validate a batched measurement and neutralize its masked rows.
+
+    Compiled in one pass (:func:`_prepare_kernel`) for float inputs; any problem found there (or a
+    non-float input) falls back to :func:`prepare_measurement_reference`, which raises the error (or
+    returns the same arrays). Same parameters, returns and errors as the reference.
+    """
+    dz = np.asarray(dz)
+    H = np.asarray(H)
+    R = np.asarray(R)
+    if not (dz.ndim == 2 and H.ndim == 3 and H.shape[:2] == dz.shape and R.shape in (dz.shape, dz.shape + dz.shape[1:])
+            and all(a.dtype.kind == "f" for a in (dz, H, R))):
+        return prepare_measurement_reference(dz, H, R, mask, dtype)
+    B, m = dz.shape
+    mask = np.ones((B, m), bool) if mask is None else np.asarray(mask, bool)
+    if mask.shape != (B, m):
+        return prepare_measurement_reference(dz, H, R, mask, dtype)
+    dtype = np.dtype(dtype)
+    dz_o = np.empty((B, m), dtype)
+    H_o = np.empty(H.shape, dtype)
+    R_o = np.empty((B, m, m), dtype)
+    R3 = R if R.ndim == 3 else R[:, :, None]
+    if not _prepare_kernel(dz, H, R3, R.ndim == 3, mask, dz_o, H_o, R_o):
+        return prepare_measurement_reference(dz, H, R, mask, dtype)
+    return dz_o, H_o, R_o, mask
+
+
+@nb.njit(cache=True)
+def _prepare_kernel(dz, H, R3, full, mask, dz_o, H_o, R_o):
+    """One pass of :func:`prepare_measurement_reference` on valid input: masked rows to ``dz = 0``,
+    ``H = 0``, unit variance (and zero covariances); returns False (outputs undefined) where the reference
+    would raise (non-finite dz / H row / variance, or a non-positive variance, on a valid row)."""
+    B, m, n = H.shape
+    for b in range(B):
+        for i in range(m):
+            v = mask[b, i]
+            d = dz[b, i]
+            var = R3[b, i, i] if full else R3[b, i, 0]
+            if v:
+                if not (np.isfinite(d) and np.isfinite(var) and var > 0):
+                    return False
+                dz_o[b, i] = d
+                for k in range(n):
+                    h = H[b, i, k]
+                    if not np.isfinite(h):
+                        return False
+                    H_o[b, i, k] = h
+            else:
+                dz_o[b, i] = 0
+                for k in range(n):
+                    H_o[b, i, k] = 0
+            for j in range(m):
+                if j == i:
+                    R_o[b, i, j] = var if v else 1
+                elif full and v and mask[b, j]:
+                    R_o[b, i, j] = R3[b, i, j]
+                else:
+                    R_o[b, i, j] = 0
+    return True
+
+
+def prepare_measurement_reference(dz, H, R, mask, dtype):
+    """Validate a batched measurement and neutralize its masked rows (numpy specification).
 
     Parameters
     ----------
