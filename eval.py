@@ -46,7 +46,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--methods", default=",".join(DEFAULT_METHODS),
                    help="comma-separated method specs (see above)")
     p.add_argument("--reference", default=None, help="method for the paired differences (default: the first)")
-    p.add_argument("--episodes", type=int, default=8, help="Monte Carlo episodes per scenario (default 8)")
+    p.add_argument("--episodes", type=int, default=None,
+                   help="Monte Carlo episodes per scenario (default 8; experiments: their own default)")
     p.add_argument("--seed", type=int, default=0, help="base seed (default 0)")
     p.add_argument("--batch-size", type=int, default=64, help="episodes run together in one batched navigator")
     p.add_argument("--dtype", choices=("float64", "float32"), default="float64", help="filter arithmetic")
@@ -81,13 +82,15 @@ def _split_methods(text: str) -> list[str]:
 
 def main(argv=None) -> dict:
     args = build_parser().parse_args(argv)
-    if args.episodes < 1:
+    if args.episodes is not None and args.episodes < 1:
         fail("--episodes must be >= 1")
     if args.batch_size < 1:
         fail("--batch-size must be >= 1")
     out = Path(args.out)
     if args.experiment:
         return run_experiment_cli(args, out)
+    if args.episodes is None:
+        args.episodes = 8
     from agents.methods import parse_method_spec
     from envs.worlds import make_world, scenario_names
 
@@ -171,11 +174,10 @@ def run_experiment_cli(args, out: Path) -> dict:
     if args.experiment not in EXPERIMENTS:
         fail(f"unknown experiment {args.experiment!r}; known: {', '.join(EXPERIMENTS)}")
     out.mkdir(parents=True, exist_ok=True)
-    res, report = run_experiment(args.experiment, episodes=args.episodes, seed=args.seed, out_dir=out)
-    (out / "results.json").write_text(json.dumps(res, indent=2, default=float))
-    (out / "report.md").write_text(report + "\n")
+    res, report = run_experiment(args.experiment, episodes=args.episodes, seed=args.seed, out_dir=out,
+                                 progress=lambda msg: print(msg, file=sys.stderr))
     print(report)
-    print(f"wrote {out / 'report.md'}")
+    print(f"wrote {out / (args.experiment + '.md')} and {out / (args.experiment + '.json')}")
     return res
 
 
