@@ -10,37 +10,46 @@ Prints, in one run:
   ``sage-husa``, ``stkf``, ``ma-stkf`` and ``svd-akf`` (the Sage-Husa law around the SVD form). Vector
   figures are row-steps: B x steps / wall time. Reset (world generation + filter construction) is timed
   separately and excluded from the step rate; the timed steps stay inside one episode (no autoreset).
+  ``cpu ms/step`` is the process CPU time (all threads) per batched step: on a shared machine the wall
+  rate drops with the other jobs, the CPU time much less.
 * a profile of the step by stage (wall time per step and share) at B = 1 and at the largest B:
   ``propagate`` (the compiled IMU kernel, :meth:`Navigator.propagate_epoch`), ``innovations``
   (:func:`nav_filters.measurements.gnss_innovations`: ranging, dz, H, R), ``predict`` (the flushed time
-  update handed to the form), ``form update`` (the form's ``update``: adaptive law + inner filter),
-  ``feedback`` (closed-loop correction of the nominal state), ``dop``, ``observation`` (the env's
-  observation frame) and ``env glue`` (the rest of ``TuningCore.step``: actions, parameters, errors,
-  rewards, infos, vector-env bookkeeping).
+  update handed to the form; an adaptive law only stores it), ``form update`` (the form's ``update``:
+  adaptive law + inner filter, including the deferred prediction), ``feedback`` (closed-loop correction
+  of the nominal state), ``dop``, ``observation`` (the env's observation frame) and ``env glue`` (the
+  rest of ``TuningCore.step`` and the env wrappers: actions, parameters, errors, rewards, infos).
+
+``--compare DIR`` runs every cell twice, in this tree and in the source tree ``DIR`` (e.g. a checkout of
+an earlier commit), alternately in fresh processes, and prints both with the speed-up: before/after
+figures measured side by side under the same machine load.
 
 Usage::
 
-    python benchmarks/bench_envs.py [--quick] [--methods sage-husa stkf] [--batches 16 256 1024]
-                                    [--steps N] [--episode-s 60] [--no-profile]
+    python benchmarks/bench_envs.py [--quick] [--methods sage-husa stkf] [--batches 1 16 256 1024]
+                                    [--steps N] [--episode-s 60] [--no-profile] [--profile-only]
+                                    [--compare DIR]
 
-``--quick``: B = 1, 16, 256, fewer steps, profile at B = 1 and 256 only (about a minute).
+``--quick``: B = 1, 16, 256, fewer steps, profile at B = 1 and 256 (a minute or two).
 """
 from __future__ import annotations
 
 import argparse
+import json
 import os
+import subprocess
 import sys
 import time
 from contextlib import contextmanager
 
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+ROOT = os.environ.get("NAVGYM_BENCH_ROOT") or os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, ROOT)
 
 import gymnasium as gym  # noqa: E402
 import numpy as np  # noqa: E402
 
 import envs  # noqa: E402,F401  (registers the ids)
 import nav_filters.navigator as navmod  # noqa: E402
-from envs import core as coremod  # noqa: E402
 
 METHOD_ENV = {
     "sage-husa": "GnssIns/SageHusa-v0",
@@ -49,6 +58,10 @@ METHOD_ENV = {
     "svd-akf": "GnssIns/SageHusa-v0",
 }
 """Benchmarked method -> the env id whose action drives it."""
+
+WARMUP_STEPS = 12
+"""Untimed steps before timing: past the adaptive laws' warm-up (10 epochs) so that every code path (and
+every compiled kernel, loaded from numba's cache on first use) has run once."""
 
 STAGES = ("propagate", "innovations", "predict", "form update", "feedback", "dop", "observation", "env glue")
 
@@ -69,14 +82,11 @@ def _core(env):
     return env.unwrapped.core if hasattr(env, "unwrapped") and hasattr(env.unwrapped, "core") else env.core
 
 
-def bench_env(method, B, steps, episode_s, scenario, warmup=2):
-    """(reset seconds, steps/s, CPU ms per step) over ``steps`` timed steps after ``warmup`` untimed ones.
-
-    The CPU time (all threads of the process) is the load-robust figure on a shared machine: with other
-    jobs on the cores the wall rate drops, the CPU time per step much less."""
-    env = _make(method, B, episode_s, scenario)
-    if warmup + steps >= episode_s * 1.0:  # 1 Hz GNSS by default: stay inside one episode
+def bench_env(method, B, steps, episode_s, scenario, warmup=WARMUP_STEPS):
+    """(reset seconds, steps/s, CPU ms per batched step) over ``steps`` timed steps after ``warmup`` ones."""
+    if warmup + steps >= episode_s:  # 1 Hz GNSS in every benchmarked scenario: stay inside one episode
         raise ValueError(f"warmup + steps ({warmup + steps}) must stay below the episode length ({episode_s} epochs)")
+    env = _make(method, B, episode_s, scenario)
     t0 = time.perf_counter()
     env.reset(seed=0)
     t_reset = time.perf_counter() - t0
@@ -134,8 +144,8 @@ class StageTimer:
         setattr(obj, name, timed)
 
 
-def profile_env(method, B, steps, episode_s, scenario, warmup=2):
-    """Per-stage wall time per step [ms] of ``steps`` steps (after ``warmup``)."""
+def profile_env(method, B, steps, episode_s, scenario, warmup=WARMUP_STEPS):
+    """Per-stage wall time per step [ms] of ``steps`` steps (after ``warmup``), and the total."""
     env = _make(method, B, episode_s, scenario)
     env.reset(seed=0)
     acts = _actions(env.action_space, warmup + steps)
@@ -150,23 +160,149 @@ def profile_env(method, B, steps, episode_s, scenario, warmup=2):
         total = time.perf_counter() - t0
     env.close()
     t = timer.t
-    # flush_prediction runs inside Navigator.update, which the form-update timer does not cover; the form's
-    # update is called from Navigator.update after it, so the stages do not overlap.
+    # the stages do not nest: flush_prediction, form.update and _feedback run one after the other inside
+    # Navigator.update; gnss_innovations and dop before and after it.
     t["env glue"] = total - sum(v for k, v in t.items() if k != "env glue")
     return {k: 1e3 * v / steps for k, v in t.items()}, 1e3 * total / steps
+
+
+def bench_components(batches=(1, 1024), repeats=None):
+    """Each compiled kernel of the step against its numpy reference, same inputs, one process.
+
+    Returns rows ``(component, B, reference us, compiled us)``: the minimum wall time over repeats (the
+    load-robust statistic on a shared machine). Inputs are synthetic but shaped like the env's (17 states,
+    16 channels, m = 32 rows with the GNSS sparsity of H).
+    """
+    import copy
+
+    import nav_filters.forms  # noqa: F401
+    from nav_filters import measurements as meas
+    from nav_filters.adaptive.base import EpochContext
+    from nav_filters.adaptive.innovation import innovation_traces, innovation_traces_reference
+    from nav_filters.adaptive.sage_husa import SageHusa
+    from nav_filters.forms import KalmanFilter
+    from nav_filters.forms.base import prepare_measurement, prepare_measurement_reference
+
+    def tmin(fn, reps):
+        best = np.inf
+        for _ in range(reps):
+            t0 = time.perf_counter()
+            fn()
+            best = min(best, time.perf_counter() - t0)
+        return 1e6 * best
+
+    out = []
+    n, C = 17, 16
+    m = 2 * C
+    for B in batches:
+        reps = repeats or (200 if B == 1 else 5)
+        rng = np.random.default_rng(0)
+
+        def spd(k, s=1.0):
+            A = rng.normal(size=(B, k, k))
+            return s * (A @ A.mT + k * np.eye(k))
+
+        r = np.tile([4.0e6, 0.6e6, 4.9e6], (B, 1)) + rng.normal(0, 100, (B, 3))
+        v = rng.normal(0, 10, (B, 3))
+        up = r / np.linalg.norm(r, axis=1, keepdims=True)
+        d = rng.normal(size=(B, C, 3)) + 2.0 * up[:, None, :]
+        d /= np.linalg.norm(d, axis=-1, keepdims=True)
+        sat, sv = r[:, None, :] + 2.2e7 * d, rng.normal(0, 2500, (B, C, 3))
+        gmask = rng.random((B, C)) < 0.8
+        pr = np.linalg.norm(sat - r[:, None], axis=-1)
+        g_args = (r, v, rng.normal(0, 100, B), rng.normal(0, 1, B), sat, sv, pr, rng.normal(0, 100, (B, C)),
+                  np.full((B, C), 9.0), np.full((B, C), 0.01), gmask)
+        dz, H, Rv, row_mask, u = meas.gnss_innovations(*g_args)
+        out.append(("innovations (ranging, dz, H, R)", B, tmin(lambda: meas.gnss_innovations_reference(*g_args), reps),
+                    tmin(lambda: meas.gnss_innovations(*g_args), reps)))
+        out.append(("dop", B, tmin(lambda: meas.dop_reference(u, gmask), reps), tmin(lambda: meas.dop(u, gmask), reps)))
+        p_args = (dz, H, Rv, row_mask, np.float64)
+        out.append(("prepare_measurement (x2 per update)", B,
+                    tmin(lambda: prepare_measurement_reference(*p_args), reps),
+                    tmin(lambda: prepare_measurement(*p_args), reps)))
+        prep = prepare_measurement(*p_args)
+        P0 = spd(n)
+        kf = KalmanFilter(P0)
+        out.append(("kf Joseph update", B, tmin(lambda: kf._update_reference(*prep), reps),
+                    tmin(lambda: kf._update(*prep), reps)))
+        Q, prior = spd(n, 1e-4), spd(n, 0.01)
+        ctx = EpochContext(pending=True, Phi=None, Q=Q, prior=prior)
+        out.append(("innovation traces (stkf, ma-stkf)", B,
+                    tmin(lambda: innovation_traces_reference(prep[0], prep[1], prior, Q, prep[2], prep[3]), reps),
+                    tmin(lambda: innovation_traces(prep[0], prep[1], prior, Q, prep[2], prep[3]), reps)))
+        law = SageHusa(spd(n, 0.01))
+        law._seen[:] = 100
+        active = np.ones(B, bool)
+        dd = np.full(B, 0.05)
+        law._plan(prep[0], prep[1], prep[2], prep[3], ctx)
+        out.append(("sage-husa R law (compiled: whole _plan)", B,
+                    tmin(lambda: law._r_scales_reference(prep[0], prep[1], prep[2], prep[3], ctx, dd, active), reps),
+                    tmin(lambda: law._plan(prep[0], prep[1], prep[2], prep[3], ctx), reps)))
+        law.inner.P = prior + spd(n, 0.1)
+        dx = rng.normal(size=(B, n))
+        rows = np.ones(B, bool)
+        la, lb = copy.deepcopy(law), copy.deepcopy(law)
+        out.append(("sage-husa Q law (eigh)", B, tmin(lambda: la._adapt_q_reference(rows, dd, ctx, dx), reps),
+                    tmin(lambda: lb._adapt_q(rows, dd, ctx, dx), reps)))
+        out.append(("closed-loop feedback", B, *_time_feedback(B, reps, tmin)))
+    return out
+
+
+def _time_feedback(B, reps, tmin):
+    """(reference us, compiled us) of the navigator's closed-loop feedback on B copies of one world's start."""
+    from envs.episodes import initial_covariance, process_noise_for
+    from envs.sim.world import generate_world
+    from nav_filters.navigator import Navigator, NavigatorConfig
+
+    w = generate_world("open-sky", [0])
+    i = w.init
+    rep = lambda a: np.repeat(np.asarray(a), B, 0)  # noqa: E731
+    nav = Navigator(NavigatorConfig(method="sage-husa", noise=process_noise_for(w)), rep(i.r_e), rep(i.v_e),
+                    rep(i.C_eb), rep(initial_covariance(w, "float64")), rep(i.clock_bias_m), rep(i.clock_drift_mps))
+    dx = np.random.default_rng(1).normal(size=(B, 17)) * 1e-3
+    return tmin(lambda: nav._feedback_reference(dx), reps), tmin(lambda: nav._feedback(dx), reps)
+
+
+def _run_cell(root, kind, method, B, steps, episode_s, scenario):
+    """One benchmark cell in a fresh process on the source tree ``root``; returns its JSON result."""
+    env = dict(os.environ, NAVGYM_BENCH_ROOT=root)
+    cmd = [sys.executable, os.path.abspath(__file__), "--cell", kind, method, str(B), str(steps), str(episode_s),
+           scenario]
+    out = subprocess.run(cmd, env=env, cwd=root, capture_output=True, text=True, check=True).stdout
+    return json.loads(out.strip().splitlines()[-1])
+
+
+def _cell_main(kind, method, B, steps, episode_s, scenario):
+    B, steps, episode_s = int(B), int(steps), float(episode_s)
+    if kind == "rate":
+        print(json.dumps(bench_env(method, B, steps, episode_s, scenario)))
+    else:
+        print(json.dumps(profile_env(method, B, steps, episode_s, scenario)))
 
 
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--quick", action="store_true", help="B up to 256, fewer steps")
     p.add_argument("--methods", nargs="+", default=list(METHOD_ENV), choices=list(METHOD_ENV))
-    p.add_argument("--batches", nargs="+", type=int, default=None, help="vector batch sizes (default 16 256 1024)")
+    p.add_argument("--batches", nargs="+", type=int, default=None,
+                   help="batch sizes (1 = the single env via gym.make; default 1 16 256 1024)")
     p.add_argument("--steps", type=int, default=None, help="timed steps per measurement")
     p.add_argument("--episode-s", type=float, default=60.0, help="episode length [s] (memory: B x IMU samples)")
     p.add_argument("--scenario", default="noise-burst")
     p.add_argument("--no-profile", action="store_true")
+    p.add_argument("--profile-only", action="store_true", help="skip the throughput table")
+    p.add_argument("--components", action="store_true",
+                   help="only time each compiled kernel of the step against its numpy reference (B = 1, 1024)")
+    p.add_argument("--compare", metavar="DIR", default=None,
+                   help="also run every cell in the source tree DIR, alternately in fresh processes")
     args = p.parse_args(argv)
-    batches = args.batches or ([16, 256] if args.quick else [16, 256, 1024])
+    if args.components:
+        print("compiled kernels against their numpy references (min wall time, same inputs, one process)")
+        print(f"{'component':42s} {'B':>5s} {'numpy [us]':>12s} {'compiled [us]':>14s} {'speed-up':>9s}")
+        for name, B, t_ref, t_new in bench_components(tuple(args.batches or (1, 1024))):
+            print(f"{name:42s} {B:5d} {t_ref:12.1f} {t_new:14.1f} {t_ref / t_new:8.1f}x", flush=True)
+        return
+    batches = args.batches or ([1, 16, 256] if args.quick else [1, 16, 256, 1024])
     print(f"navgym env throughput: scenario {args.scenario}, episode {args.episode_s:g} s, "
           f"{os.cpu_count()} CPUs; one step = one GNSS epoch (100 IMU samples + update)")
 
@@ -177,24 +313,47 @@ def main(argv=None):
             return 20 if B == 1 else 5
         return 40 if B == 1 else (20 if B <= 16 else 8)
 
-    hdr = f"{'method':10s} {'B':>5s} {'reset [s]':>10s} {'steps/s':>12s} {'ms/step':>9s} {'cpu ms/step':>12s}"
+    here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    if args.compare:
+        other = os.path.abspath(args.compare)
+        print(f"before = {other}\nafter  = {here}")
+        hdr = (f"{'method':10s} {'B':>5s} {'steps/s before':>15s} {'after':>10s} {'speed-up':>9s} "
+               f"{'cpu ms before':>14s} {'after':>9s} {'reset s before':>15s} {'after':>7s}")
+    else:
+        hdr = f"{'method':10s} {'B':>5s} {'reset [s]':>10s} {'steps/s':>12s} {'ms/step':>9s} {'cpu ms/step':>12s}"
     print("\n" + hdr + "\n" + "-" * len(hdr))
-    for m in args.methods:
-        for B in [1] + batches:
-            t_reset, rate, cpu = bench_env(m, B, n_steps(B), args.episode_s, args.scenario)
-            print(f"{m:10s} {B:5d} {t_reset:10.2f} {rate:12.0f} {1e3 * B / rate:9.2f} {cpu:12.2f}", flush=True)
+    for m in ([] if args.profile_only else args.methods):
+        for B in batches:
+            if args.compare:
+                cell = ("rate", m, B, n_steps(B), args.episode_s, args.scenario)
+                rb, ra = _run_cell(other, *cell), _run_cell(here, *cell)
+                print(f"{m:10s} {B:5d} {rb[1]:15.0f} {ra[1]:10.0f} {ra[1] / rb[1]:8.2f}x {rb[2]:14.2f} {ra[2]:9.2f} "
+                      f"{rb[0]:15.2f} {ra[0]:7.2f}", flush=True)
+            else:
+                t_reset, rate, cpu = bench_env(m, B, n_steps(B), args.episode_s, args.scenario)
+                print(f"{m:10s} {B:5d} {t_reset:10.2f} {rate:12.0f} {1e3 * B / rate:9.2f} {cpu:12.2f}", flush=True)
 
     if args.no_profile:
         return
     m = "sage-husa" if "sage-husa" in args.methods else args.methods[0]
-    prof_b = [1, max(batches)]
-    res = {B: profile_env(m, B, n_steps(B), args.episode_s, args.scenario) for B in prof_b}
-    print(f"\nprofile of one step, {m}: ms per step (share)")
-    print(f"{'stage':14s}" + "".join(f"{'B=' + str(B):>18s}" for B in prof_b))
+    prof_b = sorted({1, max(batches)})
+    cols = []
+    for B in prof_b:
+        cell = ("profile", m, B, n_steps(B), args.episode_s, args.scenario)
+        if args.compare:
+            cols.append((f"B={B} before", _run_cell(other, *cell)))
+            cols.append((f"B={B} after", _run_cell(here, *cell)))
+        else:
+            cols.append((f"B={B}", profile_env(*cell[1:])))
+    print(f"\nprofile of one step, {m}: wall ms per step (share)")
+    print(f"{'stage':14s}" + "".join(f"{name:>20s}" for name, _ in cols))
     for s in STAGES:
-        print(f"{s:14s}" + "".join(f"{res[B][0][s]:10.3f} ({100 * res[B][0][s] / res[B][1]:4.1f}%)" for B in prof_b))
-    print(f"{'total':14s}" + "".join(f"{res[B][1]:10.3f}        " for B in prof_b))
+        print(f"{s:14s}" + "".join(f"{r[0][s]:11.3f} ({100 * r[0][s] / r[1]:4.1f}%)" for _, r in cols))
+    print(f"{'total':14s}" + "".join(f"{r[1]:11.3f}         " for _, r in cols))
 
 
 if __name__ == "__main__":
-    main()
+    if len(sys.argv) > 1 and sys.argv[1] == "--cell":
+        _cell_main(*sys.argv[2:8])
+    else:
+        main()

@@ -57,6 +57,8 @@ def bench_navigator(B, epochs, dtype, profile=False):
     dt = 1.0 / scen.imu_rate_hz
     g = world.gnss
     stages = {"propagate": 0.0, "update": 0.0}
+    warm = navigator_for(world, "kf", dtype=dtype)  # load the compiled kernel outside the timing
+    warm.propagate_epoch(world.imu.f_b[:, 1:2], world.imu.w_b[:, 1:2], dt)
     t0 = time.perf_counter()
     k = 0
     for j in range(epochs):

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,7 +27,8 @@ import numpy as np
 from .sim.scenarios import Scenario, get_scenario
 
 REWARDS = ("horizontal", "log", "3d", "advantage")
-ZUPT_CHOICES = ("none", "truth")
+ZUPT_CHOICES = ("none", "truth", "shoe", "are", "mag", "mv", "mlp", "lstm")
+"""Zero-velocity detector choices: none, the truth (speed < 0.05 m/s), or a detector of :mod:`nav_filters.zupt`."""
 MAPS = ("log1m", "log", "linear")
 
 
@@ -96,7 +98,12 @@ class EnvConfig:
         (-3D error [m]) or ``'advantage'`` (error of a reference filter with fixed default parameters on the
         same data minus the agent's error [m]).
     history : number of stacked observation frames (>= 1).
-    zupt : ``'none'`` or ``'truth'`` (zero-velocity update at epochs where the truth is stationary).
+    zupt : zero-velocity aiding: ``'none'``; ``'truth'`` (the truth is stationary); or a detector run on the
+        IMU samples of every epoch (:func:`nav_filters.zupt.make_detector`: ``'shoe'``, ``'are'``, ``'mag'``,
+        ``'mv'`` with the shipped tuned constants, ``'mlp'``, ``'lstm'`` with weights). Where the vehicle is
+        stationary at an epoch, the ZUPT and zero-heading-rate rows (:func:`nav_filters.zupt.stationary_block`)
+        are fused into that epoch's update.
+    zupt_weights : weights file of the ``'mlp'`` / ``'lstm'`` detector (None: the shipped default).
     dtype : filter arithmetic, ``'float64'`` or ``'float32'``.
     divergence_bound_m : horizontal error [m] beyond which an episode terminates as diverged.
     """
@@ -109,6 +116,7 @@ class EnvConfig:
     reward: str = "horizontal"
     history: int = 1
     zupt: str = "none"
+    zupt_weights: str | None = None
     dtype: str = "float64"
     divergence_bound_m: float = 1000.0
 
@@ -117,6 +125,7 @@ class EnvConfig:
             raise ValueError(f"EnvConfig.reward must be one of {REWARDS}, got {self.reward!r}")
         if self.zupt not in ZUPT_CHOICES:
             raise ValueError(f"EnvConfig.zupt must be one of {ZUPT_CHOICES}, got {self.zupt!r}")
+        self._check_zupt_weights()
         if not (isinstance(self.history, int) and self.history >= 1):
             raise ValueError(f"EnvConfig.history must be an int >= 1, got {self.history!r}")
         if self.dtype not in ("float64", "float32"):
@@ -128,6 +137,19 @@ class EnvConfig:
         if not isinstance(self.method, str):
             raise ValueError(f"EnvConfig.method must be a string, got {self.method!r}")
         self.resolve_scenario()  # validates scenario, imu_grade, gnss_rate_hz
+
+    def _check_zupt_weights(self):
+        if self.zupt_weights is not None and self.zupt not in ("mlp", "lstm"):
+            raise ValueError(f"EnvConfig.zupt_weights is only for zupt='mlp' or 'lstm', not {self.zupt!r}")
+        if self.zupt in ("mlp", "lstm"):
+            from nav_filters.zupt import default_weights_path
+            if self.zupt_weights is not None and not isinstance(self.zupt_weights, (str, os.PathLike)):
+                raise ValueError(f"EnvConfig.zupt_weights must be a path, got {self.zupt_weights!r}")
+            path = default_weights_path(self.zupt) if self.zupt_weights is None else self.zupt_weights
+            if not os.path.isfile(path):
+                raise ValueError(f"EnvConfig.zupt_weights: weights file {str(path)!r} of the {self.zupt!r} detector "
+                                 "not found (train one: `python train.py zupt --model "
+                                 f"{self.zupt} --seed 0 --out runs/DIR`)")
 
     def resolve_scenario(self) -> Scenario:
         """The scenario with this config's overrides applied."""

@@ -14,12 +14,14 @@ the filter has, never from the truth; the truth only scores it.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 
 from earth import C_en, ecef_to_geodetic
-from nav_filters.constraints import zupt as zupt_block
+from nav_filters.zupt import ZuptAidingConfig, make_detector, stationary_block
 from nav_filters.forms import parse_method
 
 from .config import EnvConfig, ParamSpec
@@ -50,6 +52,65 @@ STILL_SPEED_MPS = 0.05
 """True speed below which the ``zupt='truth'`` option declares the vehicle stationary [m/s]."""
 ZUPT_SIGMA_MPS = 0.02
 LOG_REWARD_OFFSET_M = 0.1
+
+
+@nb.njit(cache=True)
+def _frame_kernel(action, dz, S, mask, groups, ema, gdop, P, tsu, zflag, v, lo, hi, out):
+    """Observation frames (B, k + len(OBS_FEATURES)) float32, same quantities as ``TuningCore._frame_reference``.
+
+    Updates the NIS moving averages ``ema`` (B, 2) in place on rows with satellites; non-finite values map
+    as ``np.nan_to_num`` (NaN -> 0, +-inf -> +-1e30) and every component is clipped to [lo, hi].
+    """
+    B, k = action.shape
+    C = mask.shape[1]
+    f = np.empty(lo.shape[0])
+    for b in range(B):
+        n = 0
+        for j in range(C):
+            if mask[b, j]:
+                n += 1
+        nn = max(n, 1)
+        nis = np.zeros(2)
+        rms = np.zeros(2)
+        if n > 0:
+            for g in range(groups):
+                sn = 0.0
+                sr = 0.0
+                for j in range(C):
+                    if mask[b, j]:
+                        d2 = np.float64(dz[b, g * C + j]) ** 2
+                        sn += d2 / np.float64(S[b, g * C + j])
+                        sr += d2
+                nis[g] = sn / nn
+                rms[g] = np.sqrt(sr / nn)
+            for g in range(2):
+                ema[b, g] = (1 - EMA_ALPHA) * ema[b, g] + EMA_ALPHA * nis[g]
+        for i in range(k):
+            f[i] = action[b, i]
+        tr = np.float64(P[b, 6, 6]) + np.float64(P[b, 7, 7]) + np.float64(P[b, 8, 8])
+        f[k + 0] = nis[0]
+        f[k + 1] = nis[1]
+        f[k + 2] = ema[b, 0]
+        f[k + 3] = ema[b, 1]
+        f[k + 4] = np.log10(1.0 + rms[0])
+        f[k + 5] = np.log10(1.0 + rms[1])
+        f[k + 6] = n / C
+        f[k + 7] = min(gdop[b], 50.0) / 10.0
+        f[k + 8] = np.log10(max(tr, 1e-12))
+        f[k + 9] = tsu[b] / 60.0
+        f[k + 10] = 1.0 if n == 0 else 0.0
+        f[k + 11] = 1.0 if zflag[b] else 0.0
+        f[k + 12] = np.sqrt(v[b, 0] * v[b, 0] + v[b, 1] * v[b, 1] + v[b, 2] * v[b, 2]) / 10.0
+        for i in range(f.shape[0]):
+            x = f[i]
+            if np.isnan(x):
+                x = 0.0
+            elif x == np.inf:
+                x = 1e30
+            elif x == -np.inf:
+                x = -1e30
+            x = min(max(x, np.float64(lo[i])), np.float64(hi[i]))
+            out[b, i] = x
 
 
 @dataclass
@@ -93,6 +154,11 @@ class TuningCore:
         self.nav = None
         self.ref = None
         self.seeds = [None] * self.B
+        # zero-velocity detector on the IMU samples of every epoch (EnvConfig.zupt; none for 'none' / 'truth')
+        self._zdet = None if config.zupt in ("none", "truth") else \
+            make_detector(config.zupt, self.scenario.imu_rate_hz, config.zupt_weights)
+        self._zflags = None
+        self._zaid = ZuptAidingConfig(zupt_sigma_mps=ZUPT_SIGMA_MPS)
 
     # ------------------------------------------------------------------ reset
     def _make_nav(self, world, method):
@@ -106,6 +172,7 @@ class TuningCore:
         """Set the filter parameters of every row of ``nav`` from the (B, k) actions."""
         vals = {s.name: s.to_value(action[:, i]) for i, s in enumerate(self.specs)}
         nav.form.set_params(**vals)
+        return vals
 
     def reset_rows(self, rows, seeds) -> np.ndarray:
         """Start new episodes on ``rows`` with world ``seeds``; returns their observations (len(rows), obs_dim)."""
@@ -133,6 +200,8 @@ class TuningCore:
             if ref is not None:
                 self.ref.replace_rows(rows, ref)
         self._store_world(rows, world)
+        if self._zdet is not None:  # new streams on the reset rows
+            self._zdet.reset() if rows.size == self.B else self._zdet.reset_rows(rows)
         for i, s in zip(rows, seeds):
             self.seeds[i] = s
         self.t[rows] = 0
@@ -163,6 +232,7 @@ class TuningCore:
         self.truth_r = np.zeros((B, M, 3))
         self.truth_Cne = np.zeros((B, M, 3, 3))
         self.truth_still = np.zeros((B, M), bool)
+        self.truth_still_n = np.zeros((B, N), bool)  # per IMU sample (zupt='truth')
         self.origin = np.zeros((B, 3))
         self.origin_Cne = np.zeros((B, 3, 3))
         self.t = np.zeros(B, np.int64)
@@ -187,6 +257,7 @@ class TuningCore:
         lat, lon, _ = ecef_to_geodetic(tr.r_e[:, ep])
         self.truth_Cne[rows] = np.swapaxes(C_en(lat, lon), -1, -2)
         self.truth_still[rows] = tr.stationary(STILL_SPEED_MPS)[:, ep]
+        self.truth_still_n[rows] = tr.stationary(STILL_SPEED_MPS)
         self.origin[rows] = tr.r_e[:, 0]
         lat0, lon0, _ = ecef_to_geodetic(tr.r_e[:, 0])
         self.origin_Cne[rows] = np.swapaxes(C_en(lat0, lon0), -1, -2)
@@ -226,7 +297,7 @@ class TuningCore:
         if np.any(self.t >= self.M):
             raise RuntimeError("step() on a finished episode: reset those rows first")
         self.action[:] = a
-        self._set_params(self.nav, None, a)
+        vals = self._set_params(self.nav, None, a)
         j = self.t  # per-row epoch index (rows may be at different epochs after partial resets)
         h_err, e3, res, zflag = self._advance(self.nav, j)
         if self.ref is not None:
@@ -245,8 +316,7 @@ class TuningCore:
             reward = -np.log(h_err + LOG_REWARD_OFFSET_M)
         else:
             reward = np.where(np.isfinite(ref_h), np.minimum(ref_h, bound), bound) - h_err
-        penalty = {"horizontal": -bound, "3d": -bound, "log": -np.log(bound + LOG_REWARD_OFFSET_M),
-                   "advantage": -bound}[cfg.reward]
+        penalty = -math.log(bound + LOG_REWARD_OFFSET_M) if cfg.reward == "log" else -bound
         reward = np.where(diverged, penalty, reward)
         hf = np.where(np.isfinite(h_err), np.minimum(h_err, bound), bound)
         self.sq_err_sum += hf ** 2
@@ -262,8 +332,8 @@ class TuningCore:
             "nis_pr": frame[:, self.k + 0].astype(np.float64), "nis_prr": frame[:, self.k + 1].astype(np.float64),
             "n_sats": self._last_nsat.copy(), "zupt": zflag,
         }
-        for i, s in enumerate(self.specs):
-            info[s.name] = s.to_value(a[:, i])
+        for s in self.specs:
+            info[s.name] = vals[s.name].copy()
         if self.ref is not None:
             info["reference_horizontal_error_m"] = ref_h
         return StepResult(obs=self.frames.reshape(self.B, -1).copy(), reward=reward, terminated=terminated,
@@ -281,26 +351,34 @@ class TuningCore:
     def _advance(self, nav, j):
         """Integrate each row to its epoch j[row] and run the update; rows share the IMU rate."""
         B = self.B
-        rows = np.arange(B)
         ep = self.epoch_idx
-        start = np.where(j > 0, ep[np.maximum(j - 1, 0)], 0)
-        stop = ep[np.minimum(j, self.M - 1)]
-        if np.all(start == start[0]):
-            nav.propagate_epoch(self.f[:, start[0] + 1:stop[0] + 1], self.w[:, start[0] + 1:stop[0] + 1], self.dt)
+        j0 = int(j[0])
+        if B == 1 or bool((j == j0).all()):  # common case: every row at the same epoch (basic slices)
+            a0, b0 = (int(ep[j0 - 1]) if j0 > 0 else 0) + 1, int(ep[min(j0, self.M - 1)]) + 1
+            sel = (slice(None), slice(a0, b0))
+            nav.propagate_epoch(self.f[sel], self.w[sel], self.dt)
+            rows = slice(None)
+            jj = min(j0, self.M - 1)
         else:  # rows at different epochs (after partial resets): gather each row's samples
+            rows = np.arange(B)
+            start = np.where(j > 0, ep[np.maximum(j - 1, 0)], 0)
+            stop = ep[np.minimum(j, self.M - 1)]
             n = int((stop - start).max())
             idx = start[:, None] + 1 + np.arange(n)[None, :]
-            nav.propagate_epoch(self.f[rows[:, None], idx], self.w[rows[:, None], idx], self.dt)
-        jj = np.minimum(j, self.M - 1)
+            sel = (rows[:, None], idx)
+            nav.propagate_epoch(self.f[sel], self.w[sel], self.dt)
+            jj = np.minimum(j, self.M - 1)
         rate = self.has_rate
         g = (self.sat_pos[rows, jj], self.sat_vel[rows, jj], self.pr[rows, jj],
              self.prr[rows, jj] if rate else None, self.pr_sigma[rows, jj],
              self.prr_sigma[rows, jj] if rate else None, self.gmask[rows, jj])
         zflag = np.zeros(B, bool)
         extra = None
-        if self.config.zupt == "truth":
-            zflag = self.truth_still[rows, jj]
-            extra = zupt_block(nav.v, nav.C, ZUPT_SIGMA_MPS, zflag)
+        if self.config.zupt != "none":
+            if nav is self.nav:  # the detector runs once per step; a reference navigator reuses its decisions
+                self._zflags = self.truth_still_n[sel] if self._zdet is None else \
+                    self._zdet.process(self.f[sel], self.w[sel]).stationary
+            extra, zflag = stationary_block(nav, self.w[sel], self._zflags, self.dt, self._zaid)
         res, gdop = nav.update_gnss(*g, extra=extra)
         err = nav.r - self.truth_r[rows, jj]
         ned = (self.truth_Cne[rows, jj] @ err[..., None])[..., 0]
@@ -312,6 +390,16 @@ class TuningCore:
         return h, e3, res, zflag
 
     def _frame(self, res, zflag):
+        """The observation frame of this epoch (compiled: :func:`_frame_kernel`; :meth:`_frame_reference`
+        is the numpy specification, agreement test in ``tests/envs/test_core_compiled.py``)."""
+        groups = 2 if (self.nav.config.use_pseudorange_rate and self.has_rate) else 1
+        out = np.empty((self.B, self.frame_dim), np.float32)
+        _frame_kernel(self.action, np.ascontiguousarray(res.innovation), np.ascontiguousarray(res.innovation_var),
+                      self._last_mask, groups, self.ema, self._last_gdop, self.nav.covariance,
+                      self.nav.time_since_update, zflag, self.nav.v, self.frame_low, self.frame_high, out)
+        return out
+
+    def _frame_reference(self, res, zflag):
         C = self.C
         mask = self._last_mask
         n = mask.sum(1)

@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
-from .error_model import BA, BG, CLK, DRIFT, N_STATES, POS, ProcessNoise
+from .error_model import ATT, BA, BG, CLK, DRIFT, N_STATES, POS, VEL, ProcessNoise
 from .forms import UpdateResult, make_form, parse_method
 from .forms.base import check_dtype
 from .ins import _earth_rate_matrices_np, apply_correction
@@ -161,9 +161,14 @@ class Navigator:
         self.propagate_epoch(np.asarray(f_raw)[:, None, :], np.asarray(w_raw)[:, None, :], dt)
 
     def flush_prediction(self):
-        """Hand the accumulated transition of the pending samples to the form's ``predict``."""
+        """Hand the accumulated transition of the pending samples to the form's ``predict``.
+
+        The accumulators themselves are handed over (no copy in float64) and fresh ones are started, so a
+        form may keep what it was given."""
         if self._pending:
-            self.form.predict(self._Phi_acc.astype(self.dtype), self._Q_acc.astype(self.dtype))
+            Phi, Q = self._Phi_acc, self._Q_acc
+            self.form.predict(Phi.astype(self.dtype, copy=False), Q.astype(self.dtype, copy=False))
+            self._Phi_acc, self._Q_acc = np.empty_like(Phi), np.empty_like(Q)
             self._reset_accumulator()
 
     # ----------------------------------------------------------- measurement
@@ -179,6 +184,10 @@ class Navigator:
         """
         self.flush_prediction()
         self._check_state()
+        return self._update_checked(dz, H, R, mask)
+
+    def _update_checked(self, dz, H, R, mask) -> UpdateResult:
+        """:meth:`update` after the prediction was flushed and the state checked."""
         mask = np.asarray(mask, bool) & ~self.diverged[:, None]
         try:
             res = self.form.update(dz, H, R, mask)
@@ -215,7 +224,8 @@ class Navigator:
         if extra is not None:
             from .constraints import stack_measurements
             dz, H, R, row_mask = stack_measurements((dz, H, R, row_mask), extra, dtype=self.dtype)
-        res = self.update(dz, H, R, row_mask)
+        self.flush_prediction()  # the state was checked above and the prediction does not change it
+        res = self._update_checked(dz, H, R, row_mask)
         self.time_since_update[mask.any(-1)] = 0.0
         return res, dop(u, mask)
 
@@ -284,8 +294,8 @@ class Navigator:
 
     def _check_state(self):
         """Flag and park rows whose nominal state became non-finite (before any innovation is formed)."""
-        bad = ~(np.isfinite(self.r).all(1) & np.isfinite(self.v).all(1) & np.isfinite(self.C).all((1, 2))
-                & np.isfinite(self.clk) & np.isfinite(self.drift)) & ~self.diverged
+        bad = np.empty(self.batch_size, bool)
+        _nonfinite_rows(self.r, self.v, self.C, self.clk, self.drift, self.diverged, bad)
         if bad.any():
             self.diverged |= bad
             self._park(np.flatnonzero(bad))
@@ -330,6 +340,21 @@ class Navigator:
         return np.sqrt(np.maximum(np.diagonal(self.form.covariance, axis1=1, axis2=2)[:, POS], 0))
 
 
+_ATT0, _VEL0, _POS0, _BG0, _BA0, _CLK0, _DRIFT0 = (s.start for s in (ATT, VEL, POS, BG, BA, CLK, DRIFT))
+
+
+@nb.njit(cache=True)
+def _nonfinite_rows(r, v, C, clk, drift, diverged, bad):
+    """``bad[b]``: row b has not diverged yet and its nominal state (r, v, C, clock) is not finite."""
+    for b in range(r.shape[0]):
+        ok = np.isfinite(clk[b]) and np.isfinite(drift[b])
+        for i in range(3):
+            ok = ok and np.isfinite(r[b, i]) and np.isfinite(v[b, i])
+            for j in range(3):
+                ok = ok and np.isfinite(C[b, i, j])
+        bad[b] = not ok and not diverged[b]
+
+
 @nb.njit(cache=True)
 def _feedback_kernel(r, v, C, bg, ba, clk, drift, dx, diverged, P, r2, v2, C2, bg2, ba2, clk2, drift2, finite):
     """Compiled closed-loop feedback (same operations, in the same order, as :meth:`Navigator._feedback_reference`).
@@ -356,9 +381,9 @@ def _feedback_kernel(r, v, C, bg, ba, clk, drift, dx, diverged, P, r2, v2, C2, b
             clk2[b] = clk[b]
             drift2[b] = drift[b]
         else:
-            p0 = dx[b, 0]
-            p1 = dx[b, 1]
-            p2 = dx[b, 2]
+            p0 = dx[b, _ATT0]
+            p1 = dx[b, _ATT0 + 1]
+            p2 = dx[b, _ATT0 + 2]
             th2 = p0 * p0 + p1 * p1 + p2 * p2
             th = np.sqrt(th2)
             if th < 1e-4:
@@ -383,12 +408,12 @@ def _feedback_kernel(r, v, C, bg, ba, clk, drift, dx, diverged, P, r2, v2, C2, b
             for i in range(3):
                 for j in range(3):
                     C2[b, i, j] = E[i, 0] * C[b, 0, j] + E[i, 1] * C[b, 1, j] + E[i, 2] * C[b, 2, j]
-                r2[b, i] = r[b, i] + dx[b, 6 + i]
-                v2[b, i] = v[b, i] + dx[b, 3 + i]
-                bg2[b, i] = bg[b, i] + dx[b, 9 + i]
-                ba2[b, i] = ba[b, i] + dx[b, 12 + i]
-            clk2[b] = clk[b] + dx[b, 15]
-            drift2[b] = drift[b] + dx[b, 16]
+                r2[b, i] = r[b, i] + dx[b, _POS0 + i]
+                v2[b, i] = v[b, i] + dx[b, _VEL0 + i]
+                bg2[b, i] = bg[b, i] + dx[b, _BG0 + i]
+                ba2[b, i] = ba[b, i] + dx[b, _BA0 + i]
+            clk2[b] = clk[b] + dx[b, _CLK0]
+            drift2[b] = drift[b] + dx[b, _DRIFT0]
         ok = True
         for i in range(3):
             ok = ok and np.isfinite(r2[b, i]) and np.isfinite(v2[b, i])

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 
 from ..error_model import CLK, DRIFT, N_STATES
@@ -57,6 +58,68 @@ class InnovationTraces:
 
 def innovation_traces(dz, H, prior, Q, R, mask) -> InnovationTraces:
     """Innovation energy and the traces of the predicted innovation covariance (seed 003 eqs 12, 21).
+
+    Compiled (:func:`_traces_kernel`, structural zeros of H skipped); same parameters and returns as
+    :func:`innovation_traces_reference` (agreement test).
+
+    Parameters
+    ----------
+    dz : (B, m) innovations ``z - H x_pred`` (masked rows 0).
+    H : (B, m, n) measurement matrix (masked rows 0).
+    prior : (B, n, n) ``Phi P Phi^T``, the propagated covariance before process noise.
+    Q : (B, n, n) process noise of the epoch, or None (no transition: ``tr(H Q H^T) = 0``).
+    R : (B, m, m) measurement covariance (masked rows identity).
+    mask : (B, m) bool used rows.
+
+    Returns
+    -------
+    InnovationTraces
+    """
+    B = dz.shape[0]
+    c = np.ascontiguousarray
+    out = np.empty((4, B))
+    _traces_kernel(c(dz), c(H), c(prior), c(prior if Q is None else Q), Q is not None, c(R), c(mask, bool), out)
+    dt = np.result_type(dz.dtype, H.dtype, prior.dtype)
+    tr_m, tr_q, tr_r, energy = (a.astype(dt) for a in out)
+    return InnovationTraces(energy=energy, tr_m=tr_m, tr_q=tr_q, tr_r=tr_r, n_used=mask.sum(-1))
+
+
+@nb.njit(cache=True)
+def _traces_kernel(dz, H, prior, Q, with_q, R, mask, out):
+    """Rows of ``out`` (4, B): tr(H prior H^T), tr(H Q H^T), tr(R), ||dz||^2 over the used rows."""
+    B, m, n = H.shape
+    for b in range(B):
+        tm = 0.0
+        tq = 0.0
+        tr = 0.0
+        en = 0.0
+        for i in range(m):
+            if not mask[b, i]:
+                continue
+            for k in range(n):
+                hk = H[b, i, k]
+                if hk == 0:
+                    continue
+                sm = 0.0
+                sq = 0.0
+                for l in range(n):
+                    h = H[b, i, l]
+                    if h != 0:
+                        sm += h * prior[b, l, k]
+                        if with_q:
+                            sq += h * Q[b, l, k]
+                tm += sm * hk
+                tq += sq * hk
+            tr += R[b, i, i]
+            en += dz[b, i] * dz[b, i]
+        out[0, b] = tm
+        out[1, b] = tq
+        out[2, b] = tr
+        out[3, b] = en
+
+
+def innovation_traces_reference(dz, H, prior, Q, R, mask) -> InnovationTraces:
+    """Numpy specification of :func:`innovation_traces` (seed 003 eqs 12, 21).
 
     Parameters
     ----------

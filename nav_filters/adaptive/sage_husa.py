@@ -79,8 +79,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable, Optional
 
+import numba as nb
 import numpy as np
 
+from ..error_model import CLK, DRIFT, N_STATES
 from ..forms.base import symmetrize
 from .base import AdaptiveLaw, EpochContext, UpdatePlan
 from .innovation import GROUP_NAMES, measurement_groups, quadratic_diag
@@ -186,6 +188,154 @@ def clip_relative_eigenvalues(Q, ref_diag, floor, ceiling):
     return symmetrize(Qw / w[:, :, None] / w[:, None, :])
 
 
+_CLK0, _DRIFT0 = CLK.start, DRIFT.start
+
+
+@nb.njit(cache=True)
+def _r_scale_kernel(r, H, prior, Q, add_q, R, mask, groups, infer, d, active, r_scale, smin, smax, s_new, R_out):
+    """The Sage-Husa measurement-noise law as per-group variance scales (see :class:`SageHusa`), per row b::
+
+        excess_i = dz_i^2 - (H P- H^T)_ii,   P- = prior (+ Q)
+        s_g <- clip((1 - d) s_g + d sum_g excess / sum_g R_ii, smin, smax)   (groups used on active rows)
+        R_out = D^(1/2) R D^(1/2),  D = diag(s_(g_i)) (1 on masked rows)
+
+    ``groups`` (B, m) ids or, with ``infer``, inferred as :func:`~.innovation.measurement_groups` does
+    (CLK column non-zero: 0, DRIFT: 1, else 2; masked -1). Outputs ``s_new`` (B, G) and ``R_out``.
+    """
+    B, m, n = H.shape
+    G = s_new.shape[1]
+    for b in range(B):
+        num = np.zeros(G)
+        den = np.zeros(G)
+        cnt = np.zeros(G, np.int64)
+        gi = np.empty(m, np.int64)
+        for i in range(m):
+            if not mask[b, i]:
+                gi[i] = -1
+                continue
+            if infer:
+                g = 2
+                if n == N_STATES:
+                    if H[b, i, _CLK0] != 0:
+                        g = 0
+                    elif H[b, i, _DRIFT0] != 0:
+                        g = 1
+            else:
+                g = groups[b, i]
+            gi[i] = g
+            if g < 0:
+                continue
+            q = 0.0  # (H P- H^T)_ii over the non-zeros of row i of H
+            for k in range(n):
+                hk = H[b, i, k]
+                if hk == 0:
+                    continue
+                hp = 0.0
+                for l in range(n):
+                    h = H[b, i, l]
+                    if h != 0:
+                        pm = prior[b, l, k] + Q[b, l, k] if add_q else prior[b, l, k]
+                        hp += h * pm
+                q += hp * hk
+            rr = np.float64(r[b, i])
+            num[g] += rr * rr - q
+            den[g] += np.float64(R[b, i, i])
+            cnt[g] += 1
+        for g in range(G):
+            if cnt[g] > 0 and active[b]:
+                s = (1.0 - d[b]) * r_scale[b, g] + d[b] * (num[g] / den[g])
+                s_new[b, g] = min(max(s, smin), smax)
+            else:
+                s_new[b, g] = r_scale[b, g]
+        sq = np.empty(m, R.dtype)
+        for i in range(m):
+            sq[i] = np.sqrt(s_new[b, gi[i]]) if gi[i] >= 0 else 1.0
+        for i in range(m):
+            for j in range(m):
+                R_out[b, i, j] = R[b, i, j] * sq[i] * sq[j]
+
+
+@nb.njit(cache=True)
+def _weight_one(b, j):
+    """Scalar :func:`sage_husa_weight` (seed 000 eqs 21-23)."""
+    if b >= 1.0:
+        return 1.0 / (j + 1.0)
+    return (1.0 - b) / (1.0 - b ** (j + 1.0))
+
+
+def _adapt_q_rows(rows, d, dx, P_post, prior, Q_nom, b, step, e_prev, b_used, q_init, q_ref, Q_raw, Q,
+                  jump_ratio, b_min, b_jump_factor, diagonal, floor, ceiling):
+    """Seed 000 eqs 18-22 and 24 (with the choices of :class:`SageHusa`) on the rows flagged in ``rows``.
+
+    Per row: ``Q_hat = sym(dx dx^T + P_post - prior)`` (eq 18, sign of eq 20); ``e = sum Q_hat^2`` and the
+    eq 24 jump test lowering b for this correction; on the first adaptation ``q_ref`` and ``Q_raw`` from
+    the nominal epoch Q; ``Q_raw <- (1 - d) Q_raw + d Q_hat`` (eq 22; eq 21 with ``diagonal``); ``Q`` the
+    projection of ``Q_raw`` onto ``floor <= eig(W Q W) <= ceiling`` (:func:`clip_relative_eigenvalues`).
+    Updates ``e_prev``, ``b_used``, ``q_init``, ``q_ref``, ``Q_raw``, ``Q`` in place.
+    """
+    B, n = dx.shape
+    for r in nb.prange(B):
+        if not rows[r]:
+            continue
+        X = np.empty((n, n), Q_raw.dtype)
+        for i in range(n):
+            for j in range(n):
+                X[i, j] = (dx[r, i] * dx[r, j] + P_post[r, i, j]) - prior[r, i, j]
+        Qh = np.empty((n, n), Q_raw.dtype)
+        e = 0.0
+        for i in range(n):
+            for j in range(n):
+                Qh[i, j] = 0.5 * (X[i, j] + X[j, i])
+                e += np.float64(Qh[i, j]) ** 2
+        dr = d[r]
+        if e_prev[r] > 0 and e > jump_ratio * e_prev[r]:
+            bb = b[r]
+            b_low = min(bb, max(b_min, 1.0 - b_jump_factor * (1.0 - bb)))
+            dr = max(dr, _weight_one(b_low, step[r] + 1.0))
+            b_used[r] = b_low
+        e_prev[r] = e
+        if not q_init[r]:
+            top = -np.inf
+            for i in range(n):
+                top = max(top, np.float64(Q_nom[r, i, i]))
+            for i in range(n):
+                q_ref[r, i] = max(np.float64(Q_nom[r, i, i]), 1e-12 * top) if top > 0 else 1.0
+                for j in range(n):
+                    Q_raw[r, i, j] = Q_nom[r, i, j]
+        w = np.empty(n)
+        for i in range(n):
+            w[i] = 1.0 / np.sqrt(q_ref[r, i])
+        dd = Q_raw.dtype.type(dr)
+        for i in range(n):
+            for j in range(n):
+                c = Qh[i, j] if (not diagonal or i == j) else 0.0
+                X[i, j] = (1 - dd) * Q_raw[r, i, j] + dd * c
+                Q_raw[r, i, j] = X[i, j]
+        Qw = np.empty((n, n))
+        for i in range(n):
+            for j in range(n):
+                Qw[i, j] = 0.5 * (np.float64(X[i, j]) * w[i] * w[j] + np.float64(X[j, i]) * w[j] * w[i])
+        vals, vecs = np.linalg.eigh(Qw)
+        for k in range(n):
+            vals[k] = min(max(vals[k], floor), ceiling)
+        for i in range(n):
+            for j in range(n):
+                s = 0.0
+                for k in range(n):
+                    s += vecs[i, k] * vals[k] * vecs[j, k]
+                Qw[i, j] = s
+        for i in range(n):
+            for j in range(n):
+                Q[r, i, j] = 0.5 * (Qw[i, j] / w[i] / w[j] + Qw[j, i] / w[j] / w[i])
+        q_init[r] = True
+
+
+_adapt_q_serial = nb.njit(cache=True)(_adapt_q_rows)
+_adapt_q_parallel = nb.njit(cache=True, parallel=True)(_adapt_q_rows)
+PARALLEL_MIN_BATCH = 64
+"""Below this batch size the serial kernel runs (a parallel launch costs more than it saves)."""
+
+
 class SageHusa(AdaptiveLaw):
     """Sage-Husa adaptive Q and R estimation around an inner form (see the module docstring).
 
@@ -240,6 +390,23 @@ class SageHusa(AdaptiveLaw):
         pending = {"d": d, "freeze": freeze, "has": has, "active": active}
         if not self.config.adapt_r or not active.any():
             return UpdatePlan(fade=np.ones(self.batch_size), R=R, mask=mask, pending=pending)
+        # classic Sage-Husa R law as a per-group variance scale (compiled: _r_scale_kernel; numpy
+        # specification: _r_scales_reference, agreement test in tests/nav_filters/test_adaptive_compiled.py)
+        cfg = self.config
+        infer = cfg.groups is None
+        groups = mask.astype(np.int64) if infer else np.where(mask, np.asarray(cfg.groups(H, mask)), -1)
+        B, m = mask.shape
+        s_new = np.empty((B, len(GROUP_NAMES)))
+        R_used = np.empty(R.shape, R.dtype)
+        _r_scale_kernel(np.ascontiguousarray(r), np.ascontiguousarray(H), np.ascontiguousarray(ctx.prior),
+                        np.ascontiguousarray(ctx.Q if ctx.pending else ctx.prior), bool(ctx.pending),
+                        np.ascontiguousarray(R), mask, np.ascontiguousarray(groups, np.int64), infer, d, active,
+                        self._r_scale, cfg.r_scale_min, cfg.r_scale_max, s_new, R_used)
+        pending["r_scale"] = s_new
+        return UpdatePlan(fade=np.ones(self.batch_size), R=R_used, mask=mask, pending=pending)
+
+    def _r_scales_reference(self, r, H, R, mask, ctx: EpochContext, d, active):
+        """Numpy specification of the R law of :meth:`_plan`: (new scales (B, G), scaled R (B, m, m))."""
         groups = (self.config.groups or measurement_groups)(H, mask)
         groups = np.where(mask, np.asarray(groups), -1)
         G = len(GROUP_NAMES)
@@ -258,9 +425,7 @@ class SageHusa(AdaptiveLaw):
         # scale of each row (1 on masked rows), applied as D^(1/2) R D^(1/2)
         row_s = np.where(groups >= 0, np.take_along_axis(s_new, np.maximum(groups, 0), 1), 1.0)
         sq = np.sqrt(row_s).astype(self.dtype)
-        pending["r_scale"] = s_new
-        return UpdatePlan(fade=np.ones(self.batch_size), R=R * sq[:, :, None] * sq[:, None, :], mask=mask,
-                          pending=pending)
+        return s_new, R * sq[:, :, None] * sq[:, None, :]
 
     def _commit(self, plan: UpdatePlan, ctx: EpochContext, r, H, mask, dx):
         pend = plan.pending
@@ -277,7 +442,21 @@ class SageHusa(AdaptiveLaw):
         self._seen = self._seen + pend["has"]
 
     def _adapt_q(self, rows, d, ctx: EpochContext, dx):
-        """Seed 000 eqs 18-22 and 24 on ``rows`` (B,) bool."""
+        """Seed 000 eqs 18-22 and 24 on ``rows`` (B,) bool (compiled: :func:`_adapt_q_rows`; the numpy
+        specification is :meth:`_adapt_q_reference`, agreement test)."""
+        cfg = self.config
+        dt = self.dtype
+        self._b_used, self._e_prev, self._q_init = self._b_used.copy(), self._e_prev.copy(), self._q_init.copy()
+        self._q_ref, self._Q_raw, self._Q = self._q_ref.copy(), self._Q_raw.copy(), self._Q.copy()
+        c = np.ascontiguousarray
+        kern = _adapt_q_parallel if self.batch_size >= PARALLEL_MIN_BATCH else _adapt_q_serial
+        kern(rows, np.asarray(d, np.float64), c(dx, dt), c(self.inner.covariance, dt), c(ctx.prior, dt),
+                        c(ctx.Q, dt), self._params["b"], self._step, self._e_prev, self._b_used, self._q_init,
+                        self._q_ref, self._Q_raw, self._Q, float(cfg.jump_ratio), float(cfg.b_min),
+                        float(cfg.b_jump_factor), bool(cfg.diagonal_q), float(cfg.q_floor), float(cfg.q_ceiling))
+
+    def _adapt_q_reference(self, rows, d, ctx: EpochContext, dx):
+        """Numpy specification of :meth:`_adapt_q` (seed 000 eqs 18-22 and 24 on ``rows`` (B,) bool)."""
         cfg = self.config
         P_post = self.inner.covariance
         # eq 18 (sign of eq 20): Q_hat = K dz dz^T K^T + P_k|k - Phi P_k-1 Phi^T, with K dz = dx

@@ -31,9 +31,11 @@ Differences from the paper, for an online land-vehicle detector:
   serves several IMU grades.
 
 Every sum over a window is a difference of cumulative sums (O(n) per chunk),
-with the SHOE accelerometer term expanded in closed form:
-``sum_k ||y_k - g u||^2 = sum_k ||y_k||^2 - 2 g W ||ybar|| + W g^2`` for
-``u = ybar / ||ybar||`` (because ``sum_k y_k = W ybar``).
+with the SHOE accelerometer term split in closed form:
+``sum_k ||y_k - g u||^2 = sum_k ||y_k - ybar||^2 + W (||ybar|| - g)^2`` for
+``u = ybar / ||ybar||`` (the cross term vanishes because ``sum_k (y_k - ybar) = 0``,
+and ``||ybar - g u|| = | ||ybar|| - g |``); the moving variance is accumulated on
+samples shifted by a per-row reference, so no ``g^2``-sized terms cancel.
 """
 from __future__ import annotations
 
@@ -124,14 +126,19 @@ def classical_statistic(kind: str, x: np.ndarray, W: int, sigma_a: float, sigma_
     if kind == "mag":
         m = np.linalg.norm(a, axis=-1, keepdims=True) - gravity
         return window_sums(m * m, W)[..., 0] / (W * sigma_a ** 2)
-    s = window_sums(np.concatenate([a, np.sum(a * a, -1, keepdims=True)], -1), W)
-    mean = s[..., :3] / W
-    q = s[..., 3] / W                                   # mean of ||y_k||^2
+    # moving variance about the window mean, on samples shifted by a per-row reference: the variance is
+    # shift-invariant, and the shift keeps the sums at noise scale (no cancellation of g^2-sized terms)
+    ref = a[:, -1:, :]
+    d = a - ref
+    s = window_sums(np.concatenate([d, np.sum(d * d, -1, keepdims=True)], -1), W)
+    mean_d = s[..., :3] / W
+    var = np.maximum(s[..., 3] / W - np.sum(mean_d * mean_d, -1), 0.0)    # 1/W sum ||y_k - ybar||^2
     if kind == "mv":
-        return np.maximum(q - np.sum(mean * mean, -1), 0.0) / sigma_a ** 2
-    ta = np.maximum(q - 2.0 * gravity * np.linalg.norm(mean, axis=-1) + gravity ** 2, 0.0) / sigma_a ** 2
+        return var / sigma_a ** 2
+    # SHOE: 1/W sum ||y_k - g u||^2 = 1/W sum ||y_k - ybar||^2 + (||ybar|| - g)^2, u = ybar / ||ybar||
+    dg = np.linalg.norm(mean_d + ref, axis=-1) - gravity
     tw = window_sums(np.sum(w * w, -1, keepdims=True), W)[..., 0] / (W * sigma_w ** 2)
-    return ta + tw
+    return (var + dg * dg) / sigma_a ** 2 + tw
 
 
 class ClassicalDetector(ZuptDetector):
@@ -174,16 +181,22 @@ class ClassicalDetector(ZuptDetector):
     def _score(self, x):
         B, n, _ = x.shape
         if self._tail is None:
-            self._tail = np.zeros((B, self.W - 1, 6))
+            self._tail = None if n == 0 else np.empty((B, self.W - 1, 6))
             self._count = np.zeros(B, np.int64)
+            first = True
         elif self._tail.shape[0] != B:
             raise ValueError(f"the detector runs B={self._tail.shape[0]} streams, got a chunk with B={B} "
                              "(call reset() first)")
+        else:
+            first = False
         out = np.empty((B, n))
         for s in range(0, n, self._CHUNK):
             xs = x[:, s:s + self._CHUNK]
             if self._lp is not None:
                 xs = self._lp(xs)
+            if first:   # pad the (masked) not-yet-full windows with the first sample: sums stay at noise scale
+                self._tail[:] = xs[:, :1]
+                first = False
             buf = np.concatenate([self._tail, xs], axis=1)
             c = self.config
             T = classical_statistic(c.kind, buf, self.W, c.sigma_a, c.sigma_w, c.gravity)

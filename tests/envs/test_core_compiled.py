@@ -1,0 +1,40 @@
+"""The env core's compiled observation frame agrees with its numpy reference (``TuningCore._frame_reference``)."""
+import numpy as np
+import pytest
+
+from envs.config import EnvConfig
+from envs.core import TuningCore
+from envs.gnss_ins_env import SAGE_HUSA_PARAMS
+
+
+@pytest.mark.parametrize("zupt", ["none", "truth"])
+def test_frame_kernel_matches_reference(zupt, monkeypatch):
+    core = TuningCore(EnvConfig(scenario="noise-burst", episode_length_s=8.0, zupt=zupt), SAGE_HUSA_PARAMS, 3)
+    core.reset_rows(np.arange(3), [0, 1, 2])
+    checked = []
+
+    def compare(res, zflag):
+        ema = core.ema.copy()
+        out = TuningCore._frame(core, res, zflag)
+        ema_new, core.ema[:] = core.ema.copy(), ema
+        ref = core._frame_reference(res, zflag)
+        assert out.dtype == ref.dtype == np.float32 and out.shape == ref.shape
+        # float32 frames: log10/sqrt and the reduction order differ by a last bit at most
+        np.testing.assert_allclose(out, ref, rtol=2e-7, atol=1e-7)
+        np.testing.assert_allclose(ema_new, core.ema, rtol=1e-13)
+        return out
+
+    def both(res, zflag):
+        out = compare(res, zflag)
+        saved = core._last_mask.copy()
+        core._last_mask[0] = False  # an outage row: no NIS, outage flag, EMA kept
+        compare(res, zflag)
+        core._last_mask[:] = saved
+        checked.append(out)
+        return out
+
+    monkeypatch.setattr(core, "_frame", both)
+    rng = np.random.default_rng(0)
+    for _ in range(6):
+        core.step(rng.uniform(-1, 1, (3, 1)))
+    assert len(checked) == 6
