@@ -95,7 +95,7 @@ class LearnedConfig:
     model_rate_hz: float = 50.0
     cutoff_hz: float = 20.0
     window: int = 50
-    hidden: int = 64
+    hidden: int = 48
     ema_tau_s: float = 2.0
     ema_long_tau_s: float = 30.0
     accel_scale: float = 0.1
