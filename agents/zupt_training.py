@@ -40,7 +40,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import os
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -603,8 +602,11 @@ def in_loop_rmse(scenario: str, zupts, seeds, method: str = "sage-husa", episode
     Returns
     -------
     ``{choice: {"rmse_h_m", "rmse_3d_m", "max_h_m", "zupt_epochs_frac", "false_zupt_epochs",
-    "stationary_epochs", "seconds"}}``: RMSE over all epochs of all episodes; the epoch fraction with a ZUPT;
-    ZUPT epochs at which the truth moved (speed >= 0.05 m/s); epochs at which the truth was stationary.
+    "stationary_epochs", "epochs_run", "diverged_episodes", "seconds"}}``: RMSE over all epochs of all
+    episodes; the epoch fraction with a ZUPT; ZUPT epochs at which the truth moved (speed >= 0.05 m/s);
+    epochs at which the truth was stationary; epochs run (the loop stops at the first diverged episode,
+    a horizontal error beyond ``EnvConfig.divergence_bound_m``, so ``epochs_run`` below the episode
+    length means a divergence); episodes terminated as diverged.
     """
     import envs.gnss_ins_env as gie
     from envs.config import EnvConfig
@@ -623,6 +625,7 @@ def in_loop_rmse(scenario: str, zupts, seeds, method: str = "sage-husa", episode
         core.reset_rows(np.arange(len(seeds)), seeds)
         act = np.broadcast_to(core.default_action, (len(seeds), core.k))
         h, e3, zf, still = [], [], [], []
+        div = np.zeros(len(seeds), bool)
         t0 = time.perf_counter()
         while not np.any(core.t >= core.M):
             j = core.t.copy()
@@ -631,12 +634,14 @@ def in_loop_rmse(scenario: str, zupts, seeds, method: str = "sage-husa", episode
             e3.append(r.info["error_3d_m"])
             zf.append(r.info["zupt"])
             still.append(core.truth_still[np.arange(len(seeds)), j])
+            div |= r.terminated
             if np.any(r.terminated):
                 break
         h, e3, zf, still = (np.array(a) for a in (h, e3, zf, still))
         out[z] = {"rmse_h_m": float(np.sqrt(np.mean(h ** 2))), "rmse_3d_m": float(np.sqrt(np.mean(e3 ** 2))),
                   "max_h_m": float(h.max()), "zupt_epochs_frac": float(zf.mean()),
                   "false_zupt_epochs": int(np.sum(zf & ~still)), "stationary_epochs": int(still.sum()),
+                  "epochs_run": int(h.shape[0]), "diverged_episodes": int(div.sum()),
                   "seconds": time.perf_counter() - t0}
     return out
 

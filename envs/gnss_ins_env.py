@@ -72,7 +72,8 @@ At the end, ``info["episode_metrics"]`` holds the episode's horizontal RMSE and 
 
 :class:`envs.config.EnvConfig` fields as keyword arguments: ``scenario``,
 ``method``, ``imu_grade``, ``episode_length_s``, ``gnss_rate_hz``, ``reward``,
-``history``, ``zupt`` (``'none'``, ``'truth'``), ``dtype``,
+``history``, ``zupt`` (``'none'``, ``'truth'``, or a detector: ``'shoe'``, ``'are'``, ``'mag'``, ``'mv'``,
+``'mlp'``, ``'lstm'``; ``zupt_weights`` overrides the learned detector's shipped weights), ``dtype``,
 ``divergence_bound_m``; plus ``render_mode`` (``'ansi'``, ``'rgb_array'``).
 
 ## Version History

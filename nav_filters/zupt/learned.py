@@ -353,8 +353,12 @@ class LearnedDetector(ZuptDetector):
                 self._tail = np.zeros((B, W - 1, N_FEATURES), np.float32)
                 self._count = np.zeros(B, np.int64)
             buf = np.concatenate([self._tail, feats], axis=1)
-            idx = np.arange(m)[:, None] + np.arange(W)[None, :]            # (m, W) windows ending at each step
-            p = self.predict_windows(buf[:, idx].reshape(B * m, W, N_FEATURES)).reshape(B, m)
+            p = np.empty((B, m))
+            step = max(1, 16384 // B)                                       # bounded window batches
+            for a in range(0, m, step):
+                k = min(step, m - a)
+                idx = a + np.arange(k)[:, None] + np.arange(W)[None, :]    # (k, W) windows ending at steps a..
+                p[:, a:a + k] = self.predict_windows(buf[:, idx].reshape(B * k, W, N_FEATURES)).reshape(B, k)
             seen = self._count[:, None] + np.arange(1, m + 1)[None, :]
             p[seen < W] = 0.0
             self._tail = buf[:, buf.shape[1] - (W - 1):]
