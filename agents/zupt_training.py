@@ -50,7 +50,7 @@ import numpy as np
 from earth.rotations import dcm_from_euler
 from envs.sim.imu import IMU_GRADES, Vibration, simulate_imu
 from envs.sim.rng import row_generators
-from envs.sim.trajectory import Accelerate, Cruise, Decelerate, Motion, Static, Turn, generate_truth
+from envs.sim.trajectory import Cruise, Motion, SegmentPlan, Static, Turn, generate_truth
 from nav_filters.zupt.classical import CLASSICAL_KINDS, ClassicalConfig, ClassicalDetector, tune_threshold
 from nav_filters.zupt.learned import (LearnedConfig, LearnedDetector, build_model, decimation_factor,
                                       FeatureStream, save_weights)
@@ -99,27 +99,13 @@ def stop_heavy_drive(rng: np.random.Generator, duration_s: float) -> Motion:
         raise ValueError(f"duration_s must be a positive finite number, got {duration_s!r}")
     U = lambda lo, hi: float(rng.uniform(lo, hi))  # noqa: E731
     sign = lambda: 1.0 if rng.random() < 0.5 else -1.0  # noqa: E731
-    segs: list = []
-    total = 0.0
-    v = 0.0
-
-    def add(*new):
-        nonlocal total
-        segs.extend(new)
-        total += sum(s.duration_s for s in new)
-
-    def speed(vt, acc):
-        nonlocal v
-        if vt > v:
-            add(Accelerate((vt - v) / acc, vt))
-        elif vt < v:
-            add(Decelerate((v - vt) / acc, vt))
-        v = vt
+    plan = SegmentPlan()
+    add, speed = plan.add, plan.change_speed
 
     if rng.random() < 0.5:
         add(Static(U(3.0, 30.0), False))
     add(Static(U(3.0, 10.0), True))
-    while total < duration_s:
+    while plan.total < duration_s:
         r = rng.random()
         if r < 0.25:
             speed(U(6.0, 16.0), U(0.8, 2.5))
@@ -133,7 +119,7 @@ def stop_heavy_drive(rng: np.random.Generator, duration_s: float) -> Motion:
                 speed(0.0, U(0.3, 1.5))
                 add(Static(U(0.5, 5.0), True))
         elif r < 0.52:
-            if v > 0.0:
+            if plan.speed > 0.0:
                 speed(0.0, U(0.8, 2.5))
                 add(Static(U(1.0, 5.0), True))
             speed(U(0.06, 0.3), U(0.05, 0.3))
@@ -152,7 +138,7 @@ def stop_heavy_drive(rng: np.random.Generator, duration_s: float) -> Motion:
         else:
             speed(U(8.0, 20.0), U(0.5, 2.5))
             add(Cruise(U(5.0, 30.0)), Turn(sign() * U(3.0, 30.0), U(0.5, 3.0)))
-    return Motion(U(-60.0, 60.0), U(-180.0, 180.0), U(0.0, 2000.0), U(0.0, 360.0), 0.0, tuple(segs))
+    return Motion(U(-60.0, 60.0), U(-180.0, 180.0), U(0.0, 2000.0), U(0.0, 360.0), 0.0, tuple(plan.segments))
 
 
 @dataclass(frozen=True, eq=False)

@@ -101,7 +101,7 @@ from earth.units import DEG
 
 __all__ = [
     "Static", "Accelerate", "Decelerate", "Cruise", "Turn", "Climb", "Stop", "Segment",
-    "Motion", "Truth", "TruthAt", "generate_truth", "random_drive", "STYLES", "GRAVITY_ANCHOR_S",
+    "Motion", "Truth", "TruthAt", "generate_truth", "random_drive", "SegmentPlan", "STYLES", "GRAVITY_ANCHOR_S",
 ]
 
 GRAVITY_ANCHOR_S = 0.1
@@ -880,6 +880,31 @@ def _row(pl: _Plan, fr: _Frame, t, dtk, grav, linear_gravity: bool, out: dict) -
 
 
 # --------------------------------------------------------------------------- random drives
+class SegmentPlan:
+    """A segment list under construction: tracks its total duration [s] and the current speed [m/s].
+
+    ``add(*segments)`` appends; ``change_speed(to_mps, accel_mps2)`` appends the Accelerate or Decelerate
+    that reaches ``to_mps`` at ``accel_mps2`` (nothing when already there). It draws no random numbers, so
+    the random drive generators keep their draw order.
+    """
+
+    def __init__(self):
+        self.segments: list = []
+        self.total = 0.0
+        self.speed = 0.0
+
+    def add(self, *segments):
+        self.segments.extend(segments)
+        self.total += sum(seg.duration_s for seg in segments)
+
+    def change_speed(self, to_mps: float, accel_mps2: float):
+        if to_mps > self.speed:
+            self.add(Accelerate((to_mps - self.speed) / accel_mps2, to_mps))
+        elif to_mps < self.speed:
+            self.add(Decelerate((self.speed - to_mps) / accel_mps2, to_mps))
+        self.speed = to_mps
+
+
 def random_drive(rng: np.random.Generator, duration_s: float, style: str = "urban",
                  lat0_deg: float = 52.5096, lon0_deg: float = 13.3760, h0_m: float = 34.0,
                  heading0_deg: float | None = None) -> Motion:
@@ -919,28 +944,14 @@ def random_drive(rng: np.random.Generator, duration_s: float, style: str = "urba
     U = lambda lo, hi: float(rng.uniform(lo, hi))  # noqa: E731
     sign = lambda: 1.0 if rng.random() < 0.5 else -1.0  # noqa: E731
     heading = U(0.0, 360.0) if heading0_deg is None else heading0_deg
-    segs: list = []
-    total = 0.0
-    v = 0.0
-
-    def add(*new):
-        nonlocal total
-        segs.extend(new)
-        total += sum(s.duration_s for s in new)
-
-    def change_speed(vt, acc):
-        nonlocal v
-        if vt > v:
-            add(Accelerate((vt - v) / acc, vt))
-        elif vt < v:
-            add(Decelerate((v - vt) / acc, vt))
-        v = vt
+    plan = SegmentPlan()
+    add, change_speed = plan.add, plan.change_speed
 
     add(Static(U(5.0, 10.0), True))
 
     if style == "urban":
-        while total < duration_s:
-            if v == 0.0:
+        while plan.total < duration_s:
+            if plan.speed == 0.0:
                 if rng.random() < 0.15:              # slow creep toward the stop line, then stop again
                     change_speed(U(0.05, 0.3), U(0.1, 0.3))
                     add(Cruise(U(2.0, 6.0)))
@@ -960,7 +971,7 @@ def random_drive(rng: np.random.Generator, duration_s: float, style: str = "urba
                 change_speed(U(8.0, 15.0), U(1.0, 2.5))
     elif style == "highway":
         change_speed(U(25.0, 33.0), U(1.5, 3.0))         # on-ramp
-        while total < duration_s:
+        while plan.total < duration_s:
             add(Cruise(U(20.0, 120.0)))
             r = rng.random()
             if r < 0.5:                                  # lane change: S-manoeuvre
@@ -972,7 +983,7 @@ def random_drive(rng: np.random.Generator, duration_s: float, style: str = "urba
                 add(Turn(sign() * U(5.0, 30.0), U(0.5, 2.0)))
     else:  # open
         change_speed(U(10.0, 25.0), U(1.0, 2.5))
-        while total < duration_s:
+        while plan.total < duration_s:
             add(Cruise(U(10.0, 60.0)))
             r = rng.random()
             if r < 0.35:
@@ -983,4 +994,4 @@ def random_drive(rng: np.random.Generator, duration_s: float, style: str = "urba
                 add(Climb(0.0, tr2 + U(5.0, 20.0), tr2))
             else:
                 change_speed(U(10.0, 25.0), U(0.5, 2.0))
-    return Motion(lat0_deg, lon0_deg, h0_m, heading, 0.0, tuple(segs))
+    return Motion(lat0_deg, lon0_deg, h0_m, heading, 0.0, tuple(plan.segments))
