@@ -138,9 +138,15 @@ def _finite_on(name, a, rows):
 
 
 def _finish(dz, H, R, rows, dtype):
-    """Neutralize the rows of inactive batch rows and cast: (dz, H, R, row_mask)."""
-    m = dz.shape[1]
-    row_mask = np.repeat(rows[:, None], m, axis=1)
+    """Neutralize the rows of inactive batch rows (``rows`` (B,) bool) and cast: (dz, H, R, row_mask)."""
+    return _neutralize(dz, H, R, np.repeat(rows[:, None], dz.shape[1], axis=1), dtype)
+
+
+def _neutralize(dz, H, R, row_mask, dtype):
+    """Masked measurement rows (``row_mask`` (B, m) False) -> ``dz = 0``, ``H = 0``, variance 1; cast to dtype.
+
+    ``R`` holds (B, m) variances. Returns (dz, H, R, row_mask).
+    """
     with np.errstate(invalid="ignore"):
         dz = np.where(row_mask, dz, 0.0).astype(dtype)
         H = np.where(row_mask[..., None], H, 0.0).astype(dtype)
@@ -175,6 +181,20 @@ def body_velocity_jacobian(v_e, C_eb):
 # --------------------------------------------------------------------------------------
 # zero-velocity update
 # --------------------------------------------------------------------------------------
+
+def _body_velocity_rows(v, C, axes):
+    """Body-frame velocity components ``axes`` of the estimate and their H rows (VEL and ATT columns).
+
+    Returns ``v_b[:, axes]`` (B, k) and H (B, k, 17) from :func:`body_velocity_jacobian`; rows whose
+    inputs are not finite (inactive rows may hold NaN) give NaN here and are neutralized by :func:`_finish`.
+    """
+    with np.errstate(invalid="ignore"):
+        v_b, H_vel, H_att = body_velocity_jacobian(v, C)
+    H = np.zeros((v.shape[0], len(axes), N_STATES))
+    H[:, :, VEL] = H_vel[:, axes]
+    H[:, :, ATT] = H_att[:, axes]
+    return v_b[:, axes], H
+
 def zupt(v_e, C_eb, sigma_mps, active, *, frame="ecef", dtype=np.float64):
     """Zero-velocity update (ZUPT) rows for a stationary vehicle.
 
@@ -220,18 +240,15 @@ def zupt(v_e, C_eb, sigma_mps, active, *, frame="ecef", dtype=np.float64):
     rows = _rows("active", active, B)
     var = _variance("sigma_mps", sigma_mps, B)
     _finite_on("v_e", v, rows)
-    H = np.zeros((B, 3, N_STATES))
     if frame == "ecef":
         dz = -v
+        H = np.zeros((B, 3, N_STATES))
         H[:, :, VEL] = np.eye(3)
     else:
         C = _array("C_eb", C_eb, (3, 3), B)
         _finite_on("C_eb", C, rows)
-        with np.errstate(invalid="ignore"):
-            v_b, H_vel, H_att = body_velocity_jacobian(v, C)
+        v_b, H = _body_velocity_rows(v, C, [0, 1, 2])
         dz = -v_b
-        H[:, :, VEL] = H_vel
-        H[:, :, ATT] = H_att
     return _finish(dz, H, np.repeat(var[:, None], 3, 1), rows, dtype)
 
 
@@ -381,12 +398,8 @@ def nhc(v_e, C_eb, sigma_lat_mps, sigma_vert_mps, active=None, *, dtype=np.float
                     _variance("sigma_vert_mps", sigma_vert_mps, B)], 1)
     _finite_on("v_e", v, rows)
     _finite_on("C_eb", C, rows)
-    with np.errstate(invalid="ignore"):
-        v_b, H_vel, H_att = body_velocity_jacobian(v, C)
-    H = np.zeros((B, 2, N_STATES))
-    H[:, :, VEL] = H_vel[:, 1:3]
-    H[:, :, ATT] = H_att[:, 1:3]
-    return _finish(-v_b[:, 1:3], H, var, rows, dtype)
+    v_b, H = _body_velocity_rows(v, C, [1, 2])
+    return _finish(-v_b, H, var, rows, dtype)
 
 
 def odometer(v_e, C_eb, speed_mps, sigma_mps, mask, *, dtype=np.float64):
@@ -433,12 +446,8 @@ def odometer(v_e, C_eb, speed_mps, sigma_mps, mask, *, dtype=np.float64):
     var = _variance("sigma_mps", sigma_mps, B)
     for name, a in (("v_e", v), ("C_eb", C), ("speed_mps", s)):
         _finite_on(name, a, rows)
-    with np.errstate(invalid="ignore"):
-        v_b, H_vel, H_att = body_velocity_jacobian(v, C)
-    H = np.zeros((B, 1, N_STATES))
-    H[:, 0, VEL] = H_vel[:, 0]
-    H[:, 0, ATT] = H_att[:, 0]
-    return _finish((s - v_b[:, 0])[:, None], H, var[:, None], rows, dtype)
+    v_b, H = _body_velocity_rows(v, C, [0])
+    return _finish(s[:, None] - v_b, H, var[:, None], rows, dtype)
 
 
 # --------------------------------------------------------------------------------------
@@ -501,21 +510,21 @@ def stack_measurements(*blocks, dtype=None):
     dtype = check_dtype(dtype)
 
     mask = np.concatenate([p[3] for p in parts], 1)
+    dz_all = np.concatenate([p[0] for p in parts], 1)
+    H_all = np.concatenate([p[1] for p in parts], 1)
+    if all(p[2].ndim == 2 for p in parts):
+        return _neutralize(dz_all, H_all, np.concatenate([p[2] for p in parts], 1), mask, dtype)
+    # a full covariance somewhere: block-diagonal R, masked rows/columns -> identity
+    dz, H, _, _ = _neutralize(dz_all, H_all, np.ones(mask.shape), mask, dtype)
+    m = mask.shape[1]
+    R = np.zeros((B0, m, m))
+    j = 0
+    for dzi, _, Ri, _ in parts:
+        mi = dzi.shape[1]
+        R[:, j:j + mi, j:j + mi] = Ri if Ri.ndim == 3 else Ri[:, :, None] * np.eye(mi)
+        j += mi
     with np.errstate(invalid="ignore"):
-        dz = np.where(mask, np.concatenate([p[0] for p in parts], 1), 0.0).astype(dtype)
-        H = np.where(mask[..., None], np.concatenate([p[1] for p in parts], 1), 0.0).astype(dtype)
-        if all(p[2].ndim == 2 for p in parts):
-            R = np.where(mask, np.concatenate([p[2] for p in parts], 1), 1.0).astype(dtype)
-        else:
-            m = mask.shape[1]
-            R = np.zeros((B0, m, m), dtype)
-            j = 0
-            for dzi, _, Ri, _ in parts:
-                mi = dzi.shape[1]
-                R[:, j:j + mi, j:j + mi] = Ri if Ri.ndim == 3 else Ri[:, :, None] * np.eye(mi)
-                j += mi
-            keep = mask[:, :, None] & mask[:, None, :]
-            R = np.where(keep, R, 0.0).astype(dtype)
-            idx = np.arange(m)
-            R[:, idx, idx] = np.where(mask, R[:, idx, idx], 1.0)
+        R = np.where(mask[:, :, None] & mask[:, None, :], R, 0.0).astype(dtype)
+    idx = np.arange(m)
+    R[:, idx, idx] = np.where(mask, R[:, idx, idx], 1.0)
     return dz, H, R, mask

@@ -59,21 +59,9 @@ class InnovationTraces:
 def innovation_traces(dz, H, prior, Q, R, mask) -> InnovationTraces:
     """Innovation energy and the traces of the predicted innovation covariance (seed 003 eqs 12, 21).
 
-    Compiled (:func:`_traces_kernel`, structural zeros of H skipped); same parameters and returns as
-    :func:`innovation_traces_reference` (agreement test).
-
-    Parameters
-    ----------
-    dz : (B, m) innovations ``z - H x_pred`` (masked rows 0).
-    H : (B, m, n) measurement matrix (masked rows 0).
-    prior : (B, n, n) ``Phi P Phi^T``, the propagated covariance before process noise.
-    Q : (B, n, n) process noise of the epoch, or None (no transition: ``tr(H Q H^T) = 0``).
-    R : (B, m, m) measurement covariance (masked rows identity).
-    mask : (B, m) bool used rows.
-
-    Returns
-    -------
-    InnovationTraces
+    Compiled (:func:`_traces_kernel`, structural zeros of H skipped); the parameters, returns and
+    equations are documented on its numpy specification :func:`innovation_traces_reference` (agreement
+    test in tests/nav_filters/test_compiled_update.py).
     """
     B = dz.shape[0]
     c = np.ascontiguousarray
