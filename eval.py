@@ -86,6 +86,8 @@ def main(argv=None) -> dict:
         fail("--episodes must be >= 1")
     if args.batch_size < 1:
         fail("--batch-size must be >= 1")
+    if args.seed < 0 or (args.seed + 1) * 1_000_003 >= 2**30:
+        fail("--seed must be in 0..1072 (episode seeds stay below the environments' training seeds, 2**30)")
     out = Path(args.out)
     if args.experiment:
         return run_experiment_cli(args, out)

@@ -28,6 +28,16 @@ from .config import EnvConfig, ParamSpec
 from .episodes import navigator_for
 from .worlds import REPLAY_SCENARIOS, make_world
 
+#: World seeds the environments draw at reset, ``[low, high)``: kept apart from the small seeds that
+#: eval.py (``seed * 1_000_003 + k`` < 2**30) and ``train.py tune`` use, so that episodes seen in training
+#: can never be evaluation episodes.
+TRAINING_WORLD_SEEDS = (2**30, 2**31 - 1)
+
+
+def draw_world_seed(rng: np.random.Generator) -> int:
+    """One training world seed from ``rng`` (in :data:`TRAINING_WORLD_SEEDS`)."""
+    return int(rng.integers(*TRAINING_WORLD_SEEDS))
+
 # --------------------------------------------------------------------------- observation layout
 OBS_FEATURES = (
     # name, low, high, description

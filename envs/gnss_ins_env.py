@@ -57,8 +57,9 @@ same data) minus the agent's. A diverged epoch gets the penalty
 ## Starting State
 
 A new world (trajectory, IMU errors, satellites, receiver errors, initial
-estimate errors) drawn from the scenario with the episode's seed; parameters at
-their defaults.
+estimate errors) drawn from the scenario with the episode's world seed; parameters at
+their defaults. ``reset(seed=s)`` seeds the generator that draws the world seeds, which lie in
+:data:`envs.core.TRAINING_WORLD_SEEDS` (>= 2**30), apart from eval.py's and ``train.py tune``'s seeds.
 
 ## Episode End
 
@@ -87,7 +88,7 @@ import numpy as np
 from gymnasium import spaces
 
 from .config import EnvConfig, ParamSpec
-from .core import TuningCore
+from .core import TuningCore, draw_world_seed
 
 SAGE_HUSA_PARAMS = (ParamSpec("b", 0.90, 0.9999, "log1m", 0.98,
                               "Sage-Husa forgetting factor; log(1 - b) linear in the action"),)
@@ -126,7 +127,7 @@ class GnssInsTuningEnv(gym.Env):
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
-        world_seed = int(self.np_random.integers(0, 2**31 - 1))
+        world_seed = draw_world_seed(self.np_random)
         obs = self.core.reset_rows(np.array([0]), [world_seed])
         self._last = None
         return obs[0], {"seed": world_seed}

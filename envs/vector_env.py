@@ -16,7 +16,7 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from .core import TuningCore
+from .core import TuningCore, draw_world_seed
 from .gnss_ins_env import MASTKF_PARAMS, SAGE_HUSA_PARAMS, STKF_PARAMS, make_config
 
 
@@ -40,7 +40,7 @@ class GnssInsTuningVectorEnv(VectorEnv):
         self._rngs = [None] * self.num_envs
 
     def _next_seeds(self, rows):
-        return [int(self._rngs[i].integers(0, 2**31 - 1)) for i in rows]
+        return [draw_world_seed(self._rngs[i]) for i in rows]
 
     def reset(self, *, seed=None, options=None):
         if seed is None:

@@ -111,6 +111,19 @@ def test_vector_rows_equal_single_envs_across_autoreset(env_id):
             np.testing.assert_array_equal(o, vec[t + 1][i])
 
 
+def test_world_seeds_are_apart_from_evaluation_seeds():
+    """Training worlds come from [2**30, 2**31): never one of eval.py's episode seeds (< 2**30)."""
+    from envs.core import TRAINING_WORLD_SEEDS
+    venv = gym.make_vec("GnssIns/SageHusa-v0", num_envs=4, vectorization_mode="vector_entry_point",
+                        episode_length_s=2.0)
+    _, info = venv.reset(seed=0)
+    env = gym.make("GnssIns/SageHusa-v0", episode_length_s=2.0)
+    seeds = [env.reset(seed=s)[1]["seed"] for s in range(20)]
+    assert list(info["seed"]) == seeds[:4]  # row i of the vector env = single env seeded i
+    assert all(TRAINING_WORLD_SEEDS[0] <= s < TRAINING_WORLD_SEEDS[1] for s in seeds)
+    assert len(set(seeds)) == len(seeds)
+
+
 def test_sb3_ppo_trains_on_the_vector_env():
     from stable_baselines3 import PPO
     from envs.sb3 import make_sb3_vec_env

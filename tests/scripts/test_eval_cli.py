@@ -56,6 +56,7 @@ def test_pairing_same_seed_same_result(tmp_path):
     (("--scenario", "mars"), "unknown scenario"),
     (("--methods", "kf,ukf"), "unknown filter method"),
     (("--episodes", "0"), "--episodes"),
+    (("--seed", "5000"), "--seed"),
 ])
 def test_cli_errors_are_one_line_exit_2(tmp_path, args, msg):
     p = run_eval(*args, "--out", str(tmp_path))
