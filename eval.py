@@ -51,6 +51,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="base seed (default 0)")
     p.add_argument("--batch-size", type=int, default=64, help="episodes run together in one batched navigator")
     p.add_argument("--dtype", choices=("float64", "float32"), default="float64", help="filter arithmetic")
+    p.add_argument("--zupt", default="none", metavar="DETECTOR",
+                   help="zero-velocity aiding for every method that names none: none (default), truth, shoe, are, "
+                        "mag, mv, mlp, lstm (per method: 'kf[zupt=lstm]')")
     p.add_argument("--out", default="results/default", help="output directory (default results/default)")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     p.add_argument("--note", default=None, metavar="PATH", help="also write a Markdown results note to PATH")
@@ -109,6 +112,11 @@ def main(argv=None) -> dict:
             methods.append(parse_method_spec(m))
         except (ValueError, FileNotFoundError) as e:
             fail(str(e))
+    from envs.zupt_source import check_zupt_choice
+    try:
+        check_zupt_choice(args.zupt, owner="--zupt")
+    except ValueError as e:
+        fail(str(e))
     ref = args.reference or specs[0]
     if ref not in specs:
         fail(f"--reference {ref!r} is not one of --methods")
@@ -119,7 +127,7 @@ def main(argv=None) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     seeds = episode_seeds(args.seed, args.episodes)
     results = {"scenarios": {}, "config": {"episodes": args.episodes, "seed": args.seed, "dtype": args.dtype,
-                                           "methods": specs, "reference": ref, "episode_seeds": seeds}}
+                                           "zupt": args.zupt, "methods": specs, "reference": ref, "episode_seeds": seeds}}
     curves, tracks = {}, {}
     for s in scenarios:
         logs = {m.label: [] for m in methods}
@@ -136,7 +144,7 @@ def main(argv=None) -> dict:
             for m in methods:
                 print(f"\r[{s}] {m.label[:40]:<40s} episodes {c0 + 1}-{c0 + len(chunk)}/{len(seeds)}"
                       f"  ({time.perf_counter() - t_start:.0f} s)", end="", flush=True, file=sys.stderr)
-                logs[m.label].append(m.run(world, dtype=args.dtype))
+                logs[m.label].append(m.run(world, dtype=args.dtype, zupt=args.zupt))
             n_done += len(chunk)
         print(f"\r[{s}] {len(methods)} methods x {n_done} episodes in {time.perf_counter() - t_start:.1f} s"
               + " " * 30, file=sys.stderr)

@@ -5,6 +5,9 @@ spec                           meaning
 =============================  ===================================================================
 ``kf``, ``svd-akf+onestep``    a filter method of DESIGN.md section 4 with its own rule and defaults
 ``sage-husa[b=0.995]``         an adaptive method with parameters fixed at the given values
+``kf[zupt=lstm]``              zero-velocity aiding by a detector (``none``, ``truth``, ``shoe``, ``are``,
+                               ``mag``, ``mv``, ``mlp``, ``lstm``); ``zupt_weights=<file>`` for own weights;
+                               combines with parameters: ``sage-husa[b=0.99,zupt=shoe]``
 ``tuned:<tuning.json>``        the optimized fixed parameter written by ``train.py tune``
 ``<algo>:<model.zip>``         a learned policy (``ppo``, ``sac``, ``td3``, ``recurrentppo``) trained by
                                ``train.py rl``; its env and env kwargs come from ``config.json`` beside it
@@ -18,6 +21,7 @@ import re
 from dataclasses import dataclass, field
 
 from envs.episodes import run_episodes
+from envs.zupt_source import check_zupt_choice
 from nav_filters.forms import parse_method
 
 from .policies import ALGOS, Sb3Policy
@@ -34,9 +38,13 @@ class FilterMethod:
     label: str
     method: str
     params: dict = field(default_factory=dict)
+    zupt: str | None = None
+    zupt_weights: str | None = None
 
-    def run(self, world, dtype="float64"):
-        return run_episodes(world, self.method, dtype=dtype, params=self.params or None)
+    def run(self, world, dtype="float64", zupt: str = "none"):
+        """Run on ``world``; ``zupt`` is the aiding used when the spec names none."""
+        return run_episodes(world, self.method, dtype=dtype, params=self.params or None,
+                            zupt=self.zupt or zupt, zupt_weights=self.zupt_weights)
 
 
 @dataclass
@@ -48,10 +56,12 @@ class PolicyMethod:
     path: str
     policy: Sb3Policy
 
-    def run(self, world, dtype="float64"):
+    def run(self, world, dtype="float64", zupt: str = "none"):
+        """Run on ``world``; ``zupt`` is the aiding used when the policy's env kwargs name none."""
         if self.policy.env_id is None:
             raise ValueError(f"{self.path}: no config.json beside the model naming its environment")
         kw = dict(self.policy.env_kwargs)
+        kw.setdefault("zupt", zupt)
         kw.update(scenario=world.scenario.name if world.scenario.name in _replay() else world.scenario,
                   episode_length_s=float(world.scenario.duration_s), dtype=dtype)
         return run_policy_episodes(self.policy.env_id, kw, self.policy, world.seeds)
@@ -80,15 +90,20 @@ def parse_method_spec(spec: str):
     if m:
         method = m.group("m")
         parse_method(method)
-        params = {}
+        params, aiding = {}, {}
         for item in filter(None, (x.strip() for x in m.group("p").split(","))):
             if "=" not in item:
                 raise ValueError(f"bad parameter {item!r} in {spec!r}: expected name=value")
-            k, v = item.split("=", 1)
+            k, v = (x.strip() for x in item.split("=", 1))
+            if k in ("zupt", "zupt_weights"):
+                aiding[k] = v
+                continue
             try:
-                params[k.strip()] = float(v)
+                params[k] = float(v)
             except ValueError:
                 raise ValueError(f"bad value {v!r} for {k!r} in {spec!r}") from None
-        return FilterMethod(spec, method, params)
+        if aiding:
+            check_zupt_choice(aiding.get("zupt", "none"), aiding.get("zupt_weights"), owner=f"{spec}: zupt")
+        return FilterMethod(spec, method, params, **aiding)
     parse_method(spec)
     return FilterMethod(spec, spec)

@@ -46,6 +46,7 @@ def run_policy_episodes(env_id: str, env_kwargs: dict, policy, seeds, progress=N
     policy.reset(B)
     nis = np.zeros((B, core.M))
     nsat = np.zeros((B, core.M), int)
+    zflag = np.zeros((B, core.M), bool)
     diverged = np.zeros(B, bool)
     t0 = time.perf_counter()
     for j in range(core.M):
@@ -53,6 +54,7 @@ def run_policy_episodes(env_id: str, env_kwargs: dict, policy, seeds, progress=N
         obs = res.obs
         nis[:, j] = res.info["nis_pr"]
         nsat[:, j] = res.info["n_sats"]
+        zflag[:, j] = res.info["zupt"]
         diverged |= res.terminated
         if progress is not None:
             progress(j + 1)
@@ -62,5 +64,5 @@ def run_policy_episodes(env_id: str, env_kwargs: dict, policy, seeds, progress=N
     t = np.asarray(core.epoch_idx, float) * core.dt
     nan = np.full((B, core.M), np.nan)
     return EpisodeLog(t=t, pos_err_ned=ned, vel_err_ned=np.full((B, core.M, 3), np.nan), nees_pv=nan, nis=nis,
-                      n_used=nsat, n_sats=nsat, gdop=nan.copy(), diverged=diverged | ~np.isfinite(ned).all((1, 2)),
+                      n_used=nsat, n_sats=nsat, gdop=nan.copy(), zupt=zflag, diverged=diverged | ~np.isfinite(ned).all((1, 2)),
                       filter_time_s=elapsed)

@@ -19,16 +19,14 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 from dataclasses import dataclass
 
 import numpy as np
 
 from .sim.scenarios import Scenario, get_scenario
+from .zupt_source import ZUPT_CHOICES, check_zupt_choice  # noqa: F401  (ZUPT_CHOICES re-exported)
 
 REWARDS = ("horizontal", "log", "3d", "advantage")
-ZUPT_CHOICES = ("none", "truth", "shoe", "are", "mag", "mv", "mlp", "lstm")
-"""Zero-velocity detector choices: none, the truth (speed < 0.05 m/s), or a detector of :mod:`nav_filters.zupt`."""
 MAPS = ("log1m", "log", "linear")
 
 
@@ -123,9 +121,7 @@ class EnvConfig:
     def __post_init__(self):
         if self.reward not in REWARDS:
             raise ValueError(f"EnvConfig.reward must be one of {REWARDS}, got {self.reward!r}")
-        if self.zupt not in ZUPT_CHOICES:
-            raise ValueError(f"EnvConfig.zupt must be one of {ZUPT_CHOICES}, got {self.zupt!r}")
-        self._check_zupt_weights()
+        check_zupt_choice(self.zupt, self.zupt_weights, owner="EnvConfig.zupt")
         if not (isinstance(self.history, int) and self.history >= 1):
             raise ValueError(f"EnvConfig.history must be an int >= 1, got {self.history!r}")
         if self.dtype not in ("float64", "float32"):
@@ -137,19 +133,6 @@ class EnvConfig:
         if not isinstance(self.method, str):
             raise ValueError(f"EnvConfig.method must be a string, got {self.method!r}")
         self.resolve_scenario()  # validates scenario, imu_grade, gnss_rate_hz
-
-    def _check_zupt_weights(self):
-        if self.zupt_weights is not None and self.zupt not in ("mlp", "lstm"):
-            raise ValueError(f"EnvConfig.zupt_weights is only for zupt='mlp' or 'lstm', not {self.zupt!r}")
-        if self.zupt in ("mlp", "lstm"):
-            from nav_filters.zupt import default_weights_path
-            if self.zupt_weights is not None and not isinstance(self.zupt_weights, (str, os.PathLike)):
-                raise ValueError(f"EnvConfig.zupt_weights must be a path, got {self.zupt_weights!r}")
-            path = default_weights_path(self.zupt) if self.zupt_weights is None else self.zupt_weights
-            if not os.path.isfile(path):
-                raise ValueError(f"EnvConfig.zupt_weights: weights file {str(path)!r} of the {self.zupt!r} detector "
-                                 "not found (train one: `python train.py zupt --model "
-                                 f"{self.zupt} --seed 0 --out runs/DIR`)")
 
     def resolve_scenario(self) -> Scenario:
         """The scenario with this config's overrides applied."""

@@ -21,12 +21,12 @@ import numba as nb
 import numpy as np
 
 from earth import C_en, ecef_to_geodetic
-from nav_filters.zupt import ZuptAidingConfig, make_detector, stationary_block
 from nav_filters.forms import parse_method
 
 from .config import EnvConfig, ParamSpec
 from .episodes import navigator_for
 from .worlds import REPLAY_SCENARIOS, make_world
+from .zupt_source import STILL_SPEED_MPS, ZuptSource  # noqa: F401  (STILL_SPEED_MPS re-exported)
 
 #: World seeds the environments draw at reset, ``[low, high)``: kept apart from the small seeds that
 #: eval.py (``seed * 1_000_003 + k`` < 2**30) and ``train.py tune`` use, so that episodes seen in training
@@ -58,9 +58,6 @@ OBS_FEATURES = (
 """Per-frame observation features after the parameter values (all float32, clipped to [low, high])."""
 
 EMA_ALPHA = 0.1
-STILL_SPEED_MPS = 0.05
-"""True speed below which the ``zupt='truth'`` option declares the vehicle stationary [m/s]."""
-ZUPT_SIGMA_MPS = 0.02
 LOG_REWARD_OFFSET_M = 0.1
 
 
@@ -164,11 +161,9 @@ class TuningCore:
         self.nav = None
         self.ref = None
         self.seeds = [None] * self.B
-        # zero-velocity detector on the IMU samples of every epoch (EnvConfig.zupt; none for 'none' / 'truth')
-        self._zdet = None if config.zupt in ("none", "truth") else \
-            make_detector(config.zupt, self.scenario.imu_rate_hz, config.zupt_weights)
+        # zero-velocity decisions on the IMU samples of every epoch (EnvConfig.zupt)
+        self._zupt = ZuptSource(config.zupt, self.scenario.imu_rate_hz, config.zupt_weights)
         self._zflags = None
-        self._zaid = ZuptAidingConfig(zupt_sigma_mps=ZUPT_SIGMA_MPS)
 
     # ------------------------------------------------------------------ reset
     def _make_nav(self, world, method):
@@ -210,8 +205,7 @@ class TuningCore:
             if ref is not None:
                 self.ref.replace_rows(rows, ref)
         self._store_world(rows, world)
-        if self._zdet is not None:  # new streams on the reset rows
-            self._zdet.reset() if rows.size == self.B else self._zdet.reset_rows(rows)
+        self._zupt.reset(None if rows.size == self.B else rows)  # new streams on the reset rows
         for i, s in zip(rows, seeds):
             self.seeds[i] = s
         self.t[rows] = 0
@@ -384,11 +378,10 @@ class TuningCore:
              self.prr_sigma[rows, jj] if rate else None, self.gmask[rows, jj])
         zflag = np.zeros(B, bool)
         extra = None
-        if self.config.zupt != "none":
+        if self._zupt.enabled:
             if nav is self.nav:  # the detector runs once per step; a reference navigator reuses its decisions
-                self._zflags = self.truth_still_n[sel] if self._zdet is None else \
-                    self._zdet.process(self.f[sel], self.w[sel]).stationary
-            extra, zflag = stationary_block(nav, self.w[sel], self._zflags, self.dt, self._zaid)
+                self._zflags = self._zupt.decide(self.f[sel], self.w[sel], self.truth_still_n[sel])
+            extra, zflag = self._zupt.block(nav, self.w[sel], self._zflags, self.dt)
         res, gdop = nav.update_gnss(*g, extra=extra)
         err = nav.r - self.truth_r[rows, jj]
         ned = (self.truth_Cne[rows, jj] @ err[..., None])[..., 0]

@@ -19,6 +19,7 @@ from nav_filters.error_model import BA, BG, CLK, DRIFT, N_STATES, POS, VEL, ATT,
 from nav_filters.navigator import Navigator, NavigatorConfig
 
 from .sim.world import World
+from .zupt_source import STILL_SPEED_MPS, ZuptSource
 
 
 def process_noise_for(world: World) -> ProcessNoise:
@@ -76,6 +77,7 @@ class EpisodeLog:
     nees_pv : (B, M) NEES of the 6 position/velocity states after the update.
     nis : (B, M) NIS of the update; n_used : (B, M) measurement rows used.
     n_sats : (B, M) satellites used; gdop : (B, M).
+    zupt : (B, M) bool, the zero-velocity constraints were applied at the epoch.
     diverged : (B,) bool.
     filter_time_s : wall time spent in the navigator (all B rows).
     """
@@ -88,6 +90,7 @@ class EpisodeLog:
     n_used: np.ndarray
     n_sats: np.ndarray
     gdop: np.ndarray
+    zupt: np.ndarray
     diverged: np.ndarray
     filter_time_s: float
 
@@ -103,7 +106,7 @@ class EpisodeLog:
 
 
 def run_episodes(world: World, method: str = "kf", dtype="float64", progress=None, params: dict | None = None,
-                 **config) -> EpisodeLog:
+                 zupt: str = "none", zupt_weights=None, **config) -> EpisodeLog:
     """Run the navigator over every IMU sample and GNSS epoch of ``world``.
 
     Parameters
@@ -114,6 +117,8 @@ def run_episodes(world: World, method: str = "kf", dtype="float64", progress=Non
     progress : optional callable ``progress(n_epochs_done)`` called after each epoch.
     params : fixed parameters of an adaptive method, ``{name: scalar or (B,) array}`` (e.g. ``{"b": 0.995}``),
         set once before the first epoch (``ValueError`` for a method without parameters).
+    zupt : zero-velocity aiding, a choice of :data:`envs.zupt_source.ZUPT_CHOICES` (``'none'``, ``'truth'``,
+        a classical or learned detector); ``zupt_weights``: weights file of ``'mlp'`` / ``'lstm'``.
     **config : further :class:`NavigatorConfig` fields.
     """
     nav = navigator_for(world, method, dtype, **config)
@@ -122,7 +127,9 @@ def run_episodes(world: World, method: str = "kf", dtype="float64", progress=Non
             raise ValueError(f"method {method!r} has no parameters to set ({sorted(params)})")
         nav.form.set_params(**{k: np.broadcast_to(np.asarray(v, float), (world.batch_size,)).copy()
                                for k, v in params.items()})
+    source = ZuptSource(zupt, world.scenario.imu_rate_hz, zupt_weights)
     imu, gnss, truth = world.imu, world.gnss, world.truth
+    still = truth.stationary(STILL_SPEED_MPS) if zupt == "truth" else None
     ep = world.epoch_idx
     B, M = world.batch_size, len(ep)
     dt = 1.0 / world.scenario.imu_rate_hz
@@ -133,18 +140,24 @@ def run_episodes(world: World, method: str = "kf", dtype="float64", progress=Non
     n_used = np.zeros((B, M), int)
     n_sats = np.zeros((B, M), int)
     gdop = np.zeros((B, M))
+    zflag = np.zeros((B, M), bool)
     f_all, w_all = imu.f_b, imu.w_b
     pv = np.r_[np.arange(VEL.start, VEL.stop), np.arange(POS.start, POS.stop)]
     t0 = time.perf_counter()
     k = 0
     for j in range(M):
+        extra = None
         if ep[j] > k:
-            nav.propagate_epoch(f_all[:, k + 1:ep[j] + 1], w_all[:, k + 1:ep[j] + 1], dt)
+            sl = slice(k + 1, ep[j] + 1)
+            nav.propagate_epoch(f_all[:, sl], w_all[:, sl], dt)
             k = ep[j]
+            if source.enabled:
+                decisions = source.decide(f_all[:, sl], w_all[:, sl], None if still is None else still[:, sl])
+                extra, zflag[:, j] = source.block(nav, w_all[:, sl], decisions, dt)
         prr = None if gnss.prr is None else gnss.prr[:, j]  # recorded data may have no Doppler
         prr_sigma = None if gnss.prr_sigma is None else gnss.prr_sigma[:, j]
         res, g = nav.update_gnss(gnss.sat_pos[:, j], gnss.sat_vel[:, j], gnss.pr[:, j], prr,
-                                 gnss.pr_sigma[:, j], prr_sigma, gnss.mask[:, j])
+                                 gnss.pr_sigma[:, j], prr_sigma, gnss.mask[:, j], extra=extra)
         err_e[:, j] = nav.r - truth.r_e[:, k]
         verr_e[:, j] = nav.v - truth.v_e[:, k]
         e = np.concatenate([-verr_e[:, j], -err_e[:, j]], 1)
@@ -167,4 +180,4 @@ def run_episodes(world: World, method: str = "kf", dtype="float64", progress=Non
     vel_ned = (Cne @ verr_e[..., None])[..., 0]
     div = nav.diverged | ~np.isfinite(pos_ned).all((1, 2))
     return EpisodeLog(t=truth.t[ep], pos_err_ned=pos_ned, vel_err_ned=vel_ned, nees_pv=nees, nis=nis,
-                      n_used=n_used, n_sats=n_sats, gdop=gdop, diverged=div, filter_time_s=elapsed)
+                      n_used=n_used, n_sats=n_sats, gdop=gdop, zupt=zflag, diverged=div, filter_time_s=elapsed)

@@ -48,6 +48,7 @@ def summarize(log: EpisodeLog) -> dict:
         "rmse_h_ci95_m": list(bootstrap_rmse_ci(h ** 2)),
         "filter_time_per_epoch_s": float(log.filter_time_s / max(n_epochs, 1)),
         "diverged": int(log.diverged.sum()),
+        "zupt_epochs_frac": float(np.mean(log.zupt)) if log.zupt.size else 0.0,
     }
     nees = log.nees_pv[ok]
     out["mean_nees_pv"] = float(np.nanmean(nees)) if np.isfinite(nees).any() else float("nan")

@@ -57,8 +57,20 @@ def test_pairing_same_seed_same_result(tmp_path):
     (("--methods", "kf,ukf"), "unknown filter method"),
     (("--episodes", "0"), "--episodes"),
     (("--seed", "5000"), "--seed"),
+    (("--zupt", "glrt"), "--zupt must be one of"),
+    (("--methods", "kf,kf[zupt=glrt]"), "kf[zupt=glrt]: zupt must be one of"),
+    (("--methods", "kf[zupt=lstm,zupt_weights=/nonexistent/w.pt]"), "weights file '/nonexistent/w.pt'"),
 ])
 def test_cli_errors_are_one_line_exit_2(tmp_path, args, msg):
     p = run_eval(*args, "--out", str(tmp_path))
     assert p.returncode == 2
     assert msg in p.stderr and "Traceback" not in p.stderr
+
+
+def test_method_specs_with_zupt_aiding():
+    from agents.methods import parse_method_spec
+    m = parse_method_spec("sage-husa[b=0.99,zupt=shoe]")
+    assert (m.method, m.params, m.zupt, m.zupt_weights) == ("sage-husa", {"b": 0.99}, "shoe", None)
+    m = parse_method_spec("kf[zupt=truth]")
+    assert (m.method, m.params, m.zupt) == ("kf", {}, "truth")
+    assert parse_method_spec("kf").zupt is None  # eval.py's --zupt applies
