@@ -83,6 +83,26 @@ def _split_methods(text: str) -> list[str]:
     return out
 
 
+def _expand(specs: list[str], scenario: str, ref: str) -> list:
+    """[(spec, [methods])] of ``specs`` on ``scenario`` (``{scenario}`` and glob patterns expanded); exits
+    with a one-line error for a bad spec, a reference that is not one method, or a label given twice."""
+    from agents.methods import expand_method_spec
+    plan, seen = [], set()
+    for spec in specs:
+        try:
+            ms = expand_method_spec(spec, scenario)
+        except (ValueError, FileNotFoundError) as e:
+            fail(str(e))
+        if spec == ref and len(ms) != 1:
+            fail(f"--reference {ref!r} must be one method; it matches {len(ms)} files on {scenario!r}")
+        for m in ms:
+            if m.label in seen:
+                fail(f"method {m.label!r} is given twice in --methods")
+            seen.add(m.label)
+        plan.append((spec, ms))
+    return plan
+
+
 def main(argv=None) -> dict:
     args = build_parser().parse_args(argv)
     if args.episodes is not None and args.episodes < 1:
@@ -96,7 +116,6 @@ def main(argv=None) -> dict:
         return run_experiment_cli(args, out)
     if args.episodes is None:
         args.episodes = 8
-    from agents.methods import parse_method_spec
     from envs.worlds import make_world, scenario_names
 
     scenarios = args.scenario or list(DEFAULT_SCENARIOS)
@@ -106,12 +125,6 @@ def main(argv=None) -> dict:
     for s in scenarios:
         if s not in scenario_names():
             fail(f"unknown scenario {s!r}; known: {', '.join(scenario_names())}")
-    methods = []
-    for m in specs:
-        try:
-            methods.append(parse_method_spec(m))
-        except (ValueError, FileNotFoundError) as e:
-            fail(str(e))
     from envs.zupt_source import check_zupt_choice
     try:
         check_zupt_choice(args.zupt, owner="--zupt")
@@ -120,16 +133,21 @@ def main(argv=None) -> dict:
     ref = args.reference or specs[0]
     if ref not in specs:
         fail(f"--reference {ref!r} is not one of --methods")
+    plan = {s: _expand(specs, s, ref) for s in scenarios}  # scenario -> [(spec, [methods])]
 
-    from envs.episodes import EpisodeLog  # noqa: F401
-    from envs.metrics import paired_difference, summarize
+    from envs.episodes import concat_logs
+    from envs.metrics import paired_difference, summarize, summarize_seeds
 
     out.mkdir(parents=True, exist_ok=True)
     seeds = episode_seeds(args.seed, args.episodes)
-    results = {"scenarios": {}, "config": {"episodes": args.episodes, "seed": args.seed, "dtype": args.dtype,
-                                           "zupt": args.zupt, "methods": specs, "reference": ref, "episode_seeds": seeds}}
+    results = {"scenarios": {}, "seed_groups": {},
+               "config": {"episodes": args.episodes, "seed": args.seed, "dtype": args.dtype, "zupt": args.zupt,
+                          "methods": specs, "reference": ref, "episode_seeds": seeds}}
     curves, tracks = {}, {}
     for s in scenarios:
+        methods = [m for _, ms in plan[s] for m in ms]
+        ref_label = dict(plan[s])[ref][0].label
+        results["config"].setdefault("reference_labels", {})[s] = ref_label
         logs = {m.label: [] for m in methods}
         t_start = time.perf_counter()
         n_done = 0
@@ -142,23 +160,23 @@ def main(argv=None) -> dict:
             if c0 == 0:
                 tracks[s] = _truth_track(world)
             for m in methods:
-                print(f"\r[{s}] {m.label[:40]:<40s} episodes {c0 + 1}-{c0 + len(chunk)}/{len(seeds)}"
+                print(f"\r[{s}] {m.label[-40:]:<40s} episodes {c0 + 1}-{c0 + len(chunk)}/{len(seeds)}"
                       f"  ({time.perf_counter() - t_start:.0f} s)", end="", flush=True, file=sys.stderr)
                 logs[m.label].append(m.run(world, dtype=args.dtype, zupt=args.zupt))
             n_done += len(chunk)
         print(f"\r[{s}] {len(methods)} methods x {n_done} episodes in {time.perf_counter() - t_start:.1f} s"
               + " " * 30, file=sys.stderr)
-        results["scenarios"][s] = {}
-        curves[s] = {}
-        for m in methods:
-            log = _concat(logs[m.label])
-            r = summarize(log)
-            curves[s][m.label] = log
-            results["scenarios"][s][m.label] = r
-        for m in methods:
-            if m.label != ref:
-                results["scenarios"][s][m.label]["paired_vs_reference"] = paired_difference(
-                    curves[s][m.label], curves[s][ref])
+        curves[s] = {m.label: concat_logs(logs[m.label]) for m in methods}
+        results["scenarios"][s] = {label: summarize(log) for label, log in curves[s].items()}
+        for label, log in curves[s].items():
+            if label != ref_label:
+                results["scenarios"][s][label]["paired_vs_reference"] = paired_difference(log, curves[s][ref_label])
+        groups = {spec: ms for spec, ms in plan[s] if len(ms) > 1}
+        if groups:
+            results["seed_groups"][s] = {
+                spec: {"members": [m.label for m in ms],
+                       **summarize_seeds([curves[s][m.label] for m in ms], curves[s][ref_label])}
+                for spec, ms in groups.items()}
     (out / "results.json").write_text(json.dumps(results, indent=2))
     table = format_table(results)
     print(table)
@@ -200,22 +218,6 @@ def _truth_track(world):
     return d[:, :2]
 
 
-def _concat(logs):
-    from envs.episodes import EpisodeLog
-    if len(logs) == 1:
-        return logs[0]
-    kw = {}
-    for f in EpisodeLog.__dataclass_fields__:
-        vals = [getattr(l, f) for l in logs]
-        if f == "t":
-            kw[f] = vals[0]
-        elif f == "filter_time_s":
-            kw[f] = float(sum(vals))
-        else:
-            kw[f] = np.concatenate(vals, 0)
-    return EpisodeLog(**kw)
-
-
 COLUMNS = [("rmse_h_m", "RMSE h [m]"), ("rmse_h_ci95_m", "95% CI [m]"), ("rmse_3d_m", "RMSE 3D [m]"),
            ("p95_h_m", "p95 h [m]"), ("max_h_m", "max h [m]"), ("filter_time_per_epoch_s", "ms/epoch"),
            ("diverged", "div")]
@@ -239,14 +241,22 @@ def _fmt_pair(r):
     return f"{p['diff_rmse_h_m']:+.2f} [{lo:+.2f}, {hi:+.2f}] ({100 * p['rel_diff']:+.1f}%)"
 
 
+def _group_rows(results: dict, s: str):
+    """(label, metrics) of the pooled rows of the seed groups of scenario ``s``."""
+    for spec, g in results.get("seed_groups", {}).get(s, {}).items():
+        lo, hi = min(g["rmse_h_per_seed_m"]), max(g["rmse_h_per_seed_m"])
+        yield f"{spec} (pooled over {g['seeds']} seeds; per seed {lo:.2f}-{hi:.2f} m)", g
+
+
 def format_table(results: dict) -> str:
-    """Markdown table of every scenario x method, with the paired difference to the reference."""
+    """Markdown table of every scenario x method, with the paired difference to the reference; a method
+    given as a pattern over training seeds also gets a pooled row (:func:`envs.metrics.summarize_seeds`)."""
     head = ("| scenario | method | episodes | " + " | ".join(c[1] for c in COLUMNS)
             + f" | vs {results['config']['reference']}: dRMSE h [m] (95% CI) |")
     sep = "|" + "---|" * (4 + len(COLUMNS))
     rows = [head, sep]
     for s, per in results["scenarios"].items():
-        for m, r in per.items():
+        for m, r in list(per.items()) + list(_group_rows(results, s)):
             rows.append(f"| {s} | {m} | {r['episodes']} | " + " | ".join(_fmt(k, r[k]) for k, _ in COLUMNS)
                         + f" | {_fmt_pair(r)} |")
     return "\n".join(rows)
@@ -257,7 +267,8 @@ def write_csv(results: dict, path: Path) -> None:
     lines = ["scenario,method,episodes," + ",".join(k if k != "rmse_h_ci95_m" else "rmse_h_ci95_lo_m,rmse_h_ci95_hi_m"
                                                   for k in keys) + ",diff_rmse_h_m,diff_lo_m,diff_hi_m"]
     for s, per in results["scenarios"].items():
-        for m, r in per.items():
+        pooled = [(f"{spec} (pooled)", g) for spec, g in results.get("seed_groups", {}).get(s, {}).items()]
+        for m, r in list(per.items()) + pooled:
             vals = []
             for k in keys:
                 vals += [f"{r[k][0]:.6g}", f"{r[k][1]:.6g}"] if k == "rmse_h_ci95_m" else [f"{r[k]:.6g}"]
@@ -268,6 +279,55 @@ def write_csv(results: dict, path: Path) -> None:
     path.write_text("\n".join(lines) + "\n")
 
 
+def _verdict(p: dict) -> str:
+    lo, hi = p["diff_rmse_h_ci95_m"]
+    if hi < 0:
+        return "lower (the 95% CI excludes 0)"
+    if lo > 0:
+        return "higher (the 95% CI excludes 0)"
+    return "no significant difference (the 95% CI includes 0)"
+
+
+def reading(results: dict, goal_rel: float = -0.20) -> list[str]:
+    """Sentences computed from the results: each method against the reference, and each tuned parameter's
+    search (from its tuning file): how much the whole parameter range moved the training RMSE."""
+    c = results["config"]
+    out = []
+    for s in results["scenarios"]:
+        rows = list(_group_rows(results, s)) or [
+            (m, r) for m, r in results["scenarios"][s].items() if "paired_vs_reference" in r]
+        for m, r in rows:
+            p = r["paired_vs_reference"]
+            lo, hi = p["diff_rmse_h_ci95_m"]
+            ref_rmse = results["scenarios"][s].get(_ref_label(results, s), {}).get("rmse_h_m", float("nan"))
+            out.append(f"- `{s}`: {m}: horizontal RMSE {100 * p['rel_diff']:+.1f}% against `{c['reference']}` "
+                       f"({p['diff_rmse_h_m']:+.2f} m, 95% CI [{lo:+.2f}, {hi:+.2f}] m; reference {ref_rmse:.2f} m): "
+                       f"{_verdict(p)}; goal {100 * goal_rel:+.0f}% {'met' if p['rel_diff'] <= goal_rel else 'not met'}.")
+    for spec in c["methods"]:
+        if not spec.startswith("tuned:"):
+            continue
+        for s in results["scenarios"]:
+            path = spec.split(":", 1)[1].replace("{scenario}", s)
+            try:
+                t = json.loads(Path(path).read_text())
+            except (OSError, ValueError):
+                continue
+            r = [x for x in t.get("rmse_h_m", []) if x == x]
+            if not r:
+                continue
+            grid = t["grid"]
+            edge = " (at the edge of the searched range)" if t["best"] in (grid[0], grid[-1]) else ""
+            out.append(f"- `{s}`: the optimized fixed {t['param']} = {t['best']:.4g}{edge}; over the searched "
+                       f"{t['param']} in [{grid[0]:.4g}, {grid[-1]:.4g}] the training RMSE spans "
+                       f"{min(r):.3f}-{max(r):.3f} m ({100 * (max(r) / min(r) - 1):.1f}% above the best at worst).")
+    return out
+
+
+def _ref_label(results: dict, s: str) -> str:
+    c = results["config"]
+    return c.get("reference_labels", {}).get(s, c["reference"])
+
+
 def write_note(results: dict, path: Path, out: Path, cmd: str) -> None:
     """A Markdown results note generated from results.json (never typed by hand)."""
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -275,8 +335,10 @@ def write_note(results: dict, path: Path, out: Path, cmd: str) -> None:
     lines = ["# navgym results", "",
              f"Generated by `python eval.py {cmd}` ({time.strftime('%Y-%m-%d')}); "
              f"{c['episodes']} paired episodes per scenario, seed {c['seed']}, filter arithmetic {c['dtype']}.",
-             f"Differences are paired against `{c['reference']}`: bootstrap 95% CI over episodes.", "",
-             format_table(results), "",
+             f"Differences are paired against `{c['reference']}`: bootstrap 95% CI over episodes. A method given "
+             "as a pattern over training seeds has a row per seed and a pooled row (the CI resamples episodes, "
+             "each with all its seeds).", "",
+             format_table(results), "", "## Reading", "", *reading(results), "",
              f"Plots and raw numbers: `{out}` (results.json, results.csv, *.png).", ""]
     path.write_text("\n".join(lines))
 

@@ -13,10 +13,15 @@ spec                           meaning
                                ``train.py rl``; its env and env kwargs come from ``config.json`` beside it
 =============================  ===================================================================
 
+In a file path, ``{scenario}`` stands for the scenario being evaluated (a policy and a tuned parameter
+per scenario: ``tuned:runs/{scenario}/tuning.json``) and a glob pattern expands to every matching file
+(``ppo:runs/{scenario}/ppo-s*/model.zip``: the models of several training seeds, pooled by eval.py).
+
 Every method runs on the same episode seeds, so episode k of every method sees the same world.
 """
 from __future__ import annotations
 
+import glob
 import re
 from dataclasses import dataclass, field
 
@@ -107,3 +112,29 @@ def parse_method_spec(spec: str):
         return FilterMethod(spec, method, params, **aiding)
     parse_method(spec)
     return FilterMethod(spec, spec)
+
+
+def expand_method_spec(spec: str, scenario: str) -> list:
+    """The methods of one eval.py spec on ``scenario`` (module docstring: ``{scenario}`` and glob patterns).
+
+    Labels keep ``{scenario}`` so that a row names the same method on every scenario; a pattern gives one
+    method per matching file, sorted by path. ``FileNotFoundError`` when a pattern matches nothing.
+    """
+    spec = spec.strip()
+    if ":" not in spec:
+        return [parse_method_spec(spec)]
+    kind, path = spec.split(":", 1)
+    concrete = path.replace("{scenario}", scenario)
+    if any(c in concrete for c in "*?["):
+        files = sorted(glob.glob(concrete))
+        if not files:
+            raise FileNotFoundError(f"no file matches {concrete!r} (method {spec!r})")
+    else:
+        files = [concrete]
+    out = []
+    for f in files:
+        m = parse_method_spec(f"{kind}:{f}")
+        if "{scenario}" in path:
+            m.label = f"{kind}:{f.replace(scenario, '{scenario}')}"
+        out.append(m)
+    return out

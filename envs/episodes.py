@@ -181,3 +181,19 @@ def run_episodes(world: World, method: str = "kf", dtype="float64", progress=Non
     div = nav.diverged | ~np.isfinite(pos_ned).all((1, 2))
     return EpisodeLog(t=truth.t[ep], pos_err_ned=pos_ned, vel_err_ned=vel_ned, nees_pv=nees, nis=nis,
                       n_used=n_used, n_sats=n_sats, gdop=gdop, zupt=zflag, diverged=div, filter_time_s=elapsed)
+
+
+def concat_logs(logs: list[EpisodeLog]) -> EpisodeLog:
+    """One log of the episodes of several logs of the same epochs (batch axis concatenated, times summed)."""
+    if len(logs) == 1:
+        return logs[0]
+    kw = {}
+    for f in EpisodeLog.__dataclass_fields__:
+        vals = [getattr(log, f) for log in logs]
+        if f == "t":
+            kw[f] = vals[0]
+        elif f == "filter_time_s":
+            kw[f] = float(sum(vals))
+        else:
+            kw[f] = np.concatenate(vals, 0)
+    return EpisodeLog(**kw)

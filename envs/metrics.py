@@ -70,8 +70,11 @@ def paired_difference(log: EpisodeLog, ref: EpisodeLog, n_boot: int = 2000, seed
     reference RMSE), ``episodes`` used.
     """
     ok = ~(log.diverged | ref.diverged)
-    a = (log.horizontal_error[ok] ** 2).mean(1)
-    b = (ref.horizontal_error[ok] ** 2).mean(1)
+    return _paired((log.horizontal_error[ok] ** 2).mean(1), (ref.horizontal_error[ok] ** 2).mean(1), n_boot, seed)
+
+
+def _paired(a: np.ndarray, b: np.ndarray, n_boot: int, seed: int) -> dict:
+    """Paired bootstrap of sqrt(mean a) - sqrt(mean b) over the (E,) per-episode mean squared errors."""
     E = a.size
     if E == 0:
         return {"diff_rmse_h_m": float("nan"), "diff_rmse_h_ci95_m": [float("nan")] * 2, "rel_diff": float("nan"),
@@ -81,3 +84,34 @@ def paired_difference(log: EpisodeLog, ref: EpisodeLog, n_boot: int = 2000, seed
     boot = np.sqrt(a[idx].mean(1)) - np.sqrt(b[idx].mean(1))
     return {"diff_rmse_h_m": d, "diff_rmse_h_ci95_m": [float(np.quantile(boot, 0.025)), float(np.quantile(boot, 0.975))],
             "rel_diff": d / float(np.sqrt(b.mean())), "episodes": int(E)}
+
+
+def summarize_seeds(logs: list[EpisodeLog], ref: EpisodeLog | None = None, n_boot: int = 2000,
+                    seed: int = 0) -> dict:
+    """Metrics of one learned method trained with several seeds (S logs of the same E episodes).
+
+    The error statistics pool the S x E episodes (:func:`summarize` of their concatenation); the CI and the
+    paired difference to ``ref`` resample *episodes* (each drawn episode brings its S seeds' errors), so the
+    interval covers the episode sampling with the training seeds averaged. Episodes diverged in any seed (or
+    in ``ref``) are left out of the CI and the difference; ``rmse_h_per_seed_m`` shows the spread over seeds.
+
+    Returns
+    -------
+    :func:`summarize`'s dictionary with ``seeds`` (S), ``rmse_h_per_seed_m`` (S,), the episode-bootstrap
+    ``rmse_h_ci95_m`` and, with ``ref``, ``paired_vs_reference`` as in :func:`paired_difference`.
+    """
+    from .episodes import concat_logs
+    if not logs:
+        raise ValueError("summarize_seeds needs at least one log")
+    out = summarize(concat_logs(logs))
+    out["episodes"] = int(logs[0].diverged.size)
+    out["seeds"] = len(logs)
+    out["rmse_h_per_seed_m"] = [summarize(log)["rmse_h_m"] for log in logs]
+    ok = ~np.any([log.diverged for log in logs], 0)
+    if ref is not None:
+        ok &= ~ref.diverged
+    a = np.mean([(log.horizontal_error[ok] ** 2).mean(1) for log in logs], 0) if ok.any() else np.zeros(0)
+    out["rmse_h_ci95_m"] = list(bootstrap_rmse_ci(a[:, None], n_boot=n_boot, seed=seed))
+    if ref is not None:
+        out["paired_vs_reference"] = _paired(a, (ref.horizontal_error[ok] ** 2).mean(1), n_boot, seed)
+    return out

@@ -74,3 +74,24 @@ def test_method_specs_with_zupt_aiding():
     m = parse_method_spec("kf[zupt=truth]")
     assert (m.method, m.params, m.zupt) == ("kf", {}, "truth")
     assert parse_method_spec("kf").zupt is None  # eval.py's --zupt applies
+
+
+def test_scenario_placeholder_and_seed_patterns(tmp_path):
+    """'{scenario}' picks a file per scenario; a glob gives one method per file, labelled with the placeholder."""
+    import json as _json
+    from agents.methods import expand_method_spec
+    for scen, b in (("urban", 0.95), ("open-sky", 0.99)):
+        for s in range(3):
+            d = tmp_path / scen / f"t{s}"
+            d.mkdir(parents=True)
+            (d / "tuning.json").write_text(_json.dumps({"method": "sage-husa", "param": "b", "best": b - 0.01 * s}))
+    ms = expand_method_spec(f"tuned:{tmp_path}/{{scenario}}/t*/tuning.json", "urban")
+    assert [m.params["b"] for m in ms] == pytest.approx([0.95, 0.94, 0.93])
+    assert [m.label for m in ms] == [f"tuned:{tmp_path}/{{scenario}}/t{s}/tuning.json" for s in range(3)]
+    one = expand_method_spec(f"tuned:{tmp_path}/{{scenario}}/t0/tuning.json", "open-sky")
+    assert len(one) == 1 and one[0].params["b"] == pytest.approx(0.99)
+    with pytest.raises(FileNotFoundError, match="no file matches"):
+        expand_method_spec(f"tuned:{tmp_path}/{{scenario}}/x*/tuning.json", "urban")
+    p = run_eval("--scenario", "urban", "--methods", f"kf,tuned:{tmp_path}/{{scenario}}/t*/tuning.json",
+                 "--reference", f"tuned:{tmp_path}/{{scenario}}/t*/tuning.json", "--out", str(tmp_path / "o"))
+    assert p.returncode == 2 and "must be one method" in p.stderr and "Traceback" not in p.stderr
