@@ -742,18 +742,12 @@ def train_zupt_detector(model: str, seed: int, out: Path, quick: bool = False, p
     net, lc, hist = train_learned(lc, cfg, int(seed), progress=progress)
     weights = save_weights(out / f"zupt_{model}.pt", lc, net,
                            extra={"seed": int(seed), "train_config": _jsonable(cfg.to_dict())})
-    tests = heldout_drives(cfg)
     t1 = time.perf_counter()
     tuned = tune_classical(training_drives(cfg, seed, 10 ** 3 - 1, cfg.tune_drives), cfg)
     tune_s = time.perf_counter() - t1
-    results = {}
-    learned_make = lambda r: LearnedDetector(lc, net, r)  # noqa: E731
-    for split, sets in tests.items():
-        results[split] = {model: evaluate_detector(learned_make, sets),
-                          f"{model}@max-f1": evaluate_detector(
-                              lambda r: LearnedDetector(lc.replace(threshold=hist["threshold_max_f1"]), net, r), sets)}
-        for kind, tc in tuned.items():
-            results[split][kind] = evaluate_detector(lambda r, c=tc["config"]: ClassicalDetector(c, r), sets)
+    results = _score_heldout(cfg, {
+        model: lambda r: LearnedDetector(lc, net, r),
+        f"{model}@max-f1": lambda r: LearnedDetector(lc.replace(threshold=hist["threshold_max_f1"]), net, r)}, tuned)
     metrics = {
         "model": model, "seed": int(seed), "quick": bool(quick),
         "label": {"stationary_if_true_speed_below_mps": LABEL_SPEED_MPS},
@@ -775,16 +769,51 @@ def train_zupt_detector(model: str, seed: int, out: Path, quick: bool = False, p
         "classical_tuned": {k: {"config": dataclasses.asdict(v["config"]), "threshold": v["config"].threshold,
                                 "train_f1": v["train_f1"]} for k, v in tuned.items()},
         "classical_tuning_seconds": tune_s,
-        "test": {split: {det: {**_short(r["all"]), "counts": {k: r["all"][k] for k in ("tp", "fp", "fn", "tn")},
-                               "by_grade": {g: _short(m) for g, m in r["by_grade"].items()},
-                               "by_rate": {q: _short(m) for q, m in r["by_rate"].items()},
-                               "samples_per_s": r["samples_per_s"]}
-                         for det, r in res.items()} for split, res in results.items()},
+        "test": _test_section(results),
         "wall_seconds": time.perf_counter() - t0,
     }
     metrics = _jsonable(metrics)
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
     return metrics
+
+
+def _score_heldout(cfg: ZuptTrainConfig, learned: dict, tuned: dict) -> dict:
+    """{split: {detector: evaluate_detector(...)}} on the held-out drives: the ``learned`` makers
+    (``{name: make(rate)}``) and the tuned classical detectors."""
+    results = {}
+    for split, sets in heldout_drives(cfg).items():
+        results[split] = {name: evaluate_detector(make, sets) for name, make in learned.items()}
+        for kind, tc in tuned.items():
+            results[split][kind] = evaluate_detector(lambda r, c=tc["config"]: ClassicalDetector(c, r), sets)
+    return results
+
+
+def _test_section(results: dict) -> dict:
+    return {split: {det: {**_short(r["all"]), "counts": {k: r["all"][k] for k in ("tp", "fp", "fn", "tn")},
+                          "by_grade": {g: _short(m) for g, m in r["by_grade"].items()},
+                          "by_rate": {q: _short(m) for q, m in r["by_rate"].items()},
+                          "samples_per_s": r["samples_per_s"]}
+                    for det, r in res.items()} for split, res in results.items()}
+
+
+def evaluate_shipped(seed: int = 0, config: ZuptTrainConfig | None = None) -> dict:
+    """Held-out metrics of the shipped ``mlp`` and ``lstm`` weights beside the four classical detectors tuned
+    (max F1) on training drives of ``seed``, on the same held-out drives as ``train.py zupt``; plus the
+    fraction of the static VN-310 recording each declares stationary (None without ``../shared/data``)."""
+    from nav_filters.zupt import default_weights_path, make_detector
+    cfg = config if config is not None else ZuptTrainConfig()
+    t0 = time.perf_counter()
+    tuned = tune_classical(training_drives(cfg, seed, 10 ** 3 - 1, cfg.tune_drives), cfg)
+    learned = {k: (lambda r, k=k: make_detector(k, r)) for k in ("mlp", "lstm")}
+    results = _score_heldout(cfg, learned, tuned)
+    makers = {**learned, **{k: (lambda r, c=v["config"]: ClassicalDetector(c, r)) for k, v in tuned.items()}}
+    return _jsonable({
+        "weights": {k: default_weights_path(k).name for k in learned},
+        "classical_tuned": {k: dataclasses.asdict(v["config"]) for k, v in tuned.items()},
+        "test": _test_section(results),
+        "vn310_stationary_fraction": {k: vn310_stationary_fraction(m) for k, m in makers.items()},
+        "wall_seconds": time.perf_counter() - t0,
+    })
 
 
 def format_table(metrics: dict) -> str:
@@ -808,7 +837,19 @@ if __name__ == "__main__":  # pragma: no cover - convenience; the CLI is `python
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--epochs", type=int, default=None, help="max_epochs (default: the default config's)")
+    ap.add_argument("--evaluate-shipped", action="store_true",
+                    help="instead of training: score the shipped weights and the tuned classical detectors on "
+                         "the held-out drives; writes OUT/metrics_shipped.json")
     a = ap.parse_args()
+    if a.evaluate_shipped:
+        a.out.mkdir(parents=True, exist_ok=True)
+        m = evaluate_shipped(a.seed)
+        (a.out / "metrics_shipped.json").write_text(json.dumps(m, indent=2))
+        print(format_table(m))
+        print("VN-310 static samples declared stationary: "
+              + ", ".join(f"{k} {v:.4f}" for k, v in m["vn310_stationary_fraction"].items() if v is not None))
+        print(f"wall {m['wall_seconds']:.1f} s; {a.out / 'metrics_shipped.json'}")
+        raise SystemExit(0)
     conf = None
     if a.epochs is not None:
         conf = dataclasses.replace(QUICK if a.quick else ZuptTrainConfig(), max_epochs=a.epochs)
