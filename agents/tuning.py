@@ -16,7 +16,6 @@ import numpy as np
 
 from envs.episodes import run_episodes
 from envs.gnss_ins_env import make_config
-from envs.worlds import REPLAY_SCENARIOS, make_world
 
 from .rollout import env_class
 
@@ -28,13 +27,6 @@ for k < 500000)."""
 def default_grid(spec, n: int = 13) -> np.ndarray:
     """``n`` values spanning the parameter's range, uniform in the parameter's action map."""
     return np.array([spec.to_value(a) for a in np.linspace(-1.0, 1.0, n)])
-
-
-def world_for(cfg, seeds):
-    """The world of an env config (same scenario, overrides and length as the env core) for ``seeds``."""
-    if isinstance(cfg.scenario, str) and cfg.scenario in REPLAY_SCENARIOS:
-        return make_world(cfg.scenario, seeds, imu_grade=cfg.imu_grade, duration_s=cfg.episode_length_s)
-    return make_world(cfg.resolve_scenario(), seeds)
 
 
 def tune_fixed_parameter(env_id: str, env_kwargs: dict | None = None, param: str | None = None, grid=None,
@@ -65,7 +57,7 @@ def tune_fixed_parameter(env_id: str, env_kwargs: dict | None = None, param: str
     seeds = [TRAIN_SEED_OFFSET + 1000 * seed + k for k in range(n_train)]
     G, n = grid.size, len(seeds)
     t0 = time.perf_counter()
-    world = world_for(cfg, seeds * G)
+    world = cfg.make_world(seeds * G)
     params = {s.name: np.full(G * n, s.default) for s in cls.PARAMS}
     params[param] = np.repeat(grid, n)
     log = run_episodes(world, cfg.method, dtype=cfg.dtype, params=params)

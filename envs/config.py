@@ -134,6 +134,14 @@ class EnvConfig:
             raise ValueError(f"EnvConfig.method must be a string, got {self.method!r}")
         self.resolve_scenario()  # validates scenario, imu_grade, gnss_rate_hz
 
+    def make_world(self, seeds):
+        """The world of this config for ``seeds``: the scenario with its overrides (a recording cut to the
+        episode length, its IMU synthesized at ``imu_grade``); see :func:`envs.worlds.make_world`."""
+        from .worlds import REPLAY_SCENARIOS, make_world
+        if isinstance(self.scenario, str) and self.scenario in REPLAY_SCENARIOS:
+            return make_world(self.scenario, seeds, imu_grade=self.imu_grade, duration_s=self.episode_length_s)
+        return make_world(self.resolve_scenario(), seeds)
+
     def resolve_scenario(self) -> Scenario:
         """The scenario with this config's overrides applied."""
         if not isinstance(self.scenario, (str, Scenario)):

@@ -25,7 +25,6 @@ from nav_filters.forms import parse_method
 
 from .config import EnvConfig, ParamSpec
 from .episodes import navigator_for
-from .worlds import REPLAY_SCENARIOS, make_world
 from .zupt_source import STILL_SPEED_MPS, ZuptSource  # noqa: F401  (STILL_SPEED_MPS re-exported)
 
 #: World seeds the environments draw at reset, ``[low, high)``: kept apart from the small seeds that
@@ -173,7 +172,7 @@ class TuningCore:
                              f"({', '.join(s.name for s in self.specs)}); choose an adaptive method")
         return nav
 
-    def _set_params(self, nav, rows, action):
+    def _set_params(self, nav, action):
         """Set the filter parameters of every row of ``nav`` from the (B, k) actions."""
         vals = {s.name: s.to_value(action[:, i]) for i, s in enumerate(self.specs)}
         nav.form.set_params(**vals)
@@ -183,18 +182,14 @@ class TuningCore:
         """Start new episodes on ``rows`` with world ``seeds``; returns their observations (len(rows), obs_dim)."""
         rows = np.asarray(rows, np.intp)
         seeds = [int(s) for s in seeds]
-        if isinstance(self.config.scenario, str) and self.config.scenario in REPLAY_SCENARIOS:
-            world = make_world(self.config.scenario, seeds, imu_grade=self.config.imu_grade,
-                               duration_s=self.config.episode_length_s)
-        else:
-            world = make_world(self.scenario, seeds)
+        world = self.config.make_world(seeds)
         nav = self._make_nav(world, self.config.method)
         act = np.broadcast_to(self.default_action, (rows.size, self.k)).copy()
-        self._set_params(nav, None, act)
+        self._set_params(nav, act)
         ref = None
         if self.config.reward == "advantage":
             ref = self._make_nav(world, self.config.method)
-            self._set_params(ref, None, act)
+            self._set_params(ref, act)
         if self.nav is None:
             if rows.size != self.B or not np.array_equal(rows, np.arange(self.B)):
                 raise ValueError("the first reset must cover every row")
@@ -301,11 +296,11 @@ class TuningCore:
         if np.any(self.t >= self.M):
             raise RuntimeError("step() on a finished episode: reset those rows first")
         self.action[:] = a
-        vals = self._set_params(self.nav, None, a)
+        vals = self._set_params(self.nav, a)
         j = self.t  # per-row epoch index (rows may be at different epochs after partial resets)
         h_err, e3, res, zflag = self._advance(self.nav, j)
         if self.ref is not None:
-            self._set_params(self.ref, None, np.broadcast_to(self.default_action, a.shape))
+            self._set_params(self.ref, np.broadcast_to(self.default_action, a.shape))
             ref_h, ref_3d, _, _ = self._advance(self.ref, j)
         rows = np.arange(self.B)
         self.est_track[rows, j] = self.nav.r

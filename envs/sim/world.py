@@ -89,8 +89,7 @@ def initial_estimate(scen: Scenario, truth: Truth, gnss: GnssData, rngs) -> Init
         da = np.broadcast_to(sa, (B, 3))
         dclk = np.zeros(B)
         ddr = np.zeros(B)
-        eye = np.eye(3)
-        pos_cov, vel_cov, att_cov = (np.broadcast_to(np.diag(s ** 2) * eye, (B, 3, 3)).copy() for s in (sp, sv, sa))
+        pos_cov, vel_cov, att_cov = (np.broadcast_to(np.diag(s ** 2), (B, 3, 3)).copy() for s in (sp, sv, sa))
     else:
         z = np.stack([g.standard_normal(11) for g in rngs])  # fixed draw count per row: B-invariant
         dp = (Cen @ (sp * z[:, 0:3])[..., None])[..., 0]
