@@ -17,7 +17,7 @@ def run_eval(*args, cwd=ROOT):
 def test_results_json_schema_and_outputs(tmp_path):
     out = tmp_path / "r"
     p = run_eval("--scenario", "seed000-sim", "--methods", "kf,kf+onestep", "--episodes", "3", "--seed", "7",
-                 "--out", str(out))
+                 "--out", str(out), "--note", str(out / "NOTE.md"), "--goal", "-20")
     assert p.returncode == 0, p.stderr
     res = json.loads((out / "results.json").read_text())
     per = res["scenarios"]["seed000-sim"]
@@ -38,6 +38,10 @@ def test_results_json_schema_and_outputs(tmp_path):
     assert per["kf+onestep"]["paired_vs_reference"]["episodes"] == 3
     for f in ("cdf_seed000-sim.png", "rmse_bars_seed000-sim.png", "trajectory_seed000-sim.png"):
         assert (out / f).stat().st_size > 0
+    note = (out / "NOTE.md").read_text()
+    d = per["kf+onestep"]["paired_vs_reference"]
+    assert f"kf+onestep: horizontal RMSE {100 * d['rel_diff']:+.1f}% against `kf`" in note
+    assert ("goal -20% met" in note) == (d["rel_diff"] <= -0.2) and "| seed000-sim | kf |" in note
 
 
 def test_pairing_same_seed_same_result(tmp_path):
