@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import sys
 import time
 from pathlib import Path
@@ -193,7 +194,7 @@ def main(argv=None) -> dict:
             plot_bars(s, results["scenarios"][s], out / f"rmse_bars_{s}.png")
             plot_trajectory(s, per, tracks[s], out / f"trajectory_{s}.png")
     if args.note:
-        write_note(results, Path(args.note), out, " ".join(sys.argv[1:]) if argv is None else " ".join(argv))
+        write_note(results, Path(args.note), out, shlex.join(sys.argv[1:] if argv is None else argv))
     print(f"wrote {out / 'results.json'}")
     return results
 
