@@ -17,7 +17,7 @@ def run_eval(*args, cwd=ROOT):
 def test_results_json_schema_and_outputs(tmp_path):
     out = tmp_path / "r"
     p = run_eval("--scenario", "seed000-sim", "--methods", "kf,kf+onestep", "--episodes", "3", "--seed", "7",
-                 "--out", str(out), "--note", str(out / "NOTE.md"), "--goal", "-20")
+                 "--out", str(out), "--note", str(out / "NOTE.md"), "--goal", "-20", "--goal", "seed000-sim=50")
     assert p.returncode == 0, p.stderr
     res = json.loads((out / "results.json").read_text())
     per = res["scenarios"]["seed000-sim"]
@@ -41,7 +41,7 @@ def test_results_json_schema_and_outputs(tmp_path):
     note = (out / "NOTE.md").read_text()
     d = per["kf+onestep"]["paired_vs_reference"]
     assert f"kf+onestep: horizontal RMSE {100 * d['rel_diff']:+.1f}% against `kf`" in note
-    assert ("goal -20% met" in note) == (d["rel_diff"] <= -0.2) and "| seed000-sim | kf |" in note
+    assert ("goal +50% met" in note) == (d["rel_diff"] <= 0.5) and "| seed000-sim | kf |" in note  # scenario's own
 
 
 def test_pairing_same_seed_same_result(tmp_path):
@@ -62,6 +62,7 @@ def test_pairing_same_seed_same_result(tmp_path):
     (("--episodes", "0"), "--episodes"),
     (("--seed", "5000"), "--seed"),
     (("--zupt", "glrt"), "--zupt must be one of"),
+    (("--goal", "urban=lots"), "--goal expects"),
     (("--methods", "kf,kf[zupt=glrt]"), "kf[zupt=glrt]: zupt must be one of"),
     (("--methods", "kf[zupt=lstm,zupt_weights=/nonexistent/w.pt]"), "weights file '/nonexistent/w.pt'"),
 ])
