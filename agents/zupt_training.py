@@ -48,6 +48,7 @@ from pathlib import Path
 import numpy as np
 
 from earth.rotations import dcm_from_euler
+from envs.json_io import jsonable
 from envs.sim.imu import IMU_GRADES, Vibration, simulate_imu
 from envs.sim.rng import row_generators
 from envs.sim.trajectory import Cruise, Motion, SegmentPlan, Static, Turn, generate_truth
@@ -554,18 +555,6 @@ def _short(m):
     return {k: m[k] for k in keys}
 
 
-def _jsonable(x):
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, (np.floating, float)):
-        return None if not math.isfinite(float(x)) else float(x)
-    if isinstance(x, np.integer):
-        return int(x)
-    return x
-
-
 # --------------------------------------------------------------------------------------------- in the loop
 _METHOD_PARAMS = {"sage-husa": "SAGE_HUSA_PARAMS", "stkf": "STKF_PARAMS", "ma-stkf": "MASTKF_PARAMS"}
 
@@ -741,7 +730,7 @@ def train_zupt_detector(model: str, seed: int, out: Path, quick: bool = False, p
     t0 = time.perf_counter()
     net, lc, hist = train_learned(lc, cfg, int(seed), progress=progress)
     weights = save_weights(out / f"zupt_{model}.pt", lc, net,
-                           extra={"seed": int(seed), "train_config": _jsonable(cfg.to_dict())})
+                           extra={"seed": int(seed), "train_config": jsonable(cfg.to_dict())})
     t1 = time.perf_counter()
     tuned = tune_classical(training_drives(cfg, seed, 10 ** 3 - 1, cfg.tune_drives), cfg)
     tune_s = time.perf_counter() - t1
@@ -772,7 +761,7 @@ def train_zupt_detector(model: str, seed: int, out: Path, quick: bool = False, p
         "test": _test_section(results),
         "wall_seconds": time.perf_counter() - t0,
     }
-    metrics = _jsonable(metrics)
+    metrics = jsonable(metrics)
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
     return metrics
 
@@ -807,7 +796,7 @@ def evaluate_shipped(seed: int = 0, config: ZuptTrainConfig | None = None) -> di
     learned = {k: (lambda r, k=k: make_detector(k, r)) for k in ("mlp", "lstm")}
     results = _score_heldout(cfg, learned, tuned)
     makers = {**learned, **{k: (lambda r, c=v["config"]: ClassicalDetector(c, r)) for k, v in tuned.items()}}
-    return _jsonable({
+    return jsonable({
         "weights": {k: default_weights_path(k).name for k in learned},
         "classical_tuned": {k: dataclasses.asdict(v["config"]) for k, v in tuned.items()},
         "test": _test_section(results),

@@ -65,6 +65,7 @@ from earth.wgs84 import C_en
 from nav_filters.constraints import nhc, odometer, stack_measurements
 
 from .episodes import EpisodeLog, navigator_for, run_episodes
+from .json_io import jsonable
 from .sim.gnss import GnssEvents
 from .sim.scenarios import get_scenario
 from .sim.world import World, generate_world
@@ -907,23 +908,9 @@ def run_experiment(name: str, episodes: int | None = None, seed: int = 0, out_di
     if out_dir is not None:
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
-        (out / f"{name}.json").write_text(json.dumps(_jsonable(results), indent=2))
+        (out / f"{name}.json").write_text(json.dumps(jsonable(results), indent=2))
         (out / f"{name}.md").write_text(report)
     return results, report
-
-
-def _jsonable(x):
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, (np.floating, float)):
-        return float(x) if np.isfinite(x) else None
-    if isinstance(x, (np.integer,)):
-        return int(x)
-    if isinstance(x, np.bool_):
-        return bool(x)
-    return x
 
 
 __all__ = ["EXPERIMENTS", "DEFAULT_EPISODES", "run_experiment", "run_seed000", "run_seed001", "run_seed003",

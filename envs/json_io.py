@@ -1,0 +1,22 @@
+"""Plain-JSON conversion of result dictionaries (numpy scalars, tuples, non-finite floats)."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+def jsonable(x):
+    """``x`` with numpy scalars turned into Python ones, tuples into lists, dict keys into strings, and
+    non-finite floats (NaN, +-inf) into None (JSON has no NaN); other values pass through."""
+    if isinstance(x, dict):
+        return {str(k): jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [jsonable(v) for v in x]
+    if isinstance(x, (np.floating, float)):
+        return float(x) if math.isfinite(float(x)) else None
+    if isinstance(x, np.integer):
+        return int(x)
+    if isinstance(x, np.bool_):
+        return bool(x)
+    return x
