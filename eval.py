@@ -366,6 +366,13 @@ def write_note(results: dict, path: Path, out: Path, cmd: str) -> None:
     path.write_text("\n".join(lines))
 
 
+def _save(plt, fig, path: Path) -> None:
+    """Lay out, write and close a figure."""
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
 def _mpl():
     import matplotlib
     matplotlib.use("Agg")
@@ -391,9 +398,7 @@ def plot_error_vs_time(scenario: str, logs: dict, path: Path) -> None:
     ax.set_yscale("log")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+    _save(plt, fig, path)
 
 
 def plot_cdf(scenario: str, logs: dict, path: Path) -> None:
@@ -410,9 +415,7 @@ def plot_cdf(scenario: str, logs: dict, path: Path) -> None:
     ax.set_title(f"{scenario}: CDF of the horizontal error")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+    _save(plt, fig, path)
 
 
 def plot_bars(scenario: str, per: dict, path: Path) -> None:
@@ -430,9 +433,7 @@ def plot_bars(scenario: str, per: dict, path: Path) -> None:
     ax.set_ylabel("horizontal RMSE [m]")
     ax.set_title(f"{scenario}: RMSE with 95% bootstrap CI")
     ax.grid(True, axis="y", alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+    _save(plt, fig, path)
 
 
 def plot_trajectory(scenario: str, logs: dict, truth_ne, path: Path) -> None:
@@ -451,9 +452,7 @@ def plot_trajectory(scenario: str, logs: dict, truth_ne, path: Path) -> None:
     ax.axis("equal")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, markerscale=4)
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+    _save(plt, fig, path)
 
 
 if __name__ == "__main__":
