@@ -68,7 +68,7 @@ from earth.wgs84 import E2 as _E2
 from earth.wgs84 import OMEGA_IE
 
 from .error_model import ATT, BG, N_STATES, VEL
-from .forms.base import check_dtype
+from .forms.base import check_dtype, check_measurement_shapes
 
 __all__ = [
     "zupt",
@@ -490,13 +490,7 @@ def stack_measurements(*blocks, dtype=None):
             raise ValueError(f"blocks[{i}] must be a tuple (dz, H, R, row_mask); "
                              "pass gnss_innovations(...)[:4] for a GNSS epoch")
         dz, H, R, mk = (np.asarray(a) for a in blk)
-        if dz.ndim != 2:
-            raise ValueError(f"blocks[{i}] dz must have shape (B, m), got {dz.shape}")
-        B, m = dz.shape
-        if H.ndim != 3 or H.shape[:2] != (B, m):
-            raise ValueError(f"blocks[{i}] H must have shape ({B}, {m}, n), got {H.shape}")
-        if R.shape not in ((B, m), (B, m, m)):
-            raise ValueError(f"blocks[{i}] R must have shape ({B}, {m}) or ({B}, {m}, {m}), got {R.shape}")
+        B, m = check_measurement_shapes(dz, H, R, owner=f"blocks[{i}] ")
         if mk.shape != (B, m) or mk.dtype != bool:
             raise ValueError(f"blocks[{i}] row_mask must be a bool array of shape ({B}, {m})")
         parts.append((dz, H, R, mk))

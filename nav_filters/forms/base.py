@@ -119,6 +119,19 @@ def _prepare_kernel(dz, H, R3, full, mask, dz_o, H_o, R_o):
     return True
 
 
+def check_measurement_shapes(dz: np.ndarray, H: np.ndarray, R: np.ndarray, owner: str = "") -> tuple[int, int]:
+    """(B, m) of a batched measurement: dz (B, m), H (B, m, n), R (B, m) variances or (B, m, m);
+    ``ValueError`` naming the array (prefixed by ``owner``, e.g. ``'blocks[1] '``) otherwise."""
+    if dz.ndim != 2:
+        raise ValueError(f"{owner}dz must have shape (B, m), got {dz.shape}")
+    B, m = dz.shape
+    if H.ndim != 3 or H.shape[:2] != (B, m):
+        raise ValueError(f"{owner}H must have shape (B, m, n) = ({B}, {m}, n), got {H.shape}")
+    if R.shape not in ((B, m), (B, m, m)):
+        raise ValueError(f"{owner}R must have shape (B, m) or (B, m, m) with B={B}, m={m}, got {R.shape}")
+    return B, m
+
+
 def prepare_measurement_reference(dz, H, R, mask, dtype):
     """Validate a batched measurement and neutralize its masked rows (numpy specification).
 
@@ -141,13 +154,7 @@ def prepare_measurement_reference(dz, H, R, mask, dtype):
     dz = np.asarray(dz)
     H = np.asarray(H)
     R = np.asarray(R)
-    if dz.ndim != 2:
-        raise ValueError(f"dz must have shape (B, m), got {dz.shape}")
-    B, m = dz.shape
-    if H.ndim != 3 or H.shape[:2] != (B, m):
-        raise ValueError(f"H must have shape (B, m, n) = ({B}, {m}, n), got {H.shape}")
-    if R.shape not in ((B, m), (B, m, m)):
-        raise ValueError(f"R must have shape (B, m) or (B, m, m) with B={B}, m={m}, got {R.shape}")
+    B, m = check_measurement_shapes(dz, H, R)
     mask = np.ones((B, m), bool) if mask is None else np.asarray(mask, bool)
     if mask.shape != (B, m):
         raise ValueError(f"mask must have shape ({B}, {m}), got {mask.shape}")
