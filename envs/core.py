@@ -24,7 +24,7 @@ from earth import C_en, ecef_to_geodetic
 from nav_filters.forms import parse_method
 
 from .config import EnvConfig, ParamSpec
-from .episodes import navigator_for
+from .episodes import navigator_for, satellite_keys
 from .zupt_source import STILL_SPEED_MPS, ZuptSource  # noqa: F401  (STILL_SPEED_MPS re-exported)
 
 #: World seeds the environments draw at reset, ``[low, high)``: kept apart from the small seeds that
@@ -228,6 +228,7 @@ class TuningCore:
         self.sat_vel = np.zeros((B, M, C, 3))
         self.pr, self.prr, self.pr_sigma, self.prr_sigma = (np.zeros((B, M, C)) for _ in range(4))
         self.gmask = np.zeros((B, M, C), bool)
+        self.sat_keys = np.full((B, M, C), -1, np.int64)
         self.truth_r = np.zeros((B, M, 3))
         self.truth_Cne = np.zeros((B, M, 3, 3))
         self.truth_still = np.zeros((B, M), bool)
@@ -251,6 +252,7 @@ class TuningCore:
         if g.prr is not None:
             self.prr[rows], self.prr_sigma[rows] = g.prr, g.prr_sigma
         self.gmask[rows] = g.mask
+        self.sat_keys[rows] = satellite_keys(g)
         ep = world.epoch_idx
         self.truth_r[rows] = tr.r_e[:, ep]
         lat, lon, _ = ecef_to_geodetic(tr.r_e[:, ep])
@@ -377,7 +379,7 @@ class TuningCore:
             if nav is self.nav:  # the detector runs once per step; a reference navigator reuses its decisions
                 self._zflags = self._zupt.decide(self.f[sel], self.w[sel], self.truth_still_n[sel])
             extra, zflag = self._zupt.block(nav, self.w[sel], self._zflags, self.dt)
-        res, gdop = nav.update_gnss(*g, extra=extra)
+        res, gdop = nav.update_gnss(*g, extra=extra, sat_keys=self.sat_keys[rows, jj])
         err = nav.r - self.truth_r[rows, jj]
         ned = (self.truth_Cne[rows, jj] @ err[..., None])[..., 0]
         h = np.hypot(ned[:, 0], ned[:, 1])

@@ -22,6 +22,16 @@ from .sim.world import World
 from .zupt_source import STILL_SPEED_MPS, ZuptSource
 
 
+def satellite_keys(gnss) -> np.ndarray:
+    """(B, M, C) int64 satellite keys of a world's channels (:func:`nav_filters.measurements.satellite_key`),
+    -1 on empty channels.
+
+    ``GnssData.prn`` is ``key + 1``: a simulated constellation is one GPS-like system (key = PRN - 1), a
+    recording encodes system and PRN (:meth:`envs.datasets.epochs.GnssEpochs.sat_keys`)."""
+    prn = np.asarray(gnss.prn)
+    return np.where(np.asarray(gnss.mask) & (prn >= 1), prn - 1, -1).astype(np.int64)
+
+
 def process_noise_for(world: World) -> ProcessNoise:
     """Filter process noise from the scenario's IMU grade (data-sheet values) and clock model."""
     g = world.imu_grade
@@ -142,6 +152,7 @@ def run_episodes(world: World, method: str = "kf", dtype="float64", progress=Non
     gdop = np.zeros((B, M))
     zflag = np.zeros((B, M), bool)
     f_all, w_all = imu.f_b, imu.w_b
+    keys = satellite_keys(gnss)
     pv = np.r_[np.arange(VEL.start, VEL.stop), np.arange(POS.start, POS.stop)]
     t0 = time.perf_counter()
     k = 0
@@ -157,7 +168,8 @@ def run_episodes(world: World, method: str = "kf", dtype="float64", progress=Non
         prr = None if gnss.prr is None else gnss.prr[:, j]  # recorded data may have no Doppler
         prr_sigma = None if gnss.prr_sigma is None else gnss.prr_sigma[:, j]
         res, g = nav.update_gnss(gnss.sat_pos[:, j], gnss.sat_vel[:, j], gnss.pr[:, j], prr,
-                                 gnss.pr_sigma[:, j], prr_sigma, gnss.mask[:, j], extra=extra)
+                                 gnss.pr_sigma[:, j], prr_sigma, gnss.mask[:, j], extra=extra,
+                                 sat_keys=keys[:, j])
         err_e[:, j] = nav.r - truth.r_e[:, k]
         verr_e[:, j] = nav.v - truth.v_e[:, k]
         e = np.concatenate([-verr_e[:, j], -err_e[:, j]], 1)

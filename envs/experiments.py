@@ -64,7 +64,7 @@ from earth import ecef_to_geodetic
 from earth.wgs84 import C_en
 from nav_filters.constraints import nhc, odometer, stack_measurements
 
-from .episodes import EpisodeLog, navigator_for, run_episodes
+from .episodes import EpisodeLog, navigator_for, run_episodes, satellite_keys
 from .json_io import jsonable
 from .sim.gnss import GnssEvents
 from .sim.scenarios import get_scenario
@@ -283,6 +283,7 @@ def run_navigation(world: World, method: str = "kf", dtype="float64", per_sample
     """
     nav = navigator_for(world, method, dtype)
     imu, gnss, truth = world.imu, world.gnss, world.truth
+    keys = satellite_keys(gnss)
     ep = world.epoch_idx
     B, M = world.batch_size, len(ep)
     dt = 1.0 / world.scenario.imu_rate_hz
@@ -311,7 +312,7 @@ def run_navigation(world: World, method: str = "kf", dtype="float64", per_sample
         prr = None if gnss.prr is None else gnss.prr[:, j]
         prr_sigma = None if gnss.prr_sigma is None else gnss.prr_sigma[:, j]
         nav.update_gnss(gnss.sat_pos[:, j], gnss.sat_vel[:, j], gnss.pr[:, j], prr, gnss.pr_sigma[:, j], prr_sigma,
-                        gnss.mask[:, j], extra=extra)
+                        gnss.mask[:, j], extra=extra, sat_keys=keys[:, j])
         busy += time.perf_counter() - t0
         err[:, j] = nav.r - truth.r_e[:, k]
         verr[:, j] = nav.v - truth.v_e[:, k]

@@ -37,6 +37,76 @@ from earth.ranging import range_and_rate, range_rate_pair
 
 from .error_model import CLK, DRIFT, N_STATES, POS, VEL
 
+# ----------------------------------------------------------------------------- satellite identity
+SYSTEMS = ("G", "R", "E", "C", "J", "S")
+"""GNSS system letters (RINEX 3) in the order of their index in a satellite key: GPS, GLONASS, Galileo,
+BeiDou, QZSS, SBAS. A simulated constellation is system 0 (GPS-like)."""
+MAX_PRN = 64
+"""PRNs (slot numbers) 1..MAX_PRN per system."""
+N_SAT_KEYS = len(SYSTEMS) * MAX_PRN
+"""Number of distinct satellite keys: ``0 <= key < N_SAT_KEYS``."""
+
+
+def satellite_key(system_index, prn):
+    """Satellite key ``system_index * MAX_PRN + (prn - 1)``: one integer per satellite, unique across systems.
+
+    Keys identify a satellite (system + PRN) independently of the receiver channel that tracks it, so
+    that per-satellite state (the measurement-noise estimates of the adaptive laws) survives channel
+    reordering, rising and setting satellites.
+
+    Parameters
+    ----------
+    system_index : (...) int, index into :data:`SYSTEMS`.
+    prn : (...) int in 1..MAX_PRN; a PRN < 1 (an empty channel, e.g. -1) gives key -1.
+
+    Returns
+    -------
+    (...) int64 keys, -1 where ``prn < 1``.
+
+    Raises
+    ------
+    ValueError
+        a system index outside ``0..len(SYSTEMS)-1`` or a PRN above MAX_PRN on a valid entry.
+    """
+    sysi = np.asarray(system_index, np.int64)
+    prn = np.asarray(prn, np.int64)
+    valid = prn >= 1
+    if np.any(valid & ((sysi < 0) | (sysi >= len(SYSTEMS)))):
+        raise ValueError(f"system_index must lie in 0..{len(SYSTEMS) - 1}, got {np.unique(sysi[valid]).tolist()}")
+    if np.any(valid & (prn > MAX_PRN)):
+        raise ValueError(f"prn must lie in 1..{MAX_PRN}, got {int(prn[valid].max())}")
+    return np.where(valid, sysi * MAX_PRN + prn - 1, -1).astype(np.int64)
+
+
+def measurement_keys(sat_keys, with_rate: bool, n_extra: int = 0):
+    """Per measurement row identity of a tightly coupled epoch, rows ``[pr_1..pr_C, prr_1..prr_C, extra...]``.
+
+    A pseudorange row of satellite key ``s`` gets ``s``, its pseudorange-rate row ``N_SAT_KEYS + s``
+    (one identity per satellite *and* measurement type); rows without a satellite (empty channels,
+    constraint rows) get -1.
+
+    Parameters
+    ----------
+    sat_keys : (B, C) int satellite keys of the channels (:func:`satellite_key`), -1 on empty channels.
+    with_rate : whether the epoch has pseudorange-rate rows.
+    n_extra : number of extra (constraint) rows stacked after the GNSS rows.
+
+    Returns
+    -------
+    (B, m) int64 with ``m = C (1 + with_rate) + n_extra``, values in ``[-1, 2 N_SAT_KEYS)``.
+    """
+    k = np.asarray(sat_keys, np.int64)
+    if k.ndim != 2:
+        raise ValueError(f"sat_keys must have shape (B, C), got {k.shape}")
+    if np.any(k >= N_SAT_KEYS) or np.any(k < -1):
+        raise ValueError(f"sat_keys must lie in -1..{N_SAT_KEYS - 1}")
+    parts = [k]
+    if with_rate:
+        parts.append(np.where(k >= 0, k + N_SAT_KEYS, -1))
+    if n_extra:
+        parts.append(np.full((k.shape[0], n_extra), -1, np.int64))
+    return np.concatenate(parts, 1) if len(parts) > 1 else k.copy()
+
 
 def gnss_innovations_reference(r_e, v_e, clk_m, drift_mps, sat_pos, sat_vel, pr, prr, pr_var, prr_var, mask,
                                use_rate: bool = True, dtype=np.float64):

@@ -40,7 +40,7 @@ from .forms import UpdateResult, make_form, parse_method
 from .forms.base import check_dtype
 from .ins import _earth_rate_matrices_np, apply_correction
 from .kernels import F_NONZERO, propagate_epoch
-from .measurements import dop, gnss_innovations
+from .measurements import dop, gnss_innovations, measurement_keys
 
 
 @dataclass(frozen=True)
@@ -172,7 +172,7 @@ class Navigator:
             self._reset_accumulator()
 
     # ----------------------------------------------------------- measurement
-    def update(self, dz, H, R, mask) -> UpdateResult:
+    def update(self, dz, H, R, mask, keys=None) -> UpdateResult:
         """Closed-loop update with any stacked measurement (GNSS rows, constraints, or both).
 
         Flushes the pending prediction, runs the form's update on the rows that have not
@@ -181,23 +181,25 @@ class Navigator:
         Parameters
         ----------
         dz : (B, m) innovations; H : (B, m, 17); R : (B, m) variances or (B, m, m); mask : (B, m) bool.
+        keys : (B, m) int measurement identities (:func:`~nav_filters.measurements.measurement_keys`;
+            -1 none), or None.
         """
         self.flush_prediction()
         self._check_state()
-        return self._update_checked(dz, H, R, mask)
+        return self._update_checked(dz, H, R, mask, keys)
 
-    def _update_checked(self, dz, H, R, mask) -> UpdateResult:
+    def _update_checked(self, dz, H, R, mask, keys=None) -> UpdateResult:
         """:meth:`update` after the prediction was flushed and the state checked."""
         mask = np.asarray(mask, bool) & ~self.diverged[:, None]
         try:
-            res = self.form.update(dz, H, R, mask)
+            res = self.form.update(dz, H, R, mask, keys=keys)
         except np.linalg.LinAlgError:
-            res = self._update_isolating_failures(dz, H, R, mask)
+            res = self._update_isolating_failures(dz, H, R, mask, keys)
         self._feedback(self.form.take_correction())
         return res
 
     def update_gnss(self, sat_pos, sat_vel, pr, prr, pr_sigma, prr_sigma, mask,
-                    extra=None) -> tuple[UpdateResult, np.ndarray]:
+                    extra=None, sat_keys=None) -> tuple[UpdateResult, np.ndarray]:
         """Tightly coupled update with one GNSS epoch and closed-loop feedback.
 
         Parameters
@@ -208,6 +210,9 @@ class Navigator:
         mask : (B, C) bool valid channels.
         extra : optional ``(dz, H, R, mask)`` block (e.g. ZUPT/NHC from
             :mod:`nav_filters.constraints`) fused into the same update.
+        sat_keys : (B, C) int satellite keys of the channels (:func:`~nav_filters.measurements.satellite_key`,
+            -1 on empty channels), optional: they let per-satellite adaptive laws follow a satellite across
+            channels (:func:`~nav_filters.measurements.measurement_keys` gives each row's identity).
 
         Returns
         -------
@@ -221,15 +226,22 @@ class Navigator:
         dz, H, R, row_mask, u = gnss_innovations(
             self.r, self.v, self.clk, self.drift, sat_pos, sat_vel, pr, prr, pr_var, prr_var, mask,
             use_rate=self.config.use_pseudorange_rate, dtype=self.dtype)
+        n_gnss = dz.shape[1]
         if extra is not None:
             from .constraints import stack_measurements
             dz, H, R, row_mask = stack_measurements((dz, H, R, row_mask), extra, dtype=self.dtype)
+        keys = None
+        if sat_keys is not None:
+            sk = np.asarray(sat_keys)
+            if sk.shape != mask.shape:
+                raise ValueError(f"sat_keys must have shape {mask.shape} (one per channel), got {sk.shape}")
+            keys = measurement_keys(np.where(mask, sk, -1), n_gnss > mask.shape[1], dz.shape[1] - n_gnss)
         self.flush_prediction()  # the state was checked above and the prediction does not change it
-        res = self._update_checked(dz, H, R, row_mask)
+        res = self._update_checked(dz, H, R, row_mask, keys)
         self.time_since_update[mask.any(-1)] = 0.0
         return res, dop(u, mask)
 
-    def _update_isolating_failures(self, dz, H, R, mask):
+    def _update_isolating_failures(self, dz, H, R, mask, keys=None):
         """Retry an update after flagging the rows whose innovation covariance is not positive definite."""
         P = np.asarray(self.form.covariance, np.float64)
         Rf = np.asarray(R, np.float64)
@@ -250,7 +262,7 @@ class Navigator:
             B, m = mask.shape
             return UpdateResult(nis=np.zeros(B), n_used=np.zeros(B, int), innovation=np.zeros((B, m)),
                                 innovation_var=np.ones((B, m)), applied=np.zeros(B, bool))
-        return self.form.update(dz, H, R, mask)
+        return self.form.update(dz, H, R, mask, keys=keys)
 
     def _feedback(self, dx):
         """Closed-loop correction: add the error-state estimate to the nominal state (B, 17).

@@ -91,6 +91,21 @@ class GnssEpochs:
         if np.any(self.pr_sigma[self.mask] <= 0):
             raise ValueError("GnssEpochs.pr_sigma must be > 0 on valid channels")
 
+    def sat_keys(self) -> np.ndarray:
+        """(M, C) int64 satellite keys (:func:`nav_filters.measurements.satellite_key`: system and PRN, unique
+        across systems), -1 on empty channels. A GLONASS ``sat_id`` above 300 is smartLoc's ``300 + slot``."""
+        from nav_filters.measurements import SYSTEMS, satellite_key
+        letters = {code: letter for letter, code in SYSTEM_LETTERS.items()}
+        sysi = np.zeros(self.system.shape, np.int64)
+        for code, letter in letters.items():
+            sysi[self.system == code] = SYSTEMS.index(letter)
+        prn = np.where((self.system == SYS_GLONASS) & (self.sat_id > 300), self.sat_id - 300, self.sat_id)
+        unknown = self.mask & ~np.isin(self.system, list(letters))
+        if unknown.any():
+            raise ValueError(f"{self.source or 'GnssEpochs'}: unknown system code(s) "
+                             f"{np.unique(self.system[unknown]).tolist()}")
+        return satellite_key(sysi, np.where(self.mask, prn, -1))
+
     @property
     def n_epochs(self) -> int:
         """M."""

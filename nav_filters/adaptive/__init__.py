@@ -4,19 +4,26 @@ Each law is a :class:`~nav_filters.forms.base.FilterForm` wrapping an *inner*
 form through its public interface (:mod:`nav_filters.adaptive.base`), so one
 law adapts every form:
 
-=============  ==================================================================  ===============
-method         law                                                                 inner form
-=============  ==================================================================  ===============
-``sage-husa``  :class:`SageHusa`, full Q correction and R scales                   ``kf``
-``svd-akf``    :class:`SageHusa`, full Q correction (seed 000 eq 22), R fixed      ``svd-kf``
-``svd-asrkf``  :class:`SageHusa`, diagonal Q correction (seed 000 eq 21), R fixed  ``svd-srkf``
-``stkf``       :class:`StrongTracking` (suboptimal fading factor)                  ``kf``
-``ma-stkf``    :class:`MeasurementAdaptiveSTKF` (seed 003 eqs 10-26)               ``kf``
-=============  ==================================================================  ===============
+===================  ==============================================================  ===============
+method               law                                                             inner form
+===================  ==============================================================  ===============
+``sage-husa``        :class:`SageHusa`, full Q correction, R per satellite           ``kf``
+``svd-akf``          :class:`SageHusa`, full Q correction (seed 000 eq 22), R per    ``svd-kf``
+                     satellite
+``svd-asrkf``        :class:`SageHusa`, diagonal Q correction (seed 000 eq 21), R    ``svd-srkf``
+                     per satellite
+``sage-husa-group``  :class:`SageHusa`, full Q correction, one R scale per           ``kf``
+                     measurement group, frozen d (the law before per-satellite R)
+``stkf``             :class:`StrongTracking` (suboptimal fading factor)              ``kf``
+``ma-stkf``          :class:`MeasurementAdaptiveSTKF` (seed 003 eqs 10-26)           ``kf``
+===================  ==============================================================  ===============
+
+The per-satellite methods need the measurement keys (``Navigator.update_gnss(..., sat_keys=...)``); the
+environments and eval.py pass them.
 
 :func:`law_factory` builds the ``(P0, x0=None, dtype=None) -> FilterForm``
 callable that :data:`nav_filters.forms.FORMS` holds; :data:`ADAPTIVE_METHODS`
-lists the five entries above (the inner form is looked up by name when the
+lists the entries above (the inner form is looked up by name when the
 filter is built, so an entry whose inner form is not registered fails then
 with a ``ValueError``).
 
@@ -61,10 +68,14 @@ def law_factory(law: type, inner="kf", **config):
     return factory
 
 
+_SATELLITE_R = dict(adapt_r=True, r_mode="satellite", d_freeze_tol=0.0)
+"""Per-satellite measurement-noise adaptation without the freezing of d (see :class:`SageHusa`)."""
+
 ADAPTIVE_METHODS = {
-    "sage-husa": law_factory(SageHusa, "kf", diagonal_q=False, adapt_r=True),
-    "svd-akf": law_factory(SageHusa, "svd-kf", diagonal_q=False, adapt_r=False),
-    "svd-asrkf": law_factory(SageHusa, "svd-srkf", diagonal_q=True, adapt_r=False),
+    "sage-husa": law_factory(SageHusa, "kf", diagonal_q=False, **_SATELLITE_R),
+    "svd-akf": law_factory(SageHusa, "svd-kf", diagonal_q=False, **_SATELLITE_R),
+    "svd-asrkf": law_factory(SageHusa, "svd-srkf", diagonal_q=True, **_SATELLITE_R),
+    "sage-husa-group": law_factory(SageHusa, "kf", diagonal_q=False, adapt_r=True),
     "stkf": law_factory(StrongTracking, "kf"),
     "ma-stkf": law_factory(MeasurementAdaptiveSTKF, "kf"),
 }

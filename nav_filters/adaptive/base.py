@@ -54,7 +54,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..forms.base import FilterForm, UpdateResult, symmetrize
+from ..forms.base import FilterForm, UpdateResult, check_keys, symmetrize
 from .params import ParamSpec
 
 
@@ -149,6 +149,7 @@ class AdaptiveLaw(FilterForm):
         self._Phi_acc = None
         self._Q_acc = None
         self._ctx: EpochContext | None = None
+        self._keys = None
         self._init_state()
 
     # ----------------------------------------------------------- inner form
@@ -246,6 +247,16 @@ class AdaptiveLaw(FilterForm):
         return np.minimum(lam[:, None], np.maximum(1.0, room))
 
     # ------------------------------------------------------ measurement update
+    def update(self, dz, H, R, mask=None, keys=None) -> UpdateResult:
+        """Measurement update (:meth:`FilterForm.update`); ``keys`` (B, m) are the measurement rows'
+        identities (satellite and type, -1 none) that per-satellite laws key their estimates by; a law
+        given none treats every row as having no identity."""
+        self._keys = check_keys(keys, np.shape(dz))
+        try:
+            return super().update(dz, H, R, mask)
+        finally:
+            self._keys = None
+
     def _update(self, dz, H, R, mask) -> UpdateResult:
         r = dz - (H @ self.x[..., None])[..., 0]
         if self._ctx is None:

@@ -154,3 +154,285 @@ def measurement_groups(H, mask) -> np.ndarray:
         groups[H[:, :, CLK.start] != 0] = 0
     groups[~mask] = -1
     return groups
+
+
+# ----------------------------------------------------------------------------- geometry residuals
+@nb.njit(cache=True)
+def _geometry_residual_row(dz, H, var, use, v_out, red_out):
+    """Weighted least-squares residuals of one batch row's used measurements (see :func:`geometry_residuals`).
+
+    ``dz`` (m,), ``H`` (m, n), ``var`` (m,) > 0, ``use`` (m,) bool; writes ``v_out`` and ``red_out`` on the used
+    rows (0 where there is no redundancy: no more used rows than fitted columns, or a singular geometry).
+    """
+    m, n = H.shape
+    cols = np.zeros(n, np.int64)
+    p = 0
+    for k in range(n):
+        for i in range(m):
+            if use[i] and H[i, k] != 0:
+                cols[p] = k
+                p += 1
+                break
+    k_used = 0
+    for i in range(m):
+        if use[i]:
+            k_used += 1
+            v_out[i] = 0.0
+            red_out[i] = 0.0
+    if k_used <= p or p == 0:
+        return
+    A = np.zeros((p, p))
+    rhs = np.zeros(p)
+    for i in range(m):
+        if not use[i]:
+            continue
+        w = 1.0 / var[i]
+        for a in range(p):
+            ga = np.float64(H[i, cols[a]])
+            rhs[a] += w * ga * np.float64(dz[i])
+            for c in range(p):
+                A[a, c] += w * ga * np.float64(H[i, cols[c]])
+    # Cholesky A = L L^T in place (lower triangle); a singular geometry gives no residuals
+    for k in range(p):
+        dkk = A[k, k]
+        for q in range(k):
+            dkk -= A[k, q] * A[k, q]
+        if not dkk > 1e-12 * max(A[k, k], 1e-300):
+            return
+        A[k, k] = np.sqrt(dkk)
+        for i in range(k + 1, p):
+            s = A[i, k]
+            for q in range(k):
+                s -= A[i, q] * A[k, q]
+            A[i, k] = s / A[k, k]
+    beta = rhs.copy()  # solve L L^T beta = rhs
+    for i in range(p):
+        s = beta[i]
+        for q in range(i):
+            s -= A[i, q] * beta[q]
+        beta[i] = s / A[i, i]
+    for i in range(p - 1, -1, -1):
+        s = beta[i]
+        for q in range(i + 1, p):
+            s -= A[q, i] * beta[q]
+        beta[i] = s / A[i, i]
+    y = np.empty(p)
+    for i in range(m):
+        if not use[i]:
+            continue
+        fit = 0.0
+        for a in range(p):
+            fit += np.float64(H[i, cols[a]]) * beta[a]
+        v_out[i] = np.float64(dz[i]) - fit
+        for a in range(p):  # h_ii = w g^T A^-1 g = w |L^-1 g|^2
+            s = np.float64(H[i, cols[a]])
+            for q in range(a):
+                s -= A[a, q] * y[q]
+            y[a] = s / A[a, a]
+        h = 0.0
+        for a in range(p):
+            h += y[a] * y[a]
+        red_out[i] = max(1.0 - h / var[i], 0.0)
+
+
+@nb.njit(cache=True)
+def _geometry_residuals_kernel(dz, H, var, types, n_types, v_out, red_out):
+    B, m, n = H.shape
+    use = np.zeros(m, np.bool_)
+    for b in range(B):
+        for i in range(m):
+            v_out[b, i] = 0.0
+            red_out[b, i] = 0.0
+        for t in range(n_types):
+            for i in range(m):
+                use[i] = types[b, i] == t
+            _geometry_residual_row(dz[b], H[b], var[b], use, v_out[b], red_out[b])
+
+
+def geometry_residuals(dz, H, var, types, n_types: int = 2):
+    """Snapshot least-squares residuals of each measurement type: what no common state error can explain.
+
+    For each batch row and each type ``t`` (e.g. 0 pseudoranges, 1 pseudorange rates), the rows of that type
+    are fitted by weighted least squares (weights ``1/var``) on the state columns their ``H`` rows touch
+    (position and clock for pseudoranges, velocity and drift for rates), with no prior::
+
+        beta = (G^T W G)^-1 G^T W dz,   v = dz - G beta,   h_ii = w_i g_i^T (G^T W G)^-1 g_i
+
+    ``v`` is free of any error that a state correction explains (an INS drift, an overconfident P), so it
+    measures the measurement errors alone; ``E[v_i^2] = (1 - h_ii) var_i`` when ``var`` are the true
+    variances (the redundancy number ``1 - h_ii``, Baarda's reliability theory). This is the residual form of
+    covariance matching (Mohamed & Schwarz 1999, cited as seed 000 ref [27]) taken on a snapshot fit.
+
+    Parameters
+    ----------
+    dz : (B, m) innovations; H : (B, m, n); var : (B, m) variances (> 0 on typed rows);
+    types : (B, m) int type of each row in ``[0, n_types)``, -1 for rows not fitted.
+
+    Returns
+    -------
+    v : (B, m) residuals (0 on untyped rows and where a type has no redundancy);
+    redundancy : (B, m) ``1 - h_ii`` in [0, 1] (0 where there is none: no more rows than fitted columns).
+
+    Compiled (:func:`_geometry_residuals_kernel`); :func:`geometry_residuals_reference` is the numpy
+    specification (agreement test).
+    """
+    c = np.ascontiguousarray
+    B, m = np.shape(dz)
+    v = np.empty((B, m))
+    red = np.empty((B, m))
+    _geometry_residuals_kernel(c(dz, np.float64), c(H, np.float64), c(var, np.float64), c(types, np.int64),
+                               int(n_types), v, red)
+    return v, red
+
+
+def geometry_residuals_reference(dz, H, var, types, n_types: int = 2):
+    """Numpy specification of :func:`geometry_residuals` (same parameters and returns)."""
+    dz, H, var = (np.asarray(a, np.float64) for a in (dz, H, var))
+    B, m, n = H.shape
+    v, red = np.zeros((B, m)), np.zeros((B, m))
+    for b in range(B):
+        for t in range(n_types):
+            rows = np.flatnonzero(types[b] == t)
+            if rows.size == 0:
+                continue
+            G = H[b][rows]
+            cols = np.flatnonzero((G != 0).any(0))
+            G = G[:, cols]
+            if rows.size <= cols.size or cols.size == 0:
+                continue
+            W = np.diag(1.0 / var[b, rows])
+            A = G.T @ W @ G
+            if np.linalg.matrix_rank(A) < cols.size:
+                continue
+            Ai = np.linalg.inv(A)
+            v[b, rows] = dz[b, rows] - G @ (Ai @ G.T @ W @ dz[b, rows])
+            red[b, rows] = np.maximum(1.0 - np.einsum("ij,jk,ik->i", G, Ai, G) / var[b, rows], 0.0)
+    return v, red
+
+
+@nb.njit(cache=True)
+def _posterior_residual_row(dz, H, P, k_prior, var, use, v_out, red_out):
+    """Post-fit residuals of one batch row's used rows against the prior ``k_prior P`` (see
+    :func:`posterior_residuals`); writes ``v_out``, ``red_out`` on the used rows."""
+    m, n = H.shape
+    idx = np.empty(m, np.int64)
+    q = 0
+    for i in range(m):
+        if use[i]:
+            idx[q] = i
+            q += 1
+            v_out[i] = 0.0
+            red_out[i] = 0.0
+    if q == 0:
+        return
+    S = np.zeros((q, q))
+    HP = np.zeros((q, n))
+    for a in range(q):
+        ia = idx[a]
+        for c in range(n):
+            acc = 0.0
+            for l in range(n):
+                h = H[ia, l]
+                if h != 0:
+                    acc += np.float64(h) * np.float64(P[l, c])
+            HP[a, c] = acc
+    for a in range(q):
+        for c in range(a + 1):
+            acc = 0.0
+            ic = idx[c]
+            for l in range(n):
+                h = H[ic, l]
+                if h != 0:
+                    acc += HP[a, l] * np.float64(h)
+            S[a, c] = k_prior * acc
+            S[c, a] = S[a, c]
+        S[a, a] += var[idx[a]]
+    for k in range(q):  # Cholesky in place (lower)
+        dkk = S[k, k]
+        for p_ in range(k):
+            dkk -= S[k, p_] * S[k, p_]
+        if not dkk > 0:
+            return
+        S[k, k] = np.sqrt(dkk)
+        for i in range(k + 1, q):
+            acc = S[i, k]
+            for p_ in range(k):
+                acc -= S[i, p_] * S[k, p_]
+            S[i, k] = acc / S[k, k]
+    y = np.empty(q)  # S^-1 dz
+    for i in range(q):
+        acc = np.float64(dz[idx[i]])
+        for p_ in range(i):
+            acc -= S[i, p_] * y[p_]
+        y[i] = acc / S[i, i]
+    for i in range(q - 1, -1, -1):
+        acc = y[i]
+        for p_ in range(i + 1, q):
+            acc -= S[p_, i] * y[p_]
+        y[i] = acc / S[i, i]
+    Linv = np.zeros((q, q))  # (S^-1)_ii = |L^-1 e_i|^2
+    for c in range(q):
+        for i in range(c, q):
+            acc = 1.0 if i == c else 0.0
+            for p_ in range(c, i):
+                acc -= S[i, p_] * Linv[p_, c]
+            Linv[i, c] = acc / S[i, i]
+    for a in range(q):
+        sii = 0.0
+        for i in range(q):
+            sii += Linv[i, a] * Linv[i, a]
+        ia = idx[a]
+        v_out[ia] = var[ia] * y[a]
+        red_out[ia] = min(max(var[ia] * sii, 0.0), 1.0)
+
+
+@nb.njit(cache=True)
+def _posterior_residuals_kernel(dz, H, P, k_prior, var, use, v_out, red_out):
+    B = dz.shape[0]
+    for b in range(B):
+        _posterior_residual_row(dz[b], H[b], P[b], k_prior, var[b], use[b], v_out[b], red_out[b])
+
+
+def posterior_residuals(dz, H, P, var, use, prior_inflation: float = 1.0):
+    """Post-fit residuals of a measurement update against a (possibly inflated) prior: the residual form of
+    covariance matching (Mohamed & Schwarz 1999, seed 000 ref [27]).
+
+    With ``S = k H P H^T + diag(var)`` over the used rows (``k = prior_inflation``)::
+
+        v = diag(var) S^-1 dz,     redundancy_i = var_i (S^-1)_ii,     E[v_i^2] = redundancy_i var_i
+
+    (the Kalman post-fit residual ``dz - H dx+`` for ``k = 1``; ``k > 1`` trusts the prediction less, so
+    that an overconfident P does not make a state error look like measurement noise; ``k -> inf`` tends
+    to the snapshot fit of :func:`geometry_residuals`).
+
+    Parameters
+    ----------
+    dz : (B, m); H : (B, m, n); P : (B, n, n) prior covariance; var : (B, m) variances; use : (B, m) bool;
+    prior_inflation : k >= 1.
+
+    Returns
+    -------
+    v, redundancy : (B, m) (0 on unused rows, or on a row whose S is not positive definite).
+    """
+    c = np.ascontiguousarray
+    B, m = np.shape(dz)
+    v, red = np.zeros((B, m)), np.zeros((B, m))
+    _posterior_residuals_kernel(c(dz, np.float64), c(H, np.float64), c(P, np.float64), float(prior_inflation),
+                                c(var, np.float64), c(use, np.bool_), v, red)
+    return v, red
+
+
+def posterior_residuals_reference(dz, H, P, var, use, prior_inflation: float = 1.0):
+    """Numpy specification of :func:`posterior_residuals`."""
+    B, m = np.shape(dz)
+    v, red = np.zeros((B, m)), np.zeros((B, m))
+    for b in range(B):
+        rows = np.flatnonzero(use[b])
+        if rows.size == 0:
+            continue
+        Hb = np.asarray(H[b][rows], np.float64)
+        S = prior_inflation * Hb @ np.asarray(P[b], np.float64) @ Hb.T + np.diag(var[b, rows])
+        Si = np.linalg.inv(S)
+        v[b, rows] = var[b, rows] * (Si @ np.asarray(dz[b, rows], np.float64))
+        red[b, rows] = np.clip(var[b, rows] * np.diag(Si), 0.0, 1.0)
+    return v, red

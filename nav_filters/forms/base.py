@@ -184,6 +184,19 @@ def prepare_measurement_reference(dz, H, R, mask, dtype):
     return dz, H, Rf, mask
 
 
+def check_keys(keys, shape) -> np.ndarray | None:
+    """``keys`` as a (B, m) int64 array matching ``shape`` (or None); ``ValueError`` naming ``keys`` otherwise."""
+    if keys is None:
+        return None
+    k = np.asarray(keys)
+    if k.shape != tuple(shape) or (k.size and k.dtype.kind not in "iu"):
+        raise ValueError(f"keys must be an int array of shape {tuple(shape)} (one per measurement row), "
+                         f"got {k.dtype} {k.shape}")
+    if k.size and k.min() < -1:
+        raise ValueError(f"keys must be >= -1 (-1: no identity), got {int(k.min())}")
+    return k.astype(np.int64, copy=False)
+
+
 def symmetrize(P):
     """``(P + P^T) / 2`` over the last two axes."""
     return 0.5 * (P + P.mT)
@@ -235,8 +248,13 @@ class FilterForm(ABC):
         """(B, n, n) current covariance P."""
 
     # -- shared ---------------------------------------------------------------
-    def update(self, dz, H, R, mask=None) -> UpdateResult:
-        """Measurement update ``z = H x + v``, ``v ~ N(0, R)``; see :func:`prepare_measurement`."""
+    def update(self, dz, H, R, mask=None, keys=None) -> UpdateResult:
+        """Measurement update ``z = H x + v``, ``v ~ N(0, R)``; see :func:`prepare_measurement`.
+
+        ``keys`` (B, m) int, optional: the identity of each measurement row (satellite and measurement
+        type, :func:`nav_filters.measurements.measurement_keys`; -1 for none). The plain forms do not use
+        it (validated only); the adaptive laws keep per-satellite noise estimates by it."""
+        check_keys(keys, np.shape(dz))
         dz, H, R, mask = prepare_measurement(dz, H, R, mask, self.dtype)
         if H.shape[2] != self.n:
             raise ValueError(f"H must have {self.n} columns, got {H.shape[2]}")

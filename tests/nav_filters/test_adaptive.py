@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 import nav_filters.forms as forms
+from nav_filters.adaptive.sage_husa import freeze_count, sage_husa_weight
 from nav_filters.adaptive import (ADAPTIVE_METHODS, MeasurementAdaptiveSTKF, MeasurementAdaptiveSTKFConfig, SageHusa,
                                   SageHusaConfig, StrongTracking, StrongTrackingConfig, law_factory,
                                   measurement_groups, sage_husa_weight)
@@ -239,8 +240,9 @@ def test_sage_husa_keeps_q_and_r_positive_definite_over_long_runs(dtype):
 
 
 def test_sage_husa_freezes_d_and_lowers_b_on_q_jump():
-    """Sec 4.1: d freezes once it changes by < 5e-4 (and a new b unfreezes it); eq 24: a Q_hat jump
-    above 3 e_(k-1) lowers b for that epoch (1 - b doubled, floor b_min)."""
+    """Sec 4.1: d freezes once it changes by < 5e-4; the freeze depends only on b and the count (a b set
+    later gives the d a filter that always had it would have); eq 24: a Q_hat jump above 3 e_(k-1) lowers
+    b for that epoch (1 - b doubled, floor b_min)."""
     B = 2
     Phi, Q, H = cv_model(q=0.01)
     P0 = np.broadcast_to(np.diag([100.0, 100, 1, 1]), (B, 4, 4)).copy()
@@ -255,8 +257,15 @@ def test_sage_husa_freezes_d_and_lowers_b_on_q_jump():
     assert all(np.array_equal(s["d"], d_frozen) for s in st[frozen_at:])
     assert np.all(st[110]["b_used"] == 0.9)  # 1 - 0.95 doubled
     assert np.all(sh.params()["b"] == 0.95)  # the agent's b is not overwritten
-    sh.set_params(b=np.array([0.95, 0.97]))
-    assert sh.adaptive_state()["d_frozen"].tolist() == [1.0, 0.0]
+    steps = sh.adaptive_state()["steps"]
+    sh.set_params(b=np.array([0.95, 0.9999]))
+    cap = freeze_count(np.array([0.95, 0.9999]), 5e-4)
+    assert cap[0] < steps[0] and cap[1] < steps[1]  # both counts are past the freeze of their b
+    assert sh.adaptive_state()["d_frozen"].tolist() == [1.0, 1.0]
+    hist = simulate([sh], B, 1, Phi, Q, Q, H, r_true=1.0, r_filter=1.0)
+    d_next = hist[-1][2][0]["d"]
+    np.testing.assert_array_equal(d_next, sage_husa_weight(np.array([0.95, 0.9999]), cap))
+    assert abs(d_next[1] - 1 / (cap[1] + 1)) < 1e-3  # b = 0.9999 freezes near the running mean 1/(j+1)
 
 
 def test_measurement_groups_from_h_columns():
@@ -490,6 +499,6 @@ def test_law_factory_fits_the_forms_registry():
     form = f(P0, dtype=np.float32)
     assert isinstance(form, SageHusa) and form.config.diagonal_q and form.dtype == np.float32
     assert isinstance(form.inner, KalmanFilter)
-    assert set(ADAPTIVE_METHODS) == {"sage-husa", "svd-akf", "svd-asrkf", "stkf", "ma-stkf"}
+    assert set(ADAPTIVE_METHODS) == {"sage-husa", "svd-akf", "svd-asrkf", "sage-husa-group", "stkf", "ma-stkf"}
     with pytest.raises(ValueError, match="b"):
         law_factory(SageHusa, "kf", b=2.0)

@@ -1,0 +1,299 @@
+"""Per-satellite measurement-noise adaptation (``r_mode='satellite'``) and the satellite keys behind it."""
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import nav_filters.forms as forms
+from nav_filters.adaptive import SageHusa, SageHusaConfig, law_factory
+from nav_filters.adaptive.innovation import (geometry_residuals, geometry_residuals_reference, posterior_residuals,
+                                             posterior_residuals_reference)
+from nav_filters.measurements import N_SAT_KEYS, measurement_keys, satellite_key
+
+SNAPSHOT = Path(__file__).parent / "snapshots" / "sage_husa_group_before_satellite_r.json"
+
+
+def geometry(rng, B, C):
+    """(B, C, 3) unit lines of sight above the horizon (ENU-like z up)."""
+    az = rng.uniform(0, 2 * np.pi, (B, C))
+    el = rng.uniform(np.radians(15), np.radians(85), (B, C))
+    return np.stack([np.cos(el) * np.sin(az), np.cos(el) * np.cos(az), np.sin(el)], -1)
+
+
+def even_geometry(B, C):
+    """(B, C, 3) lines of sight evenly spread in azimuth, elevations alternating 30 / 65 deg (every satellite
+    has about the same redundancy: a well-conditioned, identifiable case)."""
+    az = np.arange(C) * 2 * np.pi / C
+    el = np.radians(np.where(np.arange(C) % 2, 65.0, 30.0))
+    u = np.stack([np.cos(el) * np.sin(az), np.cos(el) * np.cos(az), np.sin(el)], -1)
+    return np.broadcast_to(u, (B, C, 3)).copy()
+
+
+def static_problem(rng, B, C, n=4, even=False):
+    """Pseudorange-like rows ``[-u, 1]`` on a (position, clock) state of size 4."""
+    u = even_geometry(B, C) if even else geometry(rng, B, C)
+    H = np.zeros((B, C, n))
+    H[:, :, 0:3] = -u
+    H[:, :, 3] = 1.0
+    return H
+
+
+def sat_law(b=0.97, dtype=np.float64, B=4, n=4, **kw):
+    cfg = dict(adapt_q=False, adapt_r=True, r_mode="satellite", d_freeze_tol=0.0, warmup_epochs=0, b=b)
+    cfg.update(kw)
+    P0 = np.broadcast_to(np.eye(n) * 100.0, (B, n, n)).astype(dtype)
+    return SageHusa(P0, dtype=dtype, config=SageHusaConfig(**cfg))
+
+
+def run_static(law, H, keys, var_true, epochs, rng, perm=None, dtype=np.float64):
+    """Feed ``epochs`` of z = H x + v (x static) with reported unit variances; return the scales of each key."""
+    B, C, n = H.shape
+    x = rng.normal(size=(B, n))
+    scales = []
+    for k in range(epochs):
+        law.predict(np.broadcast_to(np.eye(n), (B, n, n)).astype(dtype), np.broadcast_to(np.eye(n) * 1e-8, (B, n, n)).astype(dtype))
+        v = rng.normal(size=(B, C)) * np.sqrt(var_true(k))
+        z = (H @ x[..., None])[..., 0] + v
+        Hk, zk, kk = H, z, keys
+        if perm is not None:
+            p = perm(k)
+            Hk, zk, kk = H[:, p], z[:, p], keys[:, p]
+        law.update((zk - (Hk @ law.x[..., None])[..., 0] + (Hk @ law.x[..., None])[..., 0]).astype(dtype),
+                   Hk.astype(dtype), np.ones((B, C), dtype), keys=kk)
+        scales.append(law.satellite_scales(keys))
+    return np.array(scales), x
+
+
+def test_satellite_key_encoding_and_measurement_keys():
+    np.testing.assert_array_equal(satellite_key([0, 1, 2], [1, 5, 64]), [0, 64 + 4, 128 + 63])
+    assert satellite_key(0, -1) == -1
+    with pytest.raises(ValueError, match="prn"):
+        satellite_key(0, 65)
+    with pytest.raises(ValueError, match="system_index"):
+        satellite_key(9, 3)
+    k = measurement_keys(np.array([[3, -1, 7]]), with_rate=True, n_extra=2)
+    np.testing.assert_array_equal(k, [[3, -1, 7, N_SAT_KEYS + 3, -1, N_SAT_KEYS + 7, -1, -1]])
+
+
+def test_a_satellite_that_turns_nlos_converges_to_its_true_variance_while_the_others_stay_nominal():
+    """12 satellites, true variance 1 (= reported); from epoch 100 satellite key 2 has variance 25 (an NLOS /
+    multipath channel the receiver does not know about). The geometry-residual sample (snapshot least
+    squares, weighted by the current scales) is unbiased for a satellite's variance scale when the weights
+    are right, so its scale settles near 25 and the others' near 1 (their time means scatter by the
+    sampling noise of a b = 0.98 average)."""
+    rng = np.random.default_rng(3)
+    B, C = 4, 12
+    H = static_problem(rng, B, C)
+    keys = np.broadcast_to(np.arange(C), (B, C)).copy()
+    var = lambda k: np.where((np.arange(C) == 2) & (k >= 100), 25.0, 1.0)  # noqa: E731
+    law = sat_law(b=0.98, B=B)
+    sc, _ = run_static(law, H, keys, var, 700, rng)
+    late = sc[300:].mean(0)  # (B, C)
+    assert np.all(np.abs(late[:, 2] / 25.0 - 1) < 0.2), late[:, 2]
+    others = np.delete(late, 2, axis=1)
+    assert np.all((others > 0.5) & (others < 2.0)), others
+    assert np.all(np.abs(np.median(others, 1) - 1) < 0.1), np.median(others, 1)
+    assert np.all(sc[:100, :, 2].mean(0) < 2.0)  # nominal before the onset
+
+
+def test_the_innovation_sample_is_the_classic_law_and_also_converges_in_a_consistent_model():
+    rng = np.random.default_rng(4)
+    B, C = 4, 8
+    H = static_problem(rng, B, C, even=True)
+    keys = np.broadcast_to(np.arange(C), (B, C)).copy()
+    var = lambda k: np.where(np.arange(C) == 5, 9.0, 1.0)  # noqa: E731
+    sc, _ = run_static(sat_law(b=0.98, B=B, r_sample="innovation"), H, keys, var, 800, rng)
+    late = sc[300:].mean(0)
+    assert np.all(np.abs(late[:, 5] / 9.0 - 1) < 0.3), late[:, 5]
+    others = np.delete(late, 5, axis=1)
+    assert np.all((others > 0.5) & (others < 2.5)) and abs(np.median(others) - 1) < 0.1, others
+
+
+def test_satellite_identity_survives_channel_reordering():
+    """The same measurements on shuffled channels (keys shuffled with them) give the same estimates."""
+    rng = np.random.default_rng(5)
+    B, C = 3, 7
+    H = static_problem(rng, B, C)
+    keys = np.broadcast_to(np.arange(10, 10 + C), (B, C)).copy()
+    var = lambda k: np.where((np.arange(C) == 1) & (k > 30), 16.0, 1.0)  # noqa: E731
+    perms = [np.random.default_rng(k).permutation(C) for k in range(120)]
+    a, b = sat_law(B=B), sat_law(B=B)
+    sa, xa = run_static(a, H, keys, var, 120, np.random.default_rng(9))
+    sb, xb = run_static(b, H, keys, var, 120, np.random.default_rng(9), perm=lambda k: perms[k])
+    np.testing.assert_allclose(sa, sb, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(a.x, b.x, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(a.covariance, b.covariance, rtol=1e-9, atol=1e-12)
+    assert sa[-1, :, 1].min() > 4.0  # the bad satellite was found on every row, whatever its channel
+
+
+def test_without_keys_the_satellite_mode_falls_back_to_the_group_law():
+    rng = np.random.default_rng(6)
+    B, C = 2, 6
+    H = static_problem(rng, B, C, n=17)
+    H[:, :, 3] = 0.0
+    H[:, :, 15] = 1.0  # CLK column of the 17-state model: the pseudorange group
+    P0 = np.broadcast_to(np.eye(17) * 10.0, (B, 17, 17)).copy()
+    kw = dict(adapt_q=False, warmup_epochs=0, d_freeze_tol=0.0, b=0.9)
+    grp = SageHusa(P0, config=SageHusaConfig(**kw))
+    sat = SageHusa(P0, config=SageHusaConfig(r_mode="satellite", **kw))
+    for _ in range(20):
+        dz = rng.normal(size=(B, C)) * 3.0
+        for f in (grp, sat):
+            f.predict(np.broadcast_to(np.eye(17), (B, 17, 17)), np.broadcast_to(np.eye(17) * 1e-6, (B, 17, 17)))
+            f.update(dz, H, np.ones((B, C)))
+    np.testing.assert_allclose(sat.adaptive_state()["r_scale_pseudorange"], grp.adaptive_state()["r_scale_pseudorange"],
+                               rtol=1e-12)
+    np.testing.assert_allclose(sat.x, grp.x, rtol=1e-10, atol=1e-14)
+
+
+@pytest.mark.parametrize("sample,iters", [("geometry", 1), ("geometry", 3), ("residual", 1), ("residual", 2),
+                                          ("innovation", 1)])
+def test_compiled_satellite_law_matches_its_numpy_specification(sample, iters):
+    rng = np.random.default_rng(7)
+    B, C = 5, 9
+    H = static_problem(rng, B, C)
+    keys = np.broadcast_to(np.arange(C), (B, C)).copy()
+    keys[2, 4] = -1  # one row without identity: group law
+    law = sat_law(B=B, b=0.9, r_sample=sample, sample_iterations=iters, forget_after_epochs=3)
+    mask = np.ones((B, C), bool)
+    for k in range(25):
+        law.predict(np.broadcast_to(np.eye(4), (B, 4, 4)), np.broadcast_to(np.eye(4) * 1e-4, (B, 4, 4)))
+        m = mask.copy()
+        m[:, (k % C)] = k % 7 != 0  # gaps of one epoch, and satellites unseen for longer (aging, forgetting)
+        m[1, 3] = k < 5 or k > 12
+        dz = rng.normal(size=(B, C)) * np.where(np.arange(C) == 1, 6.0, 1.0)
+        if k == 24:
+            law._keys = keys
+            ctx = law._open_epoch()
+            active = m.any(-1)
+            d = law._weights(active)
+            from nav_filters.forms.base import prepare_measurement
+            dzp, Hp, Rp, mp = prepare_measurement(dz, H, np.ones((B, C)), m, np.float64)
+            r = dzp - (Hp @ law.x[..., None])[..., 0]
+            plan = law._plan_satellite(r, Hp, Rp, mp, ctx, d, active, {})
+            s_ref, n_ref, g_ref, R_ref = law._r_sat_reference(r, Hp, Rp, mp, ctx, keys, d, active)
+            _, s_rows, n_rows, _ = plan.pending["sat"]
+            used = mp & (keys >= 0)
+            np.testing.assert_allclose(np.where(used, s_rows, 1.0), s_ref, rtol=1e-9)
+            np.testing.assert_array_equal(np.where(used, n_rows, 0), n_ref)
+            np.testing.assert_allclose(plan.pending["r_scale"], g_ref, rtol=1e-12)
+            np.testing.assert_allclose(plan.R, R_ref, rtol=1e-9)
+            law._ctx = None
+            law._keys = None
+        else:
+            law.update(dz, H, np.ones((B, C)), m, keys=keys)
+
+
+def test_aging_and_forgetting_of_unseen_satellites():
+    """A satellite unseen for u - 1 epochs comes back with 1 + (s - 1) b^(u - 1); unseen for more than
+    forget_after_epochs it starts again from its reported variance."""
+    rng = np.random.default_rng(8)
+    B, C = 1, 8
+    H = static_problem(rng, B, C)
+    keys = np.arange(C)[None]
+    law = sat_law(B=B, b=0.8, forget_after_epochs=6)
+    eye, q = np.eye(4)[None], np.eye(4)[None] * 1e-8
+
+    def step(dz, m):
+        law.predict(eye, q)
+        law.update(dz, H, np.ones((B, C)), m, keys=keys)
+
+    allm = np.ones((B, C), bool)
+    for _ in range(30):
+        step(rng.normal(size=(B, C)) * np.where(np.arange(C) == 0, 8.0, 1.0), allm)
+    s_before = law.satellite_scales(keys)[0, 0]
+    assert s_before > 5
+    gap = allm.copy()
+    gap[0, 0] = False
+    for _ in range(3):  # unseen 3 epochs: u = 4 at its return
+        step(rng.normal(size=(B, C)), gap)
+    law.predict(eye, q)
+    law._keys = keys
+    ctx = law._open_epoch()
+    d = law._weights(np.ones(B, bool))
+    plan = law._plan_satellite(np.zeros((B, C)), H, np.eye(C)[None], allm, ctx, d, np.ones(B, bool), {})
+    assert plan.pending["sat"][3][0, 0] == pytest.approx(1 + (s_before - 1) * 0.8 ** 3, rel=1e-12)
+    law._ctx = law._keys = None
+    for _ in range(7):  # unseen 7 more epochs: forgotten
+        step(rng.normal(size=(B, C)), gap)
+    law.predict(eye, q)
+    law._keys = keys
+    ctx = law._open_epoch()
+    plan = law._plan_satellite(np.zeros((B, C)), H, np.eye(C)[None], allm, ctx, d, np.ones(B, bool), {})
+    assert plan.pending["sat"][3][0, 0] == 1.0 and plan.pending["sat"][2][0, 0] == 1
+
+
+def test_float32_satellite_law_runs_and_matches_float64():
+    rng = np.random.default_rng(10)
+    B, C = 3, 8
+    H = static_problem(rng, B, C)
+    keys = np.broadcast_to(np.arange(C), (B, C)).copy()
+    var = lambda k: np.where(np.arange(C) == 3, 16.0, 1.0)  # noqa: E731
+    s32, _ = run_static(sat_law(B=B, dtype=np.float32), H, keys, var, 200, np.random.default_rng(1), dtype=np.float32)
+    s64, _ = run_static(sat_law(B=B), H, keys, var, 200, np.random.default_rng(1))
+    assert np.all(np.isfinite(s32))
+    np.testing.assert_allclose(s32[-1], s64[-1], rtol=2e-2)
+
+
+def test_geometry_and_posterior_residuals_match_their_specifications():
+    rng = np.random.default_rng(11)
+    B, C = 6, 8
+    H = np.concatenate([static_problem(rng, B, C, n=8)[:, :, [0, 1, 2, 3, 4, 5, 6, 7]]], 1)
+    H[:, :, 4:] = 0
+    H2 = np.zeros((B, C, 8))
+    H2[:, :, 4:7] = H[:, :, 0:3]
+    H2[:, :, 7] = 1
+    HH = np.concatenate([H, H2], 1)
+    dz = rng.normal(size=(B, 2 * C))
+    var = rng.uniform(0.5, 3.0, (B, 2 * C))
+    types = np.r_[np.zeros(C, int), np.ones(C, int)][None].repeat(B, 0)
+    types[0, :5] = -1  # only 3 pseudoranges: no redundancy for 4 unknowns
+    v, red = geometry_residuals(dz, HH, var, types)
+    v2, red2 = geometry_residuals_reference(dz, HH, var, types)
+    np.testing.assert_allclose(v, v2, atol=1e-10)
+    np.testing.assert_allclose(red, red2, atol=1e-10)
+    assert np.all(red[0, :C] == 0) and np.all(red[1:] > 0)
+    # the redundancy numbers of one fitted type sum to rows - columns (trace of I - hat)
+    np.testing.assert_allclose(red[1:, :C].sum(1), C - 4, rtol=1e-9)
+    A = rng.normal(size=(B, 8, 8))
+    P = A @ A.mT + np.eye(8)
+    use = types >= 0
+    for k in (1.0, 10.0):
+        pv, pr = posterior_residuals(dz, HH, P, var, use, k)
+        pv2, pr2 = posterior_residuals_reference(dz, HH, P, var, use, k)
+        np.testing.assert_allclose(pv, pv2, rtol=1e-8, atol=1e-10)
+        np.testing.assert_allclose(pr, pr2, rtol=1e-8, atol=1e-10)
+    # a common state error is invisible to the geometry residuals
+    delta = rng.normal(size=(B, 8)) * 50
+    v3, _ = geometry_residuals(dz + (HH @ delta[..., None])[..., 0], HH, var, types)
+    np.testing.assert_allclose(v3, v, atol=1e-8)
+
+
+def test_group_mode_reproduces_the_law_before_per_satellite_r_bit_for_bit():
+    """``sage-husa-group`` is the Sage-Husa law as it was before per-satellite R (snapshot written by that
+    code: urban and noise-burst, 2 episodes x 60 s, b = 0.9 and 0.995; svd-akf / svd-asrkf then adapted Q
+    only, which ``adapt_r=False`` still is)."""
+    from envs.episodes import run_episodes
+    from envs.worlds import make_world
+    ref = json.loads(SNAPSHOT.read_text())
+    names = {"sage-husa": "sage-husa-group",
+             "svd-akf": law_factory(SageHusa, "svd-kf", diagonal_q=False, adapt_r=False),
+             "svd-asrkf": law_factory(SageHusa, "svd-srkf", diagonal_q=True, adapt_r=False)}
+    added = []
+    try:
+        for old, new in names.items():
+            if not isinstance(new, str):
+                forms.FORMS[f"_test-{old}"] = new
+                added.append(f"_test-{old}")
+                names[old] = f"_test-{old}"
+        for scen in ("urban", "noise-burst"):
+            world = make_world(scen, [11, 12], duration_s=60.0)
+            for method, name in names.items():
+                for b in (0.9, 0.995):
+                    h = run_episodes(world, name, params={"b": b}).horizontal_error
+                    np.testing.assert_array_equal(h, np.array(ref[f"{scen}/{method}/b={b}"]["h_m"]),
+                                                  err_msg=f"{scen} {method} b={b}")
+    finally:
+        for a in added:
+            forms.FORMS.pop(a, None)
