@@ -32,7 +32,13 @@ corrections have been applied; their residuals are simulated)::
   sin(el)`` and ``sigma_prr(el) = prr_sigma_mps / sin(el)`` (code tracking
   noise plus multipath grows as the signal gets weaker near the horizon);
   ``s(t)`` the :attr:`GnssEvents.noise_scale` multiplier and ``k_nlos`` the
-  NLOS extra-noise factor (1 outside bursts).
+  NLOS extra-noise factor (1 outside bursts). The random events of
+  :mod:`envs.sim.events` multiply ``s(t) k_nlos`` further (code and Doppler
+  separately): random bursts and noise regimes per epoch, the zone / NLOS
+  C/N0 loss ``10^(loss/20)`` (replacing ``k_nlos`` on their NLOS channels)
+  and the re-acquisition transient per channel; zone and regime NLOS
+  channels carry the smartLoc-measured log-normal bias instead of the burst
+  / canyon one.
 
 The sigmas the receiver *reports* (:attr:`GnssData.pr_sigma`,
 :attr:`GnssData.prr_sigma`) are nominal: they never see ``s(t)`` nor NLOS (an
@@ -41,6 +47,10 @@ atmospheric residuals::
 
     pr_sigma^2  = (pr_sigma_m / sin el)^2 + (m_T tropo_zenith_sigma_m)^2 + (F_I iono_zenith_sigma_m)^2
     prr_sigma   = prr_sigma_mps / sin el
+
+both times the :class:`~envs.sim.events.SigmaMismatch` factor when one is
+configured. The oracle truth :attr:`GnssData.pr_var_true` is the same sum
+with the true (multiplied) white sigma and the NLOS bias squared added.
 
 Satellite clock and ephemeris errors are assumed corrected (residuals of a few
 decimetres are part of ``pr_sigma_m``). Satellite positions in :class:`GnssData`
@@ -932,9 +942,11 @@ def simulate_gnss(t, r_e, v_e, heading, constellation: Constellation, receiver: 
     vectorized over time.
 
     Per row ``i``, ``rngs[i]`` gives one draw of 4 integers that seed fixed
-    child streams (sky epoch, clock, troposphere, ionosphere, code noise,
-    Doppler noise, NLOS, canyon): switching an event on or off does not change
-    the other components' draws.
+    child streams (0-7: sky epoch, clock, troposphere, ionosphere, code noise,
+    Doppler noise, NLOS, canyon; 8-15: random bursts, mismatch, regimes,
+    regime NLOS, zone schedule, zone buildings, zone per-satellite draws, C/N0
+    jitter): switching an event on or off does not change the other
+    components' draws.
 
     Parameters
     ----------
@@ -943,8 +955,9 @@ def simulate_gnss(t, r_e, v_e, heading, constellation: Constellation, receiver: 
     r_e, v_e : (B, M, 3) array_like
         True receiver ECEF position [m] and velocity [m/s] at the epochs.
     heading : (B, M) array_like or None
-        Vehicle heading [rad], clockwise from north (NED yaw); needed only
-        when ``events.canyon`` is set.
+        Vehicle heading [rad], clockwise from north (NED yaw); needed
+        when ``events.canyon`` is set (``events.zones`` without it: no canyon
+        blockage geometry, only the zones' NLOS probabilities).
     constellation : Constellation
     receiver : ReceiverConfig
     events : GnssEvents
