@@ -148,7 +148,8 @@ def gnss_data_from_epochs(epochs: GnssEpochs, r_e, batch_size: int, clock_bias_m
                     pr_sigma=bc(np.where(m, epochs.pr_sigma, 0.0)), prr_sigma=None, mask=bc(m),
                     prn=bc(np.where(m, epochs.sat_keys() + 1, -1)), elevation=bc(np.where(m, epochs.elevation, 0.0)),
                     azimuth=bc(np.where(m, az, 0.0)), clock_bias_m=bc(bias), clock_drift_mps=bc(drift),
-                    nlos=bc(np.zeros((M, C), bool)), pr_error_m=bc(err), prr_error_mps=None)
+                    nlos=bc(np.zeros((M, C), bool)), pr_error_m=bc(err), prr_error_mps=None,
+                    cn0_dbhz=bc(np.where(m, epochs.cn0, 0.0)))  # the simulator-truth fields stay None
 
 
 def replay_world(scenario: Scenario, epochs: GnssEpochs, fit: SplineFit, seeds, dtype=np.float64,

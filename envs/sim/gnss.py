@@ -32,7 +32,13 @@ corrections have been applied; their residuals are simulated)::
   sin(el)`` and ``sigma_prr(el) = prr_sigma_mps / sin(el)`` (code tracking
   noise plus multipath grows as the signal gets weaker near the horizon);
   ``s(t)`` the :attr:`GnssEvents.noise_scale` multiplier and ``k_nlos`` the
-  NLOS extra-noise factor (1 outside bursts).
+  NLOS extra-noise factor (1 outside bursts). The random events of
+  :mod:`envs.sim.events` multiply ``s(t) k_nlos`` further (code and Doppler
+  separately): random bursts and noise regimes per epoch, the zone / NLOS
+  C/N0 loss ``10^(loss/20)`` (replacing ``k_nlos`` on their NLOS channels)
+  and the re-acquisition transient per channel; zone and regime NLOS
+  channels carry the smartLoc-measured log-normal bias instead of the burst
+  / canyon one.
 
 The sigmas the receiver *reports* (:attr:`GnssData.pr_sigma`,
 :attr:`GnssData.prr_sigma`) are nominal: they never see ``s(t)`` nor NLOS (an
@@ -41,6 +47,10 @@ atmospheric residuals::
 
     pr_sigma^2  = (pr_sigma_m / sin el)^2 + (m_T tropo_zenith_sigma_m)^2 + (F_I iono_zenith_sigma_m)^2
     prr_sigma   = prr_sigma_mps / sin el
+
+both times the :class:`~envs.sim.events.SigmaMismatch` factor when one is
+configured. The oracle truth :attr:`GnssData.pr_var_true` is the same sum
+with the true (multiplied) white sigma and the NLOS bias squared added.
 
 Satellite clock and ephemeris errors are assumed corrected (residuals of a few
 decimetres are part of ``pr_sigma_m``). Satellite positions in :class:`GnssData`
@@ -61,12 +71,14 @@ from scipy.signal import lfilter
 from earth.ranging import range_and_rate
 from earth.wgs84 import C_LIGHT, OMEGA_IE, ecef_to_geodetic
 
+from . import events as ev
 from .constellation import Constellation, _check_int, _check_real
+from .events import NoiseRegimes, RandomBursts, Reacquisition, SigmaMismatch, UrbanZones
 
 __all__ = [
     "Constellation", "ClockModel", "ReceiverConfig", "NlosConfig", "UrbanCanyon", "GnssEvents",
     "GnssData", "simulate_clock", "simulate_gnss", "tropo_mapping", "iono_obliquity", "EVENT_PRESETS",
-    "GPS_WEEK_S",
+    "GPS_WEEK_S", "RandomBursts", "SigmaMismatch", "NoiseRegimes", "UrbanZones", "Reacquisition",
 ]
 
 GPS_WEEK_S = 604_800.0
@@ -75,7 +87,13 @@ GPS_WEEK_S = 604_800.0
 # fixed child-stream indices of a row's generator inside simulate_gnss: a component
 # added later gets a new index and never shifts another component's draws.
 _SUB_SKY, _SUB_CLOCK, _SUB_TROPO, _SUB_IONO, _SUB_CODE, _SUB_RATE, _SUB_NLOS, _SUB_CANYON = range(8)
-_N_SUB = 8
+# issue 16 (random events): SeedSequence.spawn keys its children by index, so spawning more
+# children leaves the first 8 streams, and every pre-existing draw, unchanged (tested).
+(_SUB_BURSTS, _SUB_MISMATCH, _SUB_REGIME, _SUB_REGIME_NLOS, _SUB_ZONES, _SUB_ZONE_GEOM, _SUB_ZONE_SAT,
+ _SUB_CN0) = range(8, 16)
+_N_SUB = 16
+CN0_JITTER_DB = 1.0
+"""Sigma of the receiver's C/N0 estimate per epoch [dB] (assumption: a 1 s C/N0 estimator at 35-45 dB-Hz)."""
 _MIN_EL_SIGMA = math.radians(1.0)
 """The 1/sin(el) sigma model is evaluated at max(el, 1 deg) (finite at a 0-deg mask)."""
 _CHUNK_ELEMS = 50_000
@@ -396,6 +414,26 @@ class ReceiverConfig:
             raise ValueError(f"{o}.clock must be a ClockModel, got {type(self.clock).__name__}")
 
     @classmethod
+    def dual_frequency(cls, **kw) -> "ReceiverConfig":
+        """A receiver with a small atmosphere residual: dual-frequency (L1/L5) iono-free, SBAS-grade troposphere.
+
+        The first-order ionospheric delay (> 99.9 % of it) cancels in the
+        iono-free combination; what is left is the higher-order terms (cm)
+        and inter-frequency bias errors: assumption ``iono_zenith_sigma_m =
+        0.1`` m (conservative; the SBAS-corrected single-frequency user's
+        vertical iono error, after GIVE-level grid corrections, is of the same
+        order). The troposphere residual is RTCA DO-229 A.4.2.4's
+        ``sigma_tvert = 0.12`` m. The zenith code noise stays 0.8 m
+        (assumption: the iono-free combination amplifies the noise by ~2.6 on
+        L1/L5, offset by L5's ten times faster chipping rate). With these,
+        white-noise mismatch is no longer swamped by the slow atmosphere
+        residual (default receiver: 0.7 m iono, 0.15 m tropo zenith).
+        """
+        base = dict(tropo_zenith_sigma_m=0.12, iono_zenith_sigma_m=0.1)
+        base.update(kw)
+        return cls(**base)
+
+    @classmethod
     def ideal(cls, **kw) -> "ReceiverConfig":
         """No noise, no atmospheric residual, a perfect clock (geometry checks)."""
         base = dict(pr_sigma_m=0.0, prr_sigma_mps=0.0, tropo_zenith_sigma_m=0.0,
@@ -549,15 +587,31 @@ class GnssEvents:
         NLOS / multipath bursts (None: none).
     canyon : UrbanCanyon or None
         Street-canyon blockage (None: open sky). Needs the vehicle heading.
+    bursts : RandomBursts or None
+        Random bursts of the true noise at random times (:mod:`envs.sim.events`).
+    mismatch : SigmaMismatch or None
+        Piecewise-constant error of the *reported* sigmas.
+    regimes : NoiseRegimes or None
+        Markov-switching true-noise regimes.
+    zones : UrbanZones or None
+        Open sky alternating with canyon / tree cover / overpass zones (canyon geometry needs the heading;
+        without it only the zones' NLOS probabilities apply).
+    reacquisition : Reacquisition or None
+        Larger true noise after each (re-)acquisition of a satellite.
 
     Events compose: :meth:`combine` merges several (intervals concatenate,
-    the last non-None ``nlos`` / ``canyon`` wins).
+    the last non-None ``nlos`` / ``canyon`` / ``bursts`` / ... wins).
     """
 
     outages: tuple = ()
     noise_scale: tuple = ()
     nlos: NlosConfig | None = None
     canyon: UrbanCanyon | None = None
+    bursts: RandomBursts | None = None
+    mismatch: SigmaMismatch | None = None
+    regimes: NoiseRegimes | None = None
+    zones: UrbanZones | None = None
+    reacquisition: Reacquisition | None = None
 
     def __post_init__(self):
         o = "GnssEvents"
@@ -567,6 +621,10 @@ class GnssEvents:
             raise ValueError(f"{o}.nlos must be an NlosConfig or None, got {type(self.nlos).__name__}")
         if self.canyon is not None and not isinstance(self.canyon, UrbanCanyon):
             raise ValueError(f"{o}.canyon must be an UrbanCanyon or None, got {type(self.canyon).__name__}")
+        for name, typ in _RANDOM_EVENT_TYPES.items():
+            v = getattr(self, name)
+            if v is not None and not isinstance(v, typ):
+                raise ValueError(f"{o}.{name} must be a {typ.__name__} or None, got {type(v).__name__}")
 
     # ------------------------------------------------------------- constructors
     @classmethod
@@ -618,10 +676,14 @@ class GnssEvents:
         for o in others:
             if not isinstance(o, GnssEvents):
                 raise ValueError(f"combine expects GnssEvents, got {type(o).__name__}")
-            out = replace(out, outages=out.outages + o.outages, noise_scale=out.noise_scale + o.noise_scale,
-                          nlos=o.nlos if o.nlos is not None else out.nlos,
-                          canyon=o.canyon if o.canyon is not None else out.canyon)
+            last = {n: getattr(o, n) if getattr(o, n) is not None else getattr(out, n)
+                    for n in ("nlos", "canyon") + tuple(_RANDOM_EVENT_TYPES)}
+            out = replace(out, outages=out.outages + o.outages, noise_scale=out.noise_scale + o.noise_scale, **last)
         return out
+
+
+_RANDOM_EVENT_TYPES = {"bursts": RandomBursts, "mismatch": SigmaMismatch, "regimes": NoiseRegimes,
+                       "zones": UrbanZones, "reacquisition": Reacquisition}
 
 
 EVENT_PRESETS = {
@@ -661,6 +723,23 @@ class GnssData:
     nlos : (B, M, C) bool, the channel carries an NLOS / multipath error.
     pr_error_m : (B, M, C) ``pr - rho - clock_bias`` [m] (atmosphere + NLOS + noise).
     prr_error_mps : (B, M, C) ``prr - rho_dot - clock_drift`` [m/s].
+    cn0_dbhz : (B, M, C) C/N0 the receiver reports [dB-Hz] (0 on masked channels); recorded data pass
+        their own or None. Simulated: ``cn0_los(el)`` (:func:`envs.sim.events.cn0_los`, smartLoc fit)
+        minus the zone / NLOS attenuation, plus ``N(0, CN0_JITTER_DB^2)``.
+
+    Simulator truth for oracles (never used by a filter; None for recorded data):
+
+    pr_var_true : (B, M, C) true variance of each pseudorange error [m^2], as an oracle would give it to a
+        Kalman filter: the white-noise variance with every multiplier applied (noise-scale intervals,
+        bursts, regimes, NLOS factor, zone attenuation, re-acquisition) + the *nominal* atmosphere
+        residual variance exactly as in ``pr_sigma`` (``(m_T sigma_T)^2 + (F_I sigma_I)^2``) + the
+        NLOS / multipath bias squared. 1.0 on masked channels.
+    prr_var_true : (B, M, C) the same for the pseudorange rate [m^2/s^2]: white variance with every
+        multiplier + the NLOS rate error squared. 1.0 on masked channels.
+    pr_bias_m : (B, M, C) the NLOS / multipath pseudorange bias [m] (0 on clean and masked channels).
+    prr_bias_mps : (B, M, C) the NLOS pseudorange-rate error [m/s].
+    event_mask : (B, M) uint16 OR of the :mod:`envs.sim.events` bits active at each epoch
+        (``OUTAGE``, ``NOISE``, ``MISMATCH``, ``NLOS_ZONE``, ...; the world adds the IMU bits).
     """
 
     t: np.ndarray
@@ -680,6 +759,12 @@ class GnssData:
     nlos: np.ndarray
     pr_error_m: np.ndarray
     prr_error_mps: np.ndarray
+    cn0_dbhz: np.ndarray | None = None
+    pr_var_true: np.ndarray | None = None
+    prr_var_true: np.ndarray | None = None
+    pr_bias_m: np.ndarray | None = None
+    prr_bias_mps: np.ndarray | None = None
+    event_mask: np.ndarray | None = None
 
     @property
     def shape(self) -> tuple:
@@ -857,9 +942,11 @@ def simulate_gnss(t, r_e, v_e, heading, constellation: Constellation, receiver: 
     vectorized over time.
 
     Per row ``i``, ``rngs[i]`` gives one draw of 4 integers that seed fixed
-    child streams (sky epoch, clock, troposphere, ionosphere, code noise,
-    Doppler noise, NLOS, canyon): switching an event on or off does not change
-    the other components' draws.
+    child streams (0-7: sky epoch, clock, troposphere, ionosphere, code noise,
+    Doppler noise, NLOS, canyon; 8-15: random bursts, mismatch, regimes,
+    regime NLOS, zone schedule, zone buildings, zone per-satellite draws, C/N0
+    jitter): switching an event on or off does not change the other
+    components' draws.
 
     Parameters
     ----------
@@ -868,8 +955,9 @@ def simulate_gnss(t, r_e, v_e, heading, constellation: Constellation, receiver: 
     r_e, v_e : (B, M, 3) array_like
         True receiver ECEF position [m] and velocity [m/s] at the epochs.
     heading : (B, M) array_like or None
-        Vehicle heading [rad], clockwise from north (NED yaw); needed only
-        when ``events.canyon`` is set.
+        Vehicle heading [rad], clockwise from north (NED yaw); needed
+        when ``events.canyon`` is set (``events.zones`` without it: no canyon
+        blockage geometry, only the zones' NLOS probabilities).
     constellation : Constellation
     receiver : ReceiverConfig
     events : GnssEvents
@@ -961,8 +1049,74 @@ def simulate_gnss(t, r_e, v_e, heading, constellation: Constellation, receiver: 
             nlos_sat[i] |= act
             nlos_bias_sat[i] = np.maximum(nlos_bias_sat[i], bias)
             nlos_rate_sat[i] = rate
+    # issue-16 events: each from its own child stream, drawn only when configured
+    n_ep = np.ones((B, M)), np.ones((B, M))                  # per-epoch true code / Doppler sigma multipliers
+    rep_fac = np.ones((B, M)), np.ones((B, M))               # reported-sigma factors (mismatch)
+    bits = np.zeros((B, M), dtype=np.uint16)
+    new_nlos = events.zones is not None or (events.regimes is not None
+                                            and any(r.nlos_fraction > 0 for r in events.regimes.regimes))
+    if new_nlos:                                           # NLOS of the zones / regimes, and their C/N0 loss
+        nlos2_sat = np.zeros((B, M, S), dtype=bool)
+        bias2_sat = np.zeros((B, M, S))
+        rate2_sat = np.zeros((B, M, S))
+        att_sat = np.zeros((B, M, S))
+    if events.bursts is not None:
+        for i in range(B):
+            c, d, act, _ = ev.draw_bursts(t, events.bursts, subs[i][_SUB_BURSTS])
+            n_ep[0][i] *= c
+            n_ep[1][i] *= d
+            bits[i] |= np.where(act, ev.NOISE, 0).astype(np.uint16)
+    if events.mismatch is not None:
+        for i in range(B):
+            fp, fd = ev.draw_mismatch(t, events.mismatch, subs[i][_SUB_MISMATCH])
+            rep_fac[0][i], rep_fac[1][i] = fp, fd
+            bits[i] |= np.where((fp != 1.0) | (fd != 1.0), ev.MISMATCH, 0).astype(np.uint16)
+    if events.regimes is not None:
+        rg = events.regimes
+        sc = np.array([[r.code_scale, r.doppler_scale] for r in rg.regimes])
+        for i in range(B):
+            regime, _ = ev.draw_regimes(t, rg, subs[i][_SUB_REGIME])
+            n_ep[0][i] *= sc[regime, 0]
+            n_ep[1][i] *= sc[regime, 1]
+            bits[i] |= np.where(regime > 0, ev.REGIME, 0).astype(np.uint16)
+            if new_nlos:
+                nl, bi, ra = ev.regime_nlos(t, regime, el_all[i], rg, subs[i][_SUB_REGIME_NLOS])
+                nl &= visible[i]
+                nlos2_sat[i] |= nl
+                bias2_sat[i] = np.where(nl, bi, bias2_sat[i])
+                rate2_sat[i] = np.where(nl, ra, rate2_sat[i])
+    if events.zones is not None:
+        for i in range(B):
+            kind, zid, windows = ev.draw_zone_schedule(t, events.zones, subs[i][_SUB_ZONES])
+            blocked, nl, bi, ra, att = ev.zone_effects(
+                t, kind, zid, windows, el_all[i], az_all[i], v_e[i], None if heading is None else heading[i],
+                events.zones, subs[i][_SUB_ZONE_GEOM], subs[i][_SUB_ZONE_SAT])
+            visible[i] &= ~blocked
+            nl &= visible[i]
+            nlos2_sat[i] |= nl
+            bias2_sat[i] = np.where(nl, bi, bias2_sat[i])
+            rate2_sat[i] = np.where(nl, ra, rate2_sat[i])
+            att_sat[i] = np.where(visible[i], att, 0.0)
+            zb = np.zeros(M, dtype=np.uint16)
+            zb[kind == ev.ZONE_CANYON] = ev.NLOS_ZONE
+            zb[kind == ev.ZONE_TREES] = ev.NLOS_ZONE | ev.TREES
+            zb[kind == ev.ZONE_OVERPASS] = ev.OVERPASS
+            bits[i] |= zb
+    if new_nlos:                                           # the regimes' NLOS carry the measured C/N0 deficit too
+        att_sat = np.where(nlos2_sat & (att_sat == 0.0), ev.NLOS_DEFICIT_DB, att_sat)
     if events.outages:
-        visible &= ~_in_intervals(t, events.outages)[None, :, None]
+        in_out = _in_intervals(t, events.outages)
+        visible &= ~in_out[None, :, None]
+        bits |= np.where(in_out, ev.OUTAGE, 0).astype(np.uint16)[None]
+    for iv in events.noise_scale:
+        if iv[2] != 1.0:
+            bits |= np.where((t >= iv[0]) & (t < iv[1]), ev.NOISE, 0).astype(np.uint16)[None]
+    if events.canyon is not None:
+        in_c = _in_intervals(t, events.canyon.intervals) if events.canyon.intervals else np.ones(M, bool)
+        bits |= np.where(in_c, ev.NLOS_ZONE, 0).astype(np.uint16)[None]
+    reacq_sat = None
+    if events.reacquisition is not None:
+        reacq_sat = np.stack([ev.reacquisition_multiplier(t, visible[i], events.reacquisition) for i in range(B)])
 
     # ---- channel allocation: visible satellites by elevation, descending
     key = np.where(visible, el_all, -np.inf)
@@ -979,7 +1133,9 @@ def simulate_gnss(t, r_e, v_e, heading, constellation: Constellation, receiver: 
         return np.take_along_axis(a, sel, axis=-1)
 
     el, az = gather(el_all), gather(az_all)
-    del el_all, az_all, key, order
+    cn0_z = np.stack([s[_SUB_CN0].standard_normal((M, S)) for s in subs])     # C/N0 jitter, per satellite
+    cn0 = ev.cn0_los(el) + CN0_JITTER_DB * gather(cn0_z)
+    del el_all, az_all, key, order, cn0_z
     # ---- ephemeris at transmission time and true range / rate of the tracked satellites
     t_tx_ch = gather(t_tx)
     del t_tx
@@ -1015,19 +1171,48 @@ def simulate_gnss(t, r_e, v_e, heading, constellation: Constellation, receiver: 
     nlos_bias, nlos_rate = gather(nlos_bias_sat), gather(nlos_rate_sat)
     del nlos_sat, nlos_bias_sat, nlos_rate_sat
     k_nlos = events.nlos.noise_factor if events.nlos is not None else 3.0
+    cn0 -= np.where(nlos, ev.NLOS_DEFICIT_DB, 0.0)
     scale = np.ones(M)
     for iv in events.noise_scale:
         scale = np.where((t >= iv[0]) & (t < iv[1]), scale * iv[2], scale)
     noise_mult = scale[None, :, None] * np.where(nlos, k_nlos, 1.0)
+    noise_mult_prr = noise_mult
+    if new_nlos:                                           # zone / regime NLOS replace the old ones on a channel
+        nlos2 = gather(nlos2_sat) & mask
+        att = gather(att_sat)
+        nlos_bias = np.where(nlos2, gather(bias2_sat), nlos_bias)
+        nlos_rate = np.where(nlos2, gather(rate2_sat), nlos_rate)
+        noise_mult = np.where(nlos2 & nlos, noise_mult / k_nlos, noise_mult) * 10.0 ** (att / 20.0)
+        nlos = nlos | nlos2
+        cn0 -= att
+        noise_mult_prr = noise_mult
+        del nlos2_sat, bias2_sat, rate2_sat, att_sat
+    if reacq_sat is not None:
+        rq = gather(reacq_sat)
+        noise_mult = noise_mult * rq
+        noise_mult_prr = noise_mult_prr * rq
+        bits |= np.where((mask & (rq > 1.0)).any(axis=-1), ev.REACQUISITION, 0).astype(np.uint16)
+    if events.bursts is not None or events.regimes is not None:
+        noise_mult = noise_mult * n_ep[0][..., None]
+        noise_mult_prr = noise_mult_prr * n_ep[1][..., None]
     sig_pr_code = receiver.pr_sigma_m / s_el
     sig_prr = receiver.prr_sigma_mps / s_el
-    pr_err = (m_t * tropo_z[..., None] + f_i * iono_ch + np.where(nlos, nlos_bias, 0.0)
-              + noise_mult * sig_pr_code * code_z)
-    prr_err = np.where(nlos, nlos_rate, 0.0) + noise_mult * sig_prr * rate_z
+    pr_bias = np.where(nlos, nlos_bias, 0.0)
+    prr_bias = np.where(nlos, nlos_rate, 0.0)
+    pr_white = noise_mult * sig_pr_code
+    prr_white = noise_mult_prr * sig_prr
+    pr_err = (m_t * tropo_z[..., None] + f_i * iono_ch + pr_bias + pr_white * code_z)
+    prr_err = prr_bias + prr_white * rate_z
     pr = rho + bias_m[..., None] + pr_err
     prr = rho_dot + drift_mps[..., None] + prr_err
+    atm_var = (m_t * receiver.tropo_zenith_sigma_m) ** 2 + (f_i * receiver.iono_zenith_sigma_m) ** 2
     pr_sigma = np.sqrt(sig_pr_code**2 + (m_t * receiver.tropo_zenith_sigma_m) ** 2
                        + (f_i * receiver.iono_zenith_sigma_m) ** 2)
+    pr_var_true = np.where(mask, pr_white**2 + atm_var + pr_bias**2, 1.0)
+    prr_var_true = np.where(mask, prr_white**2 + prr_bias**2, 1.0)
+    if events.mismatch is not None:
+        pr_sigma = pr_sigma * rep_fac[0][..., None]
+        sig_prr = sig_prr * rep_fac[1][..., None]
 
     # ---- masked channels: finite zeros (in place, then one cast)
     off = ~mask
@@ -1045,4 +1230,6 @@ def simulate_gnss(t, r_e, v_e, heading, constellation: Constellation, receiver: 
         mask=mask, prn=prn, elevation=z(el), azimuth=z(az),
         clock_bias_m=bias_m.astype(dtype, copy=False), clock_drift_mps=drift_mps.astype(dtype, copy=False),
         nlos=nlos, pr_error_m=z(pr_err), prr_error_mps=z(prr_err),
+        cn0_dbhz=z(cn0), pr_var_true=pr_var_true.astype(dtype), prr_var_true=prr_var_true.astype(dtype),
+        pr_bias_m=z(pr_bias), prr_bias_mps=z(prr_bias), event_mask=bits,
     )

@@ -60,6 +60,7 @@ __all__ = [
     "IMU_GRADES",
     "get_imu_grade",
     "Vibration",
+    "ImuEvents",
     "ImuData",
     "simulate_imu",
     "simulate_vibration",
@@ -68,7 +69,7 @@ __all__ = [
     "density_from_sample_sigma",
 ]
 
-_COMPONENTS = ("constants", "gyro_white", "accel_white", "gyro_gm", "accel_gm", "vibration")
+_COMPONENTS = ("constants", "gyro_white", "accel_white", "gyro_gm", "accel_gm", "vibration", "events")
 """Child streams derived from each row's generator; spawn key = index here (never reorder)."""
 
 
@@ -611,6 +612,101 @@ def simulate_vibration(imu_rate_hz: float, rngs: Sequence[np.random.Generator], 
     return f, w
 
 
+# --------------------------------------------------------------------------- process-side events
+@dataclass(frozen=True)
+class ImuEvents:
+    """Random process-side events of an episode: bias steps and rough-road vibration regimes.
+
+    * **Bias steps** (seed paper 003 sec. 1 / 2.1: a "sudden alteration" the
+      strong-tracking filter has to follow): gyro and accelerometer steps,
+      each a Poisson number per episode (mean ``rate * T``), at uniform
+      random times, on a uniform random axis with a random sign, of size
+      ``U(gyro_step)`` / ``U(accel_step)``; a step persists to the end of the
+      episode (it is part of :attr:`ImuData.gyro_bias` / ``accel_bias``).
+      Defaults 10-50 deg/h and 1-5 mg: several times the industrial grade's
+      8 deg/h / 2 mg turn-on sigmas.
+    * **Rough-road regimes**: a Poisson number of segments per episode, at
+      uniform random start times, lengths ``U(rough_duration_s)``; inside one
+      the vehicle vibration and the sensors' white noise are multiplied by a
+      factor ``U(rough_scale)`` (a rough surface excites the whole band the
+      navigation filter treats as process noise: assumption, 2-5x).
+      Overlapping segments take the larger factor.
+
+    Draw order (one child stream of each row's IMU generator): the gyro step
+    count ``n``, then ``n`` times, axes, signs, sizes; the same for the
+    accelerometer; then the rough count ``r``, ``r`` starts, lengths, factors.
+
+    Parameters
+    ----------
+    gyro_step_rate_hz, accel_step_rate_hz : float
+        Mean steps per second of episode [1/s], >= 0.
+    gyro_step : (float, float)
+        Gyro step size range [rad/s], 0 <= min <= max.
+    accel_step : (float, float)
+        Accelerometer step size range [m/s^2], 0 <= min <= max.
+    rough_rate_hz : float
+        Mean rough-road segments per second of episode [1/s], >= 0.
+    rough_duration_s : (float, float)
+        Segment length range [s], 0 < min <= max.
+    rough_scale : (float, float)
+        Vibration / white-noise multiplier range, 1 <= min <= max.
+    flag_window_s : float
+        The world's ``IMU_EVENT`` bit stays set this long after a step or a regime change [s], > 0.
+    """
+
+    gyro_step_rate_hz: float = 1.0 / 150.0
+    accel_step_rate_hz: float = 1.0 / 150.0
+    gyro_step: tuple = (dph(10.0), dph(50.0))
+    accel_step: tuple = (mg(1.0), mg(5.0))
+    rough_rate_hz: float = 1.0 / 150.0
+    rough_duration_s: tuple = (10.0, 40.0)
+    rough_scale: tuple = (2.0, 5.0)
+    flag_window_s: float = 5.0
+
+    def __post_init__(self):
+        o = "ImuEvents"
+        for name in ("gyro_step_rate_hz", "accel_step_rate_hz", "rough_rate_hz"):
+            object.__setattr__(self, name, _check_nonneg(o, name, getattr(self, name)))
+        for name in ("gyro_step", "accel_step", "rough_duration_s", "rough_scale"):
+            object.__setattr__(self, name, _check_range(o, name, getattr(self, name)))
+        if self.rough_duration_s[0] <= 0.0:
+            raise ValueError(f"{o}.rough_duration_s must be > 0, got {self.rough_duration_s!r}")
+        if self.rough_scale[0] < 1.0:
+            raise ValueError(f"{o}.rough_scale must be >= 1, got {self.rough_scale!r}")
+        object.__setattr__(self, "flag_window_s", _check_pos(o, "flag_window_s", self.flag_window_s))
+
+    def replace(self, **changes) -> "ImuEvents":
+        """Copy with some fields changed (validated again)."""
+        return dataclasses.replace(self, **changes)
+
+
+def _draw_imu_events(gen: np.random.Generator, ev: ImuEvents, dt: float, n: int):
+    """Bias steps and rough-road segments of one row (draw order in :class:`ImuEvents`).
+
+    Returns
+    -------
+    steps : tuple of (t_s, sensor, axis, size) with sensor 'gyro' / 'accel', size signed [rad/s or m/s^2];
+    rough : tuple of (t0_s, t1_s, factor).
+    """
+    T = max(n - 1, 1) * dt                                 # samples end at 0, dt, ..., (n-1) dt
+    steps = []
+    for sensor, rate, rng in (("gyro", ev.gyro_step_rate_hz, ev.gyro_step),
+                              ("accel", ev.accel_step_rate_hz, ev.accel_step)):
+        k = int(gen.poisson(rate * T))
+        times = gen.uniform(0.0, T, size=k)
+        axes = gen.integers(0, 3, size=k)
+        signs = np.where(gen.random(k) < 0.5, -1.0, 1.0)
+        sizes = gen.uniform(rng[0], rng[1], size=k)
+        steps += [(float(times[j]), sensor, int(axes[j]), float(signs[j] * sizes[j])) for j in range(k)]
+    r = int(gen.poisson(ev.rough_rate_hz * T))
+    starts = gen.uniform(0.0, T, size=r)
+    lengths = gen.uniform(ev.rough_duration_s[0], ev.rough_duration_s[1], size=r)
+    factors = gen.uniform(ev.rough_scale[0], ev.rough_scale[1], size=r)
+    rough = tuple(sorted((float(starts[j]), float(min(starts[j] + lengths[j], T)), float(factors[j]))
+                         for j in range(r)))
+    return tuple(sorted(steps)), rough
+
+
 # --------------------------------------------------------------------------- output
 @dataclass(frozen=True)
 class ImuData:
@@ -629,6 +725,11 @@ class ImuData:
     accel_scale_misalignment : (B, 3, 3) per-run ``S_a + M_a`` [-].
     dt : float, sample interval [s].
     grade : ImuGrade used.
+    bias_steps : tuple of B tuples of (t_s, sensor, axis, size) or None
+        The :class:`ImuEvents` bias steps of each row (time [s since start] of the first sample they
+        affect, ``'gyro'`` / ``'accel'``, axis 0-2, signed size [rad/s or m/s^2]); None without events.
+    rough : tuple of B tuples of (t0_s, t1_s, factor) or None
+        The rough-road segments of each row (half-open in the sample's end time); None without events.
     """
 
     f_b: np.ndarray
@@ -639,6 +740,8 @@ class ImuData:
     accel_scale_misalignment: np.ndarray
     dt: float
     grade: ImuGrade = field(repr=False)
+    bias_steps: tuple | None = None
+    rough: tuple | None = None
 
 
 # --------------------------------------------------------------------------- validation
@@ -768,7 +871,8 @@ class _SensorSpec:
 
 def simulate_imu(f_true, w_true, imu_rate_hz: float, grade, rngs: Sequence[np.random.Generator],
                  engine_on=None, speed=None, vibration: Vibration | None = None, dtype=np.float64,
-                 workers: int | None = None, vibration_rngs: Sequence[np.random.Generator] | None = None) -> ImuData:
+                 workers: int | None = None, vibration_rngs: Sequence[np.random.Generator] | None = None,
+                 events: ImuEvents | None = None) -> ImuData:
     """Corrupt ideal IMU interval means with the errors of an IMU grade (and vehicle vibration).
 
     Implements (Groves 2013 sec. 4.4; IEEE Std 952-1997 noise terms)::
@@ -803,6 +907,10 @@ def simulate_imu(f_true, w_true, imu_rate_hz: float, grade, rngs: Sequence[np.ra
         "vibration")``); then the vibration equals :func:`simulate_vibration`
         with these generators. None: a child stream of ``rngs[i]`` (still
         independent of the IMU error terms).
+    events : ImuEvents or None
+        Random bias steps and rough-road regimes (:class:`ImuEvents`), drawn
+        from their own child stream of ``rngs[i]`` (the other terms' draws do
+        not change). None: none.
 
     Returns
     -------
@@ -844,6 +952,8 @@ def simulate_imu(f_true, w_true, imu_rate_hz: float, grade, rngs: Sequence[np.ra
             _check_rngs(vibration_rngs, b)
         except ValueError as exc:
             raise ValueError(f"vibration_rngs: {exc}") from None
+    if events is not None and not isinstance(events, ImuEvents):
+        raise ValueError(f"events must be an ImuEvents or None, got {type(events).__name__}")
     if workers is None:
         workers = max(1, min(b, os.cpu_count() or 1, 8))
     elif not isinstance(workers, (int, np.integer)) or isinstance(workers, bool) or workers < 1:
@@ -858,7 +968,10 @@ def simulate_imu(f_true, w_true, imu_rate_hz: float, grade, rngs: Sequence[np.ra
     )
     truth = (w_true, f_true)
     outs = (np.empty((b, n, 3), dtype=dtype), np.empty((b, n, 3), dtype=dtype))
-    bias_full = tuple(np.empty((b, n, 3), dtype=dtype) if s.gm_sigma > 0 else None for s in sensors)
+    step_rates = (0.0, 0.0) if events is None else (events.gyro_step_rate_hz, events.accel_step_rate_hz)
+    bias_full = tuple(np.empty((b, n, 3), dtype=dtype) if (s.gm_sigma > 0 or r > 0) else None
+                      for s, r in zip(sensors, step_rates))
+    ev_rows = [None] * b
     bias_const = (np.empty((b, 3)), np.empty((b, 3)))
     sm = (np.zeros((b, 3, 3)), np.zeros((b, 3, 3)))
     direct = dtype == np.dtype(np.float64)
@@ -875,6 +988,24 @@ def simulate_imu(f_true, w_true, imu_rate_hz: float, grade, rngs: Sequence[np.ra
         if vib_on:
             vgen = ch["vibration"] if vibration_rngs is None else vibration_rngs[i]
             vib_row = _vibration_row(vgen, dt, None if engine_on is None else engine_on[i], speed[i], vibration)
+        rough_f = None
+        step_bias = (None, None)
+        if events is not None:
+            steps, rough = _draw_imu_events(ch["events"], events, dt, n)
+            ev_rows[i] = (steps, rough)
+            t_end = np.arange(n) * dt                          # sample j covers (t_j-1, t_j], t_j = j dt
+            if rough:
+                rough_f = np.ones(n)
+                for t0, t1, fac in rough:
+                    sel = (t_end > t0) & (t_end <= t1)
+                    rough_f[sel] = np.maximum(rough_f[sel], fac)
+                if vib_row is not None:
+                    vib_row = (vib_row[0] * rough_f[:, None], vib_row[1] * rough_f[:, None])
+            sb = [np.zeros((n, 3)) if r > 0 else None for r in step_rates]
+            for ts, sensor, axis, size in steps:
+                k = 0 if sensor == "gyro" else 1
+                sb[k][t_end > ts, axis] += size
+            step_bias = tuple(sb)
         noise = np.empty((n, 3))
         for k, s in enumerate(sensors):  # k = 0 gyro, 1 accel
             o = outs[k][i] if direct else np.empty((n, 3))
@@ -889,6 +1020,12 @@ def simulate_imu(f_true, w_true, imu_rate_hz: float, grade, rngs: Sequence[np.ra
             if s.gm_sigma > 0:
                 bias = _gauss_markov_row(ch[s.gm_stream], s.gm_sigma, s.gm_tau, dt, n, noise)
                 bias += const
+                if step_bias[k] is not None:
+                    bias += step_bias[k]
+                o += bias
+                bias_full[k][i] = bias
+            elif step_bias[k] is not None:
+                bias = step_bias[k] + const
                 o += bias
                 bias_full[k][i] = bias
             elif np.any(const):
@@ -896,6 +1033,8 @@ def simulate_imu(f_true, w_true, imu_rate_hz: float, grade, rngs: Sequence[np.ra
             if s.white_sigma > 0:
                 ch[s.white_stream].standard_normal(out=noise)
                 noise *= s.white_sigma
+                if rough_f is not None:
+                    noise *= rough_f[:, None]
                 o += noise
             if not direct:
                 outs[k][i] = o
@@ -922,6 +1061,8 @@ def simulate_imu(f_true, w_true, imu_rate_hz: float, grade, rngs: Sequence[np.ra
         accel_scale_misalignment=sm[1].astype(dtype),
         dt=dt,
         grade=grade,
+        bias_steps=None if events is None else tuple(r[0] for r in ev_rows),
+        rough=None if events is None else tuple(r[1] for r in ev_rows),
     )
 
 

@@ -17,8 +17,52 @@ name               length  IMU        world
                                       IMU 100 Hz, GNSS 2 Hz, 3 mg / 1 deg/h noise, Table 1 biases and
                                       initial errors
 ``seed003-sim``    700 s   seed003    seed paper 003 Table 1: start 36 N 100 E heading 90 deg, stationary /
-                                      accelerate / decelerate / corner, outages 100-300 s and 550-650 s
+                                      accelerate / decelerate / corner, outages 100-300 s and 550-650 s,
+                                      re-acquisition noise (x5 decaying over 10 s) after each outage
+``urban-transition`` 300 s industrial seed paper 000 sec. 5.2 setting: stop-and-go drive, open sky
+                                      alternating at random with street canyon / tree cover / overpass
+                                      zones; smartLoc-measured NLOS probability, bias and C/N0; re-acquisition
+``noise-mismatch`` 300 s   industrial seed paper 003 setting: reported code / Doppler sigma wrong by random
+                                      piecewise factors (1/4-4, 20-90 s), IMU bias steps and rough-road
+                                      vibration regimes; small-atmosphere (dual-frequency) receiver
+``regime-switch``  300 s   industrial Markov-switching nominal / degraded / severe noise regimes, exponential
+                                      dwell times (60 / 40 / 20 s); small-atmosphere receiver
 =================  ======  =========  ==================================================================
+
+The issue-16 scenarios (``urban-transition``, ``noise-mismatch``,
+``regime-switch``) draw every event at random times from the episode seed
+(:mod:`envs.sim.events`): no event sits at a fixed clock time. Their
+parameters and sources:
+
+* ``urban-transition``: :class:`~envs.sim.events.UrbanZones` defaults: open
+  sky U(20, 60) s, then a zone (canyon 45 %, U(20, 60) s; tree cover 35 %,
+  U(10, 40) s; overpass 20 %, U(2, 6) s), repeated (about 4-6 zones per 300
+  s). Canyon geometry :class:`~envs.sim.gnss.UrbanCanyon` defaults (20 m
+  street, 10-40 m buildings); inside zones NLOS probability ``0.88 - 0.71
+  sin el``, bias log-normal (median ``16.4 m / sin el``, log-sigma 0.70, 92 %
+  positive) and LOS C/N0 ``39.2 + 6.2 sin el`` dB-Hz with an 11 dB NLOS
+  deficit, all measured on smartLoc Potsdamer Platz
+  (:mod:`envs.datasets.smartloc_stats`); foliage loss 2-12 dB (ITU-R P.833;
+  assumption); re-acquisition x5 decaying over 10 s after a loss of lock >= 1
+  s. Default single-frequency receiver (the urban error dominates), GNSS 1 Hz
+  as the ProPak6 of seed paper 000 sec. 5.2.1.
+* ``noise-mismatch``: :class:`~envs.sim.events.SigmaMismatch` defaults (code
+  and Doppler separately: segments U(20, 90) s, honest with probability 0.2,
+  else the reported sigma is the true one times a log-uniform factor in
+  [1/4, 4]; seed paper 003 sec. 2.2, eqs 12-14: a measurement-noise matrix
+  "subject to bias"); :class:`~envs.sim.imu.ImuEvents` defaults (gyro /
+  accel bias steps 10-50 deg/h / 1-5 mg, 2 + 2 expected per 300 s: seed 003's
+  "sudden alteration"; rough-road segments, 2 expected per 300 s, 10-40 s,
+  vibration and white noise x2-5); receiver
+  :meth:`~envs.sim.gnss.ReceiverConfig.dual_frequency` (iono 0.1 m, tropo
+  0.12 m zenith, RTCA DO-229).
+* ``regime-switch``: :class:`~envs.sim.events.NoiseRegimes` defaults: nominal
+  (x1 code / x1 Doppler, no NLOS, mean dwell 60 s), degraded (x3 / x2.5, 5 %
+  of the satellites NLOS, 40 s), severe (x8 / x6, 15 % NLOS, 20 s); first
+  regime from the stationary law, next uniform over the others. The scales
+  are the DLL / FLL jitter growth of a 10 dB and an 18 dB C/N0 loss
+  (``10^(dB/20)``; assumption: foliage-like and deep-shadow signal loss).
+  Receiver :meth:`~envs.sim.gnss.ReceiverConfig.dual_frequency`.
 """
 from __future__ import annotations
 
@@ -30,8 +74,9 @@ from typing import Sequence
 import numpy as np
 
 from .constellation import Constellation
+from .events import NoiseRegimes, Reacquisition, SigmaMismatch, UrbanZones
 from .gnss import GnssEvents, ReceiverConfig
-from .imu import IMU_GRADES, Vibration
+from .imu import IMU_GRADES, ImuEvents, Vibration
 from .trajectory import Accelerate, Cruise, Decelerate, Motion, Static, Turn, random_drive
 
 DRIVE_STYLES = ("urban", "highway", "open")
@@ -94,7 +139,8 @@ class Scenario:
     vibration : vehicle vibration model (engine idle, road).
     receiver : GNSS receiver and residual errors.
     constellation : satellite constellation.
-    events : GNSS degradations (outages, noise bursts, NLOS, street canyons).
+    events : GNSS degradations (outages, noise bursts, NLOS, street canyons, random events).
+    imu_events : random IMU bias steps and rough-road vibration regimes, or None.
     initial : initial-estimate errors.
     description : one line for tables and docs.
     """
@@ -112,6 +158,7 @@ class Scenario:
     events: GnssEvents = field(default_factory=GnssEvents)
     initial: InitialErrors = field(default_factory=InitialErrors)
     description: str = ""
+    imu_events: ImuEvents | None = None
 
     def __post_init__(self):
         o = "Scenario"
@@ -145,6 +192,8 @@ class Scenario:
                           ("events", GnssEvents), ("initial", InitialErrors)):
             if not isinstance(getattr(self, name), typ):
                 raise ValueError(f"{o}.{name} must be a {typ.__name__}, got {type(getattr(self, name)).__name__}")
+        if self.imu_events is not None and not isinstance(self.imu_events, ImuEvents):
+            raise ValueError(f"{o}.imu_events must be an ImuEvents or None, got {type(self.imu_events).__name__}")
 
     @property
     def samples_per_epoch(self) -> int:
@@ -202,11 +251,25 @@ def _presets() -> dict[str, Scenario]:
                                 description="seed paper 000 sec 5.1 / Table 1 simulation"),
         "seed003-sim": Scenario(name="seed003-sim", duration_s=700.0, imu_rate_hz=100.0, gnss_rate_hz=1.0,
                                 imu_grade="seed003", drive=_seed003_motion(),
-                                events=GnssEvents(outages=((100.0, 300.0), (550.0, 650.0))),
+                                events=GnssEvents(outages=((100.0, 300.0), (550.0, 650.0)),
+                                                  reacquisition=Reacquisition()),
                                 initial=InitialErrors(position_sigma_m=(0.0175, 0.0175, 1.0),
                                                       velocity_sigma_mps=(0.03, 0.03, 0.03),
                                                       attitude_sigma_rad=(math.radians(1.0),) * 3),
-                                description="seed paper 003 Table 1 simulation with outages 100-300 s, 550-650 s"),
+                                description="seed paper 003 Table 1 simulation with outages 100-300 s, 550-650 s "
+                                            "and re-acquisition noise after them"),
+        "urban-transition": Scenario(name="urban-transition", drive="urban",
+                                     events=GnssEvents(zones=UrbanZones(), reacquisition=Reacquisition()),
+                                     description="open sky alternating at random with street canyon, tree cover "
+                                                 "and overpass zones (seed paper 000 sec. 5.2 setting)"),
+        "noise-mismatch": Scenario(name="noise-mismatch", drive="open", receiver=ReceiverConfig.dual_frequency(),
+                                   events=GnssEvents(mismatch=SigmaMismatch()), imu_events=ImuEvents(),
+                                   description="reported code/Doppler sigma wrong by random piecewise factors, "
+                                               "IMU bias steps and rough-road regimes (seed paper 003 setting)"),
+        "regime-switch": Scenario(name="regime-switch", drive="open", receiver=ReceiverConfig.dual_frequency(),
+                                  events=GnssEvents(regimes=NoiseRegimes()),
+                                  description="Markov-switching nominal/degraded/severe noise regimes with "
+                                              "exponential dwell times"),
     }
 
 

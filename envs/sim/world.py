@@ -6,14 +6,15 @@ world will be estimated.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from earth import C_en, exp_so3
 
+from . import events as ev
 from .gnss import GnssData, simulate_gnss
-from .imu import IMU_GRADES, ImuData, ImuGrade, simulate_imu
+from .imu import IMU_GRADES, ImuData, ImuEvents, ImuGrade, simulate_imu
 from .rng import as_seeds, row_generators
 from .scenarios import Scenario, get_scenario
 from .trajectory import Truth, generate_truth
@@ -105,6 +106,28 @@ def initial_estimate(scen: Scenario, truth: Truth, gnss: GnssData, rngs) -> Init
                            clock_sigma_m=max(ie.clock_sigma_m, 1e-3), drift_sigma_mps=max(ie.drift_sigma_mps, 1e-4))
 
 
+def imu_event_bits(t, imu: ImuData, events: ImuEvents | None) -> np.ndarray:
+    """The IMU bits of :attr:`GnssData.event_mask` at the GNSS epochs ``t`` (B, M) uint16.
+
+    ``IMU_EVENT`` where a bias step or the start / end of a rough-road segment
+    lies in ``(t - events.flag_window_s, t]``; ``ROUGH_ROAD`` where a rough
+    segment covers ``t``. Zeros without events.
+    """
+    t = np.asarray(t, np.float64)
+    B = imu.f_b.shape[0]
+    bits = np.zeros((B, t.size), dtype=np.uint16)
+    if events is None or imu.bias_steps is None:
+        return bits
+    w = events.flag_window_s
+    for i in range(B):
+        changes = [s[0] for s in imu.bias_steps[i]] + [x for r in imu.rough[i] for x in r[:2]]
+        for tc in changes:
+            bits[i, (t >= tc) & (t < tc + w)] |= ev.IMU_EVENT
+        for t0, t1, _ in imu.rough[i]:
+            bits[i, (t > t0) & (t <= t1)] |= ev.ROUGH_ROAD
+    return bits
+
+
 def generate_world(scenario, seeds, dtype=np.float64) -> World:
     """Draw B episodes of ``scenario`` (name or :class:`Scenario`) from ``seeds`` (B non-negative ints).
 
@@ -121,11 +144,13 @@ def generate_world(scenario, seeds, dtype=np.float64) -> World:
     imu = simulate_imu(truth.f_b, truth.w_b, scen.imu_rate_hz, IMU_GRADES[scen.imu_grade],
                        row_generators(seeds, "imu"), engine_on=truth.engine_on, speed=truth.speed,
                        vibration=scen.vibration, dtype=dtype,
-                       vibration_rngs=row_generators(seeds, "vibration"))
+                       vibration_rngs=row_generators(seeds, "vibration"), events=scen.imu_events)
     spe = scen.samples_per_epoch
     epoch_idx = np.arange(spe, truth.t.size, spe)
     at = truth.take(epoch_idx)
     gnss = simulate_gnss(truth.t[epoch_idx], at.r_e, at.v_e, at.heading, scen.constellation, scen.receiver,
                          scen.events, row_generators(seeds, "gnss"))
+    if scen.imu_events is not None:
+        gnss = replace(gnss, event_mask=gnss.event_mask | imu_event_bits(gnss.t, imu, scen.imu_events))
     init = initial_estimate(scen, truth, gnss, row_generators(seeds, "init"))
     return World(scenario=scen, seeds=seeds, truth=truth, imu=imu, gnss=gnss, epoch_idx=epoch_idx, init=init)

@@ -1,0 +1,663 @@
+"""Random GNSS events of an episode: noise bursts, reported-sigma mismatch, noise regimes, urban zones, re-acquisition.
+
+Every event here is drawn per episode from the row's own generator (a child
+stream of :func:`envs.sim.gnss.simulate_gnss`, one per event kind), at random
+times: nothing happens at a fixed clock time, so no time schedule can
+memorize it. The configurations are frozen dataclasses (validated, the
+``ValueError`` names the field); the draw functions work on one row and are
+vectorized over the M epochs (and the S satellites).
+
+Event bits
+----------
+:attr:`envs.sim.gnss.GnssData.event_mask` (B, M) ``uint16`` ORs these bits
+of the events active at each epoch (for plots and error analysis; the filter
+never sees them):
+
+=================  =====  ======================================================================
+bit                value  set where
+=================  =====  ======================================================================
+``OUTAGE``         1      inside a configured full outage (:attr:`GnssEvents.outages`)
+``NOISE``          2      the *true* code / Doppler noise is scaled by an interval or a random
+                          burst (:class:`RandomBursts`, :attr:`GnssEvents.noise_scale` != 1)
+``MISMATCH``       4      the *reported* sigma is wrong (:class:`SigmaMismatch` factor != 1)
+``NLOS_ZONE``      8      inside an urban zone: street canyon or tree cover
+                          (:class:`UrbanZones`), or a configured :class:`UrbanCanyon` interval
+``OVERPASS``       16     under an overpass (almost total blockage)
+``IMU_EVENT``      32     an IMU bias step or a vibration-regime change within the last
+                          :attr:`envs.sim.imu.ImuEvents.flag_window_s` (set by the world)
+``REACQUISITION``  64     a tracked channel is inside its re-acquisition transient (:class:`Reacquisition`)
+``REGIME``         128    a noise regime other than the first (nominal) one (:class:`NoiseRegimes`)
+``TREES``          256    under tree cover (also sets ``NLOS_ZONE``)
+``ROUGH_ROAD``     512    an IMU vibration regime (rough road) is active (set by the world)
+=================  =====  ======================================================================
+
+Urban-zone parameters measured on smartLoc
+------------------------------------------
+The zone model's NLOS probability, bias distribution and C/N0 model are the
+statistics of the recorded smartLoc Potsdamer Platz pseudoranges
+(:mod:`envs.datasets.smartloc_stats`; ``tests/envs/test_events.py`` re-measures
+them and checks these constants):
+
+* LOS C/N0 ``39.2 + 6.2 sin(el)`` dB-Hz (:data:`CN0_LOS_A`, :data:`CN0_LOS_B`);
+* NLOS C/N0 deficit 11 dB (:data:`NLOS_DEFICIT_DB`);
+* NLOS probability in a dense canyon ``0.88 - 0.71 sin(el)`` (:data:`P_NLOS_A`, :data:`P_NLOS_B`);
+* NLOS bias log-normal, median ``16.4 m / sin(el)``, log-sigma 0.70
+  (:data:`BIAS_SIN_MEDIAN_M`, :data:`BIAS_SIGMA_LN`), positive in 92 % of cases
+  (:data:`BIAS_POSITIVE_FRACTION`).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .constellation import _check_real
+
+__all__ = [
+    "OUTAGE", "NOISE", "MISMATCH", "NLOS_ZONE", "OVERPASS", "IMU_EVENT", "REACQUISITION", "REGIME", "TREES",
+    "ROUGH_ROAD", "EVENT_BITS", "RandomBursts", "SigmaMismatch", "NoiseRegime", "NoiseRegimes", "UrbanZones",
+    "Reacquisition", "cn0_los", "nlos_probability", "draw_bursts", "draw_mismatch", "draw_regimes",
+    "draw_zone_schedule", "reacquisition_multiplier", "zone_effects", "regime_nlos", "nlos_bias", "ZONE_OPEN", "ZONE_CANYON", "ZONE_TREES", "ZONE_OVERPASS",
+]
+
+OUTAGE, NOISE, MISMATCH, NLOS_ZONE, OVERPASS, IMU_EVENT, REACQUISITION, REGIME, TREES, ROUGH_ROAD = (
+    1 << k for k in range(10))
+EVENT_BITS = {"OUTAGE": OUTAGE, "NOISE": NOISE, "MISMATCH": MISMATCH, "NLOS_ZONE": NLOS_ZONE, "OVERPASS": OVERPASS,
+              "IMU_EVENT": IMU_EVENT, "REACQUISITION": REACQUISITION, "REGIME": REGIME, "TREES": TREES,
+              "ROUGH_ROAD": ROUGH_ROAD}
+"""Name -> bit of :attr:`GnssData.event_mask` (module table)."""
+
+ZONE_OPEN, ZONE_CANYON, ZONE_TREES, ZONE_OVERPASS = range(4)
+"""Zone kinds of :func:`draw_zone_schedule` (per epoch)."""
+
+# ---- smartLoc Potsdamer Platz statistics (envs/datasets/smartloc_stats.py, measured; rounded)
+CN0_LOS_A = 39.2
+"""LOS C/N0 at the horizon [dB-Hz] (smartLoc, least squares against sin(el))."""
+CN0_LOS_B = 6.2
+"""LOS C/N0 slope against sin(el) [dB-Hz] (smartLoc)."""
+NLOS_DEFICIT_DB = 11.0
+"""Median C/N0 of LOS-like minus NLOS-like measurements [dB] (smartLoc)."""
+P_NLOS_A = 0.88
+P_NLOS_B = 0.71
+"""NLOS-like probability ``P_NLOS_A - P_NLOS_B sin(el)`` of a received signal in a dense canyon (smartLoc)."""
+BIAS_SIN_MEDIAN_M = 16.4
+"""Median of ``|bias| sin(el)`` of NLOS-like measurements [m] (smartLoc; log-normal)."""
+BIAS_SIGMA_LN = 0.70
+"""Log-sigma of the NLOS bias (smartLoc)."""
+BIAS_POSITIVE_FRACTION = 0.92
+"""Share of positive NLOS-like residuals (smartLoc; a reflected path is longer)."""
+
+
+# =============================================================================
+# validation helpers
+# =============================================================================
+def _pair(owner: str, name: str, value, *, lo=0.0, lo_open=False) -> None:
+    if not isinstance(value, tuple) or len(value) != 2:
+        raise ValueError(f"{owner}.{name} must be a (min, max) tuple, got {value!r}")
+    _check_real(owner, f"{name}[0]", value[0], lo=lo, lo_open=lo_open)
+    _check_real(owner, f"{name}[1]", value[1], lo=lo, lo_open=lo_open)
+    if value[1] < value[0]:
+        raise ValueError(f"{owner}.{name}: max < min in {value!r}")
+
+
+def _log_uniform(g: np.random.Generator, rng: tuple, size=None):
+    """Log-uniform draws in ``[rng[0], rng[1]]`` (one uniform each)."""
+    lo, hi = math.log(rng[0]), math.log(rng[1])
+    return np.exp(g.uniform(lo, hi, size=size))
+
+
+def _renewal(t: np.ndarray, length_s: tuple, g: np.random.Generator, n: int = 1):
+    """Piecewise-constant segments from ``t[0]``: lengths ``U(length_s)``; segment index per epoch.
+
+    Draws a fixed count ``K = ceil(span / min_length) + 1`` of lengths per
+    column (``n`` columns), so the number of draws does not depend on the
+    realization. Returns ``(idx (M, n) int64, starts (K, n), K)``.
+    """
+    span = float(t[-1] - t[0])
+    K = int(math.ceil(span / length_s[0])) + 1
+    lengths = g.uniform(length_s[0], length_s[1], size=(K, n))
+    ends = t[0] + np.cumsum(lengths, axis=0)
+    idx = np.empty((t.size, n), dtype=np.int64)
+    for j in range(n):
+        idx[:, j] = np.searchsorted(ends[:, j], t, side="right")
+    return np.minimum(idx, K - 1), ends - lengths, K
+
+
+# =============================================================================
+# configurations
+# =============================================================================
+@dataclass(frozen=True)
+class RandomBursts:
+    """Random bursts of *true* code / Doppler noise (the reported sigma stays nominal).
+
+    Per episode the number of bursts is Poisson with mean ``rate_hz * T``
+    (``T`` the span of the epochs), the start times uniform over the span,
+    the lengths ``U(duration_s)``, the sigma multipliers log-uniform in
+    ``scale``. ``joint=True``: one multiplier for code and Doppler; else the
+    Doppler multiplier is a separate log-uniform draw. Overlapping bursts
+    multiply.
+
+    Parameters
+    ----------
+    rate_hz : float
+        Mean bursts per second of episode [1/s], >= 0 (default 1/75 s: 4 per 300 s).
+    duration_s : (float, float)
+        Burst length range [s], 0 < min <= max (default 5-60 s).
+    scale : (float, float)
+        Range of the true-noise sigma multiplier, 0 < min <= max (default 3-20).
+    joint : bool
+        Same multiplier for code and Doppler.
+    """
+
+    rate_hz: float = 1.0 / 75.0
+    duration_s: tuple = (5.0, 60.0)
+    scale: tuple = (3.0, 20.0)
+    joint: bool = True
+
+    def __post_init__(self):
+        o = "RandomBursts"
+        _check_real(o, "rate_hz", self.rate_hz, lo=0.0)
+        _pair(o, "duration_s", self.duration_s, lo=0.0, lo_open=True)
+        _pair(o, "scale", self.scale, lo=0.0, lo_open=True)
+        if not isinstance(self.joint, bool):
+            raise ValueError(f"{o}.joint must be a bool, got {self.joint!r}")
+
+
+@dataclass(frozen=True)
+class SigmaMismatch:
+    """The sigma the receiver *reports* is wrong by piecewise-constant factors (the filter never knows).
+
+    Code and Doppler have separate segment sequences from the first epoch,
+    lengths ``U(segment_s)``. Each segment is honest (factor 1) with
+    probability ``p_honest``, else its factor (multiplying the reported
+    *sigma*, so the reported variance is off by its square) is log-uniform in
+    ``pr_factor`` / ``prr_factor``. Seed paper 003 sec. 2.2 (eqs 12-14): the
+    measurement-noise matrix "is subject to bias" as the environment changes.
+
+    Parameters
+    ----------
+    segment_s : (float, float)
+        Segment length range [s], 0 < min <= max (default 20-90 s).
+    pr_factor, prr_factor : (float, float)
+        Ranges of the reported/true sigma factor of code and Doppler, 0 < min <= max (default 1/4-4).
+    p_honest : float
+        Probability that a segment reports the true sigma, in [0, 1] (default 0.2).
+    """
+
+    segment_s: tuple = (20.0, 90.0)
+    pr_factor: tuple = (0.25, 4.0)
+    prr_factor: tuple = (0.25, 4.0)
+    p_honest: float = 0.2
+
+    def __post_init__(self):
+        o = "SigmaMismatch"
+        _pair(o, "segment_s", self.segment_s, lo=0.0, lo_open=True)
+        _pair(o, "pr_factor", self.pr_factor, lo=0.0, lo_open=True)
+        _pair(o, "prr_factor", self.prr_factor, lo=0.0, lo_open=True)
+        _check_real(o, "p_honest", self.p_honest, lo=0.0, hi=1.0)
+
+
+@dataclass(frozen=True)
+class NoiseRegime:
+    """One regime of :class:`NoiseRegimes`.
+
+    Parameters
+    ----------
+    name : str, non-empty.
+    code_scale, doppler_scale : float
+        True code / Doppler noise sigma multipliers, > 0.
+    nlos_fraction : float
+        Probability that a satellite is NLOS (piecewise per satellite, see
+        :class:`NoiseRegimes`), in [0, 1].
+    mean_dwell_s : float
+        Mean of the exponential dwell time [s], > 0.
+    """
+
+    name: str
+    code_scale: float = 1.0
+    doppler_scale: float = 1.0
+    nlos_fraction: float = 0.0
+    mean_dwell_s: float = 60.0
+
+    def __post_init__(self):
+        o = "NoiseRegime"
+        if not isinstance(self.name, str) or not self.name:
+            raise ValueError(f"{o}.name must be a non-empty str, got {self.name!r}")
+        _check_real(o, "code_scale", self.code_scale, lo=0.0, lo_open=True)
+        _check_real(o, "doppler_scale", self.doppler_scale, lo=0.0, lo_open=True)
+        _check_real(o, "nlos_fraction", self.nlos_fraction, lo=0.0, hi=1.0)
+        _check_real(o, "mean_dwell_s", self.mean_dwell_s, lo=0.0, lo_open=True)
+
+
+def _default_regimes():
+    return (NoiseRegime("nominal", 1.0, 1.0, 0.0, 60.0),
+            NoiseRegime("degraded", 3.0, 2.5, 0.05, 40.0),
+            NoiseRegime("severe", 8.0, 6.0, 0.15, 20.0))
+
+
+@dataclass(frozen=True)
+class NoiseRegimes:
+    """Markov-switching noise regimes (a semi-Markov jump process with exponential dwell times).
+
+    The first regime is drawn with the stationary probabilities of the
+    process (proportional to the mean dwell times, the jump chain being
+    uniform over the other regimes); each dwell is exponential with the
+    regime's mean; on leaving, the next regime is uniform over the others.
+    In a regime the true code / Doppler sigmas are multiplied by its scales,
+    and each satellite is NLOS with probability ``nlos_fraction`` on
+    per-satellite segments of length ``U(nlos_segment_s)`` (bias and rate
+    error as in the urban zones: log-normal smartLoc bias, ``N(0,
+    nlos_rate_sigma_mps^2)`` rate error). The reported sigma stays nominal.
+
+    Parameters
+    ----------
+    regimes : tuple of NoiseRegime (at least 2); the first is the nominal one (no ``REGIME`` bit).
+    nlos_segment_s : (float, float)
+        Per-satellite NLOS segment length range [s], 0 < min <= max.
+    nlos_rate_sigma_mps : float
+        Sigma of the constant pseudorange-rate error of an NLOS segment [m/s], >= 0.
+    """
+
+    regimes: tuple = ()
+    nlos_segment_s: tuple = (2.0, 20.0)
+    nlos_rate_sigma_mps: float = 0.3
+
+    def __post_init__(self):
+        o = "NoiseRegimes"
+        if self.regimes == ():
+            object.__setattr__(self, "regimes", _default_regimes())
+        if not isinstance(self.regimes, tuple) or len(self.regimes) < 2:
+            raise ValueError(f"{o}.regimes must be a tuple of at least 2 NoiseRegime, got {self.regimes!r}")
+        for k, r in enumerate(self.regimes):
+            if not isinstance(r, NoiseRegime):
+                raise ValueError(f"{o}.regimes[{k}] must be a NoiseRegime, got {type(r).__name__}")
+        _pair(o, "nlos_segment_s", self.nlos_segment_s, lo=0.0, lo_open=True)
+        _check_real(o, "nlos_rate_sigma_mps", self.nlos_rate_sigma_mps, lo=0.0)
+
+
+@dataclass(frozen=True)
+class UrbanZones:
+    """Open sky alternating at random with urban canyon, tree cover and overpasses along the drive.
+
+    Schedule: from the first epoch, an open-sky stretch of ``U(open_s)``,
+    then a zone whose kind is drawn with the weights ``(canyon, trees,
+    overpass)`` and whose length is ``U(canyon_s)``, ``U(trees_s)`` or
+    ``U(overpass_s)``, then open sky again, and so on (seed paper 000 sec. 1
+    and 5.2: signals "blocked by buildings and vegetation in urban areas").
+
+    Inside a zone:
+
+    * **canyon**: the blockage geometry of :class:`~envs.sim.gnss.UrbanCanyon`
+      (``canyon``; its ``intervals`` are replaced by the canyon windows); a
+      satellite the walls block is lost, or received by reflection (NLOS) with
+      the canyon's ``nlos_probability``. A received LOS-geometry satellite is
+      NLOS / strong multipath with the smartLoc probability
+      ``P_NLOS_A - P_NLOS_B sin(el)`` on per-satellite segments of length
+      ``U(segment_s)``.
+    * **trees**: nothing blocked; per satellite segment a foliage attenuation
+      ``U(trees_attenuation_db)`` (ITU-R P.833 vegetation loss; Goldhirsh &
+      Vogel 1998, L-band tree-shadowing fades of 5-15 dB are typical:
+      assumption 2-12 dB) and diffuse multipath with ``trees_multipath_scale``
+      times the canyon NLOS probability and ``trees_bias_scale`` times its bias.
+    * **overpass**: every satellite blocked except, per satellite and
+      overpass, with probability ``overpass_pass_probability``.
+
+    An NLOS channel's pseudorange carries the smartLoc log-normal bias (median
+    ``16.4 m / sin el``, log-sigma 0.70, positive with probability 0.92), its
+    rate a constant ``N(0, nlos_rate_sigma_mps^2)`` error per segment, and
+    its C/N0 drops by the measured 11 dB NLOS deficit. The C/N0 of every
+    zone channel is ``cn0_los(el) - attenuation`` and its true code / Doppler
+    sigmas grow by ``10^(attenuation / 20)`` (DLL / FLL thermal-noise jitter
+    scales as ``(C/N0)^-1/2``: Kaplan & Hegarty 2nd ed. sec. 5.6, Groves 2nd
+    ed. sec. 9.3.3). The receiver's reported sigma knows none of it.
+
+    Parameters
+    ----------
+    open_s, canyon_s, trees_s, overpass_s : (float, float)
+        Length ranges [s] of the open-sky stretches and of each zone kind, 0 < min <= max.
+    weights : (float, float, float)
+        Relative probabilities of canyon, trees, overpass, >= 0, not all zero.
+    canyon : UrbanCanyon or None
+        Canyon geometry (None: the :class:`~envs.sim.gnss.UrbanCanyon` defaults).
+    segment_s : (float, float)
+        Per-satellite segment length range of the NLOS / attenuation draws [s]
+        (smartLoc: the mean NLOS-like run at 5 Hz is 1.4 s, a lower bound since
+        threshold crossings of a noisy residual split runs; default 1-5 s).
+    trees_attenuation_db : (float, float)
+        Foliage attenuation range [dB], >= 0.
+    trees_multipath_scale, trees_bias_scale : float
+        Tree-cover NLOS probability / bias relative to the canyon's, in [0, 1] / >= 0.
+    overpass_pass_probability : float
+        Probability that a satellite stays tracked under an overpass, in [0, 1].
+    nlos_rate_sigma_mps : float
+        Sigma of the NLOS pseudorange-rate error [m/s], >= 0 (the :class:`~envs.sim.gnss.NlosConfig` default).
+    """
+
+    open_s: tuple = (20.0, 60.0)
+    canyon_s: tuple = (20.0, 60.0)
+    trees_s: tuple = (10.0, 40.0)
+    overpass_s: tuple = (2.0, 6.0)
+    weights: tuple = (0.45, 0.35, 0.2)
+    canyon: object = None
+    segment_s: tuple = (1.0, 5.0)
+    trees_attenuation_db: tuple = (2.0, 12.0)
+    trees_multipath_scale: float = 0.3
+    trees_bias_scale: float = 0.3
+    overpass_pass_probability: float = 0.05
+    nlos_rate_sigma_mps: float = 0.3
+
+    def __post_init__(self):
+        o = "UrbanZones"
+        for name in ("open_s", "canyon_s", "trees_s", "overpass_s", "segment_s"):
+            _pair(o, name, getattr(self, name), lo=0.0, lo_open=True)
+        if not isinstance(self.weights, tuple) or len(self.weights) != 3:
+            raise ValueError(f"{o}.weights must be a (canyon, trees, overpass) tuple, got {self.weights!r}")
+        for k, w in enumerate(self.weights):
+            _check_real(o, f"weights[{k}]", w, lo=0.0)
+        if sum(self.weights) <= 0.0:
+            raise ValueError(f"{o}.weights must not all be zero")
+        from .gnss import UrbanCanyon  # the geometry lives beside the receiver model
+        if self.canyon is None:
+            object.__setattr__(self, "canyon", UrbanCanyon())
+        if not isinstance(self.canyon, UrbanCanyon):
+            raise ValueError(f"{o}.canyon must be an UrbanCanyon or None, got {type(self.canyon).__name__}")
+        _pair(o, "trees_attenuation_db", self.trees_attenuation_db, lo=0.0)
+        _check_real(o, "trees_multipath_scale", self.trees_multipath_scale, lo=0.0, hi=1.0)
+        _check_real(o, "trees_bias_scale", self.trees_bias_scale, lo=0.0)
+        _check_real(o, "overpass_pass_probability", self.overpass_pass_probability, lo=0.0, hi=1.0)
+        _check_real(o, "nlos_rate_sigma_mps", self.nlos_rate_sigma_mps, lo=0.0)
+
+
+@dataclass(frozen=True)
+class Reacquisition:
+    """Larger true noise in the first seconds after a satellite is (re-)acquired.
+
+    A satellite re-acquires at epoch ``k > 0`` when it is visible at ``k``,
+    not at ``k - 1``, and either it was last visible at least ``min_gap_s``
+    before (lock lost, e.g. under an overpass or behind a building) or no
+    satellite at all was visible at ``k - 1`` (after a full outage: every
+    satellite is acquired afresh). For ``tau = t - t_acq < duration_s`` its
+    code and Doppler sigmas are multiplied by ``scale ** (1 - tau /
+    duration_s)`` (``scale`` at acquisition, 1 after ``duration_s``): the
+    tracking loops re-converge (assumption: x5 decaying over 10 s, a DLL /
+    FLL pull-in after a cold re-acquisition). The reported sigma stays nominal.
+
+    Parameters
+    ----------
+    scale : float
+        Sigma multiplier at acquisition, >= 1.
+    duration_s : float
+        Length of the transient [s], > 0.
+    min_gap_s : float
+        Shortest loss of lock that triggers a re-acquisition [s], >= 0.
+    """
+
+    scale: float = 5.0
+    duration_s: float = 10.0
+    min_gap_s: float = 1.0
+
+    def __post_init__(self):
+        o = "Reacquisition"
+        _check_real(o, "scale", self.scale, lo=1.0)
+        _check_real(o, "duration_s", self.duration_s, lo=0.0, lo_open=True)
+        _check_real(o, "min_gap_s", self.min_gap_s, lo=0.0)
+
+
+# =============================================================================
+# models and draws (one row)
+# =============================================================================
+def cn0_los(el):
+    """Nominal line-of-sight C/N0 ``CN0_LOS_A + CN0_LOS_B sin(el)`` [dB-Hz] (smartLoc fit), (...) -> (...)."""
+    return CN0_LOS_A + CN0_LOS_B * np.sin(np.maximum(el, 0.0))
+
+
+def nlos_probability(el):
+    """NLOS probability of a received signal in a dense canyon, ``P_NLOS_A - P_NLOS_B sin(el)`` (smartLoc)."""
+    return np.clip(P_NLOS_A - P_NLOS_B * np.sin(np.maximum(el, 0.0)), 0.0, 1.0)
+
+
+def nlos_bias(el, z, u_sign):
+    """NLOS pseudorange bias [m]: log-normal, median ``BIAS_SIN_MEDIAN_M / sin(el)`` (smartLoc).
+
+    Parameters
+    ----------
+    el : (...) elevation [rad]; z : (...) standard normals; u_sign : (...) uniforms in [0, 1)
+    (positive where ``u_sign < BIAS_POSITIVE_FRACTION``).
+    """
+    s = np.sin(np.maximum(el, math.radians(5.0)))
+    mag = BIAS_SIN_MEDIAN_M / s * np.exp(BIAS_SIGMA_LN * z)
+    return np.where(u_sign < BIAS_POSITIVE_FRACTION, mag, -mag)
+
+
+def draw_bursts(t: np.ndarray, cfg: RandomBursts, g: np.random.Generator):
+    """Random true-noise bursts of one row (see :class:`RandomBursts`).
+
+    Draw order: the Poisson count ``n``, then ``n`` starts, ``n`` lengths,
+    ``n`` code scales, ``n`` Doppler scales (only if not ``joint``).
+
+    Returns
+    -------
+    code_scale, doppler_scale : (M,) sigma multipliers; active : (M,) bool;
+    windows : tuple of (t0, t1, code_scale, doppler_scale).
+    """
+    span = float(t[-1] - t[0]) + (float(t[1] - t[0]) if t.size > 1 else 1.0)
+    n = int(g.poisson(cfg.rate_hz * span))
+    starts = g.uniform(t[0], t[0] + span, size=n)
+    lengths = g.uniform(cfg.duration_s[0], cfg.duration_s[1], size=n)
+    sc = _log_uniform(g, cfg.scale, size=n)
+    sd = sc if cfg.joint else _log_uniform(g, cfg.scale, size=n)
+    code = np.ones(t.size)
+    dop = np.ones(t.size)
+    active = np.zeros(t.size, dtype=bool)
+    for k in range(n):
+        w = (t >= starts[k]) & (t < starts[k] + lengths[k])
+        code[w] *= sc[k]
+        dop[w] *= sd[k]
+        active |= w
+    windows = tuple((float(starts[k]), float(starts[k] + lengths[k]), float(sc[k]), float(sd[k])) for k in range(n))
+    return code, dop, active, windows
+
+
+def draw_mismatch(t: np.ndarray, cfg: SigmaMismatch, g: np.random.Generator):
+    """Reported/true sigma factors of one row (see :class:`SigmaMismatch`).
+
+    Draw order: code segments (lengths, honest uniforms, factors), then Doppler.
+
+    Returns
+    -------
+    pr_factor, prr_factor : (M,) factors multiplying the reported sigmas.
+    """
+    out = []
+    for rng in (cfg.pr_factor, cfg.prr_factor):
+        idx, _, K = _renewal(t, cfg.segment_s, g)
+        honest = g.random(K) < cfg.p_honest
+        fac = np.where(honest, 1.0, _log_uniform(g, rng, size=K))
+        out.append(fac[idx[:, 0]])
+    return out[0], out[1]
+
+
+def draw_regimes(t: np.ndarray, cfg: NoiseRegimes, g: np.random.Generator):
+    """Regime index per epoch of one row (see :class:`NoiseRegimes`).
+
+    Draw order: the first regime (one uniform), then blocks of 64 (dwell
+    exponential, next-regime uniform) pairs until the span is covered.
+
+    Returns
+    -------
+    regime : (M,) int64 index into ``cfg.regimes``; switches : (K,) switch times [s].
+    """
+    R = len(cfg.regimes)
+    dwell = np.array([r.mean_dwell_s for r in cfg.regimes])
+    p0 = dwell / dwell.sum()
+    cur = int(np.searchsorted(np.cumsum(p0), g.random(), side="right"))
+    cur = min(cur, R - 1)
+    t_now = float(t[0])
+    states, switches = [cur], []
+    while t_now <= t[-1]:
+        e = g.standard_exponential(64)
+        u = g.integers(0, R - 1, size=64)
+        for k in range(64):
+            t_now += e[k] * dwell[cur]
+            if t_now > t[-1]:
+                break
+            cur = int(u[k] + (u[k] >= cur))          # uniform over the other regimes
+            states.append(cur)
+            switches.append(t_now)
+    sw = np.asarray(switches)
+    regime = np.asarray(states)[np.searchsorted(sw, t, side="right")]
+    return regime.astype(np.int64), sw
+
+
+def draw_zone_schedule(t: np.ndarray, cfg: UrbanZones, g: np.random.Generator):
+    """Zone kind per epoch of one row (see :class:`UrbanZones`).
+
+    Draw order: pairs (open length, zone kind uniform, zone length uniform)
+    in blocks of 32 until the span is covered.
+
+    Returns
+    -------
+    kind : (M,) int64 (``ZONE_OPEN``, ``ZONE_CANYON``, ``ZONE_TREES``, ``ZONE_OVERPASS``);
+    zone_id : (M,) int64 (running zone number, -1 in open sky);
+    windows : tuple of (t0, t1, kind).
+    """
+    w = np.asarray(cfg.weights, float)
+    cw = np.cumsum(w / w.sum())
+    ranges = {ZONE_CANYON: cfg.canyon_s, ZONE_TREES: cfg.trees_s, ZONE_OVERPASS: cfg.overpass_s}
+    t_now = float(t[0])
+    windows = []
+    while t_now <= t[-1]:
+        gap = g.uniform(cfg.open_s[0], cfg.open_s[1], size=32)
+        ku = g.random(32)
+        lu = g.random(32)
+        for k in range(32):
+            t_now += gap[k]
+            if t_now > t[-1]:
+                break
+            kind = int(min(np.searchsorted(cw, ku[k], side="right"), 2)) + 1
+            lo, hi = ranges[kind]
+            t1 = t_now + lo + (hi - lo) * lu[k]
+            windows.append((t_now, t1, kind))
+            t_now = t1
+            if t_now > t[-1]:
+                break
+    kind = np.full(t.size, ZONE_OPEN, dtype=np.int64)
+    zone_id = np.full(t.size, -1, dtype=np.int64)
+    for j, (a, b, k) in enumerate(windows):
+        sel = (t >= a) & (t < b)
+        kind[sel] = k
+        zone_id[sel] = j
+    return kind, zone_id, tuple(windows)
+
+
+def reacquisition_multiplier(t: np.ndarray, visible: np.ndarray, cfg: Reacquisition) -> np.ndarray:
+    """Sigma multiplier of the re-acquisition transient per (epoch, satellite) of one row (:class:`Reacquisition`).
+
+    Parameters
+    ----------
+    t : (M,) epochs [s]; visible : (M, S) bool, the satellite is tracked.
+
+    Returns
+    -------
+    (M, S) float64, >= 1 (1 outside transients and where not visible).
+    """
+    M, S = visible.shape
+    out = np.ones((M, S))
+    if M < 2:
+        return out
+    idx = np.arange(M)[:, None]
+    start = np.zeros((M, S), dtype=bool)
+    start[1:] = visible[1:] & ~visible[:-1]
+    last_vis = np.maximum.accumulate(np.where(visible, idx, -1), axis=0)       # last visible epoch <= k
+    prev_last = np.full((M, S), -1)
+    prev_last[1:] = last_vis[:-1]                                            # last visible epoch < k
+    gap = t[:, None] - t[np.maximum(prev_last, 0)]
+    lost = (prev_last >= 0) & (gap >= cfg.min_gap_s)
+    after_outage = np.zeros(M, dtype=bool)
+    after_outage[1:] = ~visible[:-1].any(axis=1)
+    eligible = start & (lost | after_outage[:, None])
+    run_start = np.maximum.accumulate(np.where(start, idx, -1), axis=0)       # start of the current run
+    rs = np.maximum(run_start, 0)
+    tau = t[:, None] - t[rs]
+    on = visible & (run_start >= 0) & np.take_along_axis(eligible, rs, axis=0) & (tau < cfg.duration_s)
+    out[on] = cfg.scale ** (1.0 - tau[on] / cfg.duration_s)
+    return out
+
+
+def zone_effects(t, kind, zone_id, windows, el, az, v_e, heading, cfg: UrbanZones, g_geom: np.random.Generator,
+                 g_sat: np.random.Generator):
+    """Per-satellite effects of the urban zones on one row (see :class:`UrbanZones`).
+
+    Parameters
+    ----------
+    t : (M,) [s]; kind, zone_id, windows : from :func:`draw_zone_schedule`;
+    el, az : (M, S) [rad]; v_e : (M, 3) [m/s]; heading : (M,) [rad] or None (no canyon geometry then:
+    only the NLOS probability applies);
+    g_geom : stream of the canyon buildings; g_sat : stream of the per-satellite draws (order: segment
+    lengths (K, S), then per (K, S) the NLOS uniforms, bias normals, bias sign uniforms, rate normals,
+    foliage uniforms, then one (Z, S) block of overpass uniforms, Z = number of zones).
+
+    Returns
+    -------
+    blocked : (M, S) bool (lost); nlos : (M, S) bool; bias_m : (M, S) [m]; rate_mps : (M, S) [m/s];
+    atten_db : (M, S) C/N0 loss [dB] (foliage + NLOS deficit).
+    """
+    from dataclasses import replace
+
+    from .gnss import _canyon
+    M, S = el.shape
+    in_c = (kind == ZONE_CANYON)[:, None]
+    in_t = (kind == ZONE_TREES)[:, None]
+    in_o = (kind == ZONE_OVERPASS)[:, None]
+    idx, _, K = _renewal(t, cfg.segment_s, g_sat, n=S)
+    u_nlos = g_sat.random((K, S))
+    z_bias = g_sat.standard_normal((K, S))
+    u_sign = g_sat.random((K, S))
+    z_rate = g_sat.standard_normal((K, S))
+    u_att = g_sat.random((K, S))
+    u_pass = g_sat.random((max(len(windows), 1), S))
+    col = np.arange(S)[None, :]
+
+    def at(a):
+        return a[idx, col]
+
+    blocked = np.zeros((M, S), dtype=bool)
+    refl = np.zeros((M, S), dtype=bool)
+    canyon_iv = tuple((a, b) for a, b, k in windows if k == ZONE_CANYON)
+    if canyon_iv and heading is not None:
+        bl, rf, _ = _canyon(t, v_e, heading, el, az, replace(cfg.canyon, intervals=canyon_iv), g_geom)
+        blocked |= bl
+        refl |= rf
+    passes = u_pass[np.maximum(zone_id, 0)] < cfg.overpass_pass_probability           # (M, S)
+    blocked |= in_o & ~passes
+    p = np.where(in_c, nlos_probability(el), np.where(in_t, cfg.trees_multipath_scale * nlos_probability(el), 0.0))
+    nlos = ((at(u_nlos) < p) & ~blocked) | refl
+    bias = nlos_bias(el, at(z_bias), at(u_sign)) * np.where(in_t, cfg.trees_bias_scale, 1.0)
+    bias = np.where(nlos, bias, 0.0)
+    rate = np.where(nlos, cfg.nlos_rate_sigma_mps * at(z_rate), 0.0)
+    lo, hi = cfg.trees_attenuation_db
+    att = np.where(in_t, lo + (hi - lo) * at(u_att), 0.0) + np.where(nlos, NLOS_DEFICIT_DB, 0.0)
+    return blocked, nlos, bias, rate, att
+
+
+def regime_nlos(t, regime, el, cfg: NoiseRegimes, g: np.random.Generator):
+    """Per-satellite NLOS of the noise regimes on one row (see :class:`NoiseRegimes`).
+
+    Draw order: segment lengths (K, S), then per (K, S) NLOS uniforms, bias normals, sign uniforms, rate normals.
+
+    Returns
+    -------
+    nlos : (M, S) bool; bias_m, rate_mps : (M, S).
+    """
+    M, S = el.shape
+    idx, _, K = _renewal(t, cfg.nlos_segment_s, g, n=S)
+    u = g.random((K, S))
+    zb = g.standard_normal((K, S))
+    us = g.random((K, S))
+    zr = g.standard_normal((K, S))
+    col = np.arange(S)[None, :]
+    frac = np.array([r.nlos_fraction for r in cfg.regimes])[regime][:, None]
+    nlos = u[idx, col] < frac
+    bias = np.where(nlos, nlos_bias(el, zb[idx, col], us[idx, col]), 0.0)
+    rate = np.where(nlos, cfg.nlos_rate_sigma_mps * zr[idx, col], 0.0)
+    return nlos, bias, rate
