@@ -178,6 +178,12 @@ class SageHusaConfig:
         Sage-Husa sample).
     min_redundancy : satellite mode, geometry sample: a satellite whose redundancy number ``1 - h_ii`` is
         below this gets no sample at that epoch (too few satellites to tell its error from the state's).
+    prior_inflation : satellite mode, residual sample: the prediction's covariance is inflated this many times.
+    sample_iterations : satellite mode: refits of the sample with the epoch's tentative weights (1: none).
+    common_scale : satellite mode: also adapt one common factor per measurement type on top of the
+        per-satellite scales (the group law with the per-satellite variances as its base).
+    sat_scale_min : satellite mode: floor of the per-satellite scales (1: a satellite is never trusted more
+        than its reported variance; a common factor may then still go below 1).
     """
 
     b: float = 0.98
@@ -200,6 +206,8 @@ class SageHusaConfig:
     min_redundancy: float = 0.05
     prior_inflation: float = 10.0
     sample_iterations: int = 1
+    common_scale: bool = False
+    sat_scale_min: float = 1e-2
 
     def __post_init__(self):
         o = type(self).__name__
@@ -209,6 +217,7 @@ class SageHusaConfig:
             raise ValueError(f"{o}.r_sample must be one of {R_SAMPLES}, got {self.r_sample!r}")
         check_option(o, "min_redundancy", self.min_redundancy, low=0.0, high=1.0, high_closed=False)
         check_option(o, "prior_inflation", self.prior_inflation, low=1.0)
+        check_option(o, "sat_scale_min", self.sat_scale_min, low=0.0, low_closed=False)
         it = self.sample_iterations
         if isinstance(it, bool) or not isinstance(it, (int, np.integer)) or it < 1:
             raise ValueError(f"{o}.sample_iterations must be an int >= 1, got {it!r}")
@@ -216,7 +225,7 @@ class SageHusaConfig:
         if isinstance(f, bool) or not isinstance(f, (int, np.integer)) or f < 1:
             raise ValueError(f"{o}.forget_after_epochs must be an int >= 1, got {f!r}")
         B_SPEC.check(self.b, owner=o)
-        for name in ("adapt_q", "adapt_r", "diagonal_q"):
+        for name in ("adapt_q", "adapt_r", "diagonal_q", "common_scale"):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise ValueError(f"{o}.{name} must be a bool, got {getattr(self, name)!r}")
         check_option(o, "d_freeze_tol", self.d_freeze_tol, low=0.0)
@@ -377,8 +386,20 @@ def _r_scale_kernel(r, H, prior, Q, add_q, R, mask, groups, infer, d, active, r_
 
 
 @nb.njit(cache=True)
+def _row_group(H, b, i, n):
+    """Measurement group of row i (0 pseudorange: CLK column, 1 rate: DRIFT column, 2 other)."""
+    if n == N_STATES:
+        if H[b, i, _CLK0] != 0:
+            return 0
+        if H[b, i, _DRIFT0] != 0:
+            return 1
+    return 2
+
+
+@nb.njit(cache=True)
 def _r_sat_kernel(r, H, prior, Q, add_q, R, mask, keys, bf, jcap, d_row, active, epoch, s_tab, n_tab, last_tab,
-                  forget, smin, smax, sample, min_red, k_prior, n_iter, r_scale, s_rows, n_rows, s_prev, s_group, R_out):
+                  forget, smin, smax, sat_min, sample, min_red, k_prior, n_iter, common, r_scale, s_rows, n_rows, s_prev,
+                  s_group, R_out):
     """The Sage-Husa measurement-noise law per satellite and measurement type (``r_mode='satellite'``).
 
     Per batch row b and used measurement row i with key k = keys[b, i] >= 0 (numpy specification:
@@ -387,41 +408,61 @@ def _r_sat_kernel(r, H, prior, Q, add_q, R, mask, keys, bf, jcap, d_row, active,
         u  = epoch[b] - last_tab[b, k]                    (epochs since the satellite was last used)
         s0 = 1, n0 = 0                                    if never seen or u > forget (reacquired)
         s0 = 1 + (s_tab[b, k] - 1) bf^(u - 1), n0 = n_tab  otherwise (aged over the u - 1 missed epochs)
-        x  = v_i^2 / (red_i R_ii)                          geometry: snapshot LS residual of the type
-                                                          (:func:`~.innovation.geometry_residuals`,
-                                                          variances s0 R_ii), if red_i >= min_red
-        x  = (dz_i^2 - (H P- H^T)_ii) / R_ii              innovation form (``geometry`` False)
+        x  = v_i^2 / (red_i R_ii)                          geometry (sample 1): snapshot LS residual of the
+                                                          type (variances s0 R_ii), if red_i >= min_red;
+                                                          residual (sample 2): post-fit residual against
+                                                          the prior inflated k_prior times
+        x  = (dz_i^2 - (H P- H^T)_ii) / R_ii              innovation form (sample 0)
         d  = (1 - bf) / (1 - bf^(min(n0 + 1, jcap) + 1))  (seed 000 eqs 21-23, the satellite's own count)
         s1 = clip((1 - d) s0 + d x, smin, smax), n1 = n0 + 1   on active rows with a sample (else s0, n0)
 
-    Rows without a key use the per-group innovation law of :func:`_r_scale_kernel` with the row's ``d_row``.
-    Outputs: ``s_rows``/``n_rows``/``s_prev`` (B, m) the new and the prior scale and the count of each keyed
-    row (1/0/1 elsewhere), ``s_group`` (B, G) and ``R_out = D^(1/2) R D^(1/2)``.
+    Group scales (``d_row``, the row's own count): over the rows without a key, or with ``common`` over every
+    row with its per-satellite scale in the base variance (the common factor of a whole measurement type,
+    e.g. all signals attenuated under trees; the classic innovation law)::
+
+        g <- clip((1 - d_row) g + d_row sum(dz_i^2 - (H P- H^T)_ii) / sum(s_i R_ii), smin, smax)
+
+    The row's variance is ``g s_i R_ii`` (``s_i = 1`` without a key; ``g = 1`` for keyed rows without
+    ``common``). Outputs: ``s_rows``/``n_rows``/``s_prev`` (B, m) the new and the prior scale and the count of
+    each keyed row (1/0/1 elsewhere), ``s_group`` (B, G) and ``R_out = D^(1/2) R D^(1/2)``.
     """
     B, m, n = H.shape
     G = s_group.shape[1]
     xs = np.empty(m)
+    ex = np.empty(m)
     has_x = np.zeros(m, np.bool_)
     var = np.empty(m)
     use = np.zeros(m, np.bool_)
     v = np.zeros(m)
     red = np.zeros(m)
     n0s = np.zeros(m, np.int64)
+    gi = np.full(m, -1, np.int64)
     for b in range(B):
-        num = np.zeros(G)
-        den = np.zeros(G)
-        cnt = np.zeros(G, np.int64)
-        gi = np.full(m, -1, np.int64)
         for i in range(m):
             s_rows[b, i] = 1.0
             n_rows[b, i] = 0
             s_prev[b, i] = 1.0
             has_x[i] = False
             var[i] = 1.0
+            gi[i] = -1
             if not mask[b, i]:
                 continue
-            key = keys[b, i]
+            gi[i] = _row_group(H, b, i, n)
+            q = 0.0  # (H P- H^T)_ii over the non-zeros of row i of H
+            for k in range(n):
+                hk = H[b, i, k]
+                if hk == 0:
+                    continue
+                hp = 0.0
+                for l in range(n):
+                    h = H[b, i, l]
+                    if h != 0:
+                        pm = prior[b, l, k] + Q[b, l, k] if add_q else prior[b, l, k]
+                        hp += h * pm
+                q += hp * hk
             rr = np.float64(r[b, i])
+            ex[i] = rr * rr - q
+            key = keys[b, i]
             if key >= 0:
                 last = last_tab[b, key]
                 u = epoch[b] - last
@@ -436,35 +477,9 @@ def _r_sat_kernel(r, H, prior, Q, add_q, R, mask, keys, bf, jcap, d_row, active,
                 s_prev[b, i] = s0
                 n0s[i] = n0
                 var[i] = s0 * np.float64(R[b, i, i])
-                if sample > 0:
-                    continue
-            q = 0.0  # (H P- H^T)_ii over the non-zeros of row i of H
-            for k in range(n):
-                hk = H[b, i, k]
-                if hk == 0:
-                    continue
-                hp = 0.0
-                for l in range(n):
-                    h = H[b, i, l]
-                    if h != 0:
-                        pm = prior[b, l, k] + Q[b, l, k] if add_q else prior[b, l, k]
-                        hp += h * pm
-                q += hp * hk
-            excess = rr * rr - q
-            if key >= 0:
-                xs[i] = excess / np.float64(R[b, i, i])
-                has_x[i] = True
-                continue
-            g = 2
-            if n == N_STATES:
-                if H[b, i, _CLK0] != 0:
-                    g = 0
-                elif H[b, i, _DRIFT0] != 0:
-                    g = 1
-            gi[i] = g
-            num[g] += excess
-            den[g] += np.float64(R[b, i, i])
-            cnt[g] += 1
+                if sample == 0:
+                    xs[i] = ex[i] / np.float64(R[b, i, i])
+                    has_x[i] = True
         for it in range(n_iter):
             if it > 0 and sample > 0:  # refit with each row weighted by max(tentative scale, its sample)
                 for i in range(m):
@@ -500,11 +515,20 @@ def _r_sat_kernel(r, H, prior, Q, add_q, R, mask, keys, bf, jcap, d_row, active,
                     j = min(n0 + 1, jcap[b])
                     d = _weight_one(bf[b], j)
                     s1 = (1.0 - d) * s0 + d * xs[i]
-                    s_rows[b, i] = min(max(s1, smin), smax)
+                    s_rows[b, i] = min(max(s1, sat_min), smax)
                     n_rows[b, i] = n0 + 1
                 else:
                     s_rows[b, i] = s0
                     n_rows[b, i] = n0
+        num = np.zeros(G)
+        den = np.zeros(G)
+        cnt = np.zeros(G, np.int64)
+        for i in range(m):
+            if gi[i] < 0 or (keys[b, i] >= 0 and not common):
+                continue
+            num[gi[i]] += ex[i]
+            den[gi[i]] += s_rows[b, i] * np.float64(R[b, i, i])
+            cnt[gi[i]] += 1
         for g in range(G):
             if cnt[g] > 0 and active[b]:
                 sg = (1.0 - d_row[b]) * r_scale[b, g] + d_row[b] * (num[g] / den[g])
@@ -516,7 +540,7 @@ def _r_sat_kernel(r, H, prior, Q, add_q, R, mask, keys, bf, jcap, d_row, active,
             if not mask[b, i]:
                 sq[i] = 1.0
             elif keys[b, i] >= 0:
-                sq[i] = np.sqrt(s_rows[b, i])
+                sq[i] = np.sqrt(s_rows[b, i] * (s_group[b, gi[i]] if common else 1.0))
             else:
                 sq[i] = np.sqrt(s_group[b, gi[i]])
         for i in range(m):
@@ -696,8 +720,9 @@ class SageHusa(AdaptiveLaw):
         _r_sat_kernel(c(r), c(H), c(ctx.prior), c(ctx.Q if ctx.pending else ctx.prior), bool(ctx.pending), c(R),
                       mask, c(keys, np.int64), self._params["b"], self._jcap, d, active, epoch, self._sat_scale,
                       self._sat_count, self._sat_last, int(cfg.forget_after_epochs), float(cfg.r_scale_min),
-                      float(cfg.r_scale_max), _SAMPLE_CODE[cfg.r_sample],
-                      float(cfg.min_redundancy), float(cfg.prior_inflation), int(cfg.sample_iterations), self._r_scale,
+                      float(cfg.r_scale_max), float(cfg.sat_scale_min), _SAMPLE_CODE[cfg.r_sample],
+                      float(cfg.min_redundancy), float(cfg.prior_inflation), int(cfg.sample_iterations),
+                      bool(cfg.common_scale), self._r_scale,
                       s_rows, n_rows, s_prev, s_group, R_used)
         pending.update(r_scale=s_group, sat=(keys, s_rows, n_rows, s_prev), epoch=epoch)
         return UpdatePlan(fade=np.ones(self.batch_size), R=R_used, mask=mask, pending=pending)
@@ -740,21 +765,23 @@ class SageHusa(AdaptiveLaw):
                     v, red = posterior_residuals_reference(r, H, P_minus, var, keyed, cfg.prior_inflation)
                 has = keyed & (red >= cfg.min_redundancy) & (red > 0)
                 x = np.where(has, v ** 2 / np.where(has, red * Rdiag, 1.0), 0.0)
-            s1 = np.clip((1 - dk) * s0 + dk * x, cfg.r_scale_min, cfg.r_scale_max)
+            s1 = np.clip((1 - dk) * s0 + dk * x, cfg.sat_scale_min, cfg.r_scale_max)
             upd = has & act
             s_rows = np.where(keyed, np.where(upd, s1, s0), 1.0)
             n_rows = np.where(keyed, np.where(upd, n0 + 1, n0), 0)
             scale_var = np.where(has, np.maximum(s_rows, x), s_rows)
-        groups = np.where(mask & (keys < 0), measurement_groups(H, mask), -1)
+        all_groups = np.where(mask, measurement_groups(H, mask), -1)
+        groups = all_groups if cfg.common_scale else np.where(keys < 0, all_groups, -1)
         G = len(GROUP_NAMES)
         onehot = (groups[..., None] == np.arange(G)).astype(np.float64)
         num = np.einsum("bm,bmg->bg", excess, onehot)
-        den = np.einsum("bm,bmg->bg", Rdiag, onehot)
+        den = np.einsum("bm,bmg->bg", Rdiag * s_rows, onehot)
         used = onehot.sum(1) > 0
         sg = np.clip((1 - d[:, None]) * self._r_scale + d[:, None] * num / np.where(used, den, 1.0),
                      cfg.r_scale_min, cfg.r_scale_max)
         s_group = np.where(used & active[:, None], sg, self._r_scale)
-        row_s = np.where(keyed, s_rows, np.where(groups >= 0, np.take_along_axis(s_group, np.maximum(groups, 0), 1), 1.0))
+        g_row = np.take_along_axis(s_group, np.maximum(all_groups, 0), 1)
+        row_s = np.where(keyed, s_rows * (g_row if cfg.common_scale else 1.0), np.where(all_groups >= 0, g_row, 1.0))
         sq = np.sqrt(row_s).astype(self.dtype)
         return s_rows, n_rows, s_group, R * sq[:, :, None] * sq[:, None, :]
 
