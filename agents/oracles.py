@@ -215,7 +215,7 @@ def _branch_search(cfg, specs, seeds, grid, seg: int, look: int, pooled: bool, r
         chosen[:, s0:s1] = grid[best][:, None, :]
         choices.append(best)
         costs.append(c)
-        report(f"[{label}] segment {i + 1}/{n_seg}, {E} episodes x {K} branches")
+        report(f"{label}, segment {i + 1}/{n_seg} ({K} branches each)")
     rows = np.arange(E) * K
     details = {"choices": np.stack(choices, 1), "branch_cost_m2": np.stack(costs, 1), "stepped_epochs": stepped,
                "rec": {k: v[rows] for k, v in rec.items()}}
@@ -242,7 +242,7 @@ def _search(env_id, env_kwargs, seeds, grid, seg_s, look_s, kind, batch_rows, pr
     logs, acts, det = [], [], []
     for c0 in range(0, len(seeds), per):
         chunk = seeds[c0:c0 + per]
-        label = f"{kind} {env_id}: episodes {c0 + 1}-{c0 + len(chunk)}/{len(seeds)}"
+        label = f"{kind}: episodes {c0 + 1}-{c0 + len(chunk)}/{len(seeds)}"
         core, rows, chosen, d = _branch_search(cfg, cls.PARAMS, chunk, grid, seg, look, pooled, report, label)
         M_hint = core.M
         rec = d.pop("rec")
@@ -258,7 +258,7 @@ def _search(env_id, env_kwargs, seeds, grid, seg_s, look_s, kind, batch_rows, pr
                "branch_cost_m2": np.concatenate([d["branch_cost_m2"] for d in det], 0),
                "episode_equivalents": K * sum(d["stepped_epochs"] for d in det) / (M_hint * len(det)),
                "wall_time_s": wall, "pooled": pooled}
-    report(f"[{kind} {env_id}] {len(seeds)} episodes x {K} branches in {wall:.1f} s "
+    report(f"{kind}: {len(seeds)} episodes x {K} branches in {wall:.1f} s "
            f"({details['episode_equivalents']:.1f} episode-equivalents each)", done=True)
     return OracleResult(kind, env_id, seeds, grid, np.concatenate(acts, 0), log, details), env_kwargs
 
