@@ -278,8 +278,10 @@ def greedy_schedule(env_id: str, env_kwargs: dict | None, seeds, segment_s: floa
 
     Cost: ``K (segment + lookahead) / segment`` episode-equivalents per episode (21 for the defaults and a
     1-D action; 147 for the 49 candidates of a 2-D action), plus one snapshot of the filter state per
-    segment. Measured (2 shared cores): 8 episodes x 60 s of noise-burst on ``GnssIns/SageHusa-v0`` (7 candidates,
-    17.5 episode-equivalents: the last two segments have a shorter lookahead) took 4.3 s.
+    segment. Measured on 2 shared cores, noise-burst, 8 episodes: ``GnssIns/SageHusa-v0`` (7 candidates)
+    60 s episodes 4.3 s (17.5 episode-equivalents: the last segments' lookahead is cut), 300 s episodes
+    22 s (20.3; one plain batched run of the 8 episodes: 1.7 s); ``GnssIns/MASTKF-v0`` (49 candidates) 60 s
+    episodes 23 s (122.5).
 
     Parameters
     ----------
@@ -331,7 +333,8 @@ def crossfit_schedule(env_id: str, env_kwargs: dict | None, seeds, segment_s: fl
     -------
     :class:`OracleResult` whose ``actions`` are the scoring schedules (each half's rows hold the other
     half's fit); ``details['halves']`` the two lists of episode indices, ``details['schedules']`` the
-    (M, k) schedule fitted on each half (``'first'``, ``'second'``).
+    (M, k) schedule fitted on each half (``'first'``, ``'second'``), ``details['choices']`` its candidate
+    index per segment and ``details['fit_branch_cost_m2']`` (E_half, S, K) the branch costs of each fit.
     """
     _, _, _, seeds, _ = _setup(env_id, env_kwargs, seeds, grid)
     if len(seeds) < 2:
