@@ -8,9 +8,20 @@ Usage::
     python eval.py --experiment seed000 --episodes 20 --out results/seed000
 
 Method specs: a filter method (``kf``, ``svd-akf+onestep``, ...), an adaptive method with fixed parameters
-(``sage-husa[b=0.995]``), the optimized fixed parameter (``tuned:<tuning.json>`` from ``train.py tune``), or
-a learned policy (``<algo>:<model.zip>`` from ``train.py rl``). Episode k of every method sees the same
-truth and sensor errors (the worlds are drawn from the episode seeds ``seed * 1_000_003 + k``).
+(``sage-husa[b=0.995]``), the optimized fixed parameter (``tuned:<tuning.json>`` from ``train.py tune``),
+a learned policy (``<algo>:<model.zip>`` from ``train.py rl``), or an oracle of an env's knob
+(``oracle-schedule:<env id>``, ``best-per-episode:<env id>``, ``crossfit-schedule:<env id>``, options in
+brackets: ``oracle-schedule:GnssIns/SageHusa-v0[segment_s=10,lookahead_s=20,n=7]``; see
+:mod:`agents.methods`). Oracles know the truth: their rows are labelled ``oracle: ...`` and are never a
+method a user could run. Episode k of every method sees the same truth and sensor errors (the worlds are
+drawn from the episode seeds ``seed * 1_000_003 + k``).
+
+``--headroom`` adds, per scenario, the optimized fixed parameter (the ``tuned:`` method, required) against
+each oracle: headroom = (fixed - oracle) / fixed, the knob headroom net of the open-sky placebo (when
+``open-sky`` is among the scenarios), and the share of the (net) knob headroom every other method closed,
+(fixed - method) / (fixed - oracle), with paired bootstrap 95% CIs (none below
+:data:`envs.metrics.MIN_CI_EPISODES` episodes). It prints the table and writes ``OUT/headroom.md`` and
+the ``"headroom"`` key of results.json (schema in :func:`compute_headroom`).
 
 Prints a table and writes ``OUT/results.json`` (schema of DESIGN.md plus the paired difference to the
 reference method), ``results.csv``, ``results.md`` and PNG plots per scenario: error vs time (median and
@@ -62,6 +73,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the note states whether each method's RMSE difference to the reference is at most PCT "
                         "percent: -20 asks for 20%% lower, 2 allows 2%% higher; SCENARIO= sets it for one "
                         "scenario (repeatable)")
+    p.add_argument("--headroom", action="store_true",
+                   help="also report the headroom: the optimized fixed parameter (a 'tuned:' method, required) "
+                        "against each oracle, net of the open-sky placebo, and the share of it each method "
+                        "closed (OUT/headroom.md, results.json 'headroom')")
     p.add_argument("--experiment", default=None, metavar="NAME",
                    help="run a seed-paper reproduction instead: seed000, seed001 or seed003")
     return p
@@ -139,6 +154,23 @@ def main(argv=None) -> dict:
     if ref not in specs:
         fail(f"--reference {ref!r} is not one of --methods")
     plan = {s: _expand(specs, s, ref) for s in scenarios}  # scenario -> [(spec, [methods])]
+    from agents.methods import is_oracle_label
+    first = scenarios[0]
+    if any(is_oracle_label(m.label) for m in dict(plan[first])[ref]):
+        fail(f"--reference {ref!r} is an oracle; the reference must be a method a user could run")
+    if args.zupt not in ("none", "truth") and any(getattr(m, "is_oracle", False)
+                                                  for _, ms in plan[first] for m in ms):
+        fail(f"the oracle methods branch the filter state, which the {args.zupt!r} detector's stream state does "
+             "not allow: use --zupt none or truth")
+    fixed_spec = None
+    if args.headroom:
+        fixed_spec = next((sp for sp in specs if sp.startswith("tuned:")), None)
+        if fixed_spec is None:
+            fail("--headroom needs the optimized fixed parameter: add a 'tuned:<tuning.json>' method to --methods")
+        for s in scenarios:
+            n = len(dict(plan[s])[fixed_spec])
+            if n != 1:
+                fail(f"--headroom: {fixed_spec!r} must be one method; it matches {n} files on {s!r}")
 
     from envs.episodes import concat_logs
     from envs.metrics import paired_difference, summarize, summarize_seeds
@@ -174,6 +206,9 @@ def main(argv=None) -> dict:
               + " " * 30, file=sys.stderr)
         curves[s] = {m.label: concat_logs(logs[m.label]) for m in methods}
         results["scenarios"][s] = {label: summarize(log) for label, log in curves[s].items()}
+        for label in curves[s]:
+            if is_oracle_label(label):
+                results["scenarios"][s][label]["oracle"] = True
         for label, log in curves[s].items():
             if label != ref_label:
                 results["scenarios"][s][label]["paired_vs_reference"] = paired_difference(log, curves[s][ref_label])
@@ -183,10 +218,16 @@ def main(argv=None) -> dict:
                 spec: {"members": [m.label for m in ms],
                        **summarize_seeds([curves[s][m.label] for m in ms], curves[s][ref_label])}
                 for spec, ms in groups.items()}
+    if args.headroom:
+        results["headroom"] = compute_headroom(results, curves, plan, fixed_spec)
     (out / "results.json").write_text(json.dumps(results, indent=2))
     table = format_table(results)
     print(table)
     (out / "results.md").write_text(table + "\n")
+    if args.headroom:
+        htable = format_headroom(results["headroom"])
+        print("\nHeadroom\n\n" + htable)
+        (out / "headroom.md").write_text(htable + "\n")
     write_csv(results, out / "results.csv")
     if not args.no_plots:
         for s, per in curves.items():
@@ -286,6 +327,9 @@ def write_csv(results: dict, path: Path) -> None:
 
 
 def _verdict(p: dict) -> str:
+    from envs.metrics import MIN_CI_EPISODES, no_ci_text
+    if p["episodes"] < MIN_CI_EPISODES:
+        return no_ci_text()
     lo, hi = p["diff_rmse_h_ci95_m"]
     if hi < 0:
         return "lower (the 95% CI excludes 0)"
@@ -312,6 +356,8 @@ def reading(results: dict, goals: dict | None = None) -> list[str]:
     """Sentences computed from the results: each method against the reference (and its ``goals``,
     ``{scenario or '*': max relative difference}``), and each tuned parameter's search (from its tuning
     file): how much the whole parameter range moved the training RMSE."""
+    from agents.methods import is_oracle_label
+    from envs.metrics import MIN_CI_EPISODES
     c = results["config"]
     out = []
     for s in results["scenarios"]:
@@ -322,10 +368,18 @@ def reading(results: dict, goals: dict | None = None) -> list[str]:
             p = r["paired_vs_reference"]
             lo, hi = p["diff_rmse_h_ci95_m"]
             ref_rmse = results["scenarios"][s].get(_ref_label(results, s), {}).get("rmse_h_m", float("nan"))
+            few = p["episodes"] < MIN_CI_EPISODES
+            ci = "" if few else f", 95% CI [{lo:+.2f}, {hi:+.2f}] m"
+            if is_oracle_label(m):
+                tail = " (an oracle: it knows the truth, not a method a user could run)."
+            elif goal_rel is None:
+                tail = "."
+            elif few:
+                tail = f"; goal {100 * goal_rel:+.0f}% not judged (n < {MIN_CI_EPISODES})."
+            else:
+                tail = f"; goal {100 * goal_rel:+.0f}% {'met' if p['rel_diff'] <= goal_rel else 'not met'}."
             out.append(f"- `{s}`: {m}: horizontal RMSE {100 * p['rel_diff']:+.1f}% against `{c['reference']}` "
-                       f"({p['diff_rmse_h_m']:+.2f} m, 95% CI [{lo:+.2f}, {hi:+.2f}] m; reference {ref_rmse:.2f} m): "
-                       f"{_verdict(p)}" + ("." if goal_rel is None else
-                                           f"; goal {100 * goal_rel:+.0f}% {'met' if p['rel_diff'] <= goal_rel else 'not met'}."))
+                       f"({p['diff_rmse_h_m']:+.2f} m{ci}; reference {ref_rmse:.2f} m): {_verdict(p)}{tail}")
     for spec in c["methods"]:
         if not spec.startswith("tuned:"):
             continue
@@ -346,6 +400,154 @@ def reading(results: dict, goals: dict | None = None) -> list[str]:
     return out
 
 
+PLACEBO_SCENARIO = "open-sky"
+"""The scenario without events: a hindsight oracle's headroom there is luck (the placebo)."""
+HEADROOM_INTRO = ("Headroom = (optimized fixed - oracle) / optimized fixed, from the pooled horizontal RMSEs of "
+                  "the paired episodes; the knob oracle's (`oracle-schedule`) net of the open-sky placebo (its "
+                  "headroom on open-sky subtracted) where open-sky was run. Share closed = (fixed - method) / "
+                  "(fixed - oracle) of the (net) knob headroom. Paired bootstrap 95% CIs over episodes (the "
+                  "placebo's episodes resampled independently). Oracles know the truth: they bound what a "
+                  "policy could reach, they are not methods a user could run.")
+
+
+def _oracle_kind(label: str) -> str:
+    """``'oracle-schedule'``, ``'best-per-episode'``, ``'crossfit-schedule'``, ``'oracle-r'`` (the R oracle)."""
+    if label.startswith("oracle-r"):
+        return "oracle-r"
+    return label.removeprefix("oracle: ").split(":", 1)[0]
+
+
+def compute_headroom(results: dict, curves: dict, plan: dict, fixed_spec: str) -> dict:
+    """The ``"headroom"`` section of results.json.
+
+    Schema (RMSEs in metres, headrooms and shares as fractions, CIs ``[lo, hi]`` or null below
+    ``min_ci_episodes``)::
+
+        {"min_ci_episodes": 10, "fixed": "<tuned: spec>", "placebo": "open-sky" or null,
+         "scenarios": {"<scenario>": {
+            "note": "placebo: open-sky" | "placebo not measured ..." | "this is the placebo scenario ...",
+            "fixed": {"label", "rmse_h_m", "episodes"},
+            "knob_oracle": "<label of the oracle-schedule row>" or null,
+            "oracles": {"<label>": {"kind", "rmse_h_m", "episodes", "headroom", "headroom_ci95",
+                                    "placebo_headroom", "placebo_episodes", "net_headroom",
+                                    "net_headroom_ci95", "ci_note"}},
+            "methods": {"<label>": {"learned", "pooled", "rmse_h_m", "episodes", "share", "share_ci95",
+                                    "gap_m", "gap_ci95_m", "net", "note"}}}}}
+
+    ``oracles`` has every oracle row (labels ``oracle...``; ``kind`` from :func:`_oracle_kind`), its
+    headroom over the fixed parameter and, where the placebo was run (and this is not it), net of the same
+    oracle's placebo headroom. ``methods`` has every other method (learned ``<algo>:`` rows, each training
+    seed and the pooled row of a seed group, and the filters) with the share of the knob oracle's (net)
+    headroom it closed (:func:`envs.metrics.headroom_share`; on the placebo scenario itself the gross
+    headroom). Episodes where a compared method diverged leave that comparison.
+    """
+    from agents.methods import PolicyMethod, is_oracle_label
+    from envs.metrics import MIN_CI_EPISODES, episode_mse, headroom, headroom_share
+
+    placebo = PLACEBO_SCENARIO if PLACEBO_SCENARIO in curves else None
+
+    def mse(log):
+        a = episode_mse(log)
+        return a, log.diverged | ~np.isfinite(a)
+
+    def fixed_of(s):
+        return mse(curves[s][dict(plan[s])[fixed_spec][0].label])
+
+    def placebo_pair(s, label):
+        if placebo is None or s == placebo or label not in curves[placebo]:
+            return None
+        (F0, d0), (O0, e0) = fixed_of(placebo), mse(curves[placebo][label])
+        ok = ~(d0 | e0)
+        return (F0[ok], O0[ok]) if ok.any() else None
+
+    out = {"min_ci_episodes": MIN_CI_EPISODES, "fixed": fixed_spec, "placebo": placebo, "scenarios": {}}
+    for s, per in curves.items():
+        fixed_label = dict(plan[s])[fixed_spec][0].label
+        F, dF = fixed_of(s)
+        summ = results["scenarios"][s]
+        oracle_labels = [lab for lab in per if is_oracle_label(lab)]
+        knob = next((lab for lab in oracle_labels if _oracle_kind(lab) == "oracle-schedule"), None)
+        note = (f"this is the placebo scenario (no events): an oracle's headroom here is luck" if s == placebo
+                else f"placebo: {placebo}" if placebo else
+                f"placebo not measured (add --scenario {PLACEBO_SCENARIO})")
+        entry = {"note": note, "fixed": {"label": fixed_label, "rmse_h_m": summ[fixed_label]["rmse_h_m"],
+                                         "episodes": int(F.size)},
+                 "knob_oracle": knob, "oracles": {}, "methods": {}}
+        for lab in oracle_labels:
+            O, dO = mse(per[lab])
+            ok = ~(dF | dO)
+            h = (headroom(F[ok], O[ok], placebo=placebo_pair(s, lab)) if ok.any() else
+                 {"episodes": 0, "headroom": None, "ci_note": "no episode without a divergence"})
+            entry["oracles"][lab] = {"kind": _oracle_kind(lab), "rmse_h_m": summ[lab]["rmse_h_m"], **h}
+        rows = []
+        for spec, ms in plan[s]:
+            for m in ms:
+                if not is_oracle_label(m.label) and m.label != fixed_label:
+                    a, d = mse(per[m.label])
+                    rows.append((m.label, a, d, isinstance(m, PolicyMethod), False, summ[m.label]["rmse_h_m"]))
+            if len(ms) > 1:
+                parts = [mse(per[m.label]) for m in ms]
+                a = np.mean([p[0] for p in parts], 0)
+                d = np.any([p[1] for p in parts], 0)
+                g = results["seed_groups"][s][spec]
+                rows.append((f"{spec} (pooled over {len(ms)} seeds)", a, d, isinstance(ms[0], PolicyMethod), True,
+                             g["rmse_h_m"]))
+        for label, a, d, learned, pooled, rmse in rows:
+            row = {"learned": learned, "pooled": pooled, "rmse_h_m": rmse}
+            if knob is None:
+                row.update(episodes=int(a.size), share=None, share_ci95=None, note="no knob oracle: add "
+                           "'oracle-schedule:<env id>' to --methods")
+            else:
+                O, dO = mse(per[knob])
+                ok = ~(dF | d | dO)
+                if ok.any():
+                    row.update(headroom_share(F[ok], a[ok], O[ok], placebo=placebo_pair(s, knob)))
+                    if s == placebo:
+                        row["note"] = "; ".join(filter(None, ["placebo scenario: share of the gross headroom",
+                                                              row.get("note")]))
+                else:
+                    row.update(episodes=0, share=None, share_ci95=None, note="no episode without a divergence")
+            entry["methods"][label] = row
+        out["scenarios"][s] = entry
+    return out
+
+
+def _pct(x, signed=True):
+    return "n/a" if x is None else (f"{100 * x:+.1f}%" if signed else f"{100 * x:.1f}%")
+
+
+def _pct_ci(v, ci, note):
+    if v is None:
+        return note or "n/a"
+    return f"{_pct(v)} [{_pct(ci[0])}, {_pct(ci[1])}]" if ci is not None else f"{_pct(v)} ({note or 'no CI'})"
+
+
+def format_headroom(h: dict) -> str:
+    """Markdown table of the ``"headroom"`` section (:func:`compute_headroom`) and its notes per scenario."""
+    head = ("| scenario | row | episodes | RMSE h [m] | headroom (95% CI) | net of placebo (95% CI) | "
+            "share of the knob headroom closed (95% CI) |")
+    rows = [head, "|" + "---|" * 7]
+    notes = []
+    for s, e in h["scenarios"].items():
+        f = e["fixed"]
+        rows.append(f"| {s} | optimized fixed: {f['label']} | {f['episodes']} | {f['rmse_h_m']:.3f} | - | - | - |")
+        for lab, o in e["oracles"].items():
+            net = ("placebo" if s == h["placebo"] else "not measured" if o.get("net_headroom") is None
+                   else _pct_ci(o["net_headroom"], o["net_headroom_ci95"], o["ci_note"]))
+            knob = " (knob)" if lab == e["knob_oracle"] else ""
+            rows.append(f"| {s} | {lab}{knob} | {o['episodes']} | {o['rmse_h_m']:.3f} | "
+                        f"{_pct_ci(o['headroom'], o.get('headroom_ci95'), o['ci_note'])} | {net} | - |")
+        for lab, m in e["methods"].items():
+            share = _pct_ci(m["share"], m["share_ci95"], m.get("note"))
+            if m["share"] is not None and m.get("note") and m["share_ci95"] is not None:
+                share += f" ({m['note']})"
+            kind = " (learned)" if m["learned"] else ""
+            rows.append(f"| {s} | {lab}{kind} | {m['episodes']} | {m['rmse_h_m']:.3f} | - | - | {share} |")
+        notes.append(f"- `{s}`: {e['note']}" + ("" if e["knob_oracle"] else
+                                                 "; no knob oracle ('oracle-schedule:<env id>') in --methods"))
+    return "\n".join(rows + [""] + notes)
+
+
 def _ref_label(results: dict, s: str) -> str:
     c = results["config"]
     return c.get("reference_labels", {}).get(s, c["reference"])
@@ -362,6 +564,8 @@ def write_note(results: dict, path: Path, out: Path, cmd: str) -> None:
              "as a pattern over training seeds has a row per seed and a pooled row (the CI resamples episodes, "
              "each with all its seeds).", "",
              format_table(results), "", "## Reading", "", *reading(results, results["config"].get("goal")), "",
+             *(["## Headroom", "", HEADROOM_INTRO, "", format_headroom(results["headroom"]), ""]
+               if "headroom" in results else []),
              f"Plots and raw numbers: `{out}` (results.json, results.csv, *.png).", ""]
     path.write_text("\n".join(lines))
 

@@ -11,7 +11,17 @@ spec                           meaning
 ``tuned:<tuning.json>``        the optimized fixed parameter written by ``train.py tune``
 ``<algo>:<model.zip>``         a learned policy (``ppo``, ``sac``, ``td3``, ``recurrentppo``) trained by
                                ``train.py rl``; its env and env kwargs come from ``config.json`` beside it
+``oracle-schedule:<env id>``   an oracle (:mod:`agents.oracles`): the hindsight-greedy schedule of the env's
+                               parameters; options ``[segment_s=10,lookahead_s=20,n=7]``
+``best-per-episode:<env id>``  an oracle: the best constant action of each episode; option ``[n=7]``
+``crossfit-schedule:<env id>`` an oracle: one shared schedule fitted on the other half of the episodes;
+                               options ``[segment_s=10,lookahead_s=20,n=7]``
 =============================  ===================================================================
+
+An oracle knows the truth: it runs with the env's default method on the eval worlds (their seeds,
+scenario and episode length) and bounds what a policy in the env's action space could reach. Its label
+is ``'oracle: <spec>'`` (:func:`is_oracle_label`); it is never a method a user could run. ``n`` is the
+number of candidate values per action component (:func:`agents.oracles.action_grid`).
 
 In a file path, ``{scenario}`` stands for the scenario being evaluated (a policy and a tuned parameter
 per scenario: ``tuned:runs/{scenario}/tuning.json``) and a glob pattern expands to every matching file
@@ -67,9 +77,88 @@ class PolicyMethod:
             raise ValueError(f"{self.path}: no config.json beside the model naming its environment")
         kw = dict(self.policy.env_kwargs)
         kw.setdefault("zupt", zupt)
-        kw.update(scenario=world.scenario.name if world.scenario.name in _replay() else world.scenario,
-                  episode_length_s=float(world.scenario.duration_s), dtype=dtype)
+        kw.update(_eval_env_kwargs(world, dtype))
         return run_policy_episodes(self.policy.env_id, kw, self.policy, world.seeds)
+
+
+ORACLE_KINDS = {"oracle-schedule": ("segment_s", "lookahead_s", "n"), "best-per-episode": ("n",),
+                "crossfit-schedule": ("segment_s", "lookahead_s", "n")}
+"""Oracle spec prefixes and the options each accepts."""
+ORACLE_LABEL_PREFIX = "oracle: "
+_ORACLE_SPEC = re.compile(r"^(?P<env>[^\[\]]+?)(?:\[(?P<p>[^\]]*)\])?$")
+
+
+def is_oracle_label(label: str) -> bool:
+    """Whether a method label is an oracle's (``'oracle: ...'`` here; ``'oracle-r...'``: the R oracle)."""
+    return label.startswith("oracle")
+
+
+@dataclass
+class OracleMethod:
+    """A hindsight oracle of an env's knob (:mod:`agents.oracles`), run on the eval worlds' seeds."""
+
+    label: str
+    kind: str
+    env_id: str
+    options: dict = field(default_factory=dict)
+    progress: bool = True
+    is_oracle = True
+
+    def run(self, world, dtype="float64", zupt: str = "none"):
+        """Run on ``world``'s seeds with the env's default method, ``world``'s scenario and episode length
+        (``zupt``: ``'none'`` or ``'truth'``; a detector's stream state cannot be branched). Returns the
+        EpisodeLog of the oracle's chosen path (``filter_time_s``: the oracle's whole wall time)."""
+        from . import oracles
+        kw = _eval_env_kwargs(world, dtype)
+        kw["zupt"] = zupt
+        opts = dict(self.options)
+        if "n" in opts:
+            opts["grid"] = opts.pop("n")
+        scen = world.scenario.name
+
+        def report(msg, done=False):
+            import sys
+            print(f"\r[{scen}] {self.label[-40:]:<40s} {msg[:80]:<80s}", end="", file=sys.stderr, flush=True)
+        fn = {"oracle-schedule": oracles.greedy_schedule, "best-per-episode": oracles.best_per_episode,
+              "crossfit-schedule": oracles.crossfit_schedule}[self.kind]
+        self.result = fn(self.env_id, kw, world.seeds, progress=report if self.progress else None, **opts)
+        return self.result.log
+
+
+def _eval_env_kwargs(world, dtype) -> dict:
+    """Env kwargs that make the env core run ``world``: its scenario (a recording by name) and length."""
+    return {"scenario": world.scenario.name if world.scenario.name in _replay() else world.scenario,
+            "episode_length_s": float(world.scenario.duration_s), "dtype": dtype}
+
+
+def parse_oracle_spec(spec: str) -> OracleMethod:
+    """An :class:`OracleMethod` for ``'<kind>:<env id>[opt=value,...]'`` (module docstring); ``ValueError``
+    with a one-line message naming the culprit for an unknown env id or option, or a bad value."""
+    kind, rest = spec.split(":", 1)
+    m = _ORACLE_SPEC.match(rest.strip())
+    if not m:
+        raise ValueError(f"bad oracle spec {spec!r}: expected '{kind}:<env id>[option=value,...]'")
+    env_id = m.group("env").strip()
+    from .rollout import env_class
+    env_class(env_id)
+    known = ORACLE_KINDS[kind]
+    opts = {}
+    for item in filter(None, (x.strip() for x in (m.group("p") or "").split(","))):
+        if "=" not in item:
+            raise ValueError(f"bad option {item!r} in {spec!r}: expected name=value")
+        k, v = (x.strip() for x in item.split("=", 1))
+        if k not in known:
+            raise ValueError(f"unknown option {k!r} in {spec!r}; {kind} takes {', '.join(known)}")
+        try:
+            val = int(v) if k == "n" else float(v)
+        except ValueError:
+            raise ValueError(f"bad value {v!r} for {k!r} in {spec!r}") from None
+        if (k == "n" and val < 2) or (k == "segment_s" and not val > 0) or (k == "lookahead_s" and not val >= 0) \
+                or val != val or val in (float("inf"), float("-inf")):
+            need = {"n": "an int >= 2", "segment_s": "a positive number", "lookahead_s": "a number >= 0"}[k]
+            raise ValueError(f"bad value {v!r} for {k!r} in {spec!r}: must be {need}")
+        opts[k] = val
+    return OracleMethod(ORACLE_LABEL_PREFIX + spec, kind, env_id, opts)
 
 
 def _replay():
@@ -78,11 +167,13 @@ def _replay():
 
 
 def parse_method_spec(spec: str):
-    """A :class:`FilterMethod` or :class:`PolicyMethod` for an eval.py method spec (``ValueError`` /
+    """A :class:`FilterMethod`, :class:`PolicyMethod` or :class:`OracleMethod` for an eval.py method spec (``ValueError`` /
     ``FileNotFoundError`` with a one-line message for a bad one)."""
     spec = spec.strip()
     if ":" in spec:
         kind, path = spec.split(":", 1)
+        if kind in ORACLE_KINDS:
+            return parse_oracle_spec(spec)
         if kind == "tuned":
             t = load_tuning(path)
             params = dict(t.get("fixed", {}))
@@ -90,7 +181,8 @@ def parse_method_spec(spec: str):
             return FilterMethod(spec, t["method"], params)
         if kind.lower() in ALGOS:
             return PolicyMethod(spec, kind.lower(), path, Sb3Policy.load(path, kind.lower()))
-        raise ValueError(f"unknown method prefix {kind!r} in {spec!r}; use 'tuned:' or one of {', '.join(ALGOS)}")
+        raise ValueError(f"unknown method prefix {kind!r} in {spec!r}; use 'tuned:', an oracle "
+                         f"({', '.join(ORACLE_KINDS)}) or one of {', '.join(ALGOS)}")
     m = _PARAMS.match(spec)
     if m:
         method = m.group("m")
@@ -121,7 +213,7 @@ def expand_method_spec(spec: str, scenario: str) -> list:
     method per matching file, sorted by path. ``FileNotFoundError`` when a pattern matches nothing.
     """
     spec = spec.strip()
-    if ":" not in spec:
+    if ":" not in spec or spec.split(":", 1)[0] in ORACLE_KINDS:
         return [parse_method_spec(spec)]
     kind, path = spec.split(":", 1)
     concrete = path.replace("{scenario}", scenario)

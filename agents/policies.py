@@ -1,6 +1,7 @@
 """Policies that drive the tuning environments: ``act(obs) -> action`` for a batch of observations.
 
 * :class:`ConstantPolicy` -- a fixed action (a fixed filter parameter, e.g. Sage-Husa ``b = 0.98``).
+* :class:`ScheduledPolicy` -- a fixed action per episode and epoch (the replay of an oracle's schedule).
 * :class:`Sb3Policy` -- a trained stable-baselines3 / sb3-contrib model (``model.zip``), with the
   ``vecnormalize.pkl`` observation statistics saved beside it when training used them, and recurrent
   state for ``RecurrentPPO``.
@@ -45,6 +46,42 @@ class ConstantPolicy:
 
     def act(self, obs):
         return np.broadcast_to(self.action, (obs.shape[0], self.action.size)).copy()
+
+
+class ScheduledPolicy:
+    """A fixed per-epoch action schedule: the j-th ``act`` call after ``reset`` returns ``actions[:, j]``.
+
+    Replays what :mod:`agents.oracles` found through the env core (``run_policy_episodes``): the float64
+    actions are handed over unchanged, so a replay reproduces the oracle's errors bit for bit.
+
+    Parameters
+    ----------
+    actions : (B, M, k) actions in [-1, 1] of B episodes at each of their M epochs.
+    """
+
+    def __init__(self, actions):
+        a = np.array(actions, np.float64)
+        if a.ndim != 3 or 0 in a.shape:
+            raise ValueError(f"actions must have shape (B, M, k) with B, M, k >= 1, got {a.shape}")
+        if not np.all(np.isfinite(a)):
+            raise ValueError("actions contains NaN or inf")
+        self.actions = a
+        self._j = 0
+
+    def reset(self, batch_size: int):
+        if batch_size != self.actions.shape[0]:
+            raise ValueError(f"the schedule has {self.actions.shape[0]} episodes, the batch {batch_size}")
+        self._j = 0
+
+    def act(self, obs):
+        B, M, _ = self.actions.shape
+        if np.shape(obs)[0] != B:
+            raise ValueError(f"the schedule has {B} episodes, the observation batch {np.shape(obs)[0]}")
+        if self._j >= M:
+            raise ValueError(f"the schedule has {M} epochs; act() was called a {self._j + 1}th time since reset()")
+        a = self.actions[:, self._j].copy()
+        self._j += 1
+        return a
 
 
 class Sb3Policy:

@@ -59,10 +59,26 @@ def run_policy_episodes(env_id: str, env_kwargs: dict, policy, seeds, progress=N
         if progress is not None:
             progress(j + 1)
     elapsed = time.perf_counter() - t0
-    err = core.est_track - core.truth_r
-    ned = (core.truth_Cne @ err[..., None])[..., 0]
+    return core_episode_log(core, np.arange(B), nis, nsat, zflag, diverged, elapsed)
+
+
+def core_episode_log(core: TuningCore, rows, nis, n_sats, zupt, diverged, elapsed_s: float) -> EpisodeLog:
+    """The :class:`EpisodeLog` of finished episodes on ``rows`` of ``core`` (position errors from its tracks).
+
+    Parameters
+    ----------
+    core : a core whose ``rows`` have run all M epochs.
+    rows : (E,) int rows of ``core``.
+    nis, n_sats, zupt : (E, M) per-epoch pseudorange NIS, satellites used and ZUPT flags of those rows.
+    diverged : (E,) bool, terminated at some epoch.
+    elapsed_s : wall time to report as ``filter_time_s``.
+    """
+    rows = np.asarray(rows, np.intp)
+    E = rows.size
+    err = core.est_track[rows] - core.truth_r[rows]
+    ned = (core.truth_Cne[rows] @ err[..., None])[..., 0]
     t = np.asarray(core.epoch_idx, float) * core.dt
-    nan = np.full((B, core.M), np.nan)
-    return EpisodeLog(t=t, pos_err_ned=ned, vel_err_ned=np.full((B, core.M, 3), np.nan), nees_pv=nan, nis=nis,
-                      n_used=nsat, n_sats=nsat, gdop=nan.copy(), zupt=zflag, diverged=diverged | ~np.isfinite(ned).all((1, 2)),
-                      filter_time_s=elapsed)
+    nan = np.full((E, core.M), np.nan)
+    return EpisodeLog(t=t, pos_err_ned=ned, vel_err_ned=np.full((E, core.M, 3), np.nan), nees_pv=nan, nis=nis,
+                      n_used=n_sats, n_sats=n_sats, gdop=nan.copy(), zupt=zupt,
+                      diverged=diverged | ~np.isfinite(ned).all((1, 2)), filter_time_s=elapsed_s)

@@ -14,6 +14,7 @@ the filter has, never from the truth; the truth only scores it.
 """
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass
 
@@ -22,6 +23,7 @@ import numpy as np
 
 from earth import C_en, ecef_to_geodetic
 from nav_filters.forms import parse_method
+from nav_filters.rows import check_row_pairs, copied_array, copy_dataclass_rows, copy_rows_generic
 
 from .config import EnvConfig, ParamSpec
 from .episodes import navigator_for, satellite_keys
@@ -427,6 +429,70 @@ class TuningCore:
             np.linalg.norm(self.nav.v, axis=1) / 10.0,
         ], 1)
         return self._clip_frame(np.concatenate([self.action, feat], 1))
+
+    # -------------------------------------------------------------- branching
+    WORLD_ARRAYS = ("f", "w", "sat_pos", "sat_vel", "pr", "prr", "pr_sigma", "prr_sigma", "gmask", "truth_r",
+                    "truth_Cne", "truth_still", "truth_still_n", "origin", "origin_Cne")
+    """Per-row world arrays (a function of the row's world seed: rows with equal seeds hold equal worlds)."""
+    SHARED_ATTRS = frozenset({"config", "specs", "scenario", "epoch_idx", "default_action", "frame_low",
+                              "frame_high", "obs_low", "obs_high", "nav", "ref", "seeds", "_zupt", "_last_res"})
+    """Attributes :meth:`copy_rows` does not copy generically: shared by all rows (their length may equal B by
+    chance) or copied by their own rule. Every other ndarray with leading axis B is per-row state."""
+
+    def copy_rows(self, dst, src) -> None:
+        """Copy the episode state of rows ``src`` to rows ``dst`` (exact branching inside the batch).
+
+        Copied: the navigator (:meth:`nav_filters.navigator.Navigator.copy_rows`), the reference
+        navigator of ``reward='advantage'``, the world seed and world arrays (:data:`WORLD_ARRAYS`; skipped
+        where both rows already hold the same seed's world), and every other per-row array of the core
+        (epoch ``t``, ``action``, the NIS averages ``ema``, ``sq_err_sum``, ``max_err``, ``frames``,
+        ``est_track``, the last step's diagnostics, and any added later). Afterwards row ``dst[i]``
+        stepped with the same actions as row ``src[i]`` gives bit-identical results.
+
+        Parameters
+        ----------
+        dst, src : (n,) int row indices, equal lengths; overlap allowed (sources are read first).
+
+        Raises
+        ------
+        ValueError
+            bad indices, or a zero-velocity detector with its own per-row stream state (``zupt`` other
+            than ``'none'`` or ``'truth'``): branching needs ``zupt='none'`` (or ``'truth'``).
+        RuntimeError
+            before the first reset.
+        """
+        if self.nav is None:
+            raise RuntimeError("copy_rows() needs a reset() first")
+        dst, src = check_row_pairs(dst, src, self.B)
+        if self._zupt.detector is not None:
+            raise ValueError(f"copy_rows: the {self._zupt.choice!r} zero-velocity detector keeps per-row stream "
+                             "state that is not copied; branching (the oracles) needs zupt='none' (or 'truth')")
+        self.nav.copy_rows(dst, src)
+        if self.ref is not None:
+            self.ref.copy_rows(dst, src)
+        differ = np.array([self.seeds[d] != self.seeds[s] for d, s in zip(dst, src)], bool)
+        if differ.any():
+            wd, ws = dst[differ], src[differ]
+            for name in self.WORLD_ARRAYS:
+                setattr(self, name, copied_array(getattr(self, name), wd, ws))
+        seeds = list(self.seeds)
+        for d, s in zip(dst, src):
+            seeds[d] = self.seeds[s]
+        self.seeds = seeds
+        if getattr(self, "_last_res", None) is not None:
+            self._last_res = copy_dataclass_rows(self._last_res, dst, src, self.B, "the last update result")
+        copy_rows_generic(self, dst, src, self.B, skip=self.SHARED_ATTRS | set(self.WORLD_ARRAYS))
+
+    def clone(self) -> "TuningCore":
+        """An independent copy of the running batch (a snapshot to return to): every state is deep-copied,
+        the world arrays and the other shared read-only attributes are shared with this core (nothing
+        writes them in place; :meth:`copy_rows` replaces an array instead of writing into it)."""
+        memo = {id(getattr(self, n)): getattr(self, n) for n in self.WORLD_ARRAYS if hasattr(self, n)}
+        for n in ("config", "specs", "scenario", "epoch_idx", "default_action", "frame_low", "frame_high",
+                  "obs_low", "obs_high"):
+            if hasattr(self, n):
+                memo[id(getattr(self, n))] = getattr(self, n)
+        return copy.deepcopy(self, memo)
 
     # ------------------------------------------------------------------ views
     def track_ned(self, row: int):

@@ -115,3 +115,144 @@ def summarize_seeds(logs: list[EpisodeLog], ref: EpisodeLog | None = None, n_boo
     if ref is not None:
         out["paired_vs_reference"] = _paired(a, (ref.horizontal_error[ok] ** 2).mean(1), n_boot, seed)
     return out
+
+
+# --------------------------------------------------------------------------- headroom
+MIN_CI_EPISODES = 10
+"""Below this many (paired) episodes no confidence interval or verdict is given: a bootstrap over fewer
+episodes does not cover its nominal level."""
+
+
+def no_ci_text(min_episodes: int = MIN_CI_EPISODES) -> str:
+    """The text that stands in for a CI / verdict below the minimum number of episodes."""
+    return f"n < {min_episodes}: no CI"
+
+
+def episode_mse(log: EpisodeLog) -> np.ndarray:
+    """(E,) mean squared horizontal error of each episode [m^2] (NaN where non-finite)."""
+    return np.mean(log.horizontal_error ** 2, axis=1)
+
+
+def _ci(boot, level):
+    a = (1 - level) / 2
+    return [float(np.quantile(boot, a)), float(np.quantile(boot, 1 - a))]
+
+
+def _check_paired(**arrays):
+    n = None
+    for name, a in arrays.items():
+        a = np.asarray(a, np.float64)
+        if a.ndim != 1 or (n is not None and a.size != n):
+            raise ValueError(f"{name} must be a 1-D array of per-episode mean squared errors of the same "
+                             f"{n if n is not None else 'E'} episodes, got shape {a.shape}")
+        if not np.all(np.isfinite(a)) or np.any(a < 0):
+            raise ValueError(f"{name} must hold finite non-negative mean squared errors")
+        n = a.size
+    return n
+
+
+def headroom(fixed, oracle, placebo=None, n_boot: int = 2000, level: float = 0.95, seed: int = 0,
+             min_episodes: int = MIN_CI_EPISODES) -> dict:
+    """Headroom of an oracle over the optimized fixed parameter: ``(RMSE_fixed - RMSE_oracle) / RMSE_fixed``.
+
+    Parameters
+    ----------
+    fixed, oracle : (E,) per-episode mean squared horizontal errors [m^2] of the same episodes (paired).
+    placebo : optional ``(fixed0, oracle0)``, the same of the placebo scenario (one without events, where a
+        hindsight oracle wins only by luck); its headroom ``h0`` is subtracted: net headroom ``h - h0``.
+    n_boot, level, seed : bootstrap resamples, CI level and seed; episodes are resampled with the same
+        indices for both methods (paired), the placebo's episodes independently.
+    min_episodes : below this many episodes (of either scenario) the CIs are None (``ci_note`` says so).
+
+    Returns
+    -------
+    dict: ``episodes``, ``headroom``, ``headroom_ci95`` ([lo, hi] or None), ``placebo_headroom``,
+    ``placebo_episodes``, ``net_headroom``, ``net_headroom_ci95`` (None without a placebo), ``ci_note``.
+    """
+    E = _check_paired(fixed=fixed, oracle=oracle)
+    if E == 0:
+        raise ValueError("headroom needs at least one episode")
+    f, o = np.asarray(fixed, np.float64), np.asarray(oracle, np.float64)
+    rng = np.random.default_rng(seed)
+
+    def rel(a, b):
+        ra = np.sqrt(a)
+        return (ra - np.sqrt(b)) / ra
+
+    h = float(rel(f.mean(), o.mean()))
+    idx = rng.integers(0, E, size=(n_boot, E))
+    boot = rel(f[idx].mean(1), o[idx].mean(1))
+    out = {"episodes": int(E), "headroom": h, "headroom_ci95": _ci(boot, level) if E >= min_episodes else None,
+           "placebo_headroom": None, "placebo_episodes": None, "net_headroom": None, "net_headroom_ci95": None,
+           "ci_note": None if E >= min_episodes else no_ci_text(min_episodes)}
+    if placebo is not None:
+        f0, o0 = (np.asarray(a, np.float64) for a in placebo)
+        E0 = _check_paired(placebo_fixed=f0, placebo_oracle=o0)
+        if E0 == 0:
+            raise ValueError("the placebo needs at least one episode")
+        h0 = float(rel(f0.mean(), o0.mean()))
+        idx0 = rng.integers(0, E0, size=(n_boot, E0))
+        boot0 = rel(f0[idx0].mean(1), o0[idx0].mean(1))
+        ok = min(E, E0) >= min_episodes
+        out.update(placebo_headroom=h0, placebo_episodes=int(E0), net_headroom=h - h0,
+                   net_headroom_ci95=_ci(boot - boot0, level) if ok else None)
+        if not ok:
+            out["ci_note"] = no_ci_text(min_episodes)
+    return out
+
+
+def headroom_share(fixed, method, oracle, placebo=None, n_boot: int = 2000, level: float = 0.95, seed: int = 0,
+                   min_episodes: int = MIN_CI_EPISODES) -> dict:
+    """Share of an oracle's (net) headroom that a method closed: ``(R_f - R_m) / (R_f - R_o - h0 R_f)``.
+
+    ``R`` are pooled RMSEs over the same episodes (fixed parameter ``f``, method ``m``, oracle ``o``) and
+    ``h0`` the placebo headroom (:func:`headroom`; 0 without a placebo): 1 means the method reached the
+    oracle's floor (net of luck), 0 the optimized fixed parameter, < 0 worse than it.
+
+    Parameters
+    ----------
+    fixed, method, oracle : (E,) per-episode mean squared horizontal errors [m^2] of the same episodes.
+    placebo : optional ``(fixed0, oracle0)`` of the placebo scenario (resampled independently).
+    n_boot, level, seed, min_episodes : as :func:`headroom`.
+
+    Returns
+    -------
+    dict: ``episodes``, ``share``, ``share_ci95`` ([lo, hi] or None), ``gap_m`` (the (net) headroom in metres,
+    ``R_f - R_o - h0 R_f``), ``gap_ci95_m``, ``net`` (placebo subtracted), ``note`` (why a share or CI is
+    missing: below ``min_episodes``; no headroom to close; a headroom whose CI includes 0, for which the ratio
+    has no bounded interval).
+    """
+    E = _check_paired(fixed=fixed, method=method, oracle=oracle)
+    if E == 0:
+        raise ValueError("headroom_share needs at least one episode")
+    f, m, o = (np.asarray(a, np.float64) for a in (fixed, method, oracle))
+    rng = np.random.default_rng(seed)
+    idx = rng.integers(0, E, size=(n_boot, E))
+    rf, rm, ro = np.sqrt(f.mean()), np.sqrt(m.mean()), np.sqrt(o.mean())
+    bf, bm, bo = (np.sqrt(a[idx].mean(1)) for a in (f, m, o))
+    h0, b0, E0 = 0.0, 0.0, None
+    if placebo is not None:
+        f0, o0 = (np.asarray(a, np.float64) for a in placebo)
+        E0 = _check_paired(placebo_fixed=f0, placebo_oracle=o0)
+        if E0 == 0:
+            raise ValueError("the placebo needs at least one episode")
+        h0 = 1.0 - np.sqrt(o0.mean()) / np.sqrt(f0.mean())
+        idx0 = rng.integers(0, E0, size=(n_boot, E0))
+        b0 = 1.0 - np.sqrt(o0[idx0].mean(1)) / np.sqrt(f0[idx0].mean(1))
+    gap = float(rf - ro - h0 * rf)
+    bgap = bf - bo - b0 * bf
+    enough = E >= min_episodes and (E0 is None or E0 >= min_episodes)
+    out = {"episodes": int(E), "share": None, "share_ci95": None, "gap_m": gap,
+           "gap_ci95_m": _ci(bgap, level) if enough else None, "net": placebo is not None, "note": None}
+    if not gap > 0:
+        out["note"] = f"no {'net ' if placebo is not None else ''}headroom to close (gap {gap:+.3g} m): share not defined"
+        return out
+    out["share"] = float((rf - rm) / gap)
+    if not enough:
+        out["note"] = no_ci_text(min_episodes)
+    elif np.mean(bgap <= 0) > (1 - level) / 2:
+        out["note"] = (f"the {'net ' if placebo is not None else ''}headroom's {100 * level:.0f}% CI includes 0: "
+                       "the share has no bounded CI")
+    else:
+        out["share_ci95"] = _ci((bf - bm) / bgap, level)
+    return out

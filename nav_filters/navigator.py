@@ -41,6 +41,7 @@ from .forms.base import check_dtype
 from .ins import _earth_rate_matrices_np, apply_correction
 from .kernels import F_NONZERO, propagate_epoch
 from .measurements import dop, gnss_innovations, measurement_keys
+from .rows import check_row_pairs, copy_rows_generic
 
 
 @dataclass(frozen=True)
@@ -340,6 +341,25 @@ class Navigator:
         for name in ("r", "v", "C", "clk", "drift", "bg", "ba", "diverged", "time_since_update"):
             getattr(self, name)[rows] = getattr(other, name)
         self.form.replace_rows(rows, other.form)
+
+    _ROW_COPY_SKIP = frozenset({"config", "_qg", "_qa", "_qdiag", "_earth"})
+    """Attributes shared by all rows (process-noise diagonals, earth-rate matrices): never copied row-wise."""
+
+    def copy_rows(self, dst, src) -> None:
+        """Copy the state of rows ``src`` to rows ``dst`` of this batch (exact branching; overlap allowed).
+
+        Generic (:func:`nav_filters.rows.copy_rows_generic`): the nominal state (r, v, C, clock, biases),
+        ``diverged``, ``time_since_update``, the pending transition accumulators and the filter form
+        (:meth:`FilterForm.copy_rows`), and any per-row array added later; the shared attributes of
+        :attr:`_ROW_COPY_SKIP` stay. Row ``dst[i]`` then continues exactly like row ``src[i]`` on the same
+        IMU samples and measurements.
+
+        Parameters
+        ----------
+        dst, src : (n,) int row indices (equal lengths; ``ValueError`` otherwise).
+        """
+        dst, src = check_row_pairs(dst, src, self.batch_size)
+        copy_rows_generic(self, dst, src, self.batch_size, skip=self._ROW_COPY_SKIP)
 
     # ----------------------------------------------------------------- views
     @property

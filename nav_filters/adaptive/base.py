@@ -55,6 +55,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..forms.base import FilterForm, UpdateResult, check_keys, symmetrize
+from ..rows import check_row_pairs, copy_dataclass_rows
 from .params import ParamSpec
 
 
@@ -293,6 +294,24 @@ class AdaptiveLaw(FilterForm):
                 self._Q_acc[rows] = other._Q_acc
         for name, value in other._params.items():
             self._params[name][rows] = value
+
+    _ROW_COPY_SKIP = frozenset({"_ctx"})
+
+    def copy_rows(self, dst, src) -> None:
+        """Copy the state of rows ``src`` to rows ``dst`` (exact branching inside the batch).
+
+        The generic copy of :meth:`FilterForm.copy_rows` covers the inner form, the law's per-row arrays,
+        the per-row parameters (``_params``, a dict of (B,) arrays) and any other dict of per-row arrays,
+        and the deferred transition ``_Phi_acc`` / ``_Q_acc`` (None or (B, n, n) for every row alike). A
+        pending epoch context (left by an update that failed for every row) is copied field by field;
+        one with a field that is not a per-row array raises ``ValueError``. At step boundaries there is
+        none.
+        """
+        dst, src = check_row_pairs(dst, src, self.batch_size)
+        super().copy_rows(dst, src)
+        if self._ctx is not None:
+            self._ctx = copy_dataclass_rows(self._ctx, dst, src, self.batch_size,
+                                            f"the pending epoch context of {type(self).__name__}")
 
     # --------------------------------------------------------------- params
     def params(self) -> dict:

@@ -27,6 +27,8 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
+from ..rows import check_row_pairs, copy_rows_generic
+
 SUPPORTED_DTYPES = (np.float32, np.float64)
 
 
@@ -213,6 +215,8 @@ class FilterForm(ABC):
     """
 
     name = "base"
+    _ROW_COPY_SKIP: frozenset = frozenset()
+    """Attributes :meth:`copy_rows` leaves alone (caches that are not per-row state)."""
 
     def __init__(self, P0, x0=None, dtype=None):
         P0 = np.asarray(P0)
@@ -283,6 +287,20 @@ class FilterForm(ABC):
                     value = value.copy()
                     setattr(self, name, value)
                 value[rows] = ov
+
+    def copy_rows(self, dst, src) -> None:
+        """Copy the state of rows ``src`` to rows ``dst`` of this batch (exact branching; overlap allowed).
+
+        Generic over every form, like :meth:`replace_rows`: each ndarray attribute with leading axis B and
+        each dict of such arrays is copied, nested forms recurse (:func:`nav_filters.rows.copy_rows_generic`).
+        Afterwards row ``dst[i]`` given the same inputs as row ``src[i]`` continues bit for bit alike.
+
+        Parameters
+        ----------
+        dst, src : (n,) int row indices (equal lengths; ``ValueError`` otherwise).
+        """
+        dst, src = check_row_pairs(dst, src, self.batch_size)
+        copy_rows_generic(self, dst, src, self.batch_size, skip=self._ROW_COPY_SKIP)
 
     def take_correction(self) -> np.ndarray:
         """Return the error-state estimate (B, n) and reset it to zero (closed-loop feedback)."""

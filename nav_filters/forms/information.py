@@ -252,6 +252,14 @@ class InformationForm(FilterForm):
         super().replace_rows(rows, other)
         self._changed()
 
+    _ROW_COPY_SKIP = frozenset({"_cache"})
+
+    def copy_rows(self, dst, src) -> None:
+        """Copy rows ``src`` to ``dst`` (base-class behaviour, the cached x included), then drop the other
+        derived caches (covariance, factor views), which are recomputed from the copied information."""
+        super().copy_rows(dst, src)
+        self._cache = {}
+
     def take_correction(self) -> np.ndarray:
         x = np.array(self.x)
         self.x = np.zeros_like(x)
