@@ -11,6 +11,10 @@ spec                           meaning
 ``tuned:<tuning.json>``        the optimized fixed parameter written by ``train.py tune``
 ``<algo>:<model.zip>``         a learned policy (``ppo``, ``sac``, ``td3``, ``recurrentppo``) trained by
                                ``train.py rl``; its env and env kwargs come from ``config.json`` beside it
+``oracle-r``, ``oracle-r:<m>``  an oracle: ``kf`` (or filter method ``m``) given the simulator's true
+                               per-satellite, per-epoch variances (:func:`envs.worlds.oracle_r_world`);
+                               simulated worlds only
+``oracle-nlos-excluded``       an oracle: ``kf`` with every NLOS channel removed
 ``oracle-schedule:<env id>``   an oracle (:mod:`agents.oracles`): the hindsight-greedy schedule of the env's
                                parameters; options ``[segment_s=10,lookahead_s=20,n=7]``
 ``best-per-episode:<env id>``  an oracle: the best constant action of each episode; option ``[n=7]``
@@ -161,6 +165,23 @@ def parse_oracle_spec(spec: str) -> OracleMethod:
     return OracleMethod(ORACLE_LABEL_PREFIX + spec, kind, env_id, opts)
 
 
+@dataclass
+class OracleRMethod:
+    """A filter method on the world with the true measurement variances (or without its NLOS channels)."""
+
+    label: str
+    method: str = "kf"
+    exclude_nlos: bool = False
+    is_oracle = True
+
+    def run(self, world, dtype="float64", zupt: str = "none"):
+        from envs.worlds import oracle_r_world
+        return run_episodes(oracle_r_world(world, self.exclude_nlos), self.method, dtype=dtype, zupt=zupt)
+
+
+ORACLE_R_NAMES = ("oracle-r", "oracle-nlos-excluded")
+
+
 def _replay():
     from envs.worlds import REPLAY_SCENARIOS
     return REPLAY_SCENARIOS
@@ -170,6 +191,12 @@ def parse_method_spec(spec: str):
     """A :class:`FilterMethod`, :class:`PolicyMethod` or :class:`OracleMethod` for an eval.py method spec (``ValueError`` /
     ``FileNotFoundError`` with a one-line message for a bad one)."""
     spec = spec.strip()
+    if spec == "oracle-nlos-excluded":
+        return OracleRMethod(spec, "kf", exclude_nlos=True)
+    if spec == "oracle-r" or spec.startswith("oracle-r:"):
+        method = spec.split(":", 1)[1] if ":" in spec else "kf"
+        parse_method(method)
+        return OracleRMethod(spec, method)
     if ":" in spec:
         kind, path = spec.split(":", 1)
         if kind in ORACLE_KINDS:
@@ -213,7 +240,7 @@ def expand_method_spec(spec: str, scenario: str) -> list:
     method per matching file, sorted by path. ``FileNotFoundError`` when a pattern matches nothing.
     """
     spec = spec.strip()
-    if ":" not in spec or spec.split(":", 1)[0] in ORACLE_KINDS:
+    if ":" not in spec or spec.split(":", 1)[0] in tuple(ORACLE_KINDS) + ("oracle-r",):
         return [parse_method_spec(spec)]
     kind, path = spec.split(":", 1)
     concrete = path.replace("{scenario}", scenario)

@@ -48,3 +48,29 @@ def make_world(scenario, seeds, dtype=np.float64, imu_grade: str | None = None,
         over["duration_s"] = float(duration_s)
     from .sim.scenarios import get_scenario
     return generate_world(get_scenario(scenario, **over), seeds, dtype=dtype)
+
+
+def oracle_r_world(world: World, exclude_nlos: bool = False) -> World:
+    """The world with the simulator's true per-satellite, per-epoch variances as the reported ones (oracle R).
+
+    ``pr_sigma = sqrt(pr_var_true)``, ``prr_sigma = sqrt(prr_var_true)`` (white noise with every event's
+    multiplier, the nominal atmosphere term, the NLOS / multipath bias squared: :class:`envs.sim.gnss.GnssData`),
+    or, with ``exclude_nlos``, the reported sigmas with every NLOS channel removed. A filter run on it is the
+    floor of any measurement-noise adaptation; it knows the truth and is never a method a receiver could run.
+
+    Raises
+    ------
+    ValueError
+        for a recorded world (no simulator truth), naming the scenario.
+    """
+    import dataclasses
+    g = world.gnss
+    if g.pr_var_true is None or (g.prr is not None and g.prr_var_true is None):
+        raise ValueError(f"oracle R needs the simulator's true variances; scenario {world.scenario.name!r} is a "
+                         "recorded data set (no truth of its measurement errors)")
+    if exclude_nlos:
+        gnss = dataclasses.replace(g, mask=g.mask & ~g.nlos)
+    else:
+        gnss = dataclasses.replace(g, pr_sigma=np.sqrt(g.pr_var_true),
+                                   prr_sigma=None if g.prr is None else np.sqrt(g.prr_var_true))
+    return dataclasses.replace(world, gnss=gnss)

@@ -214,3 +214,28 @@ def test_oracle_method_specs():
     [e] = expand_method_spec("best-per-episode:GnssIns/MASTKF-v0[n=3]", "urban")
     assert (e.kind, e.env_id, e.options) == ("best-per-episode", "GnssIns/MASTKF-v0", {"n": 3})
     assert parse_method_spec("crossfit-schedule:GnssIns/STKF-v0").options == {}
+
+
+def test_oracle_r_beats_kf_on_urban_and_refuses_recorded_worlds():
+    """oracle-r: kf given the simulator's true per-satellite variance (NLOS bias^2 included) is far below kf on
+    urban; NLOS exclusion too; a world without that truth (a recording) gets a clear error."""
+    import dataclasses
+
+    import numpy as np
+
+    from agents.methods import OracleRMethod, is_oracle_label, parse_method_spec
+    from envs.worlds import make_world
+    world = make_world("urban", [3, 4, 5, 6], duration_s=120.0)
+    rmse = {}
+    for spec in ("kf", "oracle-r", "oracle-nlos-excluded", "oracle-r:svd-srkf"):
+        m = parse_method_spec(spec)
+        h = m.run(world).horizontal_error
+        rmse[spec] = float(np.sqrt(np.mean(h ** 2)))
+    assert isinstance(parse_method_spec("oracle-r"), OracleRMethod) and is_oracle_label("oracle-nlos-excluded")
+    assert rmse["oracle-r"] < 0.7 * rmse["kf"] and rmse["oracle-nlos-excluded"] < rmse["kf"], rmse
+    assert abs(rmse["oracle-r:svd-srkf"] / rmse["oracle-r"] - 1) < 1e-6  # the same filter in another form
+    recorded = dataclasses.replace(world, gnss=dataclasses.replace(world.gnss, pr_var_true=None))
+    with pytest.raises(ValueError, match="recorded data set"):
+        parse_method_spec("oracle-r").run(recorded)
+    with pytest.raises(ValueError, match="unknown filter method"):
+        parse_method_spec("oracle-r:nope")
