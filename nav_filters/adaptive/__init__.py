@@ -12,6 +12,7 @@ method               law                                                        
                      satellite
 ``svd-asrkf``        :class:`SageHusa`, diagonal Q correction (seed 000 eq 21), R    ``svd-srkf``
                      per satellite
+``sage-husa-r``      :class:`SageHusa`, R per satellite, nominal Q                   ``kf``
 ``sage-husa-group``  :class:`SageHusa`, full Q correction, one R scale per           ``kf``
                      measurement group, frozen d (the law before per-satellite R)
 ``stkf``             :class:`StrongTracking` (suboptimal fading factor)              ``kf``
@@ -75,6 +76,7 @@ ADAPTIVE_METHODS = {
     "sage-husa": law_factory(SageHusa, "kf", diagonal_q=False, **_SATELLITE_R),
     "svd-akf": law_factory(SageHusa, "svd-kf", diagonal_q=False, **_SATELLITE_R),
     "svd-asrkf": law_factory(SageHusa, "svd-srkf", diagonal_q=True, **_SATELLITE_R),
+    "sage-husa-r": law_factory(SageHusa, "kf", adapt_q=False, **_SATELLITE_R),
     "sage-husa-group": law_factory(SageHusa, "kf", diagonal_q=False, adapt_r=True),
     "stkf": law_factory(StrongTracking, "kf"),
     "ma-stkf": law_factory(MeasurementAdaptiveSTKF, "kf"),

@@ -499,6 +499,7 @@ def test_law_factory_fits_the_forms_registry():
     form = f(P0, dtype=np.float32)
     assert isinstance(form, SageHusa) and form.config.diagonal_q and form.dtype == np.float32
     assert isinstance(form.inner, KalmanFilter)
-    assert set(ADAPTIVE_METHODS) == {"sage-husa", "svd-akf", "svd-asrkf", "sage-husa-group", "stkf", "ma-stkf"}
+    assert set(ADAPTIVE_METHODS) == {"sage-husa", "svd-akf", "svd-asrkf", "sage-husa-r", "sage-husa-group", "stkf",
+                                     "ma-stkf"}
     with pytest.raises(ValueError, match="b"):
         law_factory(SageHusa, "kf", b=2.0)

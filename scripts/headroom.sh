@@ -1,0 +1,27 @@
+#!/usr/bin/env bash
+# The headroom note docs/headroom.md (issue 16): for every simulated scenario, the optimized fixed Sage-Husa b
+# (tuned on 32 training episodes of the scenario's full length), the hand-designed filters, and the oracles:
+# oracle-r (the simulator's true per-satellite variances), NLOS exclusion, the hindsight-greedy b schedule
+# (10 s segments, 20 s lookahead, 7 values), the best constant b per episode and the cross-fitted time
+# schedule, on 32 held-out paired episodes. No learned method is evaluated here: the scenarios and their
+# headroom are fixed first. About 1.5-2 hours on 2 CPU cores. Set PY to use another interpreter.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+if [ -z "${PY:-}" ]; then bash scripts/setup.sh; PY=.venv/bin/python; fi
+EPISODES=${EPISODES:-32}
+N_TRAIN=${N_TRAIN:-32}
+ENV=GnssIns/SageHusa-v0
+SCENARIOS=${SCENARIOS:-"open-sky urban noise-burst outage urban-transition noise-mismatch regime-switch seed000-sim seed003-sim"}
+ARGS=()
+for scen in $SCENARIOS; do
+  case $scen in seed000-sim) len=60 ;; seed003-sim) len=700 ;; *) len=300 ;; esac
+  if [ ! -f runs/headroom/$scen/tuning.json ]; then
+    $PY train.py tune --env $ENV --env-kwargs scenario=$scen episode_length_s=$len --n-train "$N_TRAIN" --seed 0 \
+      --out runs/headroom/$scen
+  fi
+  ARGS+=(--scenario "$scen")
+done
+K="$ENV[segment_s=10,lookahead_s=20,n=7]"
+$PY eval.py "${ARGS[@]}" --episodes "$EPISODES" --seed 2 --no-plots --headroom \
+  --methods "tuned:runs/headroom/{scenario}/tuning.json,kf,sage-husa,sage-husa-r,sage-husa-group,stkf,ma-stkf,oracle-r,oracle-nlos-excluded,oracle-schedule:$K,best-per-episode:$ENV[n=7],crossfit-schedule:$K" \
+  --reference "tuned:runs/headroom/{scenario}/tuning.json" --out results/headroom --note docs/headroom.md
