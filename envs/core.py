@@ -55,6 +55,15 @@ OBS_FEATURES = (
     ("outage", 0.0, 1.0, "1 if this epoch had no satellite"),
     ("zupt", 0.0, 1.0, "1 if a zero-velocity update was applied at this epoch"),
     ("speed", 0.0, 10.0, "INS speed [m/s] / 10"),
+    # per-satellite health (issue 16): where the error sits on individual satellites
+    ("nis_pr_sat_max", 0.0, 100.0, "largest pseudorange normalized innovation dz_i^2 / S_ii over the satellites"),
+    ("nis_pr_sat_p90", 0.0, 100.0, "90th percentile (linear interpolation) of dz_i^2 / S_ii over the satellites"),
+    ("gate_frac", 0.0, 1.0, "fraction of satellites whose pseudorange dz_i^2 / S_ii exceeds 9 (a 3-sigma gate)"),
+    ("sats_rose", 0.0, 1.0, "satellites whose R scale more than doubled at this epoch / channels (per-satellite "
+                            "laws; 0 otherwise)"),
+    ("log_sat_scale_max", -2.0, 4.0, "log10 of the largest per-satellite pseudorange R scale (per-satellite laws; "
+                                     "0 otherwise)"),
+    ("dsats", -1.0, 1.0, "change of the number of satellites since the previous epoch / channels"),
 )
 """Per-frame observation features after the parameter values (all float32, clipped to [low, high])."""
 
@@ -63,7 +72,7 @@ LOG_REWARD_OFFSET_M = 0.1
 
 
 @nb.njit(cache=True)
-def _frame_kernel(action, dz, S, mask, groups, ema, gdop, P, tsu, zflag, v, lo, hi, out):
+def _frame_kernel(action, dz, S, mask, groups, ema, gdop, P, tsu, zflag, v, rose, smax, prev_n, lo, hi, out):
     """Observation frames (B, k + len(OBS_FEATURES)) float32, same quantities as ``TuningCore._frame_reference``.
 
     Updates the NIS moving averages ``ema`` (B, 2) in place on rows with satellites; non-finite values map
@@ -72,6 +81,7 @@ def _frame_kernel(action, dz, S, mask, groups, ema, gdop, P, tsu, zflag, v, lo, 
     B, k = action.shape
     C = mask.shape[1]
     f = np.empty(lo.shape[0])
+    xv = np.empty(C)
     for b in range(B):
         n = 0
         for j in range(C):
@@ -80,7 +90,25 @@ def _frame_kernel(action, dz, S, mask, groups, ema, gdop, P, tsu, zflag, v, lo, 
         nn = max(n, 1)
         nis = np.zeros(2)
         rms = np.zeros(2)
+        xmax = 0.0
+        p90 = 0.0
+        gate = 0.0
         if n > 0:
+            q = 0
+            for j in range(C):
+                if mask[b, j]:
+                    xv[q] = np.float64(dz[b, j]) ** 2 / np.float64(S[b, j])
+                    q += 1
+            xs = np.sort(xv[:q])
+            xmax = xs[q - 1]
+            pos = 0.9 * (q - 1)
+            lo_i = int(np.floor(pos))
+            hi_i = min(lo_i + 1, q - 1)
+            p90 = xs[lo_i] + (pos - lo_i) * (xs[hi_i] - xs[lo_i])
+            for j in range(q):
+                if xs[j] > 9.0:
+                    gate += 1.0
+            gate /= q
             for g in range(groups):
                 sn = 0.0
                 sr = 0.0
@@ -109,6 +137,12 @@ def _frame_kernel(action, dz, S, mask, groups, ema, gdop, P, tsu, zflag, v, lo, 
         f[k + 10] = 1.0 if n == 0 else 0.0
         f[k + 11] = 1.0 if zflag[b] else 0.0
         f[k + 12] = np.sqrt(v[b, 0] * v[b, 0] + v[b, 1] * v[b, 1] + v[b, 2] * v[b, 2]) / 10.0
+        f[k + 13] = xmax
+        f[k + 14] = p90
+        f[k + 15] = gate
+        f[k + 16] = rose[b] / C
+        f[k + 17] = np.log10(max(smax[b], 1e-12))
+        f[k + 18] = (n - prev_n[b]) / C if prev_n[b] >= 0 else 0.0
         for i in range(f.shape[0]):
             x = f[i]
             if np.isnan(x):
@@ -208,6 +242,7 @@ class TuningCore:
         self.t[rows] = 0
         self.action[rows] = act
         self.ema[rows] = 1.0
+        self.prev_nsat[rows] = -1
         self.sq_err_sum[rows] = 0.0
         self.max_err[rows] = 0.0
         self.est_track[rows] = np.nan
@@ -240,6 +275,7 @@ class TuningCore:
         self.t = np.zeros(B, np.int64)
         self.action = np.zeros((B, self.k))
         self.ema = np.ones((B, 2))
+        self.prev_nsat = np.full(B, -1, np.int64)
         self.sq_err_sum = np.zeros(B)
         self.max_err = np.zeros(B)
         self.frames = np.zeros((B, self.config.history, self.frame_dim), np.float32)
@@ -396,10 +432,21 @@ class TuningCore:
         is the numpy specification, agreement test in ``tests/envs/test_core_compiled.py``)."""
         groups = 2 if (self.nav.config.use_pseudorange_rate and self.has_rate) else 1
         out = np.empty((self.B, self.frame_dim), np.float32)
+        rose, smax = self._satellite_health()
         _frame_kernel(self.action, np.ascontiguousarray(res.innovation), np.ascontiguousarray(res.innovation_var),
                       self._last_mask, groups, self.ema, self._last_gdop, self.nav.covariance,
-                      self.nav.time_since_update, zflag, self.nav.v, self.frame_low, self.frame_high, out)
+                      self.nav.time_since_update, zflag, self.nav.v, rose, smax, self.prev_nsat, self.frame_low,
+                      self.frame_high, out)
+        self.prev_nsat = self._last_mask.sum(1).astype(np.int64)
         return out
+
+    def _satellite_health(self):
+        """(B,) satellites whose R scale rose this epoch and (B,) the largest per-satellite R scale, from a
+        per-satellite law's adaptive state (zeros and ones for other methods)."""
+        st = self.nav.form.adaptive_state() if hasattr(self.nav.form, "adaptive_state") else {}
+        rose = np.asarray(st.get("sats_rose", np.zeros(self.B)), np.float64)
+        smax = np.asarray(st.get("sat_scale_max", np.ones(self.B)), np.float64)
+        return np.ascontiguousarray(rose), np.ascontiguousarray(smax)
 
     def _frame_reference(self, res, zflag):
         C = self.C
@@ -428,11 +475,21 @@ class TuningCore:
             self.nav.time_since_update / 60.0, (n == 0).astype(float), zflag.astype(float),
             np.linalg.norm(self.nav.v, axis=1) / 10.0,
         ], 1)
+        x = np.where(mask, dz2[:, :C] / S[:, :C], np.nan)
+        with np.errstate(all="ignore"):
+            xmax = np.where(n > 0, np.nanmax(np.where(mask, x, -np.inf), 1), 0.0)
+            p90 = np.array([np.percentile(r[np.isfinite(r)], 90) if np.isfinite(r).any() else 0.0 for r in x])
+            gate = np.where(n > 0, np.sum(mask & (np.nan_to_num(x) > 9.0), 1) / np.maximum(n, 1), 0.0)
+        rose, smax = self._satellite_health()
+        dsats = np.where(self.prev_nsat >= 0, (n - self.prev_nsat) / C, 0.0)
+        feat = np.concatenate([feat, np.stack([xmax, p90, gate, rose / C, np.log10(np.maximum(smax, 1e-12)),
+                                               dsats], 1)], 1)
+        self.prev_nsat = n.astype(np.int64)
         return self._clip_frame(np.concatenate([self.action, feat], 1))
 
     # -------------------------------------------------------------- branching
     WORLD_ARRAYS = ("f", "w", "sat_pos", "sat_vel", "pr", "prr", "pr_sigma", "prr_sigma", "gmask", "truth_r",
-                    "truth_Cne", "truth_still", "truth_still_n", "origin", "origin_Cne")
+                    "truth_Cne", "truth_still", "truth_still_n", "origin", "origin_Cne", "sat_keys")
     """Per-row world arrays (a function of the row's world seed: rows with equal seeds hold equal worlds)."""
     SHARED_ATTRS = frozenset({"config", "specs", "scenario", "epoch_idx", "default_action", "frame_low",
                               "frame_high", "obs_low", "obs_high", "nav", "ref", "seeds", "_zupt", "_last_res"})

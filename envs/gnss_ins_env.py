@@ -24,7 +24,7 @@ The action is applied before the epoch's measurement update.
 
 ## Observation Space
 
-``Box(low, high, shape=(history * (k + 13),), float32)``, finite bounds, values
+``Box(low, high, shape=(history * (k + 19),), float32)``, finite bounds, values
 clipped to them. Each frame (newest last when ``history > 1``) holds the current
 parameter actions (k values in [-1, 1]) followed by (:data:`envs.core.OBS_FEATURES`):
 
@@ -43,6 +43,12 @@ parameter actions (k values in [-1, 1]) followed by (:data:`envs.core.OBS_FEATUR
 | k+10 | outage | 0-1 | 1 if no satellite at this epoch |
 | k+11 | zupt | 0-1 | 1 if a zero-velocity update was applied |
 | k+12 | speed | 0-10 | INS speed [m/s] / 10 |
+| k+13 | nis_pr_sat_max | 0-100 | largest per-satellite pseudorange dz_i^2/S_ii |
+| k+14 | nis_pr_sat_p90 | 0-100 | its 90th percentile over the satellites |
+| k+15 | gate_frac | 0-1 | fraction of satellites with dz_i^2/S_ii > 9 |
+| k+16 | sats_rose | 0-1 | satellites whose R scale more than doubled this epoch / channels (per-satellite laws) |
+| k+17 | log_sat_scale_max | -2-4 | log10 of the largest per-satellite R scale (per-satellite laws) |
+| k+18 | dsats | -1-1 | change of the satellite count since the previous epoch / channels |
 
 Only quantities the filter has enter the observation, never the truth.
 
@@ -80,6 +86,9 @@ At the end, ``info["episode_metrics"]`` holds the episode's horizontal RMSE and 
 ## Version History
 
 * v0: initial version.
+* v0, revised with issue 16 (the ids are a public contract and were kept): the Sage-Husa methods adapt R
+  per satellite (``sage-husa-group`` is the earlier law), and six per-satellite health features (k+13 to
+  k+18) were appended to the observation. Policies trained before do not fit the new observation size.
 """
 from __future__ import annotations
 

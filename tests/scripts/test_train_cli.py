@@ -29,7 +29,8 @@ def test_rl_smoke_writes_a_loadable_model_and_eval_runs_it(tmp_path):
     from agents.policies import Sb3Policy
     pol = Sb3Policy.load(out / "model.zip", "ppo")
     pol.reset(3)
-    a = pol.act(np.zeros((3, 14), np.float32))
+    from envs.core import OBS_FEATURES
+    a = pol.act(np.zeros((3, 1 + len(OBS_FEATURES)), np.float32))
     assert a.shape == (3, 1) and np.all(np.abs(a) <= 1.0 + 1e-6)
     e = run("eval.py", "--scenario", "seed000-sim", "--methods", f"kf,ppo:{out / 'model.zip'}", "--episodes", "2",
             "--out", str(tmp_path / "ev"), "--no-plots")
