@@ -15,6 +15,9 @@ spec                           meaning
                                per-satellite, per-epoch variances (:func:`envs.worlds.oracle_r_world`);
                                simulated worlds only
 ``oracle-nlos-excluded``       an oracle: ``kf`` with every NLOS channel removed
+``rule:<env id>``              the hand-designed causal rule :class:`agents.policies.ReactiveRule` (low b while
+                               the satellites look degraded); options ``[b_low=0.9,b_high=0.9999,nis=9,ema=3,
+                               hold=5]``
 ``oracle-schedule:<env id>``   an oracle (:mod:`agents.oracles`): the hindsight-greedy schedule of the env's
                                parameters; options ``[segment_s=10,lookahead_s=20,n=7]``
 ``best-per-episode:<env id>``  an oracle: the best constant action of each episode; option ``[n=7]``
@@ -129,6 +132,52 @@ class OracleMethod:
         return self.result.log
 
 
+@dataclass
+class RuleMethod:
+    """A hand-designed causal rule (:class:`agents.policies.ReactiveRule`) run through the env on the eval worlds."""
+
+    label: str
+    env_id: str
+    options: dict = field(default_factory=dict)
+
+    def run(self, world, dtype="float64", zupt: str = "none"):
+        from envs.core import OBS_FEATURES
+        from .policies import ReactiveRule
+        from .rollout import env_class
+        specs = env_class(self.env_id).PARAMS
+        pol = ReactiveRule(specs, len(specs) + len(OBS_FEATURES), **self.options)
+        kw = _eval_env_kwargs(world, dtype)
+        kw["zupt"] = zupt
+        return run_policy_episodes(self.env_id, kw, pol, world.seeds)
+
+
+RULE_OPTIONS = ("b_low", "b_high", "nis", "ema", "hold")
+
+
+def parse_rule_spec(spec: str) -> RuleMethod:
+    """A :class:`RuleMethod` for ``'rule:<env id>[opt=value,...]'``; one-line ``ValueError`` otherwise."""
+    _, rest = spec.split(":", 1)
+    m = _ORACLE_SPEC.match(rest.strip())
+    if not m:
+        raise ValueError(f"bad rule spec {spec!r}: expected 'rule:<env id>[option=value,...]'")
+    env_id = m.group("env").strip()
+    from envs.core import OBS_FEATURES
+    from .policies import ReactiveRule
+    from .rollout import env_class
+    specs = env_class(env_id).PARAMS
+    opts = {}
+    for item in filter(None, (x.strip() for x in (m.group("p") or "").split(","))):
+        k, _, v = (x.strip() for x in item.partition("="))
+        if k not in RULE_OPTIONS:
+            raise ValueError(f"unknown option {k!r} in {spec!r}; rule takes {', '.join(RULE_OPTIONS)}")
+        try:
+            opts[k] = int(v) if k == "hold" else float(v)
+        except ValueError:
+            raise ValueError(f"bad value {v!r} for {k!r} in {spec!r}") from None
+    ReactiveRule(specs, len(specs) + len(OBS_FEATURES), **opts)  # validates
+    return RuleMethod(spec, env_id, opts)
+
+
 def _eval_env_kwargs(world, dtype) -> dict:
     """Env kwargs that make the env core run ``world``: its scenario (a recording by name) and length."""
     return {"scenario": world.scenario.name if world.scenario.name in _replay() else world.scenario,
@@ -201,6 +250,8 @@ def parse_method_spec(spec: str):
         kind, path = spec.split(":", 1)
         if kind in ORACLE_KINDS:
             return parse_oracle_spec(spec)
+        if kind == "rule":
+            return parse_rule_spec(spec)
         if kind == "tuned":
             t = load_tuning(path)
             params = dict(t.get("fixed", {}))
@@ -240,7 +291,7 @@ def expand_method_spec(spec: str, scenario: str) -> list:
     method per matching file, sorted by path. ``FileNotFoundError`` when a pattern matches nothing.
     """
     spec = spec.strip()
-    if ":" not in spec or spec.split(":", 1)[0] in tuple(ORACLE_KINDS) + ("oracle-r",):
+    if ":" not in spec or spec.split(":", 1)[0] in tuple(ORACLE_KINDS) + ("oracle-r", "rule"):
         return [parse_method_spec(spec)]
     kind, path = spec.split(":", 1)
     concrete = path.replace("{scenario}", scenario)

@@ -1,6 +1,8 @@
 """Policies that drive the tuning environments: ``act(obs) -> action`` for a batch of observations.
 
 * :class:`ConstantPolicy` -- a fixed action (a fixed filter parameter, e.g. Sage-Husa ``b = 0.98``).
+* :class:`ReactiveRule` -- a hand-designed causal rule: a short memory of the noise (small ``b``) while the
+  satellites' normalized innovations are high, a long one otherwise (seed 000 eq 24's lowering of b).
 * :class:`ScheduledPolicy` -- a fixed action per episode and epoch (the replay of an oracle's schedule).
 * :class:`Sb3Policy` -- a trained stable-baselines3 / sb3-contrib model (``model.zip``), with the
   ``vecnormalize.pkl`` observation statistics saved beside it when training used them, and recurrent
@@ -81,6 +83,55 @@ class ScheduledPolicy:
             raise ValueError(f"the schedule has {M} epochs; act() was called a {self._j + 1}th time since reset()")
         a = self.actions[:, self._j].copy()
         self._j += 1
+        return a
+
+
+class ReactiveRule:
+    """Hand-designed causal rule for the Sage-Husa env: ``b = b_low`` while the satellites look degraded,
+    ``b_high`` otherwise, with a hold time.
+
+    Degraded: the largest per-satellite pseudorange normalized innovation (observation ``nis_pr_sat_max``)
+    above ``nis``, or the pseudorange NIS moving average (``nis_pr_ema``) above ``ema``; the low b is held for
+    ``hold`` epochs after the last degraded epoch. Seed 000 eq 24 lowers b when the Q correction jumps;
+    this rule lowers it when the measurements do, from the observation only (no truth).
+
+    Parameters
+    ----------
+    specs : the env's parameter specs (the first must be ``b``); k : the number of action components.
+    frame_dim : length of one observation frame (the newest frame is the last one).
+    b_low, b_high : forgetting factors in the env's range; nis, ema : thresholds; hold : epochs (>= 0).
+    """
+
+    def __init__(self, specs, frame_dim: int, b_low: float = 0.9, b_high: float = 0.9999, nis: float = 9.0,
+                 ema: float = 3.0, hold: int = 5):
+        from envs.core import OBS_FEATURES
+        names = [f[0] for f in OBS_FEATURES]
+        if not specs or specs[0].name != "b":
+            raise ValueError("ReactiveRule drives a Sage-Husa forgetting factor b (GnssIns/SageHusa-v0)")
+        for name, v in (("b_low", b_low), ("b_high", b_high)):
+            if not specs[0].low <= v <= specs[0].high:
+                raise ValueError(f"{name} must lie in [{specs[0].low}, {specs[0].high}], got {v!r}")
+        if not (nis > 0 and ema > 0 and int(hold) == hold and hold >= 0):
+            raise ValueError(f"nis and ema must be > 0 and hold an int >= 0, got {nis!r}, {ema!r}, {hold!r}")
+        self.k, self.frame_dim = len(specs), int(frame_dim)
+        self.i_max = self.k + names.index("nis_pr_sat_max")
+        self.i_ema = self.k + names.index("nis_pr_ema")
+        self.a_low = float(specs[0].to_action(b_low))
+        self.a_high = float(specs[0].to_action(b_high))
+        self.nis, self.ema, self.hold = float(nis), float(ema), int(hold)
+        self.rest = np.array([s.to_action(s.default) for s in specs[1:]], np.float32)
+        self._left = None
+
+    def reset(self, batch_size: int):
+        self._left = np.zeros(batch_size, np.int64)
+
+    def act(self, obs):
+        f = np.asarray(obs)[:, -self.frame_dim:]
+        bad = (f[:, self.i_max] > self.nis) | (f[:, self.i_ema] > self.ema)
+        self._left = np.where(bad, self.hold + 1, np.maximum(self._left - 1, 0))
+        a = np.where(self._left > 0, self.a_low, self.a_high).astype(np.float32)[:, None]
+        if self.rest.size:
+            a = np.concatenate([a, np.broadcast_to(self.rest, (a.shape[0], self.rest.size))], 1)
         return a
 
 

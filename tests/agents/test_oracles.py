@@ -207,3 +207,33 @@ def test_scheduled_policy_checks_its_schedule():
         p.act(np.zeros((2, 14)))
     with pytest.raises(ValueError, match="shape"):
         ScheduledPolicy(np.zeros((2, 3)))
+
+
+def test_reactive_rule_lowers_b_while_the_satellites_look_degraded_and_holds_it():
+    from agents.methods import RuleMethod, parse_method_spec
+    from agents.policies import ReactiveRule
+    from envs.core import OBS_FEATURES
+    from envs.gnss_ins_env import SAGE_HUSA_PARAMS
+    names = [f[0] for f in OBS_FEATURES]
+    k, F = 1, 1 + len(OBS_FEATURES)
+    rule = ReactiveRule(SAGE_HUSA_PARAMS, F, b_low=0.9, b_high=0.9999, nis=9.0, ema=3.0, hold=2)
+    rule.reset(2)
+    spec = SAGE_HUSA_PARAMS[0]
+    obs = np.zeros((2, 2 * F), np.float32)  # history 2: the rule reads the newest frame
+    obs[1, F + k + names.index("nis_pr_sat_max")] = 50.0
+    obs[0, k + names.index("nis_pr_sat_max")] = 50.0  # an old frame: ignored
+    b = [spec.to_value(rule.act(obs)[:, 0])]
+    obs[:] = 0
+    for _ in range(3):
+        b.append(spec.to_value(rule.act(obs)[:, 0]))
+    b = np.array(b)
+    np.testing.assert_allclose(b[:, 0], 0.9999, rtol=1e-9)
+    np.testing.assert_allclose(b[:3, 1], 0.9, rtol=1e-9)  # the degraded epoch, then held 2 epochs
+    np.testing.assert_allclose(b[3, 1], 0.9999, rtol=1e-9)
+    m = parse_method_spec("rule:GnssIns/SageHusa-v0[b_low=0.92,hold=3]")
+    assert isinstance(m, RuleMethod) and m.options == {"b_low": 0.92, "hold": 3}
+    for bad, msg in (("rule:GnssIns/SageHusa-v0[q=1]", "unknown option"),
+                     ("rule:GnssIns/SageHusa-v0[b_low=0.5]", "b_low must lie"),
+                     ("rule:GnssIns/STKF-v0", "Sage-Husa forgetting factor")):
+        with pytest.raises(ValueError, match=msg):
+            parse_method_spec(bad)
