@@ -41,6 +41,16 @@ def _check_real(owner: str, name: str, value, *, lo=None, hi=None, lo_open=False
         raise ValueError(f"{owner}.{name} must be <= {hi}, got {value!r}")
 
 
+def _check_pair(owner: str, name: str, value, *, lo=0.0, lo_open=False) -> None:
+    """A (min, max) pair of finite reals with lo <= min <= max."""
+    if not isinstance(value, tuple) or len(value) != 2:
+        raise ValueError(f"{owner}.{name} must be a (min, max) tuple, got {value!r}")
+    _check_real(owner, f"{name}[0]", value[0], lo=lo, lo_open=lo_open)
+    _check_real(owner, f"{name}[1]", value[1], lo=lo, lo_open=lo_open)
+    if value[1] < value[0]:
+        raise ValueError(f"{owner}.{name}: max < min in {value!r}")
+
+
 def _check_int(owner: str, name: str, value, *, lo=None, hi=None) -> None:
     """Raise ``ValueError`` naming ``owner.name`` unless ``value`` is an int inside the bounds."""
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)):

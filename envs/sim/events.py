@@ -52,7 +52,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .constellation import _check_real
+from .constellation import _check_pair as _pair, _check_real
 
 __all__ = [
     "OUTAGE", "NOISE", "MISMATCH", "NLOS_ZONE", "OVERPASS", "IMU_EVENT", "REACQUISITION", "REGIME", "TREES",
@@ -92,15 +92,6 @@ BIAS_POSITIVE_FRACTION = 0.92
 # =============================================================================
 # validation helpers
 # =============================================================================
-def _pair(owner: str, name: str, value, *, lo=0.0, lo_open=False) -> None:
-    if not isinstance(value, tuple) or len(value) != 2:
-        raise ValueError(f"{owner}.{name} must be a (min, max) tuple, got {value!r}")
-    _check_real(owner, f"{name}[0]", value[0], lo=lo, lo_open=lo_open)
-    _check_real(owner, f"{name}[1]", value[1], lo=lo, lo_open=lo_open)
-    if value[1] < value[0]:
-        raise ValueError(f"{owner}.{name}: max < min in {value!r}")
-
-
 def _log_uniform(g: np.random.Generator, rng: tuple, size=None):
     """Log-uniform draws in ``[rng[0], rng[1]]`` (one uniform each)."""
     lo, hi = math.log(rng[0]), math.log(rng[1])

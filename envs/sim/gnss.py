@@ -72,7 +72,7 @@ from earth.ranging import range_and_rate
 from earth.wgs84 import C_LIGHT, OMEGA_IE, ecef_to_geodetic
 
 from . import events as ev
-from .constellation import Constellation, _check_int, _check_real
+from .constellation import Constellation, _check_int, _check_pair, _check_real
 from .events import NoiseRegimes, RandomBursts, Reacquisition, SigmaMismatch, UrbanZones
 
 __all__ = [
@@ -103,16 +103,6 @@ _CHUNK_ELEMS = 50_000
 # =============================================================================
 # validation helpers
 # =============================================================================
-def _check_pair(owner: str, name: str, value, *, lo=0.0, lo_open=False) -> None:
-    """A (min, max) pair of finite reals with lo <= min <= max."""
-    if not isinstance(value, tuple) or len(value) != 2:
-        raise ValueError(f"{owner}.{name} must be a (min, max) tuple, got {value!r}")
-    _check_real(owner, f"{name}[0]", value[0], lo=lo, lo_open=lo_open)
-    _check_real(owner, f"{name}[1]", value[1], lo=lo, lo_open=lo_open)
-    if value[1] < value[0]:
-        raise ValueError(f"{owner}.{name}: max < min in {value!r}")
-
-
 def _check_intervals(owner: str, name: str, value, with_scale: bool) -> None:
     """A tuple of (t0_s, t1_s) or (t0_s, t1_s, scale) with t1 >= t0 and scale >= 0."""
     n = 3 if with_scale else 2

@@ -158,6 +158,42 @@ def measurement_groups(H, mask) -> np.ndarray:
 
 # ----------------------------------------------------------------------------- geometry residuals
 @nb.njit(cache=True)
+def _cholesky_inplace(A, rel_tol):
+    """``A = L L^T`` in place (lower triangle of the square A); False when a pivot is not above
+    ``rel_tol`` times the diagonal entry (0: not positive)."""
+    p = A.shape[0]
+    for k in range(p):
+        dkk = A[k, k]
+        for q in range(k):
+            dkk -= A[k, q] * A[k, q]
+        if not dkk > rel_tol * max(A[k, k], 1e-300):
+            return False
+        A[k, k] = np.sqrt(dkk)
+        for i in range(k + 1, p):
+            s = A[i, k]
+            for q in range(k):
+                s -= A[i, q] * A[k, q]
+            A[i, k] = s / A[k, k]
+    return True
+
+
+@nb.njit(cache=True)
+def _cholesky_solve(L, x):
+    """Solve ``L L^T y = x`` in place (``L`` from :func:`_cholesky_inplace`)."""
+    p = L.shape[0]
+    for i in range(p):
+        s = x[i]
+        for q in range(i):
+            s -= L[i, q] * x[q]
+        x[i] = s / L[i, i]
+    for i in range(p - 1, -1, -1):
+        s = x[i]
+        for q in range(i + 1, p):
+            s -= L[q, i] * x[q]
+        x[i] = s / L[i, i]
+
+
+@nb.njit(cache=True)
 def _geometry_residual_row(dz, H, var, use, v_out, red_out):
     """Weighted least-squares residuals of one batch row's used measurements (see :func:`geometry_residuals`).
 
@@ -193,29 +229,10 @@ def _geometry_residual_row(dz, H, var, use, v_out, red_out):
             for c in range(p):
                 A[a, c] += w * ga * np.float64(H[i, cols[c]])
     # Cholesky A = L L^T in place (lower triangle); a singular geometry gives no residuals
-    for k in range(p):
-        dkk = A[k, k]
-        for q in range(k):
-            dkk -= A[k, q] * A[k, q]
-        if not dkk > 1e-12 * max(A[k, k], 1e-300):
-            return
-        A[k, k] = np.sqrt(dkk)
-        for i in range(k + 1, p):
-            s = A[i, k]
-            for q in range(k):
-                s -= A[i, q] * A[k, q]
-            A[i, k] = s / A[k, k]
-    beta = rhs.copy()  # solve L L^T beta = rhs
-    for i in range(p):
-        s = beta[i]
-        for q in range(i):
-            s -= A[i, q] * beta[q]
-        beta[i] = s / A[i, i]
-    for i in range(p - 1, -1, -1):
-        s = beta[i]
-        for q in range(i + 1, p):
-            s -= A[q, i] * beta[q]
-        beta[i] = s / A[i, i]
+    if not _cholesky_inplace(A, 1e-12):
+        return
+    beta = rhs.copy()
+    _cholesky_solve(A, beta)
     y = np.empty(p)
     for i in range(m):
         if not use[i]:
@@ -347,29 +364,12 @@ def _posterior_residual_row(dz, H, P, k_prior, var, use, v_out, red_out):
             S[a, c] = k_prior * acc
             S[c, a] = S[a, c]
         S[a, a] += var[idx[a]]
-    for k in range(q):  # Cholesky in place (lower)
-        dkk = S[k, k]
-        for p_ in range(k):
-            dkk -= S[k, p_] * S[k, p_]
-        if not dkk > 0:
-            return
-        S[k, k] = np.sqrt(dkk)
-        for i in range(k + 1, q):
-            acc = S[i, k]
-            for p_ in range(k):
-                acc -= S[i, p_] * S[k, p_]
-            S[i, k] = acc / S[k, k]
+    if not _cholesky_inplace(S, 0.0):
+        return
     y = np.empty(q)  # S^-1 dz
     for i in range(q):
-        acc = np.float64(dz[idx[i]])
-        for p_ in range(i):
-            acc -= S[i, p_] * y[p_]
-        y[i] = acc / S[i, i]
-    for i in range(q - 1, -1, -1):
-        acc = y[i]
-        for p_ in range(i + 1, q):
-            acc -= S[p_, i] * y[p_]
-        y[i] = acc / S[i, i]
+        y[i] = np.float64(dz[idx[i]])
+    _cholesky_solve(S, y)
     Linv = np.zeros((q, q))  # (S^-1)_ii = |L^-1 e_i|^2
     for c in range(q):
         for i in range(c, q):

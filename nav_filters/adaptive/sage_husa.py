@@ -322,6 +322,25 @@ _NK = N_SAT_KEYS
 
 
 @nb.njit(cache=True)
+def _quad_row(H, prior, Q, add_q, b, i):
+    """``(H P- H^T)_ii`` of batch row b over the non-zeros of row i of H, ``P- = prior (+ Q)``."""
+    n = H.shape[2]
+    q = 0.0
+    for k in range(n):
+        hk = H[b, i, k]
+        if hk == 0:
+            continue
+        hp = 0.0
+        for l in range(n):
+            h = H[b, i, l]
+            if h != 0:
+                pm = prior[b, l, k] + Q[b, l, k] if add_q else prior[b, l, k]
+                hp += h * pm
+        q += hp * hk
+    return q
+
+
+@nb.njit(cache=True)
 def _r_scale_kernel(r, H, prior, Q, add_q, R, mask, groups, infer, d, active, r_scale, smin, smax, s_new, R_out):
     """The Sage-Husa measurement-noise law as per-group variance scales (see :class:`SageHusa`), per row b::
 
@@ -355,18 +374,7 @@ def _r_scale_kernel(r, H, prior, Q, add_q, R, mask, groups, infer, d, active, r_
             gi[i] = g
             if g < 0:
                 continue
-            q = 0.0  # (H P- H^T)_ii over the non-zeros of row i of H
-            for k in range(n):
-                hk = H[b, i, k]
-                if hk == 0:
-                    continue
-                hp = 0.0
-                for l in range(n):
-                    h = H[b, i, l]
-                    if h != 0:
-                        pm = prior[b, l, k] + Q[b, l, k] if add_q else prior[b, l, k]
-                        hp += h * pm
-                q += hp * hk
+            q = _quad_row(H, prior, Q, add_q, b, i)
             rr = np.float64(r[b, i])
             num[g] += rr * rr - q
             den[g] += np.float64(R[b, i, i])
@@ -448,18 +456,7 @@ def _r_sat_kernel(r, H, prior, Q, add_q, R, mask, keys, bf, jcap, d_row, active,
             if not mask[b, i]:
                 continue
             gi[i] = _row_group(H, b, i, n)
-            q = 0.0  # (H P- H^T)_ii over the non-zeros of row i of H
-            for k in range(n):
-                hk = H[b, i, k]
-                if hk == 0:
-                    continue
-                hp = 0.0
-                for l in range(n):
-                    h = H[b, i, l]
-                    if h != 0:
-                        pm = prior[b, l, k] + Q[b, l, k] if add_q else prior[b, l, k]
-                        hp += h * pm
-                q += hp * hk
+            q = _quad_row(H, prior, Q, add_q, b, i)
             rr = np.float64(r[b, i])
             ex[i] = rr * rr - q
             key = keys[b, i]
