@@ -229,15 +229,22 @@ def main(argv=None) -> dict:
         print("\nHeadroom\n\n" + htable)
         (out / "headroom.md").write_text(htable + "\n")
     write_csv(results, out / "results.csv")
+    plots = []
     if not args.no_plots:
         for s, per in curves.items():
             plot_error_vs_time(s, per, out / f"error_vs_time_{s}.png")
             plot_cdf(s, per, out / f"cdf_{s}.png")
             plot_bars(s, results["scenarios"][s], out / f"rmse_bars_{s}.png")
             plot_trajectory(s, per, tracks[s], out / f"trajectory_{s}.png")
+            plots += [out / f"{kind}_{s}.png" for kind in ("error_vs_time", "cdf", "rmse_bars", "trajectory")]
+    written = [out / "results.json", out / "results.md", out / "results.csv"]
+    if args.headroom:
+        written.append(out / "headroom.md")
+    written += plots
     if args.note:
         write_note(results, Path(args.note), out, shlex.join(sys.argv[1:] if argv is None else argv))
-    print(f"wrote {out / 'results.json'}")
+        written.append(Path(args.note))
+    print("wrote " + ", ".join(str(p) for p in written))
     return results
 
 

@@ -35,6 +35,9 @@ def test_results_json_schema_and_outputs(tmp_path):
     for f in ("results.csv", "results.md", "error_vs_time_seed000-sim.png"):
         assert (out / f).stat().st_size > 0
     assert "| seed000-sim | kf |" in p.stdout
+    wrote = next(x for x in p.stdout.splitlines() if x.startswith("wrote "))
+    for f in ("results.json", "results.md", "results.csv", "cdf_seed000-sim.png", "NOTE.md"):
+        assert str(out / f) in wrote, f  # stdout lists every file written
     assert per["kf+onestep"]["paired_vs_reference"]["episodes"] == 3
     for f in ("cdf_seed000-sim.png", "rmse_bars_seed000-sim.png", "trajectory_seed000-sim.png"):
         assert (out / f).stat().st_size > 0
