@@ -142,11 +142,15 @@ def train_rl(env_id: str, algo: str, out, timesteps: int | None = None, seed: in
     except ImportError:
         pass
     model.set_logger(configure(str(out / "logs"), fmt))
+    # evaluate at least 4 times and checkpoint at least twice per run, however short (a 2048-step run with
+    # the 10000-step default would write neither best/ nor checkpoints/)
+    settings["eval_freq"] = int(min(settings["eval_freq"], max(settings["n_timesteps"] // 4, settings["n_envs"])))
     per_env = max(settings["eval_freq"] // settings["n_envs"], 1)
+    save_freq = max(min(per_env * 4, settings["n_timesteps"] // settings["n_envs"] // 2), 1)
     callbacks = [
         EvalCallback(eval_env, n_eval_episodes=n_eval, eval_freq=per_env, best_model_save_path=str(out / "best"),
                      log_path=str(out / "eval"), deterministic=True, verbose=0),
-        CheckpointCallback(save_freq=max(per_env * 4, 1), save_path=str(out / "checkpoints"), name_prefix="model",
+        CheckpointCallback(save_freq=save_freq, save_path=str(out / "checkpoints"), name_prefix="model",
                            save_vecnormalize=settings["normalize"]),
     ]
     if progress:

@@ -24,8 +24,10 @@ def test_rl_smoke_writes_a_loadable_model_and_eval_runs_it(tmp_path):
     assert p.returncode == 0, p.stderr[-2000:]
     cfg = json.loads((out / "config.json").read_text())
     assert cfg["env"] == "GnssIns/SageHusa-v0" and cfg["n_timesteps"] == 256 and cfg["env_kwargs"]["episode_length_s"] == 6
-    for f in ("model.zip", "vecnormalize.pkl"):
+    for f in ("model.zip", "vecnormalize.pkl", "best/best_model.zip"):
         assert (out / f).stat().st_size > 0
+    assert list((out / "checkpoints").glob("model_*_steps.zip"))  # a short run still evaluates and checkpoints
+    assert cfg["eval_freq"] <= 64
     from agents.policies import Sb3Policy
     pol = Sb3Policy.load(out / "model.zip", "ppo")
     pol.reset(3)
