@@ -256,6 +256,11 @@ def parse_method_spec(spec: str):
             t = load_tuning(path)
             params = dict(t.get("fixed", {}))
             params[t["param"]] = t["best"]
+            try:
+                parse_method(t["method"])
+            except ValueError as e:
+                raise ValueError(f"{path}: {e}") from None
+            check_method_params(t["method"], params, f"{path}")
             return FilterMethod(spec, t["method"], params)
         if kind.lower() in ALGOS:
             return PolicyMethod(spec, kind.lower(), path, Sb3Policy.load(path, kind.lower()))
@@ -279,9 +284,26 @@ def parse_method_spec(spec: str):
                 raise ValueError(f"bad value {v!r} for {k!r} in {spec!r}") from None
         if aiding:
             check_zupt_choice(aiding.get("zupt", "none"), aiding.get("zupt_weights"), owner=f"{spec}: zupt")
+        check_method_params(method, params, spec)
         return FilterMethod(spec, method, params, **aiding)
     parse_method(spec)
     return FilterMethod(spec, spec)
+
+
+def check_method_params(method: str, params: dict, spec: str) -> None:
+    """Validate fixed parameters of a filter method before any work starts: a method without parameters, an
+    unknown name, NaN, inf or a value outside the parameter's range raises ``ValueError`` naming the spec."""
+    if not params:
+        return
+    from nav_filters.forms import FORMS
+    law = getattr(FORMS[parse_method(method)[0]], "law", None)
+    if law is None:
+        raise ValueError(f"{spec}: method {method!r} has no parameters to set (got {', '.join(sorted(params))})")
+    specs = {p.name: p for p in law.PARAMS}
+    for k, v in params.items():
+        if k not in specs:
+            raise ValueError(f"{spec}: unknown parameter {k!r} of {method!r}; known: {', '.join(sorted(specs))}")
+        specs[k].check(v, owner=spec)
 
 
 def expand_method_spec(spec: str, scenario: str) -> list:

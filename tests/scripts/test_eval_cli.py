@@ -80,6 +80,14 @@ def test_pairing_same_seed_same_result(tmp_path):
     (("--methods", "kf,oracle-schedule:GnssIns/SageHusa-v0[segment_s=abc]"), "bad value 'abc' for 'segment_s'"),
     (("--methods", "oracle-schedule:GnssIns/SageHusa-v0,kf"), "is an oracle; the reference must be a method"),
     (("--methods", "kf,oracle-schedule:GnssIns/SageHusa-v0", "--zupt", "shoe"), "use --zupt none or truth"),
+    (("--methods", "kf,sage-husa[b=nan]"), "sage-husa[b=nan].b must not be NaN"),
+    (("--methods", "kf,sage-husa[b=inf]"), "sage-husa[b=inf].b must lie in (0, 1]"),
+    (("--methods", "kf,sage-husa[b=2]"), "sage-husa[b=2].b must lie in (0, 1]"),
+    (("--methods", "kf,sage-husa[b=-5]"), "sage-husa[b=-5].b must lie in (0, 1]"),
+    (("--methods", "kf,sage-husa[q=1]"), "sage-husa[q=1]: unknown parameter 'q' of 'sage-husa'"),
+    (("--methods", "kf[b=0.9]"), "kf[b=0.9]: method 'kf' has no parameters to set"),
+    (("--methods", "kf,rule:GnssIns/SageHusa-v0[hold=x]"), "bad value 'x' for 'hold'"),
+    (("--methods", "kf,oracle-r:ukf"), "unknown filter method"),
 ])
 def test_cli_errors_are_one_line_exit_2(tmp_path, args, msg):
     p = run_eval(*args, "--out", str(tmp_path))
