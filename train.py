@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -84,8 +85,27 @@ def build_parser():
     return p
 
 
+def check_common(args) -> None:
+    """Numbers every subcommand takes, checked before any work: one line, exit 2."""
+    if args.seed < 0:
+        fail(f"--seed must be >= 0, got {args.seed}")
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        fail(f"--out {str(out)!r} is a file, not a directory")
+    if getattr(args, "timesteps", None) is not None:
+        if not (math.isfinite(args.timesteps) and args.timesteps >= 1):
+            fail(f"--timesteps must be a finite number >= 1, got {args.timesteps!r}")
+    if getattr(args, "n_envs", None) is not None and args.n_envs < 1:
+        fail(f"--n-envs must be >= 1, got {args.n_envs}")
+    for name in ("n_train", "grid_size"):
+        v = getattr(args, name, None)
+        if v is not None and v < (2 if name == "grid_size" else 1):
+            fail(f"--{name.replace('_', '-')} must be >= {2 if name == 'grid_size' else 1}, got {v}")
+
+
 def main(argv=None):
     args = build_parser().parse_args(argv)
+    check_common(args)
     if args.cmd == "rl":
         from agents.policies import ALGOS
         if args.algo.lower() not in ALGOS:
@@ -116,8 +136,11 @@ def main(argv=None):
         param = args.param or next(iter(specs))
         if param not in specs:
             fail(f"{args.env} has no parameter {param!r}; known: {', '.join(specs)}")
-        res = tune_fixed_parameter(args.env, ekw, param, default_grid(specs[param], args.grid_size),
-                                   n_train=args.n_train, seed=args.seed, progress=True)
+        try:
+            res = tune_fixed_parameter(args.env, ekw, param, default_grid(specs[param], args.grid_size),
+                                       n_train=args.n_train, seed=args.seed, progress=True)
+        except (ValueError, FileNotFoundError) as e:
+            fail(str(e))
         path = save_tuning(res, Path(args.out) / "tuning.json")
         print(f"wrote {path}")
     else:

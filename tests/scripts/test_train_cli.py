@@ -59,6 +59,16 @@ def test_tune_writes_a_tuning_file_that_eval_reads(tmp_path):
     (("rl", "--env-kwargs", "scenaro=urban", "--out", "x"), "unknown environment argument"),
     (("rl", "--env-kwargs", "reward=money", "--out", "x"), "reward"),
     (("tune", "--param", "q", "--out", "x"), "no parameter"),
+    (("tune", "--seed", "-1", "--out", "x"), "--seed must be >= 0"),
+    (("rl", "--seed", "-1", "--out", "x"), "--seed must be >= 0"),
+    (("zupt", "--model", "mlp", "--seed", "-1", "--out", "x"), "--seed must be >= 0"),
+    (("rl", "--timesteps", "nan", "--out", "x"), "--timesteps must be a finite number"),
+    (("rl", "--n-envs", "0", "--out", "x"), "--n-envs must be >= 1"),
+    (("tune", "--n-train", "0", "--out", "x"), "--n-train must be >= 1"),
+    (("tune", "--grid-size", "0", "--out", "x"), "--grid-size must be >= 2"),
+    (("tune", "--env-kwargs", "method=kf", "episode_length_s=5", "--n-train", "1", "--grid-size", "2", "--out", "x"),
+     "method 'kf' has no parameters to set"),
+    (("rl", "--out", "README.md"), "is a file, not a directory"),
 ])
 def test_train_cli_errors(args, msg):
     p = run("train.py", *args)
