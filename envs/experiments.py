@@ -847,8 +847,8 @@ def run_seed003(seeds, batch_size=25, progress=None, duration_s=None) -> tuple[d
 def _why_stkf(per, a, b, ch) -> str:
     lam = {m: per[m]["adaptive"].get("lambda", 1.0) for m in per}
     return (f"{a} vs {b}: {_pct(ch)}. seed003-sim's noise changes only in the 10 s of re-acquisition after each "
-            f"outage (no bursts, no NLOS; the paper's simulation names no change either), and the fading inflates "
-            f"P during those noisy epochs, trusting them more; "
+            f"outage (no bursts, no NLOS; the paper's simulation names no change either): little for the adaptation "
+            f"to track; "
             f"mean fading factor {a} {lam.get(a, 1.0):.2f}, {b} {lam.get(b, 1.0):.2f}")
 
 
