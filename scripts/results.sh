@@ -4,8 +4,8 @@
 # docs/headroom.md with a knob headroom; open-sky as the placebo): the optimized fixed Sage-Husa b tuned on 32
 # training episodes of 300 s, PPO trained with 3 seeds (200k env steps each, 64 rows of the native vector
 # env, 300 s episodes), then eval.py --headroom on 50 held-out paired episodes with kf, sage-husa (b = 0.98),
-# the group law, ma-stkf, the hand-designed rule, and the oracles. About 2.5 hours on 2 CPU cores (training
-# 9 x 9 min). Set PY to use another interpreter; finished runs are not redone.
+# the group law, ma-stkf, the hand-designed rule, and the oracles. About 1 hour on 2 CPU cores (measured:
+# training 4-9 min per run, tuning 3 x 45 s, eval 13 min). Set PY to use another interpreter; finished runs are not redone.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 if [ -z "${PY:-}" ]; then bash scripts/setup.sh; PY=.venv/bin/python; fi
