@@ -341,6 +341,18 @@ def _quad_row(H, prior, Q, add_q, b, i):
 
 
 @nb.njit(cache=True)
+def _group_step(num, den, cnt, active, d, scale, smin, smax, out):
+    """One group-scale recursion of one batch row: ``out_g = clip((1 - d) scale_g + d num_g / den_g)`` on the
+    groups with rows when the row adapts, else ``scale_g``."""
+    for g in range(out.shape[0]):
+        if cnt[g] > 0 and active:
+            sg = (1.0 - d) * scale[g] + d * (num[g] / den[g])
+            out[g] = min(max(sg, smin), smax)
+        else:
+            out[g] = scale[g]
+
+
+@nb.njit(cache=True)
 def _r_scale_kernel(r, H, prior, Q, add_q, R, mask, groups, infer, d, active, r_scale, smin, smax, s_new, R_out):
     """The Sage-Husa measurement-noise law as per-group variance scales (see :class:`SageHusa`), per row b::
 
@@ -379,12 +391,7 @@ def _r_scale_kernel(r, H, prior, Q, add_q, R, mask, groups, infer, d, active, r_
             num[g] += rr * rr - q
             den[g] += np.float64(R[b, i, i])
             cnt[g] += 1
-        for g in range(G):
-            if cnt[g] > 0 and active[b]:
-                s = (1.0 - d[b]) * r_scale[b, g] + d[b] * (num[g] / den[g])
-                s_new[b, g] = min(max(s, smin), smax)
-            else:
-                s_new[b, g] = r_scale[b, g]
+        _group_step(num, den, cnt, active[b], d[b], r_scale[b], smin, smax, s_new[b])
         sq = np.empty(m, R.dtype)
         for i in range(m):
             sq[i] = np.sqrt(s_new[b, gi[i]]) if gi[i] >= 0 else 1.0
@@ -526,12 +533,7 @@ def _r_sat_kernel(r, H, prior, Q, add_q, R, mask, keys, bf, jcap, d_row, active,
             num[gi[i]] += ex[i]
             den[gi[i]] += s_rows[b, i] * np.float64(R[b, i, i])
             cnt[gi[i]] += 1
-        for g in range(G):
-            if cnt[g] > 0 and active[b]:
-                sg = (1.0 - d_row[b]) * r_scale[b, g] + d_row[b] * (num[g] / den[g])
-                s_group[b, g] = min(max(sg, smin), smax)
-            else:
-                s_group[b, g] = r_scale[b, g]
+        _group_step(num, den, cnt, active[b], d_row[b], r_scale[b], smin, smax, s_group[b])
         sq = np.empty(m, R.dtype)
         for i in range(m):
             if not mask[b, i]:
