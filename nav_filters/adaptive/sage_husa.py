@@ -135,9 +135,10 @@ from .params import ParamSpec, check_option
 
 B_SPEC = ParamSpec("b", 0.0, 1.0, low_closed=False, high_closed=True, doc="Sage-Husa forgetting factor")
 R_MODES = ("group", "satellite")
-R_SAMPLES = ("geometry", "residual", "innovation")
+_SAMPLE_CODE = {"geometry": 1, "residual": 2, "innovation": 0}
+"""Kernel code of each per-satellite variance sample."""
+R_SAMPLES = tuple(_SAMPLE_CODE)
 """Per-satellite variance samples of :class:`SageHusaConfig` (``r_sample``)."""
-_SAMPLE_CODE = {"innovation": 0, "geometry": 1, "residual": 2}
 """Measurement-noise adaptation modes of :class:`SageHusaConfig` (``r_mode``)."""
 FREEZE_SCAN_MAX = 1 << 16
 """Freezing is looked for within the first FREEZE_SCAN_MAX adaptations (:func:`freeze_count`)."""
@@ -834,10 +835,9 @@ class SageHusa(AdaptiveLaw):
         self._epoch = epoch
         pr = used & (keys < N_SAT_KEYS)
         npr = pr.sum(1)
-        sc = np.where(pr, s_rows, np.nan)
-        with np.errstate(all="ignore"):
-            mx = np.where(npr > 0, np.nanmax(np.where(pr, s_rows, -np.inf), 1), 1.0)
-            med = np.where(npr > 0, np.nanmedian(np.where(npr[:, None] > 0, sc, 1.0), 1), 1.0)
+        mx = np.where(npr > 0, np.max(np.where(pr, s_rows, -np.inf), 1), 1.0)
+        # median over the used pseudorange rows; a row without any is all ones (median 1)
+        med = np.nanmedian(np.where(npr[:, None] > 0, np.where(pr, s_rows, np.nan), 1.0), 1)
         rose = (pr & (s_rows > ROSE_FACTOR * s_prev)).sum(1)
         self._sat_summary = np.stack([mx, med, rose, npr], 1).astype(np.float64)
 
