@@ -436,3 +436,37 @@ def posterior_residuals_reference(dz, H, P, var, use, prior_inflation: float = 1
         v[b, rows] = var[b, rows] * (Si @ np.asarray(dz[b, rows], np.float64))
         red[b, rows] = np.clip(var[b, rows] * np.diag(Si), 0.0, 1.0)
     return v, red
+
+
+def deleted_residuals(dz, H, P, var, use):
+    """Leave-one-out (deleted) residuals of a measurement update: each used row predicted from the prior and
+    every *other* used row.
+
+    With ``S = H P H^T + diag(var)`` over the used rows and ``a = S^-1 dz``, the prediction of row i from the
+    prior and the other rows misses it by (the leave-one-out identity of the Gaussian linear model)::
+
+        e_i = a_i / (S^-1)_ii,        Var(e_i) = 1 / (S^-1)_ii = c_i + var_i
+
+    where ``c_i`` is the variance of the prediction itself. ``e_i`` contains none of row i's own error in the
+    estimate it is compared with (the post-fit residual of :func:`posterior_residuals` does: the update
+    pulls the state towards an outlier and hides it), and, unlike the snapshot fit of
+    :func:`geometry_residuals`, it uses the prior, so it separates one bad satellite of five. It is the
+    studentized deleted residual of outlier diagnostics, here the covariance-matching sample of
+    :class:`~nav_filters.adaptive.SageHusa` (``r_sample='loo'``):
+    ``E[e_i^2 - c_i] = true variance of row i`` when P and the other rows' variances are right.
+
+    Parameters
+    ----------
+    dz : (B, m) innovations; H : (B, m, n); P : (B, n, n) prior covariance; var : (B, m) variances of the rows
+    (> 0 on used rows); use : (B, m) bool.
+
+    Returns
+    -------
+    e : (B, m) deleted residuals; c : (B, m) variances of their predictions (``Var(e) - var``); both 0 on
+    unused rows and on a row whose S is not positive definite.
+    """
+    v, red = posterior_residuals(dz, H, P, var, use, 1.0)
+    ok = np.asarray(use, bool) & (red > 0)
+    rs = np.where(ok, red, 1.0)
+    var = np.asarray(var, np.float64)
+    return np.where(ok, v / rs, 0.0), np.where(ok, var / rs - var, 0.0)
