@@ -16,7 +16,7 @@ spec                           meaning
                                simulated worlds only
 ``oracle-nlos-excluded``       an oracle: ``kf`` with every NLOS channel removed
 ``rule:<env id>``              the hand-designed causal rule :class:`agents.policies.ReactiveRule` (low b while
-                               the satellites look degraded); options ``[b_low=0.9,b_high=0.9999,nis=9,ema=3,
+                               the satellites look degraded); options ``[b_low=0.5,b_high=0.9999,nis=9,ema=3,
                                hold=5]``
 ``oracle-schedule:<env id>``   an oracle (:mod:`agents.oracles`): the hindsight-greedy schedule of the env's
                                parameters; options ``[segment_s=10,lookahead_s=20,n=7]``

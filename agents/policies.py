@@ -102,7 +102,7 @@ class ReactiveRule:
     b_low, b_high : forgetting factors in the env's range; nis, ema : thresholds; hold : epochs (>= 0).
     """
 
-    def __init__(self, specs, frame_dim: int, b_low: float = 0.9, b_high: float = 0.9999, nis: float = 9.0,
+    def __init__(self, specs, frame_dim: int, b_low: float = 0.5, b_high: float = 0.9999, nis: float = 9.0,
                  ema: float = 3.0, hold: int = 5):
         from envs.core import OBS_FEATURES
         names = [f[0] for f in OBS_FEATURES]

@@ -89,6 +89,11 @@ At the end, ``info["episode_metrics"]`` holds the episode's horizontal RMSE and 
 * v0, revised with issue 16 (the ids are a public contract and were kept): the Sage-Husa methods adapt R
   per satellite (``sage-husa-group`` is the earlier law), and six per-satellite health features (k+13 to
   k+18) were appended to the observation. Policies trained before do not fit the new observation size.
+* v0, revised again with issue 16: the per-satellite law takes the *consensus* sample (the smaller of the
+  deleted residual and the snapshot-fit residual; :class:`nav_filters.adaptive.SageHusa`) with a floor of 1
+  on each satellite's scale, and the ``b`` range of ``GnssIns/SageHusa-v0`` widened from [0.90, 0.9999] to
+  [0.30, 0.9999] (the optimum of the canyon scenarios lay at or below the old lower edge). The same
+  action now means another b: policies trained before must be retrained.
 """
 from __future__ import annotations
 
@@ -99,7 +104,7 @@ from gymnasium import spaces
 from .config import EnvConfig, ParamSpec
 from .core import TuningCore, draw_world_seed
 
-SAGE_HUSA_PARAMS = (ParamSpec("b", 0.90, 0.9999, "log1m", 0.98,
+SAGE_HUSA_PARAMS = (ParamSpec("b", 0.30, 0.9999, "log1m", 0.98,
                               "Sage-Husa forgetting factor; log(1 - b) linear in the action"),)
 STKF_PARAMS = (ParamSpec("softening", 0.2, 5.0, "log", 1.0,
                          "strong-tracking softening factor beta (scales R in N_k); log-uniform"),)
@@ -189,9 +194,15 @@ class GnssInsTuningEnv(gym.Env):
 
 
 class SageHusaEnv(GnssInsTuningEnv):
-    """``GnssIns/SageHusa-v0``: the action sets the Sage-Husa forgetting factor ``b`` in [0.90, 0.9999]
-    (``log(1 - b)`` linear in the action; default b = 0.98 <-> action -0.44). Methods: ``sage-husa``,
-    ``svd-akf``, ``svd-asrkf`` (``+onestep`` allowed)."""
+    """``GnssIns/SageHusa-v0``: the action sets the Sage-Husa forgetting factor ``b`` in [0.30, 0.9999]
+    (``log(1 - b)`` linear in the action; default b = 0.98 <-> action 0.06). Methods: ``sage-husa``,
+    ``svd-akf``, ``svd-asrkf``, ``sage-husa-r``, ``sage-husa-group`` (``+onestep`` allowed).
+
+    Per epoch, b weights every satellite's variance recursion (``d -> 1 - b``, no freezing): a small b
+    follows a satellite into and out of NLOS within a few epochs and is noisy in open sky, a large b is
+    calm and slow. Measured with the consensus law (12 episodes x 300 s, one b for the whole episode),
+    the best constant b is 0.5-0.8 in the canyon scenarios (urban-transition, regime-switch) and 0.97-0.9999
+    in open sky, the trade-off a policy can learn within an episode."""
 
     PARAMS = SAGE_HUSA_PARAMS
     DEFAULTS = {"method": "sage-husa"}

@@ -69,8 +69,11 @@ def law_factory(law: type, inner="kf", **config):
     return factory
 
 
-_SATELLITE_R = dict(adapt_r=True, r_mode="satellite", d_freeze_tol=0.0)
-"""Per-satellite measurement-noise adaptation without the freezing of d (see :class:`SageHusa`)."""
+_SATELLITE_R = dict(adapt_r=True, r_mode="satellite", d_freeze_tol=0.0, r_sample="consensus", prior_inflation=1.0,
+                    sat_scale_min=1.0)
+"""Per-satellite measurement-noise adaptation without the freezing of d, with the consensus sample (the smaller
+of the deleted residual against the filter's own prior and the snapshot-fit residual) and no satellite
+trusted more than its reported variance (see :class:`SageHusa`)."""
 
 ADAPTIVE_METHODS = {
     "sage-husa": law_factory(SageHusa, "kf", diagonal_q=False, **_SATELLITE_R),
