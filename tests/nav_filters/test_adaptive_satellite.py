@@ -302,14 +302,17 @@ def test_aging_and_forgetting_of_unseen_satellites():
     assert plan.pending["sat"][3][0, 0] == 1.0 and plan.pending["sat"][2][0, 0] == 1
 
 
-def test_float32_satellite_law_runs_and_matches_float64():
+@pytest.mark.parametrize("sample", ["geometry", "consensus"])
+def test_float32_satellite_law_runs_and_matches_float64(sample):
     rng = np.random.default_rng(10)
     B, C = 3, 8
     H = static_problem(rng, B, C)
     keys = np.broadcast_to(np.arange(C), (B, C)).copy()
     var = lambda k: np.where(np.arange(C) == 3, 16.0, 1.0)  # noqa: E731
-    s32, _ = run_static(sat_law(B=B, dtype=np.float32), H, keys, var, 200, np.random.default_rng(1), dtype=np.float32)
-    s64, _ = run_static(sat_law(B=B), H, keys, var, 200, np.random.default_rng(1))
+    kw = dict(r_sample=sample, prior_inflation=1.0)
+    s32, _ = run_static(sat_law(B=B, dtype=np.float32, **kw), H, keys, var, 200, np.random.default_rng(1),
+                        dtype=np.float32)
+    s64, _ = run_static(sat_law(B=B, **kw), H, keys, var, 200, np.random.default_rng(1))
     assert np.all(np.isfinite(s32))
     np.testing.assert_allclose(s32[-1], s64[-1], rtol=2e-2)
 
