@@ -3,8 +3,8 @@
 # (tuned on 32 training episodes of the scenario's full length), the hand-designed filters, and the oracles:
 # oracle-r (the simulator's true per-satellite variances), NLOS exclusion, the hindsight-greedy b schedule
 # (10 s segments, 20 s lookahead, 7 values), the best constant b per episode and the cross-fitted time
-# schedule, on 32 held-out paired episodes. No learned method is evaluated here: the scenarios and their
-# headroom are fixed first. 37 minutes on 2 CPU cores (measured: tuning 7 min, eval 30 min). Set PY to use
+# schedule, and the hand-designed causal rule (rule:, low b while the satellites look degraded), on 32 held-out
+# paired episodes. No learned method is evaluated here: the scenarios and their headroom are fixed first. 37 minutes on 2 CPU cores (measured: tuning 7 min, eval 30 min). Set PY to use
 # another interpreter.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -24,5 +24,5 @@ for scen in $SCENARIOS; do
 done
 K="$ENV[segment_s=10,lookahead_s=20,n=7]"
 $PY eval.py "${ARGS[@]}" --episodes "$EPISODES" --seed 2 --no-plots --headroom \
-  --methods "tuned:runs/headroom/{scenario}/tuning.json,kf,sage-husa,sage-husa-r,sage-husa-group,stkf,ma-stkf,oracle-r,oracle-nlos-excluded,oracle-schedule:$K,best-per-episode:$ENV[n=7],crossfit-schedule:$K" \
+  --methods "tuned:runs/headroom/{scenario}/tuning.json,kf,sage-husa,sage-husa-r,sage-husa-group,stkf,ma-stkf,rule:$ENV,oracle-r,oracle-nlos-excluded,oracle-schedule:$K,best-per-episode:$ENV[n=7],crossfit-schedule:$K" \
   --reference "tuned:runs/headroom/{scenario}/tuning.json" --out results/headroom --note docs/headroom.md
