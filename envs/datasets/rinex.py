@@ -59,6 +59,7 @@ SIGNALS = {
     "C": (("C2I", "C1I"), 1561.098e6),
 }
 """System letter -> (code observables in order of preference, carrier [Hz]) of the single-frequency solution."""
+_SYSTEM_NAME = {"G": "GPS", "E": "Galileo", "C": "BeiDou", "R": "GLONASS"}
 
 
 def _georinex():
@@ -127,7 +128,8 @@ class NavData:
     path: Path
 
 
-def load_obs(path, systems=("G", "E", "C"), interval_s: float | None = None, tlim=None) -> ObsData:
+def load_obs(path, systems=("G", "E", "C"), interval_s: float | None = None, tlim=None, signals=None,
+             notes=None) -> ObsData:
     """Read a RINEX 3 observation file (georinex) and keep one code per satellite (module docstring).
 
     Parameters
@@ -136,11 +138,14 @@ def load_obs(path, systems=("G", "E", "C"), interval_s: float | None = None, tli
     systems : system letters to keep; ``'R'`` (GLONASS) raises: not supported.
     interval_s : keep one epoch every ``interval_s`` seconds (georinex ``interval``; faster); None: all.
     tlim : (start, stop) ISO time strings (georinex ``tlim``), or None.
+    signals : {letter: (code, ...)} code observables in order of preference (default :data:`SIGNALS`).
+    notes : callable taking one summary line, told of satellites dropped for want of a listed signal.
     """
     path = require_file(path)
     systems = _check_systems(systems)
+    sig = {s: tuple((signals or {}).get(s, SIGNALS[s][0])) for s in systems}
     gr = _georinex()
-    meas = sorted({c for s in systems for c in SIGNALS[s][0]} | {"S" + c[1:] for s in systems for c in SIGNALS[s][0]})
+    meas = sorted({c for s in systems for c in sig[s]} | {"S" + c[1:] for s in systems for c in sig[s]})
     kw = {}
     if interval_s is not None:
         kw["interval"] = float(interval_s)
@@ -162,7 +167,7 @@ def load_obs(path, systems=("G", "E", "C"), interval_s: float | None = None, tli
     cn0 = np.zeros((t.size, svs.size))
     code = np.empty(svs.size, dtype=object)
     for j, sv in enumerate(svs):
-        for c in SIGNALS[sv[0]][0]:
+        for c in sig[sv[0]]:
             if c in obs and np.isfinite(obs[c].values[:, j]).any():
                 pr[:, j] = obs[c].values[:, j]
                 s_name = "S" + c[1:]
@@ -171,6 +176,12 @@ def load_obs(path, systems=("G", "E", "C"), interval_s: float | None = None, tli
                 code[j] = c
                 break
     keep = np.array([c is not None for c in code])
+    if notes is not None:
+        for s in systems:
+            lost = [sv for sv, k in zip(svs, keep) if sv[0] == s and not k]
+            if lost:
+                notes(f"{_SYSTEM_NAME[s]}: {len(lost)} satellites observed without {'/'.join(sig[s])}: dropped "
+                      f"({', '.join(lost)})")
     pos = obs.attrs.get("position")
     approx = None if pos is None or not np.any(pos) else np.asarray(pos, np.float64)
     sv_k = svs[keep]
