@@ -4,6 +4,8 @@
 ``format``         what it reads
 =================  ========================================================================================
 ``navgym-csv``     navgym's own CSV (:mod:`envs.datasets.truth_csv`): ``gps_week,tow_s,x_m,y_m,z_m``
+``csv``            any CSV through a column map (:mod:`envs.datasets.truth_generic_csv`): GPS week + TOW
+                   (10-bit weeks resolved) or UTC; ECEF or lat/lon/height; optional velocity and attitude
 ``static``         no file: a fixed antenna position (``position_ecef = [x, y, z]`` [m] or
                    ``position_llh = [lat_deg, lon_deg, h_m]``) over the whole observation span, zero velocity
 ``smartloc``       smartLoc's ``<name>_GT.txt`` (NovAtel SPAN ground truth; only with ``gnss.format = "smartloc"``)
@@ -109,8 +111,19 @@ def _read_smartloc(spec, week_ref: int, span) -> TruthTrack:
     return TruthTrack(t=gt.t, r_e=gt.r_e, source=str(spec.file))
 
 
+def _read_csv(spec, week_ref: int, span) -> TruthTrack:
+    from .truth_generic_csv import read_csv_truth
+    return read_csv_truth(spec, week_ref, span)
+
+
+def _check_csv(opts: dict) -> None:
+    from .truth_generic_csv import check_csv_options
+    check_csv_options(opts)
+
+
 TRUTH_FORMATS: dict[str, TruthReader] = {
     "navgym-csv": TruthReader("navgym-csv", _read_navgym_csv, _no_options),
+    "csv": TruthReader("csv", _read_csv, _check_csv, ("columns", "delimiter", "comment", "angles")),
     "static": TruthReader("static", _read_static, _static_position, ("position_ecef", "position_llh"), False),
     "smartloc": TruthReader("smartloc", _read_smartloc, _no_options),
 }
