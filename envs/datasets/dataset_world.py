@@ -136,7 +136,10 @@ def _prepare_rinex_cached(spec: DatasetSpec, stamp) -> PreparedRecording:
         notes.append(msg)
         report(spec, msg)
 
-    obs = load_obs(g.obs, systems=g.systems, interval_s=g.interval_s, signals=dict(g.signals), notes=note)
+    obs = load_obs(g.obs, systems=g.systems, interval_s=g.interval_s, signals=dict(g.signals), notes=note,
+                   doppler=g.doppler)
+    if g.doppler:
+        _check_doppler(obs, spec, note)
     nav = merge_nav([load_nav(p, week_ref=obs.week_ref) for p in g.nav])
     obs = check_coverage(obs, nav, spec, note)
     if spec.corrections.iono and nav.iono_alpha is None:
@@ -144,7 +147,8 @@ def _prepare_rinex_cached(spec: DatasetSpec, stamp) -> PreparedRecording:
                          f"({', '.join(p.name for p in g.nav)}) has the GPS Klobuchar coefficients (IONOSPHERIC "
                          f"CORR GPSA / GPSB): add a GPS navigation file to gnss.nav or set corrections.iono = false")
     ep = rinex_epochs(obs, nav, elevation_mask_deg=g.elevation_mask_deg, sigma0_m=g.sigma0_m,
-                      iono=spec.corrections.iono, tropo=spec.corrections.tropo)
+                      iono=spec.corrections.iono, tropo=spec.corrections.tropo,
+                      doppler_sigma0_mps=g.doppler_sigma0_mps if g.doppler else None)
     if g.min_cn0_dbhz > 0:
         ep = ep.keep(ep.cn0 >= g.min_cn0_dbhz)
     ep = dataclasses.replace(ep, source=f"RINEX {g.obs.name} + {' + '.join(p.name for p in g.nav)}")
@@ -163,6 +167,23 @@ def _prepare_rinex_cached(spec: DatasetSpec, stamp) -> PreparedRecording:
         note(f"{int(empty.sum())} of {int(inside.sum())} epochs have no usable satellite (mask, signals, "
              f"ephemerides)")
     return PreparedRecording(epochs=ep, truth=truth, week_ref=obs.week_ref, notes=tuple(notes))
+
+
+def _check_doppler(obs, spec, note) -> None:
+    """gnss.doppler = true: an error if no satellite has a Doppler, one line per system with channels that
+    have a code but no Doppler (their rate rows get no weight: :data:`envs.datasets.doppler.NO_DOPPLER_SIGMA_MPS`)."""
+    from .rinex import _SYSTEM_NAME
+    has_pr = np.isfinite(obs.pr)
+    has_d = has_pr & np.isfinite(obs.doppler)
+    if not has_d.any():
+        raise ValueError(f"{obs.path}: gnss.doppler = true but the file has no Doppler observable for the codes "
+                         f"used ({', '.join(sorted({'D' + c[1:] for c in obs.code}))}): set gnss.doppler = false")
+    for letter in spec.gnss.systems:
+        cols = np.array([str(s)[0] == letter for s in obs.sv])
+        miss = int((has_pr[:, cols] & ~has_d[:, cols]).sum())
+        if miss:
+            note(f"{_SYSTEM_NAME[letter]}: {miss} of {int(has_pr[:, cols].sum())} code observations have no "
+                 f"Doppler: their pseudorange rate is not used")
 
 
 def system_summary(ep: GnssEpochs) -> dict:

@@ -112,8 +112,9 @@ def reference_clock(epochs: GnssEpochs, r_e, v_e=None, lam: float | None = 10.0)
 
 
 def gnss_data_from_epochs(epochs: GnssEpochs, r_e, batch_size: int, clock_bias_m, clock_drift_mps,
-                          t_offset: float = 0.0) -> GnssData:
-    """Recorded epochs as the simulated receiver's :class:`GnssData` (pseudoranges only; module docstring).
+                          t_offset: float = 0.0, v_e=None) -> GnssData:
+    """Recorded epochs as the simulated receiver's :class:`GnssData` (module docstring): pseudoranges, and
+    pseudorange rates where the epochs carry them (``prr_error_mps`` against ``v_e`` and the reference drift).
 
     Parameters
     ----------
@@ -122,13 +123,15 @@ def gnss_data_from_epochs(epochs: GnssEpochs, r_e, batch_size: int, clock_bias_m
     batch_size : B rows (read-only broadcast views of the one recording).
     clock_bias_m, clock_drift_mps : (M,) reference clock [m], [m/s].
     t_offset : subtracted from the epoch times (the world's time origin) [s].
+    v_e : (M, 3) reference receiver velocity at the epochs [m/s] (None: zero).
     """
     M, C = epochs.mask.shape
     r_e = np.asarray(r_e, np.float64)
     if r_e.shape != (M, 3):
         raise ValueError(f"r_e must have shape ({M}, 3), got {r_e.shape}")
+    v_e = np.zeros_like(r_e) if v_e is None else np.asarray(v_e, np.float64)
     with np.errstate(invalid="ignore", divide="ignore"):
-        rho, _, u = range_and_rate(epochs.sat_pos, epochs.sat_vel, r_e, np.zeros_like(r_e))
+        rho, rho_dot, u = range_and_rate(epochs.sat_pos, epochs.sat_vel, r_e, v_e)
     lat, lon, _ = ecef_to_geodetic(r_e)
     u_n = (np.swapaxes(C_en(lat, lon), -1, -2)[:, None] @ np.nan_to_num(u)[..., None])[..., 0]
     az = np.mod(np.arctan2(u_n[..., 1], u_n[..., 0]), 2 * np.pi)
@@ -137,18 +140,24 @@ def gnss_data_from_epochs(epochs: GnssEpochs, r_e, batch_size: int, clock_bias_m
     drift = np.asarray(clock_drift_mps, np.float64)
     err = np.where(m, epochs.pr - np.nan_to_num(rho) - bias[:, None], 0.0)
     B = batch_size
+    prr = prr_sigma = prr_err = None
+    if epochs.prr is not None:
+        prr, prr_sigma = np.where(m, epochs.prr, 0.0), np.where(m, epochs.prr_sigma, 0.0)
+        prr_err = np.where(m, prr - np.nan_to_num(rho_dot) - drift[:, None], 0.0)
 
     def bc(x):
+        if x is None:
+            return None
         x = np.asarray(x)
         return np.broadcast_to(x[None], (B,) + x.shape)
 
     return GnssData(t=epochs.t - t_offset, t0_gps=np.full(B, np.nan if epochs.t0_gps is None else
                                                           epochs.t0_gps + t_offset),
-                    sat_pos=bc(epochs.sat_pos), sat_vel=bc(epochs.sat_vel), pr=bc(epochs.pr), prr=None,
-                    pr_sigma=bc(np.where(m, epochs.pr_sigma, 0.0)), prr_sigma=None, mask=bc(m),
+                    sat_pos=bc(epochs.sat_pos), sat_vel=bc(epochs.sat_vel), pr=bc(epochs.pr), prr=bc(prr),
+                    pr_sigma=bc(np.where(m, epochs.pr_sigma, 0.0)), prr_sigma=bc(prr_sigma), mask=bc(m),
                     prn=bc(np.where(m, epochs.sat_keys() + 1, -1)), elevation=bc(np.where(m, epochs.elevation, 0.0)),
                     azimuth=bc(np.where(m, az, 0.0)), clock_bias_m=bc(bias), clock_drift_mps=bc(drift),
-                    nlos=bc(np.zeros((M, C), bool)), pr_error_m=bc(err), prr_error_mps=None,
+                    nlos=bc(np.zeros((M, C), bool)), pr_error_m=bc(err), prr_error_mps=bc(prr_err),
                     cn0_dbhz=bc(np.where(m, epochs.cn0, 0.0)))  # the simulator-truth fields stay None
 
 
@@ -179,7 +188,7 @@ def replay_world(scenario: Scenario, epochs: GnssEpochs, fit: SplineFit, seeds, 
         raise ValueError(f"imu_rate_hz = {rate} puts two GNSS epochs on one IMU sample: raise the IMU rate")
     r_ep = fit.position(epochs.t)
     bias, drift = reference_clock(epochs, r_ep, fit.velocity(epochs.t))
-    gnss = gnss_data_from_epochs(epochs, r_ep, B, bias, drift, t_offset=fit.t0)
+    gnss = gnss_data_from_epochs(epochs, r_ep, B, bias, drift, t_offset=fit.t0, v_e=fit.velocity(epochs.t))
     imu = simulate_imu(truth.f_b, truth.w_b, rate, IMU_GRADES[scenario.imu_grade], row_generators(seeds, "imu"),
                        engine_on=truth.engine_on, speed=truth.speed, vibration=scenario.vibration, dtype=dtype,
                        vibration_rngs=row_generators(seeds, "vibration"))

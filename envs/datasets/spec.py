@@ -125,7 +125,7 @@ class GnssSpec:
     min_cn0_dbhz: float = 0.0
     sigma0_m: float = 1.5
     interval_s: float | None = None
-    doppler: bool = False
+    doppler: bool = True
     doppler_sigma0_mps: float = 0.1
 
 
@@ -322,7 +322,7 @@ def _gnss(r: "_Reader", t: dict) -> GnssSpec:
         for c in codes:
             if not re.fullmatch(r"C[1-9][A-Z]", c):
                 raise DatasetSpecError(r.path, key, f"{c!r} is not a RINEX 3 code observable (e.g. 'C1C')")
-            if c[1] != SIGNAL_BANDS[s]:
+            if c[1] != SIGNAL_BANDS[s] and not (s == "C" and c in ("C1I", "C1Q")):   # RINEX 3.02 B1I names
                 raise DatasetSpecError(r.path, key, f"{c!r}: single-frequency codes must be on band "
                                                     f"{SIGNAL_BANDS[s]} (the broadcast group delay is for it)")
         signals.append((s, tuple(codes)))
@@ -336,7 +336,7 @@ def _gnss(r: "_Reader", t: dict) -> GnssSpec:
                     elevation_mask_deg=r.num(t, "gnss.elevation_mask_deg", 10.0, lo=-90, hi=90),
                     min_cn0_dbhz=r.num(t, "gnss.min_cn0_dbhz", 0.0, lo=0),
                     sigma0_m=r.num(t, "gnss.sigma0_m", 1.5, lo=0, lo_open=True), interval_s=interval,
-                    doppler=r.bool(t, "gnss.doppler", False),
+                    doppler=r.bool(t, "gnss.doppler", True),
                     doppler_sigma0_mps=r.num(t, "gnss.doppler_sigma0_mps", 0.1, lo=0, lo_open=True))
 
 
