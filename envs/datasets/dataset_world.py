@@ -10,8 +10,9 @@
   then :func:`envs.datasets.replay.replay_world`.
 
 What the recording cannot give is never dropped silently (:func:`prepare_rinex`): each case is an error or
-one printed summary line, as listed in ``docs/datasets.md``. The parsed epochs and truth of a spec are kept
-in memory for the process (environment resets rebuild worlds often).
+one printed summary line, as listed in ``docs/datasets.md``. The parsed RINEX files are cached on disk by
+content hash (:mod:`envs.datasets.cache`); the epochs and truth of a spec are kept in memory for the process
+(environment resets rebuild worlds often).
 """
 from __future__ import annotations
 
@@ -128,7 +129,8 @@ def prepare_rinex(spec: DatasetSpec) -> PreparedRecording:
 @functools.lru_cache(maxsize=4)
 def _prepare_rinex_cached(spec: DatasetSpec, stamp) -> PreparedRecording:
     from .nav_merge import check_coverage, merge_nav
-    from .rinex import load_nav, load_obs, rinex_epochs
+    from .cache import cached_nav, cached_obs
+    from .rinex import rinex_epochs
     g = spec.gnss
     notes = []
 
@@ -136,11 +138,11 @@ def _prepare_rinex_cached(spec: DatasetSpec, stamp) -> PreparedRecording:
         notes.append(msg)
         report(spec, msg)
 
-    obs = load_obs(g.obs, systems=g.systems, interval_s=g.interval_s, signals=dict(g.signals), notes=note,
-                   doppler=g.doppler)
+    obs = cached_obs(g.obs, systems=g.systems, interval_s=g.interval_s, signals=dict(g.signals), notes=note,
+                     doppler=g.doppler)
     if g.doppler:
         _check_doppler(obs, spec, note)
-    nav = merge_nav([load_nav(p, week_ref=obs.week_ref) for p in g.nav])
+    nav = merge_nav([cached_nav(p, week_ref=obs.week_ref) for p in g.nav])
     obs = check_coverage(obs, nav, spec, note)
     if spec.corrections.iono and nav.iono_alpha is None:
         raise ValueError(f"{spec.path}: corrections.iono = true but no navigation file "
@@ -175,6 +177,8 @@ def _check_doppler(obs, spec, note) -> None:
     from .rinex import _SYSTEM_NAME
     has_pr = np.isfinite(obs.pr)
     has_d = has_pr & np.isfinite(obs.doppler)
+    if not has_pr.any():
+        return                                       # no code at all: check_coverage names the system
     if not has_d.any():
         raise ValueError(f"{obs.path}: gnss.doppler = true but the file has no Doppler observable for the codes "
                          f"used ({', '.join(sorted({'D' + c[1:] for c in obs.code}))}): set gnss.doppler = false")
