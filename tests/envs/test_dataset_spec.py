@@ -146,6 +146,11 @@ def test_missing_spec_file_and_plain_replay_scenario_refused(tmp_path):
     from envs.config import EnvConfig
     with pytest.raises(ValueError, match="EnvConfig.scenario"):
         EnvConfig(scenario=fake)
+    # a ReplayScenario handed to the simulator itself is refused too
+    from envs.sim.world import generate_world
+    replay = load_dataset_spec(SPEC_DIR / SHIPPED_SPECS["instinct-reach-static"]).scenario(duration_s=10.0)
+    with pytest.raises(ValueError, match="replays a recorded data set"):
+        generate_world(replay, [1])
 
 
 # ------------------------------------------------------------------------------------- worlds from specs
