@@ -55,6 +55,8 @@ def reach_spec(folder: Path, name="reach-test", obs=None, nav=None, systems='["G
 
 # ------------------------------------------------------------------------------------------------ the spec
 def test_shipped_specs_load_and_resolve_into_the_data_folder(monkeypatch, tmp_path):
+    from envs.worlds import REPLAY_SCENARIOS, scenario_names
+    assert REPLAY_SCENARIOS == tuple(SHIPPED_SPECS) and set(SHIPPED_SPECS) <= set(scenario_names())
     for name, file in SHIPPED_SPECS.items():
         spec = load_dataset_spec(SPEC_DIR / file)
         assert spec.name == name and spec.gnss.obs.is_absolute()
