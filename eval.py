@@ -54,7 +54,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="eval.py", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--scenario", action="append", metavar="NAME",
-                   help=f"scenario name (repeatable); default: {', '.join(DEFAULT_SCENARIOS)}")
+                   help=f"scenario name or dataset spec path (*.toml; repeatable); default: "
+                        f"{', '.join(DEFAULT_SCENARIOS)}")
     p.add_argument("--methods", default=",".join(DEFAULT_METHODS),
                    help="comma-separated method specs (see above)")
     p.add_argument("--reference", default=None, help="method for the paired differences (default: the first)")
@@ -103,6 +104,20 @@ def _split_methods(text: str) -> list[str]:
     return out
 
 
+def _scenario_key(s: str, names) -> str:
+    """The result key of a ``--scenario`` value: a known name itself, a dataset spec (``*.toml``) its ``name``;
+    exits with a one-line error for an unknown name or a bad spec."""
+    from envs.datasets.spec import is_spec_path, load_dataset_spec
+    if is_spec_path(s):
+        try:
+            return load_dataset_spec(s).name
+        except (ValueError, FileNotFoundError) as e:
+            fail(str(e))
+    if s not in names:
+        fail(f"unknown scenario {s!r}; known: {', '.join(names)}, or a dataset spec path (*.toml)")
+    return s
+
+
 def _expand(specs: list[str], scenario: str, ref: str) -> list:
     """[(spec, [methods])] of ``specs`` on ``scenario`` (``{scenario}`` and glob patterns expanded); exits
     with a one-line error for a bad spec, a reference that is not one method, or a label given twice."""
@@ -136,15 +151,19 @@ def main(argv=None) -> dict:
         return run_experiment_cli(args, out)
     if args.episodes is None:
         args.episodes = 8
-    from envs.worlds import make_world, scenario_names
+    from envs.worlds import REPLAY_SCENARIOS, make_world, scenario_names
 
     scenarios = args.scenario or list(DEFAULT_SCENARIOS)
     specs = _split_methods(args.methods)
     if not specs:
         fail("--methods is empty")
+    sources = {}  # result key (the scenario name; a spec's own name) -> what make_world is given
     for s in scenarios:
-        if s not in scenario_names():
-            fail(f"unknown scenario {s!r}; known: {', '.join(scenario_names())}")
+        key = _scenario_key(s, scenario_names())
+        if key in sources:
+            fail(f"scenario {key!r} is given twice in --scenario")
+        sources[key] = s
+    scenarios = list(sources)
     from envs.zupt_source import check_zupt_choice
     try:
         check_zupt_choice(args.zupt, owner="--zupt")
@@ -192,9 +211,13 @@ def main(argv=None) -> dict:
         for c0 in range(0, len(seeds), args.batch_size):
             chunk = seeds[c0:c0 + args.batch_size]
             try:
-                world = make_world(s, chunk)
+                world = make_world(sources[s], chunk)
             except FileNotFoundError as e:
                 fail(f"scenario {s!r} needs a recorded data set: {e}")
+            except ValueError as e:
+                if sources[s] == s and s not in REPLAY_SCENARIOS:   # a data error: one line
+                    raise
+                fail(f"scenario {s!r}: {e}")
             if c0 == 0:
                 tracks[s] = _truth_track(world)
             for m in methods:

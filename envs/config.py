@@ -87,7 +87,8 @@ class EnvConfig:
 
     Attributes
     ----------
-    scenario : scenario name or :class:`~envs.sim.scenarios.Scenario`.
+    scenario : scenario name, dataset spec path (``*.toml``, :mod:`envs.datasets.spec`) or
+        :class:`~envs.sim.scenarios.Scenario` (a replay world's ``ReplayScenario`` replays it).
     method : filter method (DESIGN.md section 4, ``+onestep`` allowed); must accept the env's parameters.
     imu_grade : override of the scenario's IMU grade (None: keep).
     episode_length_s : episode length [s] (overrides the scenario duration).
@@ -137,21 +138,26 @@ class EnvConfig:
     def make_world(self, seeds):
         """The world of this config for ``seeds``: the scenario with its overrides (a recording cut to the
         episode length, its IMU synthesized at ``imu_grade``); see :func:`envs.worlds.make_world`."""
-        from .worlds import REPLAY_SCENARIOS, make_world
-        if isinstance(self.scenario, str) and self.scenario in REPLAY_SCENARIOS:
-            return make_world(self.scenario, seeds, imu_grade=self.imu_grade, duration_s=self.episode_length_s)
+        from .worlds import make_world
         return make_world(self.resolve_scenario(), seeds)
 
     def resolve_scenario(self) -> Scenario:
-        """The scenario with this config's overrides applied."""
-        if not isinstance(self.scenario, (str, Scenario)):
-            raise ValueError(f"EnvConfig.scenario must be a scenario name or a Scenario, got {self.scenario!r}")
-        from .worlds import REPLAY_SCENARIOS
-        if isinstance(self.scenario, str) and self.scenario in REPLAY_SCENARIOS:
+        """The scenario with this config's overrides applied (a recording: its
+        :class:`~envs.datasets.spec.ReplayScenario`, read from its spec, no data loaded)."""
+        from .worlds import is_scenario, replay_descriptor
+        if not (isinstance(self.scenario, (str, Scenario)) and is_scenario(self.scenario)):
+            if isinstance(self.scenario, (str, Scenario)):
+                get_scenario(self.scenario)  # raises naming the unknown scenario
+            raise ValueError(f"EnvConfig.scenario must be a scenario name, a dataset spec path (*.toml) or a "
+                             f"Scenario, got {self.scenario!r}")
+        try:
+            replay = replay_descriptor(self.scenario, self.imu_grade, float(self.episode_length_s))
+        except (ValueError, FileNotFoundError) as exc:
+            raise ValueError(f"EnvConfig.scenario: {exc}") from exc
+        if replay is not None:
             if self.gnss_rate_hz is not None:
                 raise ValueError("EnvConfig.gnss_rate_hz cannot be changed for a recorded data set")
-            from .datasets.replay import smartloc_scenario
-            return smartloc_scenario(self.imu_grade or "industrial", duration_s=float(self.episode_length_s))
+            return replay
         over = {"duration_s": float(self.episode_length_s)}
         if self.imu_grade is not None:
             over["imu_grade"] = self.imu_grade

@@ -2,8 +2,9 @@
 
 ``make_world(name, seeds)`` returns a :class:`envs.sim.world.World` for either a
 simulated scenario (:data:`envs.sim.scenarios.SCENARIOS`) or a recorded data set
-(:data:`REPLAY_SCENARIOS`: recorded GNSS, IMU synthesized from the recorded
-ground truth with the chosen IMU grade). The simulated world (``envs.sim``)
+(:data:`REPLAY_SCENARIOS` by name, or any dataset spec file by its path:
+recorded GNSS, IMU synthesized from the recorded ground truth with the chosen
+IMU grade; :mod:`envs.datasets.spec`). The simulated world (``envs.sim``)
 never imports the dataset loaders; this module sits above both.
 """
 from __future__ import annotations
@@ -13,8 +14,9 @@ import numpy as np
 from .sim.scenarios import SCENARIOS, Scenario
 from .sim.world import World, generate_world
 
-REPLAY_SCENARIOS = ("smartloc-potsdamer-platz",)
-"""Recorded data sets usable by name (they need ../shared/data; see README)."""
+REPLAY_SCENARIOS = ("smartloc-potsdamer-platz", "instinct-reach-static")
+"""Recorded data sets usable by name: the shipped dataset specs (:data:`envs.datasets.spec.SHIPPED_SPECS`;
+they need ../shared/data or $NAVGYM_DATA_DIR; see README). Any other spec is usable by its ``.toml`` path."""
 
 
 def scenario_names() -> list[str]:
@@ -22,25 +24,48 @@ def scenario_names() -> list[str]:
     return sorted(SCENARIOS) + list(REPLAY_SCENARIOS)
 
 
+def is_scenario(scenario) -> bool:
+    """Whether ``scenario`` is a known name, a dataset spec path (``*.toml``) or a Scenario."""
+    from .datasets.spec import is_spec_path
+    return isinstance(scenario, Scenario) or is_spec_path(scenario) or scenario in scenario_names()
+
+
+def replay_descriptor(scenario, imu_grade: str | None = None, duration_s: float | None = None):
+    """The :class:`~envs.datasets.spec.ReplayScenario` of a recorded data set (a shipped name, a ``.toml`` path
+    or a ReplayScenario) with the overrides applied, or None for a simulated scenario (no data is read)."""
+    from .datasets.spec import dataset_spec_of, replay_scenario, ReplayScenario
+    spec = dataset_spec_of(scenario)
+    if spec is None:
+        return None
+    if isinstance(scenario, ReplayScenario):
+        over = {}
+        if imu_grade is not None:
+            over["imu_grade"] = imu_grade
+        if duration_s is not None:
+            over["duration_s"] = float(duration_s)
+        return scenario.replace(**over) if over else scenario
+    return replay_scenario(spec, duration_s, imu_grade)
+
+
 def make_world(scenario, seeds, dtype=np.float64, imu_grade: str | None = None,
                duration_s: float | None = None) -> World:
-    """A batched world for ``scenario`` (a name of :func:`scenario_names` or a Scenario) and ``seeds``.
+    """A batched world for ``scenario`` and ``seeds``.
 
-    ``imu_grade`` and ``duration_s`` override the scenario's (for a recording: the synthesized IMU's grade,
-    and a prefix of the recording).
+    ``scenario`` is a name of :func:`scenario_names`, a dataset spec path (``*.toml``,
+    :mod:`envs.datasets.spec`), a :class:`Scenario`, or the
+    :class:`~envs.datasets.spec.ReplayScenario` of a replay world (which replays it again; a plain Scenario
+    describing a recording raises ``ValueError`` rather than simulating). ``imu_grade`` and ``duration_s``
+    override the scenario's (for a recording: the synthesized IMU's grade, and a prefix of the recording).
     """
-    if isinstance(scenario, str) and scenario in REPLAY_SCENARIOS:
-        from .datasets.replay import load_smartloc_world
-        kw = {}
-        if imu_grade is not None:
-            kw["imu_grade"] = imu_grade
-        if duration_s is not None:
-            kw["duration_s"] = duration_s
-        return load_smartloc_world(seeds, dtype=dtype, **kw)
-    if not isinstance(scenario, (str, Scenario)):
-        raise ValueError(f"scenario must be a name or a Scenario, got {scenario!r}")
+    if not isinstance(scenario, (str, Scenario)) and not hasattr(scenario, "__fspath__"):
+        raise ValueError(f"scenario must be a name, a dataset spec path or a Scenario, got {scenario!r}")
+    replay = replay_descriptor(scenario, imu_grade, duration_s)
+    if replay is not None:
+        from .datasets.dataset_world import world_from_spec
+        return world_from_spec(replay, seeds, dtype=dtype)
     if isinstance(scenario, str) and scenario not in SCENARIOS:
-        raise ValueError(f"unknown scenario {scenario!r}; known: {scenario_names()}")
+        raise ValueError(f"unknown scenario {scenario!r}; known: {scenario_names()} or a dataset spec path "
+                         f"(*.toml)")
     over = {}
     if imu_grade is not None:
         over["imu_grade"] = imu_grade

@@ -18,11 +18,20 @@ module             holds
 ``truth_csv``      the reference-trajectory CSV of a generic RINEX replay
 ``replay``         a :class:`~envs.sim.world.World` from recorded data: ``smartloc-potsdamer-platz``
                    (:func:`load_smartloc_world`) and the generic RINEX scenario (:func:`load_rinex_world`)
+``spec``           dataset spec files (TOML): a recording usable as a scenario by name or path (issue 12)
+``dataset_world``  the replay world of a spec; the no-silent-drop rules
+``truth_readers``  truth formats by name (navgym CSV, static, smartLoc; ``truth_generic_csv``: any CSV)
+``nav_merge``      several navigation files as one; ephemeris coverage of the observed satellites
+``doppler``        pseudorange rates from RINEX Doppler (sign, wavelength per system and band)
+``cache``          parsed RINEX files cached on disk by content hash
+``check``          ``python -m envs.datasets check SPEC``: load a data set and print its summary
 =================  ==========================================================================================
 
-Recorded sets have no Doppler: replay worlds carry ``gnss.prr = None`` and the
-navigator fuses pseudoranges only. Their IMU is synthesized from the reference
-trajectory with a chosen grade; the GNSS errors are the recorded ones.
+smartLoc has no Doppler: its replay worlds carry ``gnss.prr = None`` and the
+navigator fuses pseudoranges only; RINEX recordings with ``D`` observables
+carry pseudorange rates (``gnss.doppler`` of the spec). The IMU is synthesized
+from the reference trajectory with a chosen grade; the GNSS errors are the
+recorded ones. See ``docs/datasets.md``.
 """
 from .epochs import GnssEpochs
 from .errors import DatasetFormatError, shared_data_dir

@@ -58,6 +58,9 @@ class GnssEpochs:
     t0_gps : float or None, GPS time of ``t = 0`` [s of the GPS week]; None
         where the source gives only relative times (smartLoc).
     source : str, where the epochs come from (for messages and tables).
+    prr : (M, C) pseudorange rate [m/s] (satellite clock drift removed; the receiver clock drift remains;
+        :mod:`envs.datasets.doppler`), or None where the source has no Doppler.
+    prr_sigma : (M, C) its one-sigma error [m/s] (> 0 on valid channels), or None with ``prr``.
     """
 
     t: np.ndarray
@@ -72,6 +75,8 @@ class GnssEpochs:
     cn0: np.ndarray
     t0_gps: float | None = None
     source: str = ""
+    prr: np.ndarray | None = None
+    prr_sigma: np.ndarray | None = None
 
     def __post_init__(self):
         M = np.shape(self.t)[0] if np.ndim(self.t) == 1 else -1
@@ -90,6 +95,15 @@ class GnssEpochs:
                 raise ValueError(f"GnssEpochs.{name} must be finite (empty channels hold zeros)")
         if np.any(self.pr_sigma[self.mask] <= 0):
             raise ValueError("GnssEpochs.pr_sigma must be > 0 on valid channels")
+        if (self.prr is None) != (self.prr_sigma is None):
+            raise ValueError("GnssEpochs.prr and prr_sigma are given together or not at all")
+        if self.prr is not None:
+            for name in ("prr", "prr_sigma"):
+                a = getattr(self, name)
+                if np.shape(a) != (M, C) or not np.all(np.isfinite(a)):
+                    raise ValueError(f"GnssEpochs.{name} must be a finite ({M}, {C}) array, got shape {np.shape(a)}")
+            if np.any(self.prr_sigma[self.mask] <= 0):
+                raise ValueError("GnssEpochs.prr_sigma must be > 0 on valid channels")
 
     def sat_keys(self) -> np.ndarray:
         """(M, C) int64 satellite keys (:func:`nav_filters.measurements.satellite_key`: system and PRN, unique
@@ -130,7 +144,7 @@ class GnssEpochs:
         out = {}
         for f in fields(self):
             a = getattr(self, f.name)
-            if f.name in ("t", "t0_gps", "source", "mask"):
+            if f.name in ("t", "t0_gps", "source", "mask") or a is None:
                 continue
             a = np.array(a, copy=True)
             a[off] = -1 if f.name == "sat_id" else 0
@@ -142,7 +156,8 @@ class GnssEpochs:
         sel = (self.t >= t0) & (self.t <= t1)
         if not sel.any():
             raise ValueError(f"no epoch in [{t0}, {t1}] (epochs span [{self.t[0]}, {self.t[-1]}])")
-        out = {f.name: getattr(self, f.name)[sel] for f in fields(self) if f.name not in ("t0_gps", "source")}
+        out = {f.name: getattr(self, f.name)[sel] for f in fields(self)
+               if f.name not in ("t0_gps", "source") and getattr(self, f.name) is not None}
         return replace(self, **out)
 
 

@@ -14,9 +14,11 @@ pseudorange rows only):
   ``"vibration"``, as in :func:`envs.sim.world.generate_world`). The IMU is
   synthetic; the GNSS errors are the recorded ones, identical in every row;
 * ``gnss``: the recorded pseudoranges as :class:`~envs.sim.gnss.GnssData`
-  (rows are read-only broadcast views of one recording). There is no Doppler
-  in these recordings: ``prr``, ``prr_sigma`` and ``prr_error_mps`` are
-  ``None`` and the measurement vector has pseudorange rows only. ``nlos`` is
+  (rows are read-only broadcast views of one recording). Without Doppler
+  (smartLoc) ``prr``, ``prr_sigma`` and ``prr_error_mps`` are ``None`` and the
+  measurement vector has pseudorange rows only; RINEX epochs with Doppler
+  (:mod:`envs.datasets.doppler`) give ``prr`` and ``prr_error_mps`` against
+  the reference velocity and drift. ``nlos`` is
   all False (unknown). ``clock_bias_m`` / ``clock_drift_mps`` are a
   *reference* clock, not a truth: see :func:`reference_clock`. ``t0_gps`` is
   NaN where the recording has no absolute time (smartLoc);
@@ -112,8 +114,9 @@ def reference_clock(epochs: GnssEpochs, r_e, v_e=None, lam: float | None = 10.0)
 
 
 def gnss_data_from_epochs(epochs: GnssEpochs, r_e, batch_size: int, clock_bias_m, clock_drift_mps,
-                          t_offset: float = 0.0) -> GnssData:
-    """Recorded epochs as the simulated receiver's :class:`GnssData` (pseudoranges only; module docstring).
+                          t_offset: float = 0.0, v_e=None) -> GnssData:
+    """Recorded epochs as the simulated receiver's :class:`GnssData` (module docstring): pseudoranges, and
+    pseudorange rates where the epochs carry them (``prr_error_mps`` against ``v_e`` and the reference drift).
 
     Parameters
     ----------
@@ -122,13 +125,15 @@ def gnss_data_from_epochs(epochs: GnssEpochs, r_e, batch_size: int, clock_bias_m
     batch_size : B rows (read-only broadcast views of the one recording).
     clock_bias_m, clock_drift_mps : (M,) reference clock [m], [m/s].
     t_offset : subtracted from the epoch times (the world's time origin) [s].
+    v_e : (M, 3) reference receiver velocity at the epochs [m/s] (None: zero).
     """
     M, C = epochs.mask.shape
     r_e = np.asarray(r_e, np.float64)
     if r_e.shape != (M, 3):
         raise ValueError(f"r_e must have shape ({M}, 3), got {r_e.shape}")
+    v_e = np.zeros_like(r_e) if v_e is None else np.asarray(v_e, np.float64)
     with np.errstate(invalid="ignore", divide="ignore"):
-        rho, _, u = range_and_rate(epochs.sat_pos, epochs.sat_vel, r_e, np.zeros_like(r_e))
+        rho, rho_dot, u = range_and_rate(epochs.sat_pos, epochs.sat_vel, r_e, v_e)
     lat, lon, _ = ecef_to_geodetic(r_e)
     u_n = (np.swapaxes(C_en(lat, lon), -1, -2)[:, None] @ np.nan_to_num(u)[..., None])[..., 0]
     az = np.mod(np.arctan2(u_n[..., 1], u_n[..., 0]), 2 * np.pi)
@@ -137,18 +142,24 @@ def gnss_data_from_epochs(epochs: GnssEpochs, r_e, batch_size: int, clock_bias_m
     drift = np.asarray(clock_drift_mps, np.float64)
     err = np.where(m, epochs.pr - np.nan_to_num(rho) - bias[:, None], 0.0)
     B = batch_size
+    prr = prr_sigma = prr_err = None
+    if epochs.prr is not None:
+        prr, prr_sigma = np.where(m, epochs.prr, 0.0), np.where(m, epochs.prr_sigma, 0.0)
+        prr_err = np.where(m, prr - np.nan_to_num(rho_dot) - drift[:, None], 0.0)
 
     def bc(x):
+        if x is None:
+            return None
         x = np.asarray(x)
         return np.broadcast_to(x[None], (B,) + x.shape)
 
     return GnssData(t=epochs.t - t_offset, t0_gps=np.full(B, np.nan if epochs.t0_gps is None else
                                                           epochs.t0_gps + t_offset),
-                    sat_pos=bc(epochs.sat_pos), sat_vel=bc(epochs.sat_vel), pr=bc(epochs.pr), prr=None,
-                    pr_sigma=bc(np.where(m, epochs.pr_sigma, 0.0)), prr_sigma=None, mask=bc(m),
+                    sat_pos=bc(epochs.sat_pos), sat_vel=bc(epochs.sat_vel), pr=bc(epochs.pr), prr=bc(prr),
+                    pr_sigma=bc(np.where(m, epochs.pr_sigma, 0.0)), prr_sigma=bc(prr_sigma), mask=bc(m),
                     prn=bc(np.where(m, epochs.sat_keys() + 1, -1)), elevation=bc(np.where(m, epochs.elevation, 0.0)),
                     azimuth=bc(np.where(m, az, 0.0)), clock_bias_m=bc(bias), clock_drift_mps=bc(drift),
-                    nlos=bc(np.zeros((M, C), bool)), pr_error_m=bc(err), prr_error_mps=None,
+                    nlos=bc(np.zeros((M, C), bool)), pr_error_m=bc(err), prr_error_mps=bc(prr_err),
                     cn0_dbhz=bc(np.where(m, epochs.cn0, 0.0)))  # the simulator-truth fields stay None
 
 
@@ -179,7 +190,7 @@ def replay_world(scenario: Scenario, epochs: GnssEpochs, fit: SplineFit, seeds, 
         raise ValueError(f"imu_rate_hz = {rate} puts two GNSS epochs on one IMU sample: raise the IMU rate")
     r_ep = fit.position(epochs.t)
     bias, drift = reference_clock(epochs, r_ep, fit.velocity(epochs.t))
-    gnss = gnss_data_from_epochs(epochs, r_ep, B, bias, drift, t_offset=fit.t0)
+    gnss = gnss_data_from_epochs(epochs, r_ep, B, bias, drift, t_offset=fit.t0, v_e=fit.velocity(epochs.t))
     imu = simulate_imu(truth.f_b, truth.w_b, rate, IMU_GRADES[scenario.imu_grade], row_generators(seeds, "imu"),
                        engine_on=truth.engine_on, speed=truth.speed, vibration=scenario.vibration, dtype=dtype,
                        vibration_rngs=row_generators(seeds, "vibration"))
@@ -268,10 +279,11 @@ def load_rinex_world(obs_path, nav_path, truth_csv, seeds, imu_grade: str = "ind
                      initial: InitialErrors | None = None, dtype=np.float64, name: str = RINEX_SCENARIO) -> World:
     """A replay world from a RINEX observation file, its navigation file and a truth CSV (generic RINEX scenario).
 
-    The pseudoranges are corrected as in :func:`envs.datasets.rinex.rinex_epochs` (broadcast orbits and
-    clocks, Klobuchar, Saastamoinen); the truth trajectory is the CSV of :mod:`envs.datasets.truth_csv`
-    (GPS week, time of week, ECEF), smoothed as in :mod:`envs.datasets.spline_truth`; the IMU is synthesized
-    with ``imu_grade``. Epochs outside the truth's time span are dropped.
+    The same as a dataset spec (:mod:`envs.datasets.spec`) with ``gnss.format = "rinex"``, one navigation
+    file, the default codes of :data:`envs.datasets.rinex.SIGNALS`, both atmosphere corrections, a
+    ``navgym-csv`` truth (GPS week, time of week, ECEF; :mod:`envs.datasets.truth_csv`) and no Doppler
+    (pseudoranges only), built by :func:`envs.datasets.dataset_world.world_from_spec`. Epochs outside the
+    truth's time span are dropped (one printed line).
 
     Parameters
     ----------
@@ -285,24 +297,20 @@ def load_rinex_world(obs_path, nav_path, truth_csv, seeds, imu_grade: str = "ind
     imu_rate_hz, interval_s, elevation_mask_deg, sigma0_m : rates and the measurement model.
     vibration, initial : scenario overrides; dtype : IMU sample dtype; name : the scenario name.
     """
-    from .rinex import load_nav, load_obs, rinex_epochs
-    from .truth_csv import load_truth_csv
+    from .dataset_world import world_from_spec
+    from .rinex import SIGNALS, _check_systems
+    from .spec import DatasetSpec, GnssSpec, ImuSpec, TruthSpec, replay_scenario
 
     if imu_grade not in IMU_GRADES:
         raise ValueError(f"imu_grade {imu_grade!r} is unknown; known: {sorted(IMU_GRADES)}")
-    obs = load_obs(obs_path, systems=systems, interval_s=interval_s)
-    nav = load_nav(nav_path, week_ref=obs.week_ref)
-    t_truth, r_truth = load_truth_csv(truth_csv, obs.week_ref)
-    ep = rinex_epochs(obs, nav, elevation_mask_deg=elevation_mask_deg, sigma0_m=sigma0_m)
-    fit = fit_positions(t_truth - ep.t0_gps, r_truth)
-    if fit.t1 < ep.t[0] or fit.t0 > ep.t[-1]:
-        raise ValueError(f"{truth_csv}: the truth spans GPS time of week [{t_truth[0]:.1f}, {t_truth[-1]:.1f}] s, "
-                         f"the observations [{ep.t0_gps:.1f}, {ep.t0_gps + ep.t[-1]:.1f}] s: no overlap")
-    lat, lon, h = ecef_to_geodetic(r_truth[0])
-    scen = Scenario(name=name, duration_s=max(fit.t1 - fit.t0, 1.0), imu_rate_hz=imu_rate_hz, gnss_rate_hz=1.0,
-                    imu_grade=imu_grade, drive="open", start=(math.degrees(lat), math.degrees(lon), float(h)),
-                    vibration=Vibration() if vibration is None else vibration,
-                    receiver=ReceiverConfig(clock=ClockModel.tcxo()),
-                    initial=InitialErrors() if initial is None else initial,
-                    description=f"replay: {ep.source}, truth {Path(truth_csv).name}, IMU synthesized ({imu_grade})")
-    return replay_world(scen, ep, fit, seeds, dtype=dtype)
+    systems = _check_systems(systems)
+    obs_path = Path(obs_path)
+    gnss = GnssSpec(format="rinex", obs=obs_path, nav=(Path(nav_path),), systems=systems,
+                    signals=tuple((s, SIGNALS[s][0]) for s in systems), elevation_mask_deg=elevation_mask_deg,
+                    sigma0_m=sigma0_m, interval_s=interval_s, doppler=False)
+    spec = DatasetSpec(name=name, path=obs_path, gnss=gnss, truth=TruthSpec("navgym-csv", Path(truth_csv)),
+                       imu=ImuSpec("synthesized", imu_grade, float(imu_rate_hz)),
+                       description=f"{obs_path.name}, truth {Path(truth_csv).name}, IMU synthesized ({imu_grade})")
+    scen = replay_scenario(spec).replace(vibration=Vibration() if vibration is None else vibration,
+                                         initial=InitialErrors() if initial is None else initial)
+    return world_from_spec(scen, seeds, dtype=dtype)

@@ -59,6 +59,7 @@ SIGNALS = {
     "C": (("C2I", "C1I"), 1561.098e6),
 }
 """System letter -> (code observables in order of preference, carrier [Hz]) of the single-frequency solution."""
+_SYSTEM_NAME = {"G": "GPS", "E": "Galileo", "C": "BeiDou", "R": "GLONASS"}
 
 
 def _georinex():
@@ -93,6 +94,8 @@ class ObsData:
     cn0 : (M, S) [dB-Hz], 0 where unknown.
     approx_position : (3,) ECEF from the header [m] or None.
     path : Path.
+    doppler : (M, S) Doppler [Hz] of the code's signal (``D`` + the code's band and attribute), NaN where not
+        observed; None when not read.
     """
 
     t: np.ndarray
@@ -105,6 +108,7 @@ class ObsData:
     cn0: np.ndarray
     approx_position: np.ndarray | None
     path: Path
+    doppler: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -127,7 +131,8 @@ class NavData:
     path: Path
 
 
-def load_obs(path, systems=("G", "E", "C"), interval_s: float | None = None, tlim=None) -> ObsData:
+def load_obs(path, systems=("G", "E", "C"), interval_s: float | None = None, tlim=None, signals=None,
+             notes=None, doppler: bool = False) -> ObsData:
     """Read a RINEX 3 observation file (georinex) and keep one code per satellite (module docstring).
 
     Parameters
@@ -136,11 +141,15 @@ def load_obs(path, systems=("G", "E", "C"), interval_s: float | None = None, tli
     systems : system letters to keep; ``'R'`` (GLONASS) raises: not supported.
     interval_s : keep one epoch every ``interval_s`` seconds (georinex ``interval``; faster); None: all.
     tlim : (start, stop) ISO time strings (georinex ``tlim``), or None.
+    signals : {letter: (code, ...)} code observables in order of preference (default :data:`SIGNALS`).
+    notes : callable taking one summary line, told of satellites dropped for want of a listed signal.
+    doppler : also read the Doppler ``D`` observable of each satellite's code (:attr:`ObsData.doppler`).
     """
     path = require_file(path)
     systems = _check_systems(systems)
+    sig = {s: tuple((signals or {}).get(s, SIGNALS[s][0])) for s in systems}
     gr = _georinex()
-    meas = sorted({c for s in systems for c in SIGNALS[s][0]} | {"S" + c[1:] for s in systems for c in SIGNALS[s][0]})
+    meas = sorted({p + c[1:] for s in systems for c in sig[s] for p in ("CSD" if doppler else "CS")})
     kw = {}
     if interval_s is not None:
         kw["interval"] = float(interval_s)
@@ -161,22 +170,32 @@ def load_obs(path, systems=("G", "E", "C"), interval_s: float | None = None, tli
     pr = np.full((t.size, svs.size), np.nan)
     cn0 = np.zeros((t.size, svs.size))
     code = np.empty(svs.size, dtype=object)
+    dop = np.full((t.size, svs.size), np.nan) if doppler else None
     for j, sv in enumerate(svs):
-        for c in SIGNALS[sv[0]][0]:
+        for c in sig[sv[0]]:
             if c in obs and np.isfinite(obs[c].values[:, j]).any():
                 pr[:, j] = obs[c].values[:, j]
                 s_name = "S" + c[1:]
                 if s_name in obs:
                     cn0[:, j] = np.nan_to_num(obs[s_name].values[:, j])
+                if doppler and "D" + c[1:] in obs:
+                    dop[:, j] = obs["D" + c[1:]].values[:, j]
                 code[j] = c
                 break
     keep = np.array([c is not None for c in code])
+    if notes is not None:
+        for s in systems:
+            lost = [sv for sv, k in zip(svs, keep) if sv[0] == s and not k]
+            if lost:
+                notes(f"{_SYSTEM_NAME[s]}: {len(lost)} satellites observed without {'/'.join(sig[s])}: dropped "
+                      f"({', '.join(lost)})")
     pos = obs.attrs.get("position")
     approx = None if pos is None or not np.any(pos) else np.asarray(pos, np.float64)
     sv_k = svs[keep]
     return ObsData(t=t, week_ref=week, sv=sv_k, system=np.array([SYSTEM_LETTERS[s[0]] for s in sv_k], np.int64),
                    prn=np.array([int(s[1:]) for s in sv_k], np.int64), pr=pr[:, keep], code=code[keep].astype(str),
-                   cn0=cn0[:, keep], approx_position=approx, path=path)
+                   cn0=cn0[:, keep], approx_position=approx, path=path,
+                   doppler=None if dop is None else dop[:, keep])
 
 
 def _check_systems(systems) -> tuple:
@@ -275,7 +294,8 @@ def load_nav(path, week_ref: int | None = None) -> NavData:
 
 
 def rinex_epochs(obs: ObsData, nav: NavData, elevation_mask_deg: float = 10.0, sigma0_m: float = 1.5,
-                 approx_position="header", iono: bool = True, tropo: bool = True) -> GnssEpochs:
+                 approx_position="header", iono: bool = True, tropo: bool = True,
+                 doppler_sigma0_mps: float | None = None) -> GnssEpochs:
     """Corrected single-frequency pseudorange epochs from RINEX observations and broadcast ephemerides.
 
     Parameters
@@ -287,6 +307,8 @@ def rinex_epochs(obs: ObsData, nav: NavData, elevation_mask_deg: float = 10.0, s
         the header's ``APPROX POSITION XYZ`` (falls back to ``'spp'`` without one); ``'spp'`` a first
         single-point solution per epoch without atmosphere (epochs where it fails are dropped).
     iono, tropo : apply the Klobuchar / Saastamoinen corrections.
+    doppler_sigma0_mps : with ``obs.doppler``, the zenith pseudorange-rate sigma [m/s] of the elevation model;
+        the epochs then carry pseudorange rates (:mod:`envs.datasets.doppler`). None: no rates.
 
     Returns
     -------
@@ -315,7 +337,7 @@ def rinex_epochs(obs: ObsData, nav: NavData, elevation_mask_deg: float = 10.0, s
     for _ in range(2):                                      # t_tx = t_sv - dt_sv(t_tx)
         pos, vel, dt_sv, _ = satellite_states(e, t_tx - dt_sv)
     t_tx = t_tx - dt_sv
-    pos, vel, dt_sv, _ = satellite_states(e, t_tx)
+    pos, vel, dt_sv, ddt_sv = satellite_states(e, t_tx)
     sat_pos = np.zeros((M, S, 3))
     sat_vel = np.zeros((M, S, 3))
     pr_c = np.zeros((M, S))
@@ -355,7 +377,11 @@ def rinex_epochs(obs: ObsData, nav: NavData, elevation_mask_deg: float = 10.0, s
         return a
 
     sat_id = np.where(ok, prn, -1)
+    prr = prr_sigma = None
+    if doppler_sigma0_mps is not None and obs.doppler is not None:
+        from .doppler import doppler_epochs
+        prr, prr_sigma = doppler_epochs(obs, mi, si, ddt_sv, ok, s_el, doppler_sigma0_mps)
     return GnssEpochs(t=obs.t - obs.t[0], sat_pos=z(sat_pos), sat_vel=z(sat_vel), pr=z(pr_c), pr_sigma=z(sigma),
                       mask=ok, sat_id=sat_id.astype(np.int64), system=np.where(ok, system, 0).astype(np.int64),
                       elevation=z(el), cn0=z(cn0), t0_gps=float(obs.t[0]),
-                      source=f"RINEX {Path(obs.path).name} + {Path(nav.path).name}")
+                      source=f"RINEX {Path(obs.path).name} + {Path(nav.path).name}", prr=prr, prr_sigma=prr_sigma)

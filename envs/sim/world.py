@@ -138,6 +138,9 @@ def generate_world(scenario, seeds, dtype=np.float64) -> World:
     dtype : float dtype of the IMU samples (the truth and GNSS geometry stay float64).
     """
     scen = get_scenario(scenario)
+    if getattr(scen, "dataset", None) is not None:   # envs.datasets.spec.ReplayScenario: never simulate it
+        raise ValueError(f"scenario {scen.name!r} replays a recorded data set: build its world with "
+                         f"envs.worlds.make_world, not generate_world")
     seeds = as_seeds(seeds)
     motions = scen.motions(row_generators(seeds, "trajectory"))
     truth = generate_truth(motions, scen.duration_s, scen.imu_rate_hz)

@@ -1,0 +1,198 @@
+"""A replay :class:`~envs.sim.world.World` from a dataset spec (issue 12; :mod:`envs.datasets.spec`).
+
+:func:`world_from_spec` builds the world of a :class:`~envs.datasets.spec.ReplayScenario`:
+
+* ``gnss.format = "smartloc"``: exactly :func:`envs.datasets.replay.load_smartloc_world` with the spec's
+  selection (same seeds, same numbers as the code path of the name ``smartloc-potsdamer-platz``);
+* ``gnss.format = "rinex"``: the observation file, the merged navigation files
+  (:func:`envs.datasets.nav_merge.merge_nav`), corrected as in :func:`envs.datasets.rinex.rinex_epochs`
+  with the spec's atmosphere switches, the truth from its reader (:mod:`envs.datasets.truth_readers`),
+  then :func:`envs.datasets.replay.replay_world`.
+
+What the recording cannot give is never dropped silently (:func:`prepare_rinex`): each case is an error or
+one printed summary line, as listed in ``docs/datasets.md``. The parsed RINEX files are cached on disk by
+content hash (:mod:`envs.datasets.cache`); the epochs and truth of a spec are kept in memory for the process
+(environment resets rebuild worlds often).
+"""
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+import sys
+from dataclasses import dataclass
+
+import numpy as np
+
+from earth import ecef_to_geodetic
+
+from ..sim.world import World
+from .epochs import SYSTEM_LETTERS, SYSTEM_NAMES, GnssEpochs
+from .spec import DatasetSpec, ReplayScenario
+from .spline_truth import fit_positions
+from .truth_readers import TruthTrack, read_truth
+
+__all__ = ["PreparedRecording", "world_from_spec", "prepare_rinex", "report"]
+
+
+def report(spec: DatasetSpec, message: str) -> None:
+    """Print one summary line about ``spec``'s data (a documented, non-fatal drop) to stderr."""
+    print(f"navgym dataset {spec.name}: {message}", file=sys.stderr, flush=True)
+
+
+@dataclass(frozen=True)
+class PreparedRecording:
+    """The corrected epochs and the truth of a RINEX data set, ready to replay.
+
+    Attributes
+    ----------
+    epochs : GnssEpochs (``t`` since the first observation epoch, ``t0_gps`` its GPS time of week).
+    truth : TruthTrack (GPS time of the observation file's week).
+    week_ref : int, the GPS week of the first observation.
+    notes : tuple of str, the summary lines printed when it was prepared.
+    """
+
+    epochs: GnssEpochs
+    truth: TruthTrack
+    week_ref: int
+    notes: tuple = ()
+
+
+def world_from_spec(scenario: ReplayScenario, seeds, dtype=np.float64) -> World:
+    """The replay world of ``scenario`` (its spec, IMU grade and rate, vibration, initial errors and
+    ``duration_s``: the first ``duration_s`` seconds of the truth) for ``seeds`` (B rows)."""
+    if not isinstance(scenario, ReplayScenario):
+        raise ValueError(f"scenario must be a ReplayScenario, got {type(scenario).__name__}")
+    spec = scenario.dataset
+    if spec.imu.source != "synthesized":  # pragma: no cover - rejected when the spec is loaded
+        raise ValueError(f"{spec.path}: imu.source {spec.imu.source!r} is not supported")
+    if spec.gnss.format == "smartloc":
+        world = _smartloc_world(scenario, seeds, dtype)
+    else:
+        world = _rinex_world(scenario, seeds, dtype)
+    r0 = world.truth.r_e[0, 0] if world.truth.r_e.ndim == 3 else world.truth.r_e[0]
+    lat, lon, h = ecef_to_geodetic(np.asarray(r0, np.float64))
+    scen = dataclasses.replace(scenario, duration_s=float(world.scenario.duration_s),
+                               start=(math.degrees(lat), math.degrees(lon), float(h)))
+    return dataclasses.replace(world, scenario=scen)
+
+
+def _smartloc_world(scenario: ReplayScenario, seeds, dtype) -> World:
+    from .replay import load_smartloc_world
+    g = scenario.dataset.gnss
+    return load_smartloc_world(seeds, imu_grade=scenario.imu_grade, imu_rate_hz=scenario.imu_rate_hz,
+                               folder=g.obs.parent, name=g.obs.name[:-len("_Input.txt")],
+                               systems=tuple(SYSTEM_LETTERS[s] for s in g.systems),
+                               min_elevation_deg=g.elevation_mask_deg, min_cn0_dbhz=g.min_cn0_dbhz,
+                               vibration=scenario.vibration, initial=scenario.initial,
+                               duration_s=scenario.duration_s, dtype=dtype)
+
+
+def _rinex_world(scenario: ReplayScenario, seeds, dtype) -> World:
+    from .replay import replay_world
+    spec = scenario.dataset
+    rec = prepare_rinex(spec)
+    ep, tr = rec.epochs, rec.truth
+    t = tr.t - ep.t0_gps
+    keep = t <= t[0] + scenario.duration_s
+    if keep.sum() < 5:
+        raise ValueError(f"{spec.path}: duration_s = {scenario.duration_s} keeps {int(keep.sum())} truth rows; "
+                         f"at least 5 are needed")
+    fit = _fit(spec, t[keep], tr.r_e[keep])
+    world = replay_world(scenario, ep, fit, seeds, dtype=dtype)
+    return dataclasses.replace(world, scenario=dataclasses.replace(scenario, duration_s=max(fit.t1 - fit.t0, 1.0)))
+
+
+@functools.lru_cache(maxsize=8)
+def _fit_cached(key, t_bytes, r_bytes):
+    t = np.frombuffer(t_bytes, np.float64)
+    return fit_positions(t, np.frombuffer(r_bytes, np.float64).reshape(t.size, 3))
+
+
+def _fit(spec, t, r):
+    return _fit_cached(spec, np.ascontiguousarray(t).tobytes(), np.ascontiguousarray(r).tobytes())
+
+
+def prepare_rinex(spec: DatasetSpec) -> PreparedRecording:
+    """The corrected epochs and truth of a RINEX spec, memoized per process on the spec and its files' sizes
+    and modification times (the summary lines are printed the first time only)."""
+    if spec.gnss.format != "rinex":
+        raise ValueError(f"{spec.path}: gnss.format is {spec.gnss.format!r}, not 'rinex'")
+    files = [spec.gnss.obs, *spec.gnss.nav] + ([spec.truth.file] if spec.truth.file is not None else [])
+    stamp = []
+    for p in files:
+        st = p.stat() if p.is_file() else None
+        stamp.append((str(p), None if st is None else (st.st_size, st.st_mtime_ns)))
+    return _prepare_rinex_cached(spec, tuple(stamp))
+
+
+@functools.lru_cache(maxsize=4)
+def _prepare_rinex_cached(spec: DatasetSpec, stamp) -> PreparedRecording:
+    from .nav_merge import check_coverage, merge_nav
+    from .cache import cached_nav, cached_obs
+    from .rinex import rinex_epochs
+    g = spec.gnss
+    notes = []
+
+    def note(msg):
+        notes.append(msg)
+        report(spec, msg)
+
+    obs = cached_obs(g.obs, systems=g.systems, interval_s=g.interval_s, signals=dict(g.signals), notes=note,
+                     doppler=g.doppler)
+    if g.doppler:
+        _check_doppler(obs, spec, note)
+    nav = merge_nav([cached_nav(p, week_ref=obs.week_ref) for p in g.nav])
+    obs = check_coverage(obs, nav, spec, note)
+    if spec.corrections.iono and nav.iono_alpha is None:
+        raise ValueError(f"{spec.path}: corrections.iono = true but no navigation file "
+                         f"({', '.join(p.name for p in g.nav)}) has the GPS Klobuchar coefficients (IONOSPHERIC "
+                         f"CORR GPSA / GPSB): add a GPS navigation file to gnss.nav or set corrections.iono = false")
+    ep = rinex_epochs(obs, nav, elevation_mask_deg=g.elevation_mask_deg, sigma0_m=g.sigma0_m,
+                      iono=spec.corrections.iono, tropo=spec.corrections.tropo,
+                      doppler_sigma0_mps=g.doppler_sigma0_mps if g.doppler else None)
+    if g.min_cn0_dbhz > 0:
+        ep = ep.keep(ep.cn0 >= g.min_cn0_dbhz)
+    ep = dataclasses.replace(ep, source=f"RINEX {g.obs.name} + {' + '.join(p.name for p in g.nav)}")
+    truth = read_truth(spec.truth, obs.week_ref, (ep.t0_gps, ep.t0_gps + ep.t[-1]))
+    t_rel = truth.t - ep.t0_gps
+    inside = (ep.t >= t_rel[0]) & (ep.t <= t_rel[-1])
+    if not inside.any():
+        raise ValueError(f"{spec.truth.file or spec.path}: the truth spans GPS time of week "
+                         f"[{truth.t[0]:.1f}, {truth.t[-1]:.1f}] s, the observations "
+                         f"[{ep.t0_gps:.1f}, {ep.t0_gps + ep.t[-1]:.1f}] s: no overlap")
+    if not inside.all():
+        note(f"{int((~inside).sum())} of {ep.n_epochs} observation epochs lie outside the truth's span "
+             f"(GPS time of week [{truth.t[0]:.1f}, {truth.t[-1]:.1f}] s): not replayed")
+    empty = ~ep.mask.any(-1) & inside
+    if empty.any():
+        note(f"{int(empty.sum())} of {int(inside.sum())} epochs have no usable satellite (mask, signals, "
+             f"ephemerides)")
+    return PreparedRecording(epochs=ep, truth=truth, week_ref=obs.week_ref, notes=tuple(notes))
+
+
+def _check_doppler(obs, spec, note) -> None:
+    """gnss.doppler = true: an error if no satellite has a Doppler, one line per system with channels that
+    have a code but no Doppler (their rate rows get no weight: :data:`envs.datasets.doppler.NO_DOPPLER_SIGMA_MPS`)."""
+    from .rinex import _SYSTEM_NAME
+    has_pr = np.isfinite(obs.pr)
+    has_d = has_pr & np.isfinite(obs.doppler)
+    if not has_pr.any():
+        return                                       # no code at all: check_coverage names the system
+    if not has_d.any():
+        raise ValueError(f"{obs.path}: gnss.doppler = true but the file has no Doppler observable for the codes "
+                         f"used ({', '.join(sorted({'D' + c[1:] for c in obs.code}))}): set gnss.doppler = false")
+    for letter in spec.gnss.systems:
+        cols = np.array([str(s)[0] == letter for s in obs.sv])
+        miss = int((has_pr[:, cols] & ~has_d[:, cols]).sum())
+        if miss:
+            note(f"{_SYSTEM_NAME[letter]}: {miss} of {int(has_pr[:, cols].sum())} code observations have no "
+                 f"Doppler: their pseudorange rate is not used")
+
+
+def system_summary(ep: GnssEpochs) -> dict:
+    """{system name: number of distinct satellites used} of epochs."""
+    out = {}
+    for code in np.unique(ep.system[ep.mask]):
+        out[SYSTEM_NAMES[int(code)]] = int(np.unique(ep.sat_id[ep.mask & (ep.system == code)]).size)
+    return out
