@@ -346,6 +346,10 @@ class TuningCore:
         self.est_track[rows, j] = self.nav.r
         bound = self.config.divergence_bound_m
         diverged = self.nav.diverged | ~np.isfinite(h_err) | (h_err > bound)
+        reason = np.where(self.nav.diverged, self.nav.divergence_reasons(),
+                          np.where(~np.isfinite(h_err), "horizontal error not finite",
+                                   np.where(h_err > bound, f"horizontal error above divergence_bound_m ({bound:g} m)",
+                                            "")))
         cfg = self.config
         if cfg.reward == "horizontal":
             reward = -h_err
@@ -367,7 +371,7 @@ class TuningCore:
         self.frames[:, :-1] = self.frames[:, 1:]
         self.frames[:, -1] = frame
         info = {
-            "horizontal_error_m": h_err, "error_3d_m": e3, "diverged": diverged,
+            "horizontal_error_m": h_err, "error_3d_m": e3, "diverged": diverged, "diverged_reason": reason,
             "nis_pr": frame[:, self.k + 0].astype(np.float64), "nis_prr": frame[:, self.k + 1].astype(np.float64),
             "n_sats": self._last_nsat.copy(), "zupt": zflag,
         }
