@@ -87,6 +87,15 @@ def fail(msg: str):
     raise SystemExit(2)
 
 
+def check_out(out: Path) -> None:
+    """Create the output folder, or exit with one line when it cannot be written (before any work)."""
+    from envs.outputs import check_output_dir
+    try:
+        check_output_dir(out)
+    except ValueError as e:
+        fail(str(e))
+
+
 def _split_methods(text: str) -> list[str]:
     """Split on commas outside brackets (``sage-husa[b=0.99,x=1],kf``)."""
     out, depth, cur = [], 0, ""
@@ -136,6 +145,7 @@ def main(argv=None) -> dict:
         return run_experiment_cli(args, out)
     if args.episodes is None:
         args.episodes = 8
+    from envs.datasets.errors import DatasetFormatError
     from envs.worlds import make_world, scenario_names
 
     scenarios = args.scenario or list(DEFAULT_SCENARIOS)
@@ -175,7 +185,7 @@ def main(argv=None) -> dict:
     from envs.episodes import concat_logs
     from envs.metrics import paired_difference, summarize, summarize_seeds
 
-    out.mkdir(parents=True, exist_ok=True)
+    check_out(out)
     seeds = episode_seeds(args.seed, args.episodes)
     results = {"scenarios": {}, "seed_groups": {},
                "config": {"episodes": args.episodes, "seed": args.seed, "dtype": args.dtype, "zupt": args.zupt,
@@ -195,6 +205,8 @@ def main(argv=None) -> dict:
                 world = make_world(s, chunk)
             except FileNotFoundError as e:
                 fail(f"scenario {s!r} needs a recorded data set: {e}")
+            except DatasetFormatError as e:
+                fail(f"scenario {s!r}: {e}")
             if c0 == 0:
                 tracks[s] = _truth_track(world)
             for m in methods:
@@ -255,7 +267,7 @@ def run_experiment_cli(args, out: Path) -> dict:
         fail(f"experiments are not available: {e}")
     if args.experiment not in EXPERIMENTS:
         fail(f"unknown experiment {args.experiment!r}; known: {', '.join(EXPERIMENTS)}")
-    out.mkdir(parents=True, exist_ok=True)
+    check_out(out)
     res, report = run_experiment(args.experiment, episodes=args.episodes, seed=args.seed, out_dir=out,
                                  progress=lambda msg: print(msg, file=sys.stderr))
     print(report)

@@ -90,8 +90,10 @@ def load_tuning(path) -> dict:
     if not path.is_file():
         raise FileNotFoundError(f"tuning file not found: {path}")
     try:
-        d = json.loads(path.read_text())
+        d = json.loads(path.read_bytes().decode("utf-8"))
         d["method"], d["param"], d["best"]
-    except (json.JSONDecodeError, KeyError, TypeError) as e:
-        raise ValueError(f"{path}: not a tuning result file ({e})") from None
+    except (UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError, IndexError) as e:
+        raise ValueError(f"{path}: not a tuning result file ({type(e).__name__}: {e})") from None
+    if not isinstance(d["method"], str) or not isinstance(d["param"], str):
+        raise ValueError(f"{path}: not a tuning result file ('method' and 'param' must be strings)")
     return d
