@@ -14,11 +14,12 @@ and the command line (``--timesteps``, ``--n-envs``, ``--env-kwargs``).
 """
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
 import numpy as np
+
+from envs.json_io import dumps
 
 from .policies import ALGOS, algo_class
 
@@ -190,7 +191,7 @@ def train_rl(env_id: str, algo: str, out, timesteps: int | None = None, seed: in
     config = {"env": env_id, "algo": algo, "seed": seed, "env_kwargs": ekw, "policy": policy,
               "hyperparameters": hyper, **{k: v for k, v in settings.items() if k != "env_kwargs"},
               "train_seed_base": seed * 10_007, "eval_seed_base": EVAL_SEED_OFFSET + 1000 * seed}
-    (out / "config.json").write_text(json.dumps(config, indent=2, default=str))
+    (out / "config.json").write_text(dumps(config, indent=2, default=str))
     t0 = time.perf_counter()
     model.learn(total_timesteps=settings["n_timesteps"], callback=CallbackList(callbacks))
     wall = time.perf_counter() - t0
@@ -204,5 +205,5 @@ def train_rl(env_id: str, algo: str, out, timesteps: int | None = None, seed: in
         d = np.load(ev)
         config["eval_mean_reward_last"] = float(d["results"][-1].mean())
         config["eval_mean_reward_best"] = float(d["results"].mean(1).max())
-    (out / "config.json").write_text(json.dumps(config, indent=2, default=str))
+    (out / "config.json").write_text(dumps(config, indent=2, default=str))
     return config

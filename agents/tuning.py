@@ -16,6 +16,7 @@ import numpy as np
 
 from envs.episodes import run_episodes
 from envs.gnss_ins_env import make_config
+from envs.json_io import dumps
 
 from .rollout import env_class
 
@@ -80,7 +81,7 @@ def tune_fixed_parameter(env_id: str, env_kwargs: dict | None = None, param: str
 def save_tuning(result: dict, path) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(result, indent=2))
+    path.write_text(dumps(result, indent=2))
     return path
 
 
