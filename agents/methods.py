@@ -44,7 +44,7 @@ from dataclasses import dataclass, field
 
 from envs.episodes import run_episodes
 from envs.zupt_source import check_zupt_choice
-from nav_filters.forms import parse_method
+from nav_filters.registry import parse_method
 
 from .policies import ALGOS, Sb3Policy
 from .rollout import run_policy_episodes
@@ -322,7 +322,7 @@ def check_method_params(method: str, params: dict, spec: str) -> None:
     unknown name, NaN, inf or a value outside the parameter's range raises ``ValueError`` naming the spec."""
     if not params:
         return
-    from nav_filters.forms import FORMS
+    from nav_filters.registry import FORMS
     law = getattr(FORMS[parse_method(method)[0]], "law", None)
     if law is None:
         raise ValueError(f"{spec}: method {method!r} has no parameters to set (got {', '.join(sorted(params))})")

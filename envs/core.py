@@ -22,7 +22,7 @@ import numba as nb
 import numpy as np
 
 from earth import C_en, ecef_to_geodetic
-from nav_filters.forms import parse_method
+from nav_filters.registry import parse_method
 from nav_filters.rows import check_row_pairs, copied_array, copy_dataclass_rows, copy_rows_generic
 
 from .config import EnvConfig, ParamSpec
@@ -51,7 +51,7 @@ def check_batch_size(n, name: str = "num_envs") -> int:
 def check_method_has_params(method: str, specs) -> None:
     """``ValueError`` at construction when the filter ``method`` cannot take the parameters ``specs`` the env's
     action sets (``kf`` in the Sage-Husa env, ``stkf`` in the MA-STKF env, ...), naming the methods that can."""
-    from nav_filters.forms import FORMS
+    from nav_filters.registry import FORMS
     base, _ = parse_method(method)
     need = {s.name for s in specs}
 

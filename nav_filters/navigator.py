@@ -51,7 +51,8 @@ import numba as nb
 import numpy as np
 
 from .error_model import ATT, BA, BG, CLK, DRIFT, N_STATES, POS, VEL, ProcessNoise
-from .forms import UpdateResult, make_form, parse_method
+from .forms import UpdateResult
+from .registry import make_form, parse_method
 from .forms.base import check_dtype
 from .ins import _earth_rate_matrices_np, apply_correction
 from .kernels import F_NONZERO, propagate_epoch
