@@ -237,10 +237,25 @@ class Sb3Policy:
                        -self.clip_obs, self.clip_obs).astype(np.float32)
 
     def act(self, obs):
+        """(B, k) deterministic actions for the observations (B, obs_dim), one row at a time.
+
+        Row by row, so that a row's action does not depend on the batch it is evaluated in: torch's float32
+        matrix products pick their kernels (blocking, vectorization) by the batch size, and a batched forward
+        pass changed the first layer's outputs by up to 6e-7 between B = 64 and B = 1 (measured on an MLP
+        policy), which made ``eval.py --batch-size 1`` and ``--batch-size 64`` differ in the last digits.
+        The recurrent state is kept and sliced per row."""
         o = self._normalize(np.asarray(obs, np.float32))
+        B = o.shape[0]
         if self.algo == "recurrentppo":
-            a, self._state = self.model.predict(o, state=self._state, episode_start=self._start, deterministic=True)
-            self._start = np.zeros(o.shape[0], bool)
+            acts, states = [], []
+            for i in range(B):
+                st = None if self._state is None else tuple(s[:, i:i + 1] for s in self._state)
+                a, st = self.model.predict(o[i:i + 1], state=st, episode_start=self._start[i:i + 1],
+                                           deterministic=True)
+                acts.append(a)
+                states.append(st)
+            self._state = tuple(np.concatenate([st[k] for st in states], axis=1) for k in range(len(states[0])))
+            self._start = np.zeros(B, bool)
         else:
-            a, _ = self.model.predict(o, deterministic=True)
-        return np.asarray(a, np.float32).reshape(o.shape[0], -1)
+            acts = [self.model.predict(o[i:i + 1], deterministic=True)[0] for i in range(B)]
+        return np.concatenate([np.asarray(a, np.float32).reshape(1, -1) for a in acts], 0)
