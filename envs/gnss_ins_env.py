@@ -84,6 +84,11 @@ At the end, ``info["episode_metrics"]`` holds the episode's horizontal RMSE and 
 ``history``, ``zupt`` (``'none'``, ``'truth'``, or a detector: ``'shoe'``, ``'are'``, ``'mag'``, ``'mv'``,
 ``'mlp'``, ``'lstm'``; ``zupt_weights`` overrides the learned detector's shipped weights), ``dtype``,
 ``divergence_bound_m``; plus ``render_mode`` (``'ansi'``, ``'rgb_array'``).
+Limits (a ``ValueError`` naming the argument at construction): ``episode_length_s`` at most
+:data:`envs.config.MAX_EPISODE_S` (3600 s: the world is generated whole at reset), ``history`` at most
+:data:`envs.config.MAX_HISTORY` (64), the vector env's ``num_envs`` an int in [1, :data:`envs.core.MAX_BATCH`]
+(16384); numbers must not be bools; ``method`` must take this env's parameters. Actions must be real numbers
+(complex, string, bool or object arrays are refused); a NaN or inf action names the first rows and the count.
 
 ## Version History
 
