@@ -27,6 +27,13 @@ Prints a table and writes ``OUT/results.json`` (schema of DESIGN.md plus the pai
 reference method), ``results.csv``, ``results.md`` and PNG plots per scenario: error vs time (median and
 10-90% band), CDF of the horizontal error, bar chart of RMSE with 95% CIs, and one trajectory.
 
+``results.json`` is strict JSON (a NaN or inf figure is written as ``null``) and, apart from the wall-clock
+figures named in :data:`TIMING_KEYS` (``filter_time_per_epoch_s`` of each method, part of the DESIGN.md
+schema), a function of the arguments alone: two runs with the same arguments and seed write the same bytes
+on every other line. The timings are also kept apart in ``OUT/timing.json`` (per scenario: its wall time
+and each method's filter time per epoch); the ``ms/epoch`` column of ``results.md`` / ``results.csv``
+shows the same figure.
+
 With no arguments it runs the default comparison: ``noise-burst``, ``urban`` and ``open-sky`` with ``kf``,
 ``sage-husa``, ``stkf`` and ``ma-stkf``, 8 episodes, seed 0, into ``results/default``.
 """
@@ -83,9 +90,22 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+TIMING_KEYS = ("filter_time_per_epoch_s",)
+"""Keys of results.json that hold wall-clock figures (they differ between runs; everything else does not)."""
+
+
 def fail(msg: str):
     print(f"eval.py: error: {msg}", file=sys.stderr)
     raise SystemExit(2)
+
+
+def check_out(out: Path) -> None:
+    """Create the output folder, or exit with one line when it cannot be written (before any work)."""
+    from envs.outputs import check_output_dir
+    try:
+        check_output_dir(out)
+    except ValueError as e:
+        fail(str(e))
 
 
 def _split_methods(text: str) -> list[str]:
@@ -151,6 +171,7 @@ def main(argv=None) -> dict:
         return run_experiment_cli(args, out)
     if args.episodes is None:
         args.episodes = 8
+    from envs.datasets.errors import DatasetFormatError
     from envs.worlds import REPLAY_SCENARIOS, make_world, scenario_names
 
     scenarios = args.scenario or list(DEFAULT_SCENARIOS)
@@ -192,15 +213,18 @@ def main(argv=None) -> dict:
                 fail(f"--headroom: {fixed_spec!r} must be one method; it matches {n} files on {s!r}")
 
     from envs.episodes import concat_logs
+    from envs.json_io import dumps
     from envs.metrics import paired_difference, summarize, summarize_seeds
 
-    out.mkdir(parents=True, exist_ok=True)
+    check_out(out)
     seeds = episode_seeds(args.seed, args.episodes)
     results = {"scenarios": {}, "seed_groups": {},
                "config": {"episodes": args.episodes, "seed": args.seed, "dtype": args.dtype, "zupt": args.zupt,
                           "goal": _parse_goals(args.goal),
                           "methods": specs, "reference": ref, "episode_seeds": seeds}}
     curves, tracks = {}, {}
+    timing = {"note": "wall-clock figures of this run (they vary between runs; results.json holds the rest)",
+              "wall": {}}
     for s in scenarios:
         methods = [m for _, ms in plan[s] for m in ms]
         ref_label = dict(plan[s])[ref][0].label
@@ -215,8 +239,8 @@ def main(argv=None) -> dict:
             except FileNotFoundError as e:
                 fail(f"scenario {s!r} needs a recorded data set: {e}")
             except ValueError as e:
-                if sources[s] == s and s not in REPLAY_SCENARIOS:   # a data error: one line
-                    raise
+                if not isinstance(e, DatasetFormatError) and sources[s] == s and s not in REPLAY_SCENARIOS:
+                    raise   # a simulated scenario's ValueError is a bug, not a data error
                 fail(f"scenario {s!r}: {e}")
             if c0 == 0:
                 tracks[s] = _truth_track(world)
@@ -225,6 +249,7 @@ def main(argv=None) -> dict:
                       f"  ({time.perf_counter() - t_start:.0f} s)", end="", flush=True, file=sys.stderr)
                 logs[m.label].append(m.run(world, dtype=args.dtype, zupt=args.zupt))
             n_done += len(chunk)
+        timing["wall"][s] = time.perf_counter() - t_start
         print(f"\r[{s}] {len(methods)} methods x {n_done} episodes in {time.perf_counter() - t_start:.1f} s"
               + " " * 30, file=sys.stderr)
         curves[s] = {m.label: concat_logs(logs[m.label]) for m in methods}
@@ -243,7 +268,12 @@ def main(argv=None) -> dict:
                 for spec, ms in groups.items()}
     if args.headroom:
         results["headroom"] = compute_headroom(results, curves, plan, fixed_spec)
-    (out / "results.json").write_text(json.dumps(results, indent=2))
+    (out / "results.json").write_text(dumps(results, indent=2) + "\n")
+    timing["scenarios"] = {s: {"wall_time_s": timing["wall"][s],
+                               "methods": {label: {k: r[k] for k in TIMING_KEYS if k in r} for label, r in per.items()}}
+                           for s, per in results["scenarios"].items()}
+    del timing["wall"]
+    (out / "timing.json").write_text(dumps(timing, indent=2) + "\n")
     table = format_table(results)
     print(table)
     (out / "results.md").write_text(table + "\n")
@@ -260,7 +290,7 @@ def main(argv=None) -> dict:
             plot_bars(s, results["scenarios"][s], out / f"rmse_bars_{s}.png")
             plot_trajectory(s, per, tracks[s], out / f"trajectory_{s}.png")
             plots += [out / f"{kind}_{s}.png" for kind in ("error_vs_time", "cdf", "rmse_bars", "trajectory")]
-    written = [out / "results.json", out / "results.md", out / "results.csv"]
+    written = [out / "results.json", out / "timing.json", out / "results.md", out / "results.csv"]
     if args.headroom:
         written.append(out / "headroom.md")
     written += plots
@@ -278,7 +308,7 @@ def run_experiment_cli(args, out: Path) -> dict:
         fail(f"experiments are not available: {e}")
     if args.experiment not in EXPERIMENTS:
         fail(f"unknown experiment {args.experiment!r}; known: {', '.join(EXPERIMENTS)}")
-    out.mkdir(parents=True, exist_ok=True)
+    check_out(out)
     res, report = run_experiment(args.experiment, episodes=args.episodes, seed=args.seed, out_dir=out,
                                  progress=lambda msg: print(msg, file=sys.stderr))
     print(report)

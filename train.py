@@ -89,9 +89,8 @@ def check_common(args) -> None:
     """Numbers every subcommand takes, checked before any work: one line, exit 2."""
     if args.seed < 0:
         fail(f"--seed must be >= 0, got {args.seed}")
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        fail(f"--out {str(out)!r} is a file, not a directory")
+    if Path(args.out).is_file():
+        fail(f"--out {args.out!r} is a file, not a directory")
     if getattr(args, "timesteps", None) is not None:
         if not (math.isfinite(args.timesteps) and args.timesteps >= 1):
             fail(f"--timesteps must be a finite number >= 1, got {args.timesteps!r}")
@@ -101,6 +100,15 @@ def check_common(args) -> None:
         v = getattr(args, name, None)
         if v is not None and v < (2 if name == "grid_size" else 1):
             fail(f"--{name.replace('_', '-')} must be >= {2 if name == 'grid_size' else 1}, got {v}")
+
+
+def check_out(out) -> None:
+    """Create the output folder, or exit with one line when it cannot be written (before any work)."""
+    from envs.outputs import check_output_dir
+    try:
+        check_output_dir(out)
+    except ValueError as e:
+        fail(str(e))
 
 
 def main(argv=None):
@@ -116,6 +124,7 @@ def main(argv=None):
         ekw = parse_env_kwargs(args.env_kwargs)
         check_env_kwargs(args.env, ekw)
         from agents.training import train_rl
+        check_out(args.out)
         try:
             cfg = train_rl(args.env, args.algo, args.out, timesteps=args.timesteps, seed=args.seed,
                            n_envs=args.n_envs, env_kwargs=ekw, config_file=args.config, quick=args.quick,
@@ -136,6 +145,7 @@ def main(argv=None):
         param = args.param or next(iter(specs))
         if param not in specs:
             fail(f"{args.env} has no parameter {param!r}; known: {', '.join(specs)}")
+        check_out(args.out)
         try:
             res = tune_fixed_parameter(args.env, ekw, param, default_grid(specs[param], args.grid_size),
                                        n_train=args.n_train, seed=args.seed, progress=True)
@@ -148,6 +158,7 @@ def main(argv=None):
             from agents.zupt_training import train_zupt_detector
         except ImportError as e:
             fail(f"zero-velocity detector training is not available: {e}")
+        check_out(args.out)
         metrics = train_zupt_detector(args.model, args.seed, Path(args.out), quick=args.quick, progress=True)
         print(json.dumps(metrics, indent=2, default=str))
 

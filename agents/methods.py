@@ -44,7 +44,7 @@ from dataclasses import dataclass, field
 
 from envs.episodes import run_episodes
 from envs.zupt_source import check_zupt_choice
-from nav_filters.forms import parse_method
+from nav_filters.registry import parse_method
 
 from .policies import ALGOS, Sb3Policy
 from .rollout import run_policy_episodes
@@ -263,7 +263,9 @@ def parse_method_spec(spec: str):
             check_method_params(t["method"], params, f"{path}")
             return FilterMethod(spec, t["method"], params)
         if kind.lower() in ALGOS:
-            return PolicyMethod(spec, kind.lower(), path, Sb3Policy.load(path, kind.lower()))
+            policy = Sb3Policy.load(path, kind.lower())
+            check_policy_env(policy, path)
+            return PolicyMethod(spec, kind.lower(), path, policy)
         raise ValueError(f"unknown method prefix {kind!r} in {spec!r}; use 'tuned:', an oracle "
                          f"({', '.join(ORACLE_KINDS)}) or one of {', '.join(ALGOS)}")
     m = _PARAMS.match(spec)
@@ -290,12 +292,37 @@ def parse_method_spec(spec: str):
     return FilterMethod(spec, spec)
 
 
+def check_policy_env(policy: Sb3Policy, path) -> None:
+    """Validate a loaded policy's environment before any work starts: ``config.json`` beside the model must
+    name a registered env id and valid env kwargs, and the model's observations must have that env's size;
+    ``ValueError`` naming the file otherwise."""
+    from pathlib import Path
+
+    from envs.core import OBS_FEATURES
+    from envs.gnss_ins_env import make_config
+
+    from .rollout import env_class
+    cfg = Path(path).parent / "config.json"
+    if policy.env_id is None:
+        raise ValueError(f"{path}: no config.json beside the model naming its environment (train.py rl writes one)")
+    try:
+        cls = env_class(policy.env_id)
+        config = make_config(cls.DEFAULTS, policy.env_kwargs)
+    except ValueError as e:
+        raise ValueError(f"{cfg}: {e}") from None
+    want = ((len(cls.PARAMS) + len(OBS_FEATURES)) * config.history,)
+    got = tuple(policy.model.observation_space.shape)
+    if got != want:
+        raise ValueError(f"{path}: the model observes {got} values, {policy.env_id} with these env kwargs gives {want} "
+                         "(trained on an older observation layout?)")
+
+
 def check_method_params(method: str, params: dict, spec: str) -> None:
     """Validate fixed parameters of a filter method before any work starts: a method without parameters, an
     unknown name, NaN, inf or a value outside the parameter's range raises ``ValueError`` naming the spec."""
     if not params:
         return
-    from nav_filters.forms import FORMS
+    from nav_filters.registry import FORMS
     law = getattr(FORMS[parse_method(method)[0]], "law", None)
     if law is None:
         raise ValueError(f"{spec}: method {method!r} has no parameters to set (got {', '.join(sorted(params))})")

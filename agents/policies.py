@@ -135,6 +135,31 @@ class ReactiveRule:
         return a
 
 
+def _read_config(path: Path) -> dict:
+    """``config.json`` beside a model as a dict ({} when absent); ``ValueError`` naming it when unreadable."""
+    if not path.is_file():
+        return {}
+    try:
+        c = json.loads(path.read_bytes().decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise ValueError(f"{path}: not a JSON file ({e})") from None
+    if not isinstance(c, dict) or not isinstance(c.get("env_kwargs", {}), dict):
+        raise ValueError(f"{path}: expected a JSON object with 'env' and a mapping 'env_kwargs'")
+    return c
+
+
+def _policy_hint(path: Path) -> str:
+    """'; it holds a <PolicyClass> (<module>)' from the zip's saved data, or '' when that cannot be read."""
+    import zipfile
+    try:
+        with zipfile.ZipFile(path) as z:
+            pc = json.loads(z.read("data"))["policy_class"]
+        name = str(pc["__init__"]).split()[1].split(".")[0]
+        return f"; it holds a {name} ({pc['__module__']})"
+    except Exception:  # noqa: BLE001  (a hint only)
+        return ""
+
+
 class Sb3Policy:
     """A trained model: ``Sb3Policy.load("runs/x/model.zip", algo="ppo")``.
 
@@ -152,23 +177,54 @@ class Sb3Policy:
 
     @classmethod
     def load(cls, path, algo: str):
+        """Load ``path`` (a ``model.zip``) as an ``algo`` model, with ``vecnormalize.pkl`` and ``config.json``
+        beside it when present.
+
+        Raises
+        ------
+        FileNotFoundError
+            no such model file.
+        ValueError
+            a file that cannot be used, named with the reason: a damaged or foreign ``model.zip``, a model of
+            another algorithm (``config.json``'s ``algo`` or the saved policy class), an unreadable
+            ``vecnormalize.pkl`` or one whose statistics do not fit the model's observations, a
+            ``config.json`` that is not a JSON object.
+        """
         path = Path(path)
         if not path.is_file():
             raise FileNotFoundError(f"model file not found: {path}")
-        model = algo_class(algo).load(str(path), device="cpu")
+        algo = algo.lower()
+        klass = algo_class(algo)
+        cfg = _read_config(path.parent / "config.json")
+        saved = cfg.get("algo")
+        if saved is not None and str(saved).lower() != algo:
+            raise ValueError(f"{path}: trained with {saved!r} ({path.parent / 'config.json'}), given as {algo!r}; "
+                             f"use '{str(saved).lower()}:{path}'")
+        try:
+            model = klass.load(str(path), device="cpu")
+        except Exception as e:  # noqa: BLE001  (a damaged or foreign zip: SB3 raises anything, from BadZipFile to AttributeError)
+            raise ValueError(f"{path}: cannot load it as a {algo} model{_policy_hint(path)} "
+                             f"({type(e).__name__}: {str(e).strip().splitlines()[0] if str(e).strip() else ''})") from None
+        policies = tuple(getattr(klass, "policy_aliases", {}).values())
+        if policies and not isinstance(model.policy, policies):
+            raise ValueError(f"{path}: holds a {type(model.policy).__name__}, not a {algo} policy "
+                             f"({', '.join(p.__name__ for p in policies)})")
         obs_rms, clip, eps = None, 10.0, 1e-8
         vn = path.parent / "vecnormalize.pkl"
         if vn.is_file():
-            with open(vn, "rb") as f:
-                venv = pickle.load(f)
+            try:
+                with open(vn, "rb") as f:
+                    venv = pickle.load(f)
+            except Exception as e:  # noqa: BLE001  (unpickling garbage raises anything)
+                raise ValueError(f"{vn}: not a VecNormalize file ({type(e).__name__}: {e})") from None
             if getattr(venv, "norm_obs", False):
-                obs_rms, clip, eps = venv.obs_rms, venv.clip_obs, venv.epsilon
-        env_id, env_kwargs = None, {}
-        cfg = path.parent / "config.json"
-        if cfg.is_file():
-            c = json.loads(cfg.read_text())
-            env_id, env_kwargs = c.get("env"), c.get("env_kwargs", {})
-        return cls(model, algo, obs_rms, clip, eps, env_id, env_kwargs)
+                obs_rms, clip, eps = getattr(venv, "obs_rms", None), getattr(venv, "clip_obs", None), \
+                    getattr(venv, "epsilon", None)
+                shape = model.observation_space.shape
+                if (np.shape(getattr(obs_rms, "mean", None)) != shape or np.shape(getattr(obs_rms, "var", None)) != shape
+                        or not isinstance(clip, (int, float)) or not isinstance(eps, (int, float))):
+                    raise ValueError(f"{vn}: its observation statistics do not fit the model's observations {shape}")
+        return cls(model, algo, obs_rms, clip, eps, cfg.get("env"), cfg.get("env_kwargs") or {})
 
     def reset(self, batch_size: int):
         self._state = None
@@ -181,10 +237,25 @@ class Sb3Policy:
                        -self.clip_obs, self.clip_obs).astype(np.float32)
 
     def act(self, obs):
+        """(B, k) deterministic actions for the observations (B, obs_dim), one row at a time.
+
+        Row by row, so that a row's action does not depend on the batch it is evaluated in: torch's float32
+        matrix products pick their kernels (blocking, vectorization) by the batch size, and a batched forward
+        pass changed the first layer's outputs by up to 6e-7 between B = 64 and B = 1 (measured on an MLP
+        policy), which made ``eval.py --batch-size 1`` and ``--batch-size 64`` differ in the last digits.
+        The recurrent state is kept and sliced per row."""
         o = self._normalize(np.asarray(obs, np.float32))
+        B = o.shape[0]
         if self.algo == "recurrentppo":
-            a, self._state = self.model.predict(o, state=self._state, episode_start=self._start, deterministic=True)
-            self._start = np.zeros(o.shape[0], bool)
+            acts, states = [], []
+            for i in range(B):
+                st = None if self._state is None else tuple(s[:, i:i + 1] for s in self._state)
+                a, st = self.model.predict(o[i:i + 1], state=st, episode_start=self._start[i:i + 1],
+                                           deterministic=True)
+                acts.append(a)
+                states.append(st)
+            self._state = tuple(np.concatenate([st[k] for st in states], axis=1) for k in range(len(states[0])))
+            self._start = np.zeros(B, bool)
         else:
-            a, _ = self.model.predict(o, deterministic=True)
-        return np.asarray(a, np.float32).reshape(o.shape[0], -1)
+            acts = [self.model.predict(o[i:i + 1], deterministic=True)[0] for i in range(B)]
+        return np.concatenate([np.asarray(a, np.float32).reshape(1, -1) for a in acts], 0)

@@ -14,11 +14,12 @@ and the command line (``--timesteps``, ``--n-envs``, ``--env-kwargs``).
 """
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
 import numpy as np
+
+from envs.json_io import dumps
 
 from .policies import ALGOS, algo_class
 
@@ -48,12 +49,35 @@ def load_zoo_config(path, env_id: str) -> dict:
     if not path.is_file():
         raise FileNotFoundError(f"config file not found: {path}")
     try:
-        data = yaml.safe_load(path.read_text()) or {}
-    except yaml.YAMLError as e:
-        raise ValueError(f"{path}: not valid YAML ({e})") from None
+        data = yaml.safe_load(path.read_bytes().decode("utf-8")) or {}
+    except (UnicodeDecodeError, yaml.YAMLError) as e:
+        raise ValueError(f"{path}: not valid YAML ({type(e).__name__}: {' '.join(str(e).split())})") from None
     if not isinstance(data, dict) or env_id not in data or not isinstance(data[env_id], dict):
         raise ValueError(f"{path}: no mapping for {env_id!r} (top-level keys: {sorted(data) if isinstance(data, dict) else data})")
     return dict(data[env_id])
+
+
+def check_hyperparameters(algo: str, hyper: dict, settings: dict, config_file=None) -> None:
+    """Before any work: every hyperparameter must be an argument of the algorithm's class, and the run
+    settings numbers; ``ValueError`` naming the config file (or the defaults) and the key otherwise."""
+    import inspect
+    src = f"{config_file}: " if config_file is not None else ""
+    known = {p for p in inspect.signature(algo_class(algo).__init__).parameters if not p.startswith("_")} - {"self", "env"}
+    bad = sorted(set(hyper) - known)
+    if bad:
+        raise ValueError(f"{src}unknown hyperparameter(s) {', '.join(map(repr, bad))} for {algo}; known: "
+                         f"{', '.join(sorted(known))} and the run settings n_timesteps, n_envs, normalize, "
+                         "eval_freq, eval_episodes, env_kwargs")
+    for k in ("n_timesteps", "n_envs", "eval_freq", "eval_episodes"):
+        v = settings[k]
+        try:
+            ok = not isinstance(v, bool) and float(v) >= 1 and float(v) == int(float(v))
+        except (TypeError, ValueError):
+            ok = False
+        if not ok:
+            raise ValueError(f"{src}{k} must be a whole number >= 1, got {v!r}")
+    if not isinstance(settings["normalize"], bool):
+        raise ValueError(f"{src}normalize must be true or false, got {settings['normalize']!r}")
 
 
 class _ProgressBar:
@@ -89,6 +113,7 @@ def train_rl(env_id: str, algo: str, out, timesteps: int | None = None, seed: in
     from stable_baselines3.common.logger import configure
     from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
 
+    from envs.gnss_ins_env import make_config
     from envs.sb3 import make_sb3_vec_env
     from .rollout import env_class
 
@@ -108,7 +133,10 @@ def train_rl(env_id: str, algo: str, out, timesteps: int | None = None, seed: in
         for k in ("n_timesteps", "n_envs", "normalize", "eval_freq", "eval_episodes"):
             if k in zoo:
                 settings[k] = zoo.pop(k)
-        settings["env_kwargs"].update(zoo.pop("env_kwargs", {}) or {})
+        zkw = zoo.pop("env_kwargs", {}) or {}
+        if not isinstance(zkw, dict):
+            raise ValueError(f"{config_file}: env_kwargs must be a mapping, got {zkw!r}")
+        settings["env_kwargs"].update(zkw)
         hyper.update(zoo)
     if timesteps is not None:
         settings["n_timesteps"] = int(timesteps)
@@ -119,6 +147,11 @@ def train_rl(env_id: str, algo: str, out, timesteps: int | None = None, seed: in
     if eval_episodes is not None:
         settings["eval_episodes"] = int(eval_episodes)
     settings["env_kwargs"].update(env_kwargs or {})
+    check_hyperparameters(algo, hyper, settings, config_file)
+    try:
+        make_config(env_class(env_id).DEFAULTS, settings["env_kwargs"])
+    except ValueError as e:
+        raise ValueError(f"{config_file or 'env_kwargs'}: {e}") from None
     settings["n_timesteps"] = int(float(settings["n_timesteps"]))
     if settings["n_timesteps"] < 1 or settings["n_envs"] < 1:
         raise ValueError("--timesteps and --n-envs must be positive")
@@ -158,7 +191,7 @@ def train_rl(env_id: str, algo: str, out, timesteps: int | None = None, seed: in
     config = {"env": env_id, "algo": algo, "seed": seed, "env_kwargs": ekw, "policy": policy,
               "hyperparameters": hyper, **{k: v for k, v in settings.items() if k != "env_kwargs"},
               "train_seed_base": seed * 10_007, "eval_seed_base": EVAL_SEED_OFFSET + 1000 * seed}
-    (out / "config.json").write_text(json.dumps(config, indent=2, default=str))
+    (out / "config.json").write_text(dumps(config, indent=2, default=str))
     t0 = time.perf_counter()
     model.learn(total_timesteps=settings["n_timesteps"], callback=CallbackList(callbacks))
     wall = time.perf_counter() - t0
@@ -172,5 +205,5 @@ def train_rl(env_id: str, algo: str, out, timesteps: int | None = None, seed: in
         d = np.load(ev)
         config["eval_mean_reward_last"] = float(d["results"][-1].mean())
         config["eval_mean_reward_best"] = float(d["results"].mean(1).max())
-    (out / "config.json").write_text(json.dumps(config, indent=2, default=str))
+    (out / "config.json").write_text(dumps(config, indent=2, default=str))
     return config

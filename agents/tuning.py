@@ -16,6 +16,7 @@ import numpy as np
 
 from envs.episodes import run_episodes
 from envs.gnss_ins_env import make_config
+from envs.json_io import dumps
 
 from .rollout import env_class
 
@@ -80,7 +81,7 @@ def tune_fixed_parameter(env_id: str, env_kwargs: dict | None = None, param: str
 def save_tuning(result: dict, path) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(result, indent=2))
+    path.write_text(dumps(result, indent=2))
     return path
 
 
@@ -90,8 +91,10 @@ def load_tuning(path) -> dict:
     if not path.is_file():
         raise FileNotFoundError(f"tuning file not found: {path}")
     try:
-        d = json.loads(path.read_text())
+        d = json.loads(path.read_bytes().decode("utf-8"))
         d["method"], d["param"], d["best"]
-    except (json.JSONDecodeError, KeyError, TypeError) as e:
-        raise ValueError(f"{path}: not a tuning result file ({e})") from None
+    except (UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError, IndexError) as e:
+        raise ValueError(f"{path}: not a tuning result file ({type(e).__name__}: {e})") from None
+    if not isinstance(d["method"], str) or not isinstance(d["param"], str):
+        raise ValueError(f"{path}: not a tuning result file ('method' and 'param' must be strings)")
     return d

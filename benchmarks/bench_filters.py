@@ -43,7 +43,7 @@ from envs.episodes import navigator_for  # noqa: E402
 from envs.sim.scenarios import get_scenario  # noqa: E402
 from envs.sim.world import generate_world  # noqa: E402
 from nav_filters import kernels  # noqa: E402
-from nav_filters.forms import FORMS  # noqa: E402
+from nav_filters.registry import FORMS  # noqa: E402
 
 MODES = ("per-sample", "epoch", "onestep")
 SEED001_TOTAL_SAVING_PCT = (54.7, 54.3, 53.5)

@@ -28,6 +28,15 @@ from .zupt_source import ZUPT_CHOICES, check_zupt_choice  # noqa: F401  (ZUPT_CH
 
 REWARDS = ("horizontal", "log", "3d", "advantage")
 MAPS = ("log1m", "log", "linear")
+MAX_EPISODE_S = 3600.0
+"""Longest episode [s]. A world is generated whole at reset, about :data:`WORLD_BYTES_PER_IMU_SAMPLE` per IMU
+sample and row (one hour at 100 Hz: ~150 MB per row); longer episodes hang in trajectory generation or
+exhaust memory."""
+WORLD_BYTES_PER_IMU_SAMPLE = 400
+"""Memory of an env row per IMU sample [bytes]: 323 measured for the world's arrays (truth, IMU, GNSS at
+1 Hz; ``open-sky`` and ``urban``, 60 s), plus the env core's copies of the IMU samples and the truth."""
+MAX_HISTORY = 64
+"""Most stacked observation frames (64 x 25 floats per row)."""
 
 
 @dataclass(frozen=True)
@@ -123,17 +132,25 @@ class EnvConfig:
         if self.reward not in REWARDS:
             raise ValueError(f"EnvConfig.reward must be one of {REWARDS}, got {self.reward!r}")
         check_zupt_choice(self.zupt, self.zupt_weights, owner="EnvConfig.zupt")
-        if not (isinstance(self.history, int) and self.history >= 1):
-            raise ValueError(f"EnvConfig.history must be an int >= 1, got {self.history!r}")
+        if isinstance(self.history, bool) or not isinstance(self.history, int) or not 1 <= self.history <= MAX_HISTORY:
+            raise ValueError(f"EnvConfig.history must be an int in [1, {MAX_HISTORY}] (stacked frames), "
+                             f"got {self.history!r}")
         if self.dtype not in ("float64", "float32"):
             raise ValueError(f"EnvConfig.dtype must be 'float64' or 'float32', got {self.dtype!r}")
-        for f in ("episode_length_s", "divergence_bound_m"):
+        for f in ("episode_length_s", "divergence_bound_m", "gnss_rate_hz"):
             v = getattr(self, f)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+            if f == "gnss_rate_hz" and v is None:
+                continue
+            if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"EnvConfig.{f} must be a positive finite number, got {v!r}")
         if not isinstance(self.method, str):
             raise ValueError(f"EnvConfig.method must be a string, got {self.method!r}")
-        self.resolve_scenario()  # validates scenario, imu_grade, gnss_rate_hz
+        scen = self.resolve_scenario()  # validates scenario, imu_grade, gnss_rate_hz
+        if self.episode_length_s > MAX_EPISODE_S:
+            gb = WORLD_BYTES_PER_IMU_SAMPLE * scen.imu_rate_hz * self.episode_length_s / 1e9
+            raise ValueError(f"EnvConfig.episode_length_s must be <= {MAX_EPISODE_S:g} s, got {self.episode_length_s!r} "
+                             f"(the episode's world is generated whole at reset: about {gb:.3g} GB per env row at "
+                             f"{scen.imu_rate_hz:g} Hz)")
 
     def make_world(self, seeds):
         """The world of this config for ``seeds``: the scenario with its overrides (a recording cut to the

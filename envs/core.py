@@ -22,7 +22,7 @@ import numba as nb
 import numpy as np
 
 from earth import C_en, ecef_to_geodetic
-from nav_filters.forms import parse_method
+from nav_filters.registry import parse_method
 from nav_filters.rows import check_row_pairs, copied_array, copy_dataclass_rows, copy_rows_generic
 
 from .config import EnvConfig, ParamSpec
@@ -33,6 +33,38 @@ from .zupt_source import STILL_SPEED_MPS, ZuptSource  # noqa: F401  (STILL_SPEED
 #: eval.py (``seed * 1_000_003 + k`` < 2**30) and ``train.py tune`` use, so that episodes seen in training
 #: can never be evaluation episodes.
 TRAINING_WORLD_SEEDS = (2**30, 2**31 - 1)
+
+
+MAX_BATCH = 16384
+"""Most rows of one env core (a vector env's ``num_envs``): every row holds its episode's world, about
+:data:`envs.config.WORLD_BYTES_PER_IMU_SAMPLE` per IMU sample (16384 rows of 120 s at 100 Hz: ~80 GB)."""
+
+
+def check_batch_size(n, name: str = "num_envs") -> int:
+    """``n`` as an int in [1, :data:`MAX_BATCH`]; ``ValueError`` naming ``name`` otherwise (a bool, a float
+    such as 2.7, a string such as '3', or too many rows)."""
+    if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer)) or not 1 <= n <= MAX_BATCH:
+        raise ValueError(f"{name} must be an int in [1, {MAX_BATCH}], got {n!r}")
+    return int(n)
+
+
+def check_method_has_params(method: str, specs) -> None:
+    """``ValueError`` at construction when the filter ``method`` cannot take the parameters ``specs`` the env's
+    action sets (``kf`` in the Sage-Husa env, ``stkf`` in the MA-STKF env, ...), naming the methods that can."""
+    from nav_filters.registry import FORMS
+    base, _ = parse_method(method)
+    need = {s.name for s in specs}
+
+    def params(name):
+        law = getattr(FORMS[name], "law", None)
+        return set() if law is None else {p.name for p in law.PARAMS}
+
+    if not need <= params(base):
+        fits = [m for m in sorted(FORMS) if need <= params(m)]
+        have = sorted(params(base))
+        raise ValueError(f"method {method!r} does not take the parameter(s) {', '.join(sorted(need))} this env sets "
+                         f"({'its parameters: ' + ', '.join(have) if have else 'it has no adjustable parameters'}); "
+                         f"methods that do: {', '.join(fits)} (optionally with '+onestep')")
 
 
 def draw_world_seed(rng: np.random.Generator) -> int:
@@ -177,13 +209,12 @@ class TuningCore:
     """
 
     def __init__(self, config: EnvConfig, specs: tuple[ParamSpec, ...], batch_size: int):
-        if not (isinstance(batch_size, (int, np.integer)) and batch_size >= 1):
-            raise ValueError(f"batch_size must be a positive int, got {batch_size!r}")
+        check_batch_size(batch_size, "batch_size")
         self.config = config
         self.specs = tuple(specs)
         self.B = int(batch_size)
         self.scenario = config.resolve_scenario()
-        parse_method(config.method)
+        check_method_has_params(config.method, self.specs)
         self.k = len(self.specs)
         self.frame_dim = self.k + len(OBS_FEATURES)
         self.obs_dim = self.frame_dim * config.history
@@ -317,15 +348,23 @@ class TuningCore:
 
     # ------------------------------------------------------------------- step
     def check_actions(self, actions) -> np.ndarray:
-        """(B, k) float array, finite; ``ValueError`` naming the problem otherwise. Out-of-range values are
-        clipped to [-1, 1] (documented behaviour), NaN/inf raise."""
-        a = np.asarray(actions, dtype=np.float64)
+        """(B, k) float64 array of real, finite numbers; ``ValueError`` naming the problem otherwise (a complex,
+        string, boolean or object array; the wrong shape; NaN/inf, naming the first rows and how many).
+        Out-of-range values are clipped to [-1, 1] (documented behaviour)."""
+        raw = np.asarray(actions)
+        if raw.dtype.kind not in "fiu":
+            raise ValueError(f"action must be an array of real numbers, got dtype {raw.dtype}"
+                             + (" (complex: the imaginary part would be dropped)" if raw.dtype.kind == "c" else ""))
+        a = raw.astype(np.float64)
         if a.shape == (self.k,) and self.B == 1:
             a = a[None]
         if a.shape != (self.B, self.k):
             raise ValueError(f"action must have shape ({self.k},) per env (batch {self.B}), got {np.shape(actions)}")
-        if not np.all(np.isfinite(a)):
-            raise ValueError(f"action contains NaN or inf: {a}")
+        bad = np.flatnonzero(~np.isfinite(a).all(1))
+        if bad.size:
+            first = ", ".join(str(int(r)) for r in bad[:5]) + (", ..." if bad.size > 5 else "")
+            raise ValueError(f"action contains NaN or inf in {bad.size} of {self.B} rows (rows {first}; "
+                             f"row {int(bad[0])}: {a[bad[0]].tolist()})")
         return np.clip(a, -1.0, 1.0)
 
     def step(self, actions) -> StepResult:
@@ -346,6 +385,10 @@ class TuningCore:
         self.est_track[rows, j] = self.nav.r
         bound = self.config.divergence_bound_m
         diverged = self.nav.diverged | ~np.isfinite(h_err) | (h_err > bound)
+        reason = np.where(self.nav.diverged, self.nav.divergence_reasons(),
+                          np.where(~np.isfinite(h_err), "horizontal error not finite",
+                                   np.where(h_err > bound, f"horizontal error above divergence_bound_m ({bound:g} m)",
+                                            "")))
         cfg = self.config
         if cfg.reward == "horizontal":
             reward = -h_err
@@ -367,7 +410,7 @@ class TuningCore:
         self.frames[:, :-1] = self.frames[:, 1:]
         self.frames[:, -1] = frame
         info = {
-            "horizontal_error_m": h_err, "error_3d_m": e3, "diverged": diverged,
+            "horizontal_error_m": h_err, "error_3d_m": e3, "diverged": diverged, "diverged_reason": reason,
             "nis_pr": frame[:, self.k + 0].astype(np.float64), "nis_prr": frame[:, self.k + 1].astype(np.float64),
             "n_sats": self._last_nsat.copy(), "zupt": zflag,
         }

@@ -582,7 +582,7 @@ def _why_forms(ours, a, b) -> str:
 
 
 def _why_adaptive(ours, a, b) -> str:
-    from nav_filters.forms import FORMS
+    from nav_filters.registry import FORMS
     dev = ours[a]["max_dev_from_kf_m"]
     cfg = getattr(FORMS.get(a), "config", None)
     if cfg is not None and getattr(cfg, "adapt_r", False):

@@ -69,8 +69,10 @@ their defaults. ``reset(seed=s)`` seeds the generator that draws the world seeds
 
 ## Episode End
 
-* Termination: the filter diverged (non-finite state or covariance, or
-  horizontal error above ``divergence_bound_m``, default 1000 m); ``info["diverged"]``.
+* Termination: the filter diverged (non-finite state, a failed filter update, a covariance that is not
+  positive definite, or horizontal error above ``divergence_bound_m``, default 1000 m); ``info["diverged"]``
+  with the reason in ``info["diverged_reason"]`` ('' while the row is fine). A failure in one row of a
+  vector env ends that row's episode only (:mod:`nav_filters.navigator`); the others go on.
 * Truncation: the last GNSS epoch of the episode (``episode_length_s``, default 120 s).
 
 At the end, ``info["episode_metrics"]`` holds the episode's horizontal RMSE and maximum.
@@ -82,6 +84,11 @@ At the end, ``info["episode_metrics"]`` holds the episode's horizontal RMSE and 
 ``history``, ``zupt`` (``'none'``, ``'truth'``, or a detector: ``'shoe'``, ``'are'``, ``'mag'``, ``'mv'``,
 ``'mlp'``, ``'lstm'``; ``zupt_weights`` overrides the learned detector's shipped weights), ``dtype``,
 ``divergence_bound_m``; plus ``render_mode`` (``'ansi'``, ``'rgb_array'``).
+Limits (a ``ValueError`` naming the argument at construction): ``episode_length_s`` at most
+:data:`envs.config.MAX_EPISODE_S` (3600 s: the world is generated whole at reset), ``history`` at most
+:data:`envs.config.MAX_HISTORY` (64), the vector env's ``num_envs`` an int in [1, :data:`envs.core.MAX_BATCH`]
+(16384); numbers must not be bools; ``method`` must take this env's parameters. Actions must be real numbers
+(complex, string, bool or object arrays are refused); a NaN or inf action names the first rows and the count.
 
 ## Version History
 
@@ -128,6 +135,16 @@ def make_config(defaults: dict, kwargs: dict) -> EnvConfig:
     return EnvConfig(**{**defaults, **kwargs})
 
 
+def _scalar(x):
+    """A batch entry of an info array as a Python scalar (float, bool, int or str)."""
+    kind = np.asarray(x).dtype.kind
+    if kind == "f":
+        return float(x)
+    if kind == "b":
+        return bool(x)
+    return str(x) if kind in "UO" else int(x)
+
+
 class GnssInsTuningEnv(gym.Env):
     """Base class of the tuning environments (see the module docstring for the tables)."""
 
@@ -156,9 +173,7 @@ class GnssInsTuningEnv(gym.Env):
     def step(self, action):
         res = self.core.step(np.asarray(action)[None] if np.ndim(action) == 1 else action)
         self._last = res
-        info = {k: (float(v[0]) if np.asarray(v).dtype.kind == "f" else (bool(v[0]) if np.asarray(v).dtype == bool
-                                                                             else int(v[0])))
-                for k, v in res.info.items()}
+        info = {k: _scalar(v[0]) for k, v in res.info.items()}
         terminated, truncated = bool(res.terminated[0]), bool(res.truncated[0])
         if terminated or truncated:
             info["episode_metrics"] = self.core.episode_metrics([0])[0]

@@ -1,6 +1,7 @@
 """Plain-JSON conversion of result dictionaries (numpy scalars, tuples, non-finite floats)."""
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -20,3 +21,9 @@ def jsonable(x):
     if isinstance(x, np.bool_):
         return bool(x)
     return x
+
+
+def dumps(x, **kw) -> str:
+    """Strict JSON text of ``x`` (:func:`jsonable` first: NaN and +-inf become ``null``, which every JSON parser
+    reads; Python's default would write the non-standard ``NaN``). ``kw`` as for :func:`json.dumps`."""
+    return json.dumps(jsonable(x), allow_nan=False, **kw)

@@ -16,7 +16,7 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from .core import TuningCore, draw_world_seed
+from .core import TuningCore, check_batch_size, draw_world_seed
 from .gnss_ins_env import MASTKF_PARAMS, SAGE_HUSA_PARAMS, STKF_PARAMS, make_config
 
 
@@ -29,8 +29,8 @@ class GnssInsTuningVectorEnv(VectorEnv):
 
     def __init__(self, num_envs: int = 1, **kwargs):
         kwargs.pop("render_mode", None)
+        self.num_envs = check_batch_size(num_envs, "num_envs")
         self.config = make_config(self.DEFAULTS, kwargs)
-        self.num_envs = int(num_envs)
         self.core = TuningCore(self.config, self.PARAMS, self.num_envs)
         k = self.core.k
         self.single_action_space = spaces.Box(-1.0, 1.0, shape=(k,), dtype=np.float32)

@@ -24,24 +24,50 @@ is float64 always (float32 cannot hold an ECEF position finer than 0.5 m); the
 its factors, gains), which is what the float32 comparisons of seed paper 000
 are about.
 
-Rows whose solution becomes non-finite are flagged in :attr:`Navigator.diverged`
-and frozen (their measurement updates are skipped), so one diverged row never
-poisons the batch.
+Failure isolation: a failure in one batch row stays in that row. A row is flagged in
+:attr:`Navigator.diverged` (with its reason in :attr:`Navigator.divergence_code`,
+:data:`DIVERGENCE_REASONS`) and parked (frozen at a neutral state, its measurement
+updates skipped) when
+
+* its nominal state (position, velocity, attitude, clock) becomes non-finite;
+* its filter update or time update fails (``numpy.linalg.LinAlgError``: a matrix the
+  form factorizes is not positive definite, or an SVD does not converge). A batched
+  call fails as a whole, so the rows that fail are found by running *the same
+  operation* (the form's own ``update`` / ``predict``, in its dtype, with the
+  measurement covariance the adaptive law actually uses) on copies of the form in
+  which the other rows are neutral (:meth:`Navigator._failing_rows`, bisection);
+  the flagged rows are parked and the operation is run again for the others;
+* its covariance after an update is not positive definite (or has NaN, or a
+  non-positive variance): a Cholesky factorization in float64 of the values the
+  form holds, over the states with finite variance (an information form's ``+inf``
+  variance is an unobserved direction, not a divergence).
 """
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 
 import numba as nb
 import numpy as np
 
 from .error_model import ATT, BA, BG, CLK, DRIFT, N_STATES, POS, VEL, ProcessNoise
-from .forms import UpdateResult, make_form, parse_method
+from .forms import UpdateResult
+from .registry import make_form, parse_method
 from .forms.base import check_dtype
 from .ins import _earth_rate_matrices_np, apply_correction
 from .kernels import F_NONZERO, propagate_epoch
 from .measurements import dop, gnss_innovations, measurement_keys
 from .rows import check_row_pairs, copy_rows_generic
+
+
+DIVERGENCE_REASONS = (
+    "",
+    "navigation state not finite",
+    "filter update failed (a matrix the form factorizes was not positive definite or did not converge)",
+    "covariance not positive definite",
+)
+"""Why a row diverged, indexed by :attr:`Navigator.divergence_code` (0: not diverged)."""
+REASON_STATE, REASON_UPDATE, REASON_COVARIANCE = 1, 2, 3
 
 
 @dataclass(frozen=True)
@@ -108,6 +134,8 @@ class Navigator:
         self.form = make_form(config.method, P0, dtype=self.dtype)
         self.batch_size = B
         self.diverged = np.zeros(B, bool)
+        self.divergence_code = np.zeros(B, np.int8)
+        """(B,) why each row diverged: an index into :data:`DIVERGENCE_REASONS` (0: it has not)."""
         self.time_since_update = np.zeros(B)
         """(B,) seconds since each row's last GNSS update with at least one satellite."""
         noise = config.noise
@@ -167,9 +195,16 @@ class Navigator:
         The accumulators themselves are handed over (no copy in float64) and fresh ones are started, so a
         form may keep what it was given."""
         if self._pending:
-            Phi, Q = self._Phi_acc, self._Q_acc
-            self.form.predict(Phi.astype(self.dtype, copy=False), Q.astype(self.dtype, copy=False))
-            self._Phi_acc, self._Q_acc = np.empty_like(Phi), np.empty_like(Q)
+            Phi, Q = self._Phi_acc.astype(self.dtype, copy=False), self._Q_acc.astype(self.dtype, copy=False)
+
+            def predict(form, keep):
+                if keep is None:
+                    return form.predict(Phi, Q)
+                k = keep[:, None, None]
+                return form.predict(np.where(k, Phi, np.eye(N_STATES, dtype=self.dtype)), np.where(k, Q, 0))
+
+            self._isolated(predict)
+            self._Phi_acc, self._Q_acc = np.empty_like(self._Phi_acc), np.empty_like(self._Q_acc)
             self._reset_accumulator()
 
     # ----------------------------------------------------------- measurement
@@ -191,11 +226,13 @@ class Navigator:
 
     def _update_checked(self, dz, H, R, mask, keys=None) -> UpdateResult:
         """:meth:`update` after the prediction was flushed and the state checked."""
-        mask = np.asarray(mask, bool) & ~self.diverged[:, None]
-        try:
-            res = self.form.update(dz, H, R, mask, keys=keys)
-        except np.linalg.LinAlgError:
-            res = self._update_isolating_failures(dz, H, R, mask, keys)
+        mask = np.asarray(mask, bool)
+
+        def update(form, keep):
+            m = mask & ~self.diverged[:, None]
+            return form.update(dz, H, R, m if keep is None else m & keep[:, None], keys=keys)
+
+        res = self._isolated(update)
         self._feedback(self.form.take_correction())
         return res
 
@@ -242,28 +279,64 @@ class Navigator:
         self.time_since_update[mask.any(-1)] = 0.0
         return res, dop(u, mask)
 
-    def _update_isolating_failures(self, dz, H, R, mask, keys=None):
-        """Retry an update after flagging the rows whose innovation covariance is not positive definite."""
-        P = np.asarray(self.form.covariance, np.float64)
-        Rf = np.asarray(R, np.float64)
-        if Rf.ndim == 2:
-            Rf = np.einsum("bi,ij->bij", np.where(mask, Rf, 1.0), np.eye(Rf.shape[1]))
-        bad = np.zeros(self.batch_size, bool)
-        for b in range(self.batch_size):
-            Hb = np.where(mask[b][:, None], H[b], 0.0)
-            S = Hb @ P[b] @ Hb.T + Rf[b]
+    def _isolated(self, op):
+        """``op(self.form, None)`` with failure isolation: where it raises ``LinAlgError``, the rows whose own
+        operation fails (:meth:`_failing_rows`) are flagged (:data:`REASON_UPDATE`) and parked, and ``op`` runs
+        again for the others. The forms commit nothing from a failed call (an adaptive law keeps its pending
+        epoch, already predicted, for the retry).
+
+        ``op(form, keep)`` runs the operation on ``form``; ``keep`` (B,) bool (trial runs) says which rows must
+        carry their real inputs, the others getting neutral ones (no measurement, identity transition);
+        ``keep=None`` is the real call."""
+        for _ in range(self.batch_size + 1):
             try:
-                np.linalg.cholesky(S)
-                bad[b] = not np.all(np.isfinite(S))
+                return op(self.form, None)
             except np.linalg.LinAlgError:
-                bad[b] = True
-        self.diverged |= bad
-        mask = mask & ~bad[:, None]
-        if bad.all():
-            B, m = mask.shape
-            return UpdateResult(nis=np.zeros(B), n_used=np.zeros(B, int), innovation=np.zeros((B, m)),
-                                innovation_var=np.ones((B, m)), applied=np.zeros(B, bool))
-        return self.form.update(dz, H, R, mask, keys=keys)
+                bad = self._failing_rows(op)
+                if not bad.any():
+                    raise
+                self._flag(bad, REASON_UPDATE)
+        raise AssertionError("unreachable: every retry flags at least one more row")
+
+    def _neutral_form(self, n):
+        """A fresh form of ``n`` rows at unit covariance (what parked rows hold)."""
+        eye = np.broadcast_to(np.eye(N_STATES), (n, N_STATES, N_STATES)).copy()
+        return make_form(self.config.method, eye, dtype=self.dtype)
+
+    def _failing_rows(self, op) -> np.ndarray:
+        """(B,) bool: the live rows whose operation ``op`` raises ``LinAlgError`` when run on their own.
+
+        Each trial runs ``op`` on a copy of the form in its current state (same dtype, same inputs, the
+        adaptive law's own R and fading) with every row outside the tried set replaced by a neutral row and
+        given neutral inputs, so what fails there is exactly what failed in the batch. The rows are found by
+        bisection (about 2 log2(B) trials per failing row); a set that fails while neither half does is
+        flagged whole."""
+        B = self.batch_size
+
+        def fails(rows):
+            trial = copy.deepcopy(self.form)
+            keep = np.zeros(B, bool)
+            keep[rows] = True
+            others = np.flatnonzero(~keep)
+            if others.size:
+                trial.replace_rows(others, self._neutral_form(others.size))
+            try:
+                op(trial, keep)
+            except np.linalg.LinAlgError:
+                return True
+            return False
+
+        def search(rows):
+            if rows.size == 1:
+                return rows
+            found = [search(h) for h in np.array_split(rows, 2) if fails(h)]
+            return np.concatenate(found) if found else rows
+
+        bad = np.zeros(B, bool)
+        live = np.flatnonzero(~self.diverged)
+        if live.size and fails(live):
+            bad[search(live)] = True
+        return bad
 
     def _feedback(self, dx):
         """Closed-loop correction: add the error-state estimate to the nominal state (B, 17).
@@ -276,11 +349,12 @@ class Navigator:
         r, v, bg, ba = (np.empty((B, 3)) for _ in range(4))
         C = np.empty((B, 3, 3))
         clk, drift = np.empty(B), np.empty(B)
-        finite = np.empty(B, bool)
+        code = np.empty(B, np.int8)
         _feedback_kernel(self.r, self.v, self.C, self.bg, self.ba, self.clk, self.drift, dx, self.diverged,
-                         P, r, v, C, bg, ba, clk, drift, finite)
+                         P, r, v, C, bg, ba, clk, drift, code)
         self.r, self.v, self.C, self.bg, self.ba, self.clk, self.drift = r, v, C, bg, ba, clk, drift
-        self._flag_diverged(finite)
+        for c in (REASON_STATE, REASON_COVARIANCE):
+            self._flag(code == c, c)
 
     def _feedback_reference(self, dx):
         """Numpy reference of :meth:`_feedback` (Groves sec 14.1 closed-loop correction through
@@ -293,32 +367,32 @@ class Navigator:
         self.clk = self.clk + dx[:, CLK.start].astype(np.float64)
         self.drift = self.drift + dx[:, DRIFT.start]
         finite = np.isfinite(self.r).all(1) & np.isfinite(self.v).all(1) & np.isfinite(self.C).all((1, 2))
-        # +inf variance = a direction the information forms have not observed yet (srif from zero
-        # information), not a divergence; NaN or a non-positive variance is.
-        d = np.diagonal(self.form.covariance, axis1=1, axis2=2)
-        finite &= ~np.isnan(d).any(1) & (d > 0).all(1)
-        self._flag_diverged(finite)
+        self._flag(~finite, REASON_STATE)
+        self._flag(~covariance_is_pd(self.form.covariance), REASON_COVARIANCE)
 
-    def _flag_diverged(self, finite):
-        newly = ~finite & ~self.diverged
-        self.diverged |= ~finite
+    def _flag(self, bad, code):
+        """Flag rows ``bad`` (B,) bool that have not diverged yet with reason ``code`` and park them."""
+        newly = np.asarray(bad, bool) & ~self.diverged
         if newly.any():
+            self.diverged |= newly
+            self.divergence_code[newly] = code
             self._park(np.flatnonzero(newly))
+
+    def divergence_reasons(self) -> np.ndarray:
+        """(B,) str: why each row diverged (:data:`DIVERGENCE_REASONS`; '' where it has not)."""
+        return np.asarray(DIVERGENCE_REASONS)[self.divergence_code]
 
     def _check_state(self):
         """Flag and park rows whose nominal state became non-finite (before any innovation is formed)."""
         bad = np.empty(self.batch_size, bool)
         _nonfinite_rows(self.r, self.v, self.C, self.clk, self.drift, self.diverged, bad)
-        if bad.any():
-            self.diverged |= bad
-            self._park(np.flatnonzero(bad))
+        self._flag(bad, REASON_STATE)
 
     def _park(self, rows):
         """Freeze diverged rows at a neutral finite state (flagged in :attr:`diverged`, never updated again)
         so that the batched LAPACK calls of every form never see a NaN: one diverged row must not stop
         the others."""
         from earth.wgs84 import A as _A
-        n = rows.size
         self.r[rows] = (_A, 0.0, 0.0)
         self.v[rows] = 0.0
         self.C[rows] = np.eye(3)
@@ -326,8 +400,7 @@ class Navigator:
         self.ba[rows] = 0.0
         self.clk[rows] = 0.0
         self.drift[rows] = 0.0
-        eye = np.broadcast_to(np.eye(N_STATES), (n, N_STATES, N_STATES)).copy()
-        self.form.replace_rows(rows, make_form(self.config.method, eye, dtype=self.dtype))
+        self.form.replace_rows(rows, self._neutral_form(rows.size))
 
     def replace_rows(self, rows, other: "Navigator") -> None:
         """Overwrite batch rows ``rows`` with the state of ``other`` (a navigator of len(rows) rows, same
@@ -338,7 +411,7 @@ class Navigator:
             raise ValueError("replace_rows needs a navigator with the same config")
         self.flush_prediction()
         other.flush_prediction()
-        for name in ("r", "v", "C", "clk", "drift", "bg", "ba", "diverged", "time_since_update"):
+        for name in ("r", "v", "C", "clk", "drift", "bg", "ba", "diverged", "divergence_code", "time_since_update"):
             getattr(self, name)[rows] = getattr(other, name)
         self.form.replace_rows(rows, other.form)
 
@@ -388,17 +461,20 @@ def _nonfinite_rows(r, v, C, clk, drift, diverged, bad):
 
 
 @nb.njit(cache=True)
-def _feedback_kernel(r, v, C, bg, ba, clk, drift, dx, diverged, P, r2, v2, C2, bg2, ba2, clk2, drift2, finite):
+def _feedback_kernel(r, v, C, bg, ba, clk, drift, dx, diverged, P, r2, v2, C2, bg2, ba2, clk2, drift2, code):
     """Compiled closed-loop feedback (same operations, in the same order, as :meth:`Navigator._feedback_reference`).
 
     ``C2 = exp([phi x]) C`` (Rodrigues, :func:`earth.rotations.exp_so3`, Taylor series below 1e-4 rad),
     ``v2 = v + dv``, ``r2 = r + dr``, biases and clock plus their corrections (Groves sec 14.1, with the
     correction-to-add convention of :mod:`nav_filters.error_model`); rows flagged ``diverged`` are copied
-    unchanged. ``finite[b]``: the new nominal state is finite and P's diagonal has no NaN and is positive
-    (+inf is an unobserved direction of an information form, not a divergence).
+    unchanged. ``code[b]``: 0, or :data:`REASON_STATE` where the new nominal state is not finite, or
+    :data:`REASON_COVARIANCE` where a live row's covariance is not positive definite
+    (:func:`_row_is_pd`).
     """
     B = r.shape[0]
     n = P.shape[1]
+    L = np.empty((n, n))
+    idx = np.empty(n, np.int64)
     S = np.empty((3, 3))
     E = np.empty((3, 3))
     for b in range(B):
@@ -451,10 +527,71 @@ def _feedback_kernel(r, v, C, bg, ba, clk, drift, dx, diverged, P, r2, v2, C2, b
             ok = ok and np.isfinite(r2[b, i]) and np.isfinite(v2[b, i])
             for j in range(3):
                 ok = ok and np.isfinite(C2[b, i, j])
-        for i in range(n):
-            d = P[b, i, i]
-            ok = ok and (not np.isnan(d)) and d > 0
-        finite[b] = ok
+        if not ok:
+            code[b] = REASON_STATE
+        elif not diverged[b] and not _row_is_pd(P, b, L, idx):
+            code[b] = REASON_COVARIANCE
+        else:
+            code[b] = 0
 
 
-__all__ = ["Navigator", "NavigatorConfig", "ATT", "VEL", "POS"]
+@nb.njit(cache=True)
+def _row_is_pd(P, b, L, idx):
+    """Whether ``P[b]`` is a valid covariance: no NaN, a positive diagonal, and its block over the states of
+    finite variance is finite and positive definite (Cholesky in float64 of the values held, lower triangle).
+    ``+inf`` variances (an information form's unobserved directions) are left out. ``L`` (n, n) float64
+    and ``idx`` (n,) int64 are scratch."""
+    n = P.shape[1]
+    m = 0
+    for i in range(n):
+        d = P[b, i, i]
+        if np.isnan(d) or not d > 0:
+            return False
+        if d != np.inf:
+            idx[m] = i
+            m += 1
+    for i in range(m):
+        for j in range(i + 1):
+            x = np.float64(P[b, idx[i], idx[j]])
+            if not np.isfinite(x):
+                return False
+            L[i, j] = x
+    for j in range(m):
+        d = L[j, j]
+        for p in range(j):
+            d -= L[j, p] * L[j, p]
+        if not d > 0:
+            return False
+        d = np.sqrt(d)
+        L[j, j] = d
+        for i in range(j + 1, m):
+            x = L[i, j]
+            for p in range(j):
+                x -= L[i, p] * L[j, p]
+            L[i, j] = x / d
+    return True
+
+
+def covariance_is_pd(P) -> np.ndarray:
+    """(B,) bool: each ``P[b]`` (B, n, n) is a valid covariance (numpy specification of :func:`_row_is_pd`):
+    no NaN, a positive diagonal, and ``np.linalg.cholesky`` (float64) succeeds on the block of the states of
+    finite variance (``+inf``: an unobserved direction of an information form, left out)."""
+    P = np.asarray(P, np.float64)
+    out = np.zeros(P.shape[0], bool)
+    for b in range(P.shape[0]):
+        d = np.diagonal(P[b])
+        if np.isnan(d).any() or not (d > 0).all():
+            continue
+        fin = np.isfinite(d)
+        sub = P[b][np.ix_(fin, fin)]
+        if not np.isfinite(sub).all():
+            continue
+        try:
+            np.linalg.cholesky(sub)
+        except np.linalg.LinAlgError:
+            continue
+        out[b] = True
+    return out
+
+
+__all__ = ["Navigator", "NavigatorConfig", "DIVERGENCE_REASONS", "covariance_is_pd", "ATT", "VEL", "POS"]

@@ -48,6 +48,7 @@ from .atmosphere import F_L1, klobuchar_delay, saastamoinen_delay
 from .ephemeris import BEIDOU_GEO_PRNS, WEEK_S, KeplerEphemeris, satellite_states, select_ephemeris
 from .epochs import SYSTEM_LETTERS, GnssEpochs
 from .errors import DatasetFormatError, require_file
+from .validate import check_nav_parsed, check_obs_parsed, scan_rinex_nav, scan_rinex_obs
 from .spp import solve_spp
 
 __all__ = ["ObsData", "NavData", "load_obs", "load_nav", "rinex_epochs", "SIGNALS", "GPS_EPOCH"]
@@ -148,6 +149,7 @@ def load_obs(path, systems=("G", "E", "C"), interval_s: float | None = None, tli
     path = require_file(path)
     systems = _check_systems(systems)
     sig = {s: tuple((signals or {}).get(s, SIGNALS[s][0])) for s in systems}
+    layout = scan_rinex_obs(path)  # the file's structure, before a parser may skip damage (issue 13)
     gr = _georinex()
     meas = sorted({p + c[1:] for s in systems for c in sig[s] for p in ("CSD" if doppler else "CS")})
     kw = {}
@@ -163,6 +165,8 @@ def load_obs(path, systems=("G", "E", "C"), interval_s: float | None = None, tli
         raise DatasetFormatError(path, None, f"georinex could not read the observations: {exc}") from exc
     if obs.sizes.get("time", 0) == 0 or obs.sizes.get("sv", 0) == 0:
         raise DatasetFormatError(path, None, f"no observation of systems {systems} in the file")
+    if interval_s is None and tlim is None:
+        check_obs_parsed(path, layout, obs.sizes["time"], systems)
     times = obs.time.values
     week = _gps_week(times[0])
     t = _gps_seconds(times, week)
@@ -218,6 +222,7 @@ def load_nav(path, week_ref: int | None = None) -> NavData:
     week_ref : GPS week the times are relative to (default: that of the first record).
     """
     path = require_file(path)
+    layout = scan_rinex_nav(path)  # the file's structure, before a parser may skip damage (issue 13)
     gr = _georinex()
     try:
         with warnings.catch_warnings():
@@ -227,6 +232,7 @@ def load_nav(path, week_ref: int | None = None) -> NavData:
         raise DatasetFormatError(path, None, f"georinex could not read the navigation data: {exc}") from exc
     if nav.sizes.get("time", 0) == 0:
         raise DatasetFormatError(path, None, "no navigation record")
+    check_nav_parsed(path, layout, nav)
     if week_ref is None:
         week_ref = _gps_week(nav.time.values[0])
     cols = {k: [] for k in ("system", "prn", "toe", "toc", "sqrtA", "e", "i0", "omega0", "omega", "m0", "dn",

@@ -53,6 +53,7 @@ import numpy as np
 from .epochs import SYS_BEIDOU, SYS_GALILEO, SYS_GLONASS, SYS_GPS, SYS_QZSS, SYS_SBAS, GnssEpochs, pack_epochs, \
     satellite_velocities
 from .errors import DatasetFormatError, require_file, shared_data_dir
+from .validate import check_smartloc
 
 __all__ = ["SmartLocPseudoranges", "SmartLocOdometry", "SmartLocGroundTruth", "SmartLocData", "load_smartloc",
            "smartloc_dir", "POTSDAMER_PLATZ"]
@@ -322,6 +323,7 @@ def load_smartloc(folder=None, name: str = POTSDAMER_PLATZ) -> SmartLocData:
     pr = _pseudoranges(inp, *rows["pseudorange3"])
     od = _odometry(inp, *rows["odom3"])
     gt = _ground_truth(gtp, *gt_rows["point3"])
+    check_smartloc(inp, gtp, pr, od, gt)  # spans both ways (file and line), repeated rows (issue 13)
     if pr.t[0] < gt.t[0] or pr.t[-1] > gt.t[-1]:
         raise DatasetFormatError(gtp, None, f"ground truth spans [{gt.t[0]}, {gt.t[-1]}] s but the pseudoranges "
                                             f"span [{pr.t[0]}, {pr.t[-1]}] s: truncated ground truth")

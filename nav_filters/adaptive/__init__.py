@@ -23,7 +23,7 @@ The per-satellite methods need the measurement keys (``Navigator.update_gnss(...
 environments and eval.py pass them.
 
 :func:`law_factory` builds the ``(P0, x0=None, dtype=None) -> FilterForm``
-callable that :data:`nav_filters.forms.FORMS` holds; :data:`ADAPTIVE_METHODS`
+callable that :data:`nav_filters.registry.FORMS` holds; :data:`ADAPTIVE_METHODS`
 lists the entries above (the inner form is looked up by name when the
 filter is built, so an entry whose inner form is not registered fails then
 with a ``ValueError``).
@@ -42,7 +42,7 @@ from .strong_tracking import (MeasurementAdaptiveSTKF, MeasurementAdaptiveSTKFCo
 
 
 def law_factory(law: type, inner="kf", **config):
-    """A filter-form factory ``(P0, x0=None, dtype=None) -> law`` for :data:`nav_filters.forms.FORMS`.
+    """A filter-form factory ``(P0, x0=None, dtype=None) -> law`` for :data:`nav_filters.registry.FORMS`.
 
     Parameters
     ----------

@@ -62,11 +62,11 @@ from .params import ParamSpec
 def resolve_inner(inner):
     """The inner-form factory: a callable ``(P0, x0=None, dtype=None) -> FilterForm``, or a method name.
 
-    A name is looked up in :data:`nav_filters.forms.FORMS` (at construction time, so the registry may
+    A name is looked up in :data:`nav_filters.registry.FORMS` (at construction time, so the registry may
     itself register adaptive laws); an unknown name raises ``ValueError`` naming ``inner``.
     """
     if isinstance(inner, str):
-        from ..forms import FORMS  # late: forms/__init__ may import this package
+        from ..registry import FORMS  # late: the registry imports this package
 
         if inner not in FORMS:
             raise ValueError(f"inner must be a registered filter form, got {inner!r}; known: {sorted(FORMS)}")
@@ -124,7 +124,7 @@ class AdaptiveLaw(FilterForm):
     P0 : (B, n, n) initial covariance.
     x0 : (B, n) initial error state (default zeros).
     dtype : float32 or float64 (default: P0's).
-    inner : the inner form: a method name of :data:`nav_filters.forms.FORMS` (default ``'kf'``) or a
+    inner : the inner form: a method name of :data:`nav_filters.registry.FORMS` (default ``'kf'``) or a
         callable ``(P0, x0=None, dtype=None) -> FilterForm``.
     config : the law's frozen configuration dataclass (default: its defaults).
 

@@ -1,9 +1,8 @@
-"""Kalman-filter forms behind one interface (:class:`FilterForm`), looked up by method name.
+"""Kalman-filter forms behind one interface (:class:`FilterForm`).
 
-The method names are the public contract of DESIGN.md section 4. A name may
-carry the ``+onestep`` suffix (covariance propagated once per measurement
-epoch, seed paper 001); that is a property of the navigator's propagation, not
-of the form, and :func:`parse_method` splits it off.
+The method names of DESIGN.md section 4 (these forms and the adaptive laws of :mod:`nav_filters.adaptive`
+that compose them) are looked up in :mod:`nav_filters.registry` (``FORMS``, ``parse_method``,
+``make_form``), which sits above both packages.
 """
 from __future__ import annotations
 
@@ -13,40 +12,15 @@ from .kf import KalmanFilter
 from .srif import SquareRootInformationFilter
 from .svd import SvdKalmanFilter, SvdSquareRootKF
 
-FORMS: dict[str, type[FilterForm]] = {
-    "kf": KalmanFilter,
-    "svd-srkf": SvdSquareRootKF,
-    "svd-kf": SvdKalmanFilter,
-    "if": InformationFilter,
-    "svd-if": SvdInformationFilter,
-    "srif": SquareRootInformationFilter,
-}
-"""Registered forms by method name."""
-
-ONESTEP_SUFFIX = "+onestep"
-
-
-def parse_method(method: str) -> tuple[str, bool]:
-    """Split ``'kf+onestep'`` into ``('kf', True)``; ``ValueError`` for an unknown base name."""
-    if not isinstance(method, str):
-        raise ValueError(f"method must be a string, got {method!r}")
-    onestep = method.endswith(ONESTEP_SUFFIX)
-    base = method[: -len(ONESTEP_SUFFIX)] if onestep else method
-    if base not in FORMS:
-        raise ValueError(f"unknown filter method {method!r}; known: {sorted(FORMS)} (optionally with '{ONESTEP_SUFFIX}')")
-    return base, onestep
-
-
-def make_form(method: str, P0, x0=None, dtype=None) -> FilterForm:
-    """Instantiate the form named by ``method`` (suffix ignored) with initial covariance ``P0`` (B, n, n)."""
-    base, _ = parse_method(method)
-    return FORMS[base](P0, x0=x0, dtype=dtype)
-
-
 __all__ = ["FilterForm", "UpdateResult", "KalmanFilter", "InformationFilter", "SvdInformationFilter",
-           "SquareRootInformationFilter", "SvdSquareRootKF", "SvdKalmanFilter", "FORMS", "parse_method", "make_form", "prepare_measurement"]
+           "SquareRootInformationFilter", "SvdSquareRootKF", "SvdKalmanFilter", "prepare_measurement"]
 
-# Adaptive laws compose the forms above (they import this module), so they register last.
-from ..adaptive import ADAPTIVE_METHODS  # noqa: E402
 
-FORMS.update(ADAPTIVE_METHODS)
+def __getattr__(name):
+    """``nav_filters.forms.FORMS`` / ``parse_method`` / ``make_form``: the registry's own objects (the same
+    dict, so registering through either name is one registration), looked up on first use; new code imports
+    them from :mod:`nav_filters.registry`."""
+    if name in ("FORMS", "parse_method", "make_form", "ONESTEP_SUFFIX"):
+        from .. import registry
+        return getattr(registry, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

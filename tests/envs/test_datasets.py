@@ -367,7 +367,7 @@ def test_pseudorange_only_replay_agrees_across_filter_forms(smartloc):
     (algebraically equivalent forms; measured <= 3e-9 m over 60 s); the adaptive laws run without divergence."""
     from envs.datasets.replay import load_smartloc_world
     from nav_filters.adaptive import ADAPTIVE_METHODS
-    from nav_filters.forms import FORMS
+    from nav_filters.registry import FORMS
     w = load_smartloc_world([4], duration_s=20.0, data=smartloc)
     ref = _run(w, "kf").pos_err_ned
     for method in ADAPTIVE_METHODS:

@@ -11,7 +11,7 @@ import pytest
 
 from envs.episodes import navigator_for
 from envs.worlds import make_world
-from nav_filters.forms import FORMS
+from nav_filters.registry import FORMS
 from nav_filters.rows import check_row_pairs
 
 SEEDS = [11, 12, 13]

@@ -2,7 +2,8 @@
 import numpy as np
 import pytest
 
-from nav_filters.forms import KalmanFilter, make_form, parse_method
+from nav_filters.forms import KalmanFilter
+from nav_filters.registry import make_form, parse_method
 
 
 def random_spd(rng, B, n, scale=1.0):

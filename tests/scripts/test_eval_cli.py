@@ -250,3 +250,28 @@ def test_oracle_r_beats_kf_on_urban_and_refuses_recorded_worlds():
         parse_method_spec("oracle-r").run(recorded)
     with pytest.raises(ValueError, match="unknown filter method"):
         parse_method_spec("oracle-r:nope")
+
+
+def test_same_seed_same_results_bytes_apart_from_the_timing_keys(tmp_path):
+    """Two runs with the same arguments write results.json files that differ only on the lines of the wall-clock
+    keys (eval.TIMING_KEYS, documented in eval.py); the file is strict JSON (no NaN literal) and timing.json
+    keeps the timings apart."""
+    import math
+    texts = []
+    for d in ("a", "b"):
+        p = run_eval("--scenario", "seed000-sim", "--methods", "kf,sage-husa,stkf", "--episodes", "2", "--seed", "4",
+                     "--out", str(tmp_path / d), "--no-plots")
+        assert p.returncode == 0, p.stderr
+        texts.append((tmp_path / d / "results.json").read_text())
+    la, lb = (t.splitlines() for t in texts)
+    assert len(la) == len(lb)
+    differ = [(x, y) for x, y in zip(la, lb) if x != y]
+    timing_keys = ('"filter_time_per_epoch_s"',)
+    assert all(any(k in x for k in timing_keys) for x, _ in differ), differ
+    strict = json.loads(texts[0], parse_constant=lambda c: pytest.fail(f"non-standard JSON constant {c}"))
+    timing = json.loads((tmp_path / "a" / "timing.json").read_text())
+    for m, r in strict["scenarios"]["seed000-sim"].items():
+        assert timing["scenarios"]["seed000-sim"]["methods"][m]["filter_time_per_epoch_s"] == r["filter_time_per_epoch_s"]
+    assert timing["scenarios"]["seed000-sim"]["wall_time_s"] > 0
+    from envs.json_io import dumps
+    assert dumps({"x": [math.nan, math.inf, -math.inf, 1.5]}) == '{"x": [null, null, null, 1.5]}'

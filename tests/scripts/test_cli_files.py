@@ -1,0 +1,162 @@
+"""Damaged and mismatched files given to eval.py and train.py (issue 13): one line naming the file, exit code 2,
+never a traceback. Table-driven, run in-process (``main(argv)``; an exception other than ``SystemExit(2)``
+is the traceback a user would have seen)."""
+import importlib.util
+import json
+import os
+import shutil
+from pathlib import Path
+
+import pytest
+
+from envs.datasets.errors import shared_data_dir
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _script(name):
+    spec = importlib.util.spec_from_file_location(f"navgym_{name}_script", ROOT / f"{name}.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    """A model folder as train.py rl writes it (untrained PPO, VecNormalize, config.json) and damaged copies."""
+    import gymnasium as gym
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+    import envs  # noqa: F401
+    root = tmp_path_factory.mktemp("cli_files")
+    good = root / "good"
+    good.mkdir()
+    venv = VecNormalize(DummyVecEnv([lambda: gym.make("GnssIns/SageHusa-v0", episode_length_s=6.0)]))
+    PPO("MlpPolicy", venv, n_steps=16, batch_size=16, seed=0, device="cpu").save(good / "model.zip")
+    venv.save(str(good / "vecnormalize.pkl"))
+    (good / "config.json").write_text(json.dumps({"env": "GnssIns/SageHusa-v0", "algo": "ppo",
+                                                  "env_kwargs": {"episode_length_s": 6.0}}))
+    zipb = (good / "model.zip").read_bytes()
+
+    def copy(name, **changes):
+        d = root / name
+        shutil.copytree(good, d)
+        for f, content in changes.items():
+            f = f.replace("_", ".", 1) if f in ("model_zip", "config_json", "vecnormalize_pkl") else f
+            if content is None:
+                (d / f).unlink()
+            else:
+                (d / f).write_bytes(content)
+        return d / "model.zip"
+
+    rng = __import__("numpy").random.default_rng(0)
+    f = {
+        "good": good / "model.zip",
+        "junk": copy("junk", model_zip=rng.bytes(5000)),
+        "truncated": copy("truncated", model_zip=zipb[: len(zipb) // 2]),
+        "bad_vecnormalize": copy("badvn", vecnormalize_pkl=b"not a pickle\x00\xff"),
+        "wrong_vecnormalize": None,
+        "no_config": copy("nocfg", config_json=None),
+        "unknown_env": copy("unkenv", config_json=json.dumps({"env": "GnssIns/Nope-v0", "env_kwargs": {}}).encode()),
+        "garbage_config": copy("badcfg", config_json=b"\xff\xfe garbage"),
+        "bad_env_kwarg": copy("badkw", config_json=json.dumps({"env": "GnssIns/SageHusa-v0",
+                                                               "env_kwargs": {"scenaro": "x"}}).encode()),
+        "no_algo": copy("noalgo", config_json=json.dumps({"env": "GnssIns/SageHusa-v0",
+                                                          "env_kwargs": {"episode_length_s": 6.0}}).encode()),
+        "other_env": copy("otherenv", config_json=json.dumps({"env": "GnssIns/MASTKF-v0", "env_kwargs": {}}).encode()),
+    }
+    other = VecNormalize(DummyVecEnv([lambda: gym.make("GnssIns/MASTKF-v0", episode_length_s=6.0)]))
+    other.save(str(root / "other_vecnormalize.pkl"))  # statistics of another observation size
+    f["wrong_vecnormalize"] = copy("wrongvn", vecnormalize_pkl=(root / "other_vecnormalize.pkl").read_bytes())
+    (root / "tuning_garbage.json").write_bytes(rng.bytes(300))
+    f["tuning_garbage"] = root / "tuning_garbage.json"
+    (root / "tuning_list.json").write_text("[1, 2]")
+    f["tuning_list"] = root / "tuning_list.json"
+    (root / "afile").write_text("x")
+    f["afile"] = root / "afile"
+    (root / "hp_unknown.yml").write_text("GnssIns/SageHusa-v0:\n  n_steps: 16\n  learning_ratee: 0.1\n")
+    f["hp_unknown"] = root / "hp_unknown.yml"
+    (root / "hp_garbage.yml").write_bytes(b"\xff\xfe: [\n")
+    f["hp_garbage"] = root / "hp_garbage.yml"
+    (root / "hp_kwargs.yml").write_text("GnssIns/SageHusa-v0:\n  env_kwargs: [1, 2]\n")
+    f["hp_kwargs"] = root / "hp_kwargs.yml"
+    (root / "hp_steps.yml").write_text("GnssIns/SageHusa-v0:\n  n_timesteps: lots\n")
+    f["hp_steps"] = root / "hp_steps.yml"
+    src = shared_data_dir() / "smartloc"
+    if src.is_dir():
+        dd = root / "damaged_data" / "smartloc"
+        shutil.copytree(src, dd)
+        inp = dd / "Berlin_Potsdamer_Platz_Input.txt"
+        b = inp.read_bytes()
+        inp.write_bytes(b[: len(b) // 2] + b"\x07\x00garbage" + b[len(b) // 2:])
+        f["damaged_data"] = root / "damaged_data"
+        f["damaged_input"] = inp
+    f["out"] = root / "out"
+    return f
+
+
+E = ["--scenario", "seed000-sim", "--episodes", "1", "--no-plots"]
+# (script, argv with {key} for fixture files, the file the message must name, text it must contain)
+PROBES = [
+    ("eval", ["--methods", "kf,ppo:{junk}", *E], "junk", "cannot load it as a ppo model"),
+    ("eval", ["--methods", "kf,ppo:{truncated}", *E], "truncated", "cannot load it as a ppo model"),
+    ("eval", ["--methods", "kf,ppo:{bad_vecnormalize}", *E], "bad_vecnormalize~vecnormalize.pkl",
+     "not a VecNormalize file"),
+    ("eval", ["--methods", "kf,ppo:{wrong_vecnormalize}", *E], "wrong_vecnormalize~vecnormalize.pkl",
+     "do not fit the model's observations"),
+    ("eval", ["--methods", "kf,ppo:{no_config}", *E], "no_config", "no config.json beside the model"),
+    ("eval", ["--methods", "kf,ppo:{unknown_env}", *E], "unknown_env~config.json",
+     "unknown environment id 'GnssIns/Nope-v0'"),
+    ("eval", ["--methods", "kf,ppo:{garbage_config}", *E], "garbage_config~config.json", "not a JSON file"),
+    ("eval", ["--methods", "kf,ppo:{bad_env_kwarg}", *E], "bad_env_kwarg~config.json",
+     "unknown environment argument(s) ['scenaro']"),
+    ("eval", ["--methods", "kf,sac:{good}", *E], "good", "trained with 'ppo'"),
+    ("eval", ["--methods", "kf,sac:{no_algo}", *E], "no_algo", "cannot load it as a sac model; it holds a "
+                                                                  "ActorCriticPolicy"),
+    ("eval", ["--methods", "kf,ppo:{other_env}", *E], "other_env", "the model observes"),
+    ("eval", ["--methods", "kf,tuned:{tuning_garbage}", *E], "tuning_garbage", "not a tuning result file"),
+    ("eval", ["--methods", "kf,tuned:{tuning_list}", *E], "tuning_list", "not a tuning result file"),
+    ("eval", ["--methods", "kf", *E, "--out", "{afile}"], "afile", "is a file, not a directory"),
+    ("eval", ["--methods", "kf", *E, "--out", "{afile}/sub"], "afile", "cannot write there"),
+    ("eval", ["--experiment", "seed000", "--out", "{afile}/sub"], "afile", "cannot write there"),
+    ("eval", ["--methods", "kf", "--scenario", "smartloc-potsdamer-platz", "--episodes", "1", "--no-plots"],
+     "damaged_input", "is not a number"),
+    ("train", ["tune", "--env-kwargs", "scenario=smartloc-potsdamer-platz", "episode_length_s=10", "--n-train", "1",
+               "--grid-size", "2"], "damaged_input", "is not a number"),
+    ("train", ["rl", "--config", "{hp_unknown}", "--timesteps", "32"], "hp_unknown",
+     "unknown hyperparameter(s) 'learning_ratee' for ppo"),
+    ("train", ["rl", "--config", "{hp_garbage}", "--timesteps", "32"], "hp_garbage", "not valid YAML"),
+    ("train", ["rl", "--config", "{hp_kwargs}", "--timesteps", "32"], "hp_kwargs", "env_kwargs must be a mapping"),
+    ("train", ["rl", "--config", "{hp_steps}"], "hp_steps", "n_timesteps must be a whole number"),
+    ("train", ["rl", "--timesteps", "32", "--out", "{afile}/sub"], "afile", "cannot write there"),
+    ("train", ["tune", "--n-train", "1", "--grid-size", "2", "--out", "{afile}/sub"], "afile", "cannot write there"),
+    ("train", ["zupt", "--model", "mlp", "--out", "{afile}/sub"], "afile", "cannot write there"),
+    ("train", ["zupt", "--model", "mlp", "--seed", "-1"], None, "--seed must be >= 0"),
+]
+
+
+@pytest.mark.parametrize("script, argv, culprit, msg", PROBES,
+                         ids=[f"{s}-{i}-{m[:30]}" for i, (s, _, _, m) in enumerate(PROBES)])
+def test_bad_file_one_line_naming_it_exit_2(files, script, argv, culprit, msg, capsys, monkeypatch):
+    if "smartloc" in " ".join(argv):
+        if "damaged_data" not in files:
+            pytest.skip(f"no smartLoc data under {shared_data_dir()}")
+        monkeypatch.setenv("NAVGYM_DATA_DIR", str(files["damaged_data"]))
+    args = [a.format(**{k: v for k, v in files.items() if v is not None}) for a in argv]
+    if "--out" not in args:
+        args += ["--out", str(files["out"] / f"{script}{len(os.listdir(files['out'].parent))}")]
+    mod = _script(script)
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as exc:
+        mod.main(args)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err, "no message"
+    line = err[-1]
+    assert line.startswith(f"{script}.py: error: ") and msg in line, line
+    if culprit is not None:
+        key, _, leaf = culprit.partition("~")
+        path = Path(files[key])
+        named = path.parent / leaf if leaf else path
+        assert str(named) in line, line
