@@ -161,10 +161,11 @@ class EnvConfig:
     def resolve_scenario(self) -> Scenario:
         """The scenario with this config's overrides applied (a recording: its
         :class:`~envs.datasets.spec.ReplayScenario`, read from its spec, no data loaded)."""
-        from .worlds import is_scenario, replay_descriptor
+        from .worlds import is_scenario, replay_descriptor, scenario_names
         if not (isinstance(self.scenario, (str, Scenario)) and is_scenario(self.scenario)):
-            if isinstance(self.scenario, (str, Scenario)):
-                get_scenario(self.scenario)  # raises naming the unknown scenario
+            if isinstance(self.scenario, str):
+                raise ValueError(f"EnvConfig.scenario: unknown scenario {self.scenario!r}; known: "
+                                 f"{', '.join(scenario_names())} or a dataset spec path (*.toml)")
             raise ValueError(f"EnvConfig.scenario must be a scenario name, a dataset spec path (*.toml) or a "
                              f"Scenario, got {self.scenario!r}")
         try:
