@@ -1,8 +1,11 @@
 """The Ray backend on a local Ray with 2 CPUs: eval.py gives the same results.json (timing aside) as the
-local backend, tasks run in other processes, a task's exception comes back as itself."""
+local backend, tasks run in other processes, a task's exception comes back as itself; train.py sweep on Ray
+Tune writes its run folders and tables, reports a failing trial and goes on, and a rerun keeps finished
+trials."""
 import json
 import os
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -10,6 +13,8 @@ ray = pytest.importorskip("ray", reason="Ray is not installed (pip install 'navg
 
 import eval as eval_cli  # noqa: E402
 from agents.backends import RayBackend  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")
@@ -62,3 +67,78 @@ def test_map_runs_in_workers_and_reraises_the_task_error(local_ray):
     assert local_ray.map(_fail, [0, 1], progress=False) == [0, 1]
     with pytest.raises(FileNotFoundError, match="no file for item 2"):
         local_ray.map(_fail, [0, 1, 2, 3], progress=False)
+
+
+SWEEP = """envs: [GnssIns/SageHusa-v0]
+scenarios: [seed000-sim]
+timesteps: 256
+n_envs: 4
+env_kwargs: {episode_length_s: 6}
+grid:
+  batch_size: [32, 64, 1]   # 1: PPO refuses it, the failing trial
+eval: {episodes: 2, baselines: [kf]}
+"""
+
+
+@pytest.fixture(scope="module")
+def sweep(local_ray, tmp_path_factory):
+    """A 3-trial sweep on Ray Tune: two PPO runs of 256 steps and one that fails."""
+    import train
+    d = tmp_path_factory.mktemp("sweep")
+    (d / "sweep.yml").write_text(SWEEP)
+    rows = train.main(["sweep", "--config", str(d / "sweep.yml"), "--out", str(d / "out"), "--backend", "ray",
+                       "--workers", "2"])
+    return d, rows
+
+
+def test_sweep_writes_run_folders_and_tables(sweep):
+    import csv
+    import shlex
+    import subprocess
+    d, rows = sweep
+    out = d / "out"
+    assert [r.status for r in rows] == ["done", "done", "error"]
+    table = list(csv.DictReader(open(out / "sweep.csv")))
+    assert [t["status"] for t in table] == ["done", "done", "error"]
+    for r, t in zip(rows[:2], table[:2]):
+        run = out / r.trial.run_dir
+        for f in ("model.zip", "config.json", "best/best_model.zip", "hyperparams.yml", "trial.json"):
+            assert (run / f).is_file(), f
+        cfg = json.loads((run / "config.json").read_text())
+        assert cfg["hyperparameters"]["batch_size"] == r.trial.searched["batch_size"]  # the searched value is used
+        assert cfg["n_timesteps"] == 256 and cfg["env_kwargs"]["scenario"] == "seed000-sim"
+        assert float(t["eval_mean_reward_last"]) == pytest.approx(cfg["eval_mean_reward_last"])
+    md = (out / "sweep.md").read_text()
+    best = max(rows[:2], key=lambda r: r.metric)
+    assert "## Best trial per group" in md and f"| {best.trial.run_dir} |" in md.split("## Best trial per group")[1]
+    cmd = next(line for line in md.splitlines() if line.startswith("python eval.py"))
+    assert f"ppo:{out / best.trial.run_dir / 'model.zip'}" in cmd
+    p = subprocess.run([sys.executable, *shlex.split(cmd)[1:], "--no-plots"], cwd=str(ROOT), capture_output=True,
+                       text=True, timeout=600)
+    assert p.returncode == 0, p.stderr[-2000:]
+
+
+def test_failing_trial_is_reported_and_the_sweep_goes_on(sweep):
+    d, rows = sweep
+    bad = rows[2]
+    assert bad.trial.searched == {"batch_size": 1} and bad.metric is None
+    assert "AssertionError" in bad.error and "batch_size" in bad.error
+    rec = json.loads((d / "out" / bad.trial.run_dir / "trial.json").read_text())
+    assert rec["status"] == "error" and "Traceback" in rec["traceback"]
+    assert f"`{bad.trial.run_dir}`: AssertionError" in (d / "out" / "sweep.md").read_text()
+
+
+def test_resume_does_not_redo_finished_trials(sweep):
+    import train
+    d, rows = sweep
+    out = d / "out"
+    models = {r.trial.run_dir: (out / r.trial.run_dir / "model.zip").stat().st_mtime_ns for r in rows[:2]}
+    # the second trial was interrupted: its record says running
+    rec_path = out / rows[1].trial.run_dir / "trial.json"
+    rec = json.loads(rec_path.read_text())
+    rec_path.write_text(json.dumps({**rec, "status": "running"}))
+    again = train.main(["sweep", "--config", str(d / "sweep.yml"), "--out", str(out), "--backend", "ray"])
+    assert [r.status for r in again] == ["kept", "done", "error"]
+    assert (out / rows[0].trial.run_dir / "model.zip").stat().st_mtime_ns == models[rows[0].trial.run_dir]
+    assert (out / rows[1].trial.run_dir / "model.zip").stat().st_mtime_ns > models[rows[1].trial.run_dir]
+    assert again[0].metric == rows[0].metric
