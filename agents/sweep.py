@@ -329,15 +329,39 @@ def expand_trials(cfg: SweepConfig, root) -> list[Trial]:
 
 
 def trial_status(trial: Trial) -> dict | None:
-    """The trial's ``trial.json`` if it finished (status ``done`` and ``model.zip`` present), else None."""
-    p = Path(trial.out) / "trial.json"
+    """The record of a finished trial, else None: its ``trial.json`` with status ``done`` (and its
+    ``model.zip``), or, without ``trial.json``, a run folder that ``train.py rl`` finished with the trial's
+    settings (``config.json`` with the metric; environment, algorithm, seed, steps, rows, environment and
+    algorithm arguments all equal)."""
+    out = Path(trial.out)
+    if not (out / "model.zip").is_file():
+        return None
     try:
-        rec = json.loads(p.read_text())
+        rec = json.loads((out / "trial.json").read_text())
+    except FileNotFoundError:
+        rec = None
     except (OSError, ValueError):
         return None
-    if rec.get("status") == "done" and (Path(trial.out) / "model.zip").is_file():
-        return rec
-    return None
+    if rec is not None:
+        return rec if rec.get("status") == "done" else None
+    try:
+        cfg = json.loads((out / "config.json").read_text())
+    except (OSError, ValueError):
+        return None
+    same = (cfg.get("env") == trial.env and cfg.get("algo") == trial.algo and cfg.get("seed") == trial.seed
+            and cfg.get("n_timesteps") == trial.timesteps and cfg.get("env_kwargs") == trial.env_kwargs
+            and (trial.n_envs is None or cfg.get("n_envs") == trial.n_envs)
+            and all(cfg.get("hyperparameters", {}).get(k) == v for k, v in trial.hyperparams.items())
+            and "wall_time_s" in cfg and METRIC in cfg)
+    if not same:
+        return None
+    return {"status": "done", "result": _result(cfg)}
+
+
+def _result(cfg: dict) -> dict:
+    """A trial's result from its run's ``config.json``."""
+    return {METRIC: cfg[METRIC], "eval_mean_reward_best": cfg.get("eval_mean_reward_best"),
+            "n_timesteps": cfg["n_timesteps"], "wall_time_s": cfg["wall_time_s"]}
 
 
 def run_trial(trial: Trial) -> dict:
@@ -359,8 +383,7 @@ def run_trial(trial: Trial) -> dict:
                        env_kwargs=dict(trial.env_kwargs), config_file=out / "hyperparams.yml", progress=False)
         if METRIC not in cfg:
             raise RuntimeError(f"{out}: training wrote no held-out evaluation ({out / 'eval' / 'evaluations.npz'})")
-        result = {METRIC: cfg[METRIC], "eval_mean_reward_best": cfg.get("eval_mean_reward_best"),
-                  "n_timesteps": cfg["n_timesteps"], "wall_time_s": cfg["wall_time_s"]}
+        result = _result(cfg)
     except Exception as e:
         rec.update(status="error", error=f"{type(e).__name__}: {e}", traceback=traceback.format_exc())
         (out / "trial.json").write_text(json.dumps(rec, indent=2, default=str))

@@ -80,3 +80,25 @@ def test_shipped_example_sweep_file_is_valid():
     from pathlib import Path
     cfg = load_sweep(Path(__file__).resolve().parents[2] / "configs" / "sweep.yml")
     assert len(expand_trials(cfg, "runs/sweep")) == 16
+
+
+def test_a_run_finished_by_train_rl_with_the_same_settings_counts_as_done(tmp_path):
+    import json
+    from agents.sweep import trial_status
+    cfg = load_sweep(write(tmp_path, BASE + "env_kwargs: {episode_length_s: 6}\nhyperparams: {n_epochs: 3}\n"))
+    t, = expand_trials(cfg, tmp_path / "out")
+    run = tmp_path / "out" / t.run_dir
+    run.mkdir(parents=True)
+    written = {"env": t.env, "algo": "ppo", "seed": 0, "n_timesteps": 256, "n_envs": 16, "wall_time_s": 3.0,
+               "env_kwargs": {"episode_length_s": 6, "scenario": "seed000-sim"}, "eval_mean_reward_last": -5.0,
+               "hyperparameters": {"n_epochs": 3, "gamma": 0.95}}
+    (run / "config.json").write_text(json.dumps(written))
+    assert trial_status(t) is None  # no model.zip: not finished
+    (run / "model.zip").write_bytes(b"zip")
+    assert trial_status(t)["result"]["eval_mean_reward_last"] == -5.0
+    for key, other in (("seed", 1), ("n_timesteps", 512), ("hyperparameters", {"n_epochs": 5}),
+                       ("env_kwargs", {"episode_length_s": 6, "scenario": "urban"})):
+        (run / "config.json").write_text(json.dumps({**written, key: other}))
+        assert trial_status(t) is None, key
+    (run / "trial.json").write_text(json.dumps({"status": "running"}))  # interrupted
+    assert trial_status(t) is None
