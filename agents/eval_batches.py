@@ -44,7 +44,9 @@ class EvalBatch:
 
     def describe(self) -> str:
         """``'<scenario> <method label> seeds a-b'`` for progress lines."""
-        return f"{self.scenario} {self.method.label[-40:]} seeds {self.seeds[0]}-{self.seeds[-1]}"
+        label = self.method.label
+        label = label if len(label) <= 40 else "..." + label[-37:]
+        return f"{self.scenario} {label} seeds {self.seeds[0]}-{self.seeds[-1]}"
 
 
 @dataclass(frozen=True)

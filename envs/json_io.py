@@ -20,3 +20,14 @@ def jsonable(x):
     if isinstance(x, np.bool_):
         return bool(x)
     return x
+
+
+def without_timing(x):
+    """A result dictionary without its wall-clock fields (keys containing ``time`` or ``timing``, e.g.
+    ``filter_time_per_epoch_s``, ``wall_time_s``, a ``timing`` section): what two runs of the same
+    computation must agree on."""
+    if isinstance(x, dict):
+        return {k: without_timing(v) for k, v in x.items() if not ("time" in str(k) or "timing" in str(k))}
+    if isinstance(x, (list, tuple)):
+        return [without_timing(v) for v in x]
+    return x

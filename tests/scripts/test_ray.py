@@ -13,6 +13,7 @@ ray = pytest.importorskip("ray", reason="Ray is not installed (pip install 'navg
 
 import eval as eval_cli  # noqa: E402
 from agents.backends import RayBackend  # noqa: E402
+from envs.json_io import without_timing  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -28,15 +29,6 @@ def local_ray():
     backend.close()
 
 
-def strip_timing(obj):
-    """results.json without wall-clock figures (keys naming a time), which differ from run to run."""
-    if isinstance(obj, dict):
-        return {k: strip_timing(v) for k, v in obj.items() if "time" not in k}
-    if isinstance(obj, list):
-        return [strip_timing(v) for v in obj]
-    return obj
-
-
 def test_eval_ray_equals_local(local_ray, tmp_path):
     common = ["--scenario", "seed000-sim", "--methods", "kf,sage-husa[b=0.99],rule:GnssIns/SageHusa-v0",
               "--episodes", "3", "--batch-size", "2", "--seed", "2", "--no-plots"]
@@ -44,7 +36,7 @@ def test_eval_ray_equals_local(local_ray, tmp_path):
     eval_cli.main([*common, "--backend", "ray", "--workers", "2", "--out", str(tmp_path / "ray")])
     a = json.loads((tmp_path / "local" / "results.json").read_text())
     b = json.loads((tmp_path / "ray" / "results.json").read_text())
-    assert strip_timing(a) == strip_timing(b)
+    assert without_timing(a) == without_timing(b)
     per = a["scenarios"]["seed000-sim"]
     assert set(per) == {"kf", "sage-husa[b=0.99]", "rule:GnssIns/SageHusa-v0"}
     assert all(r["episodes"] == 3 for r in per.values())
