@@ -275,7 +275,7 @@ def run_batches(args, methods_by_scenario: dict, seeds: list[int]) -> tuple[dict
     finally:
         clear_world_cache()
     n_methods = sum(len(ms) for ms in methods_by_scenario.values())
-    print(f"{n_methods} scenario-methods x {len(seeds)} episodes in {len(batches)} batches on {args.backend} "
+    print(f"{n_methods} (scenario, method) pairs x {len(seeds)} episodes in {len(batches)} batches on {args.backend} "
           f"in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
     return gather(batches, done)
 

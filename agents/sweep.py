@@ -413,8 +413,8 @@ def run_sweep(cfg: SweepConfig, root, backend) -> list[TrialRow]:
     pending = [t for t in trials if kept[t.run_dir] is None]
     print(f"sweep: {len(trials)} trials, {len(trials) - len(pending)} finished before (kept), running "
           f"{len(pending)} on {backend.name}", file=sys.stderr)
-    outcomes = {o.config.run_dir: o for o in
-                backend.run_trials(run_trial, pending, storage=root / "tune", name=time.strftime("sweep-%Y%m%d-%H%M%S"))}
+    name = time.strftime("sweep-%Y%m%d-%H%M%S")
+    outcomes = {o.config.run_dir: o for o in backend.run_trials(run_trial, pending, storage=root / "tune", name=name)}
     rows = []
     for t in trials:
         if kept[t.run_dir] is not None:
@@ -447,18 +447,20 @@ def _display(path: str) -> str:
 
 
 def eval_commands(cfg: SweepConfig, root, rows: list[TrialRow]) -> list[str]:
-    """One ``eval.py`` command per scenario: the baselines and each group's best model on held-out episodes."""
+    """One ``eval.py`` command per scenario: the baselines and each group's best model on held-out episodes
+    (paths relative to the working directory where they lie under it)."""
     from agents.rollout import env_class
     from envs.gnss_ins_env import make_config
     per_scen: dict = {}
     for (env, _, algo), r in best_per_group(rows).items():
         scen = r.trial.scenario or make_config(env_class(env).DEFAULTS, {}).scenario
         per_scen.setdefault(str(scen), []).append(f"{algo}:{_display(str(Path(r.trial.out) / 'model.zip'))}")
+    script = _display(str(Path(__file__).resolve().parents[1] / "eval.py"))
     cmds = []
     for scen, models in per_scen.items():
         methods = ",".join([*cfg.eval_baselines, *models])
         out = _display(str(Path(root).resolve() / "eval" / scen))
-        cmds.append(shlex.join(["python", "eval.py", "--scenario", scen, "--methods", methods, "--episodes",
+        cmds.append(shlex.join(["python", script, "--scenario", scen, "--methods", methods, "--episodes",
                                 str(cfg.eval_episodes), "--seed", str(cfg.eval_seed), "--out", out]))
     return cmds
 
