@@ -263,14 +263,14 @@ def run_experiment_cli(args, out: Path) -> dict:
 def run_batches(args, methods_by_scenario: dict, seeds: list[int]) -> tuple[dict, dict]:
     """Run every (scenario, chunk, method) batch on ``args.backend``: ``({scenario: {label: EpisodeLog}},
     {scenario: (M, 2) truth track of episode 0})`` (:mod:`agents.eval_batches`, :mod:`agents.backends`)."""
-    from agents.backends import make_backend
+    from agents.backends import BackendUnavailable, make_backend
     from agents.eval_batches import clear_world_cache, gather, plan_batches, run_eval_batch
     batches = plan_batches(methods_by_scenario, seeds, args.batch_size, args.dtype, args.zupt)
     t0 = time.perf_counter()
     try:
         with make_backend(args.backend, args.address, args.workers) as backend:
             done = backend.map(run_eval_batch, batches, desc=f"eval ({args.backend})", label=lambda b: b.describe())
-    except FileNotFoundError as e:
+    except (FileNotFoundError, BackendUnavailable) as e:
         fail(str(e))
     finally:
         clear_world_cache()

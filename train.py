@@ -178,7 +178,11 @@ def sweep_cli(args):
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         fail(f"--out {str(out)!r} is a file, not a directory")
-    with make_backend(args.backend, args.address, args.workers) as backend:
+    try:
+        backend = make_backend(args.backend, args.address, args.workers)
+    except BackendUnavailable as e:
+        fail(str(e))
+    with backend:
         rows = run_sweep(cfg, out, backend)
     print((out / "sweep.md").read_text())
     n_err = sum(r.status == "error" for r in rows)

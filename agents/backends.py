@@ -36,7 +36,8 @@ SOURCE_ROOT = Path(__file__).resolve().parents[1]
 
 
 class BackendUnavailable(RuntimeError):
-    """The requested backend cannot run here (Ray is not installed); the message says how to install it."""
+    """The requested backend cannot run here (Ray is not installed, or its cluster cannot be joined); the
+    message says what to do."""
 
 
 def require_ray():
@@ -169,7 +170,14 @@ class RayBackend:
             if address is None:
                 ray.init(num_cpus=workers or os.cpu_count(), **kw)
             else:
-                ray.init(address=address, **kw)
+                try:
+                    ray.init(address=address, **kw)
+                except (ConnectionError, RuntimeError, ValueError) as e:
+                    first = next((ln for ln in str(e).splitlines() if ln.strip()), type(e).__name__)
+                    raise BackendUnavailable(
+                        f"--address {address!r}: cannot join the Ray cluster ({first.strip()}); start it with "
+                        "'ray start --head' and check the address and, with token authentication, the token "
+                        "(RAY_AUTH_TOKEN)") from None
             self.started = True
         if self.workers is None:
             self.workers = max(1, int(ray.cluster_resources().get("CPU", 1)))
