@@ -117,7 +117,10 @@ def check_common(args) -> None:
 def main(argv=None):
     args = build_parser().parse_args(argv)
     if args.cmd == "sweep":
-        return sweep_cli(args)
+        rows = sweep_cli(args)
+        if any(r.status == "error" for r in rows):
+            raise SystemExit(1)  # after the tables: a script does not go on with missing runs
+        return rows
     check_common(args)
     if args.cmd == "rl":
         from agents.policies import ALGOS
@@ -166,7 +169,8 @@ def main(argv=None):
 
 
 def sweep_cli(args):
-    """``train.py sweep``: arguments and the sweep file checked before any work (one line, exit 2)."""
+    """``train.py sweep``: arguments and the sweep file checked before any work (one line, exit 2); the
+    trials run and the tables are written; returns the table's rows (``main`` exits 1 if a trial failed)."""
     from agents.backends import BackendUnavailable, check_backend_args, make_backend
     from agents.sweep import expand_trials, load_sweep, run_sweep
     try:

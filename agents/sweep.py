@@ -30,7 +30,7 @@ evaluation on held-out world seeds (``eval_mean_reward_last`` of ``config.json``
 
 A finished trial (``trial.json`` status ``done`` and its ``model.zip``) is never run again: rerunning an
 interrupted sweep runs only the trials that have not finished (failed ones are retried). A failing trial is
-reported with its error and the others go on. The sweep writes ``sweep.csv``, ``sweep.md`` (every trial,
+reported with its error and the others go on (``train.py sweep`` then exits with status 1). The sweep writes ``sweep.csv``, ``sweep.md`` (every trial,
 the best trial per environment x scenario x algorithm group, the eval.py command for the winners) and
 ``sweep.json`` under ``--out``.
 """

@@ -8,7 +8,8 @@
 # hand-designed rule, and the oracles, its batches as Ray tasks (issue 14). About 1 hour on 2 CPU cores
 # (measured with the runs one after another: training 4-9 min per run, tuning 3 x 45 s, eval 13 min).
 # Set PY to use another interpreter, RAY_ADDRESS=HOST:6379 to run on a Ray cluster, WORKERS for the Ray
-# workers (default 2); finished runs are not redone (the sweep keeps finished trials).
+# workers (default 2); finished runs are not redone (the sweep keeps finished trials; a failed one stops the
+# script after the sweep table, runs/results/sweep.md, and a rerun retries it).
 # SWEEP, EPISODES, N_TRAIN, RUNS, OUT and NOTE change the sweep file, the evaluation episodes, the tuning
 # episodes and the output paths (defaults: the note's; a small check: EPISODES=2 N_TRAIN=2 with a small SWEEP).
 set -euo pipefail

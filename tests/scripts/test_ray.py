@@ -72,39 +72,44 @@ eval: {episodes: 2, baselines: [kf]}
 """
 
 
+def run_sweep_cli(d, *extra):
+    """``train.py sweep`` on ``d/sweep.yml`` into ``d/out`` (exit 1: a trial failed); the rows of sweep.csv."""
+    import csv
+    import train
+    with pytest.raises(SystemExit) as e:
+        train.main(["sweep", "--config", str(d / "sweep.yml"), "--out", str(d / "out"), "--backend", "ray", *extra])
+    assert e.value.code == 1  # the batch_size=1 trial failed; the tables are written first
+    return list(csv.DictReader(open(d / "out" / "sweep.csv")))
+
+
 @pytest.fixture(scope="module")
 def sweep(local_ray, tmp_path_factory):
     """A 3-trial sweep on Ray Tune: two PPO runs of 256 steps and one that fails."""
-    import train
     d = tmp_path_factory.mktemp("sweep")
     (d / "sweep.yml").write_text(SWEEP)
-    rows = train.main(["sweep", "--config", str(d / "sweep.yml"), "--out", str(d / "out"), "--backend", "ray",
-                       "--workers", "2"])
-    return d, rows
+    return d, run_sweep_cli(d, "--workers", "2")
 
 
 def test_sweep_writes_run_folders_and_tables(sweep):
-    import csv
     import shlex
     import subprocess
     d, rows = sweep
     out = d / "out"
-    assert [r.status for r in rows] == ["done", "done", "error"]
-    table = list(csv.DictReader(open(out / "sweep.csv")))
-    assert [t["status"] for t in table] == ["done", "done", "error"]
-    for r, t in zip(rows[:2], table[:2]):
-        run = out / r.trial.run_dir
+    assert [r["status"] for r in rows] == ["done", "done", "error"]
+    assert [r["searched"] for r in rows] == ["batch_size=32", "batch_size=64", "batch_size=1"]
+    for r in rows[:2]:
+        run = out / r["run_dir"]
         for f in ("model.zip", "config.json", "best/best_model.zip", "hyperparams.yml", "trial.json"):
             assert (run / f).is_file(), f
         cfg = json.loads((run / "config.json").read_text())
-        assert cfg["hyperparameters"]["batch_size"] == r.trial.searched["batch_size"]  # the searched value is used
+        assert f"batch_size={cfg['hyperparameters']['batch_size']}" == r["searched"]  # the searched value is used
         assert cfg["n_timesteps"] == 256 and cfg["env_kwargs"]["scenario"] == "seed000-sim"
-        assert float(t["eval_mean_reward_last"]) == pytest.approx(cfg["eval_mean_reward_last"])
+        assert float(r["eval_mean_reward_last"]) == pytest.approx(cfg["eval_mean_reward_last"])
     md = (out / "sweep.md").read_text()
-    best = max(rows[:2], key=lambda r: r.metric)
-    assert "## Best trial per group" in md and f"| {best.trial.run_dir} |" in md.split("## Best trial per group")[1]
-    cmd = next(line for line in md.splitlines() if line.startswith("python eval.py"))
-    assert f"ppo:{out / best.trial.run_dir / 'model.zip'}" in cmd
+    best = max(rows[:2], key=lambda r: float(r["eval_mean_reward_last"]))
+    assert f"| {best['run_dir']} |" in md.split("## Best trial per group")[1]
+    cmd = next(line for line in md.splitlines() if line.startswith("python "))
+    assert f"ppo:{out / best['run_dir'] / 'model.zip'}" in cmd
     p = subprocess.run([sys.executable, *shlex.split(cmd)[1:], "--no-plots"], cwd=str(ROOT), capture_output=True,
                        text=True, timeout=600)
     assert p.returncode == 0, p.stderr[-2000:]
@@ -113,24 +118,21 @@ def test_sweep_writes_run_folders_and_tables(sweep):
 def test_failing_trial_is_reported_and_the_sweep_goes_on(sweep):
     d, rows = sweep
     bad = rows[2]
-    assert bad.trial.searched == {"batch_size": 1} and bad.metric is None
-    assert "AssertionError" in bad.error and "batch_size" in bad.error
-    rec = json.loads((d / "out" / bad.trial.run_dir / "trial.json").read_text())
+    assert bad["eval_mean_reward_last"] == "" and "AssertionError" in bad["error"] and "batch_size" in bad["error"]
+    rec = json.loads((d / "out" / bad["run_dir"] / "trial.json").read_text())
     assert rec["status"] == "error" and "Traceback" in rec["traceback"]
-    assert f"`{bad.trial.run_dir}`: AssertionError" in (d / "out" / "sweep.md").read_text()
+    assert f"`{bad['run_dir']}`: AssertionError" in (d / "out" / "sweep.md").read_text()
 
 
 def test_resume_does_not_redo_finished_trials(sweep):
-    import train
     d, rows = sweep
     out = d / "out"
-    models = {r.trial.run_dir: (out / r.trial.run_dir / "model.zip").stat().st_mtime_ns for r in rows[:2]}
+    mtime = {r["run_dir"]: (out / r["run_dir"] / "model.zip").stat().st_mtime_ns for r in rows[:2]}
     # the second trial was interrupted: its record says running
-    rec_path = out / rows[1].trial.run_dir / "trial.json"
-    rec = json.loads(rec_path.read_text())
-    rec_path.write_text(json.dumps({**rec, "status": "running"}))
-    again = train.main(["sweep", "--config", str(d / "sweep.yml"), "--out", str(out), "--backend", "ray"])
-    assert [r.status for r in again] == ["kept", "done", "error"]
-    assert (out / rows[0].trial.run_dir / "model.zip").stat().st_mtime_ns == models[rows[0].trial.run_dir]
-    assert (out / rows[1].trial.run_dir / "model.zip").stat().st_mtime_ns > models[rows[1].trial.run_dir]
-    assert again[0].metric == rows[0].metric
+    rec_path = out / rows[1]["run_dir"] / "trial.json"
+    rec_path.write_text(json.dumps({**json.loads(rec_path.read_text()), "status": "running"}))
+    again = run_sweep_cli(d)
+    assert [r["status"] for r in again] == ["kept", "done", "error"]
+    assert (out / rows[0]["run_dir"] / "model.zip").stat().st_mtime_ns == mtime[rows[0]["run_dir"]]
+    assert (out / rows[1]["run_dir"] / "model.zip").stat().st_mtime_ns > mtime[rows[1]["run_dir"]]
+    assert again[0]["eval_mean_reward_last"] == rows[0]["eval_mean_reward_last"]
