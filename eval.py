@@ -148,6 +148,8 @@ def main(argv=None) -> dict:
         check_backend_args(args.backend, args.address, args.workers)
     except (ValueError, BackendUnavailable) as e:
         fail(str(e))
+    if args.experiment and args.backend != "local":
+        fail("--backend ray runs the paired comparison's batches; --experiment runs here only (drop --backend)")
     out = Path(args.out)
     if args.experiment:
         return run_experiment_cli(args, out)

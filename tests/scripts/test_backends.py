@@ -36,6 +36,13 @@ def test_backend_argument_errors(args, msg, capsys, tmp_path):
     assert msg in err and len(err.splitlines()) == 1
 
 
+def test_experiment_with_ray_backend_is_refused(capsys, tmp_path):
+    pytest.importorskip("ray", reason="Ray is not installed (pip install 'navgym[distributed]')")
+    with pytest.raises(SystemExit) as e:
+        eval_cli.main(["--experiment", "seed000", "--backend", "ray", "--out", str(tmp_path)])
+    assert e.value.code == 2 and "--experiment runs here only" in capsys.readouterr().err
+
+
 def test_check_backend_args_names_the_backend():
     with pytest.raises(ValueError, match="--backend must be one of local, ray, got 'dask'"):
         check_backend_args("dask")
