@@ -30,9 +30,14 @@ reference method), ``results.csv``, ``results.md`` and PNG plots per scenario: e
 ``results.json`` is strict JSON (a NaN or inf figure is written as ``null``) and, apart from the wall-clock
 figures named in :data:`TIMING_KEYS` (``filter_time_per_epoch_s`` of each method, part of the DESIGN.md
 schema), a function of the arguments alone: two runs with the same arguments and seed write the same bytes
-on every other line. The timings are also kept apart in ``OUT/timing.json`` (per scenario: its wall time
+on every other line. The timings are also kept apart in ``OUT/timing.json`` (the run's wall time, per scenario
 and each method's filter time per epoch); the ``ms/epoch`` column of ``results.md`` / ``results.csv``
 shows the same figure.
+
+``--backend ray`` runs the paired episode batches (one method on one chunk of ``--batch-size`` seeds) as Ray
+tasks, on a local Ray started here (``--workers`` CPUs) or a cluster (``--address``); each batch generates
+its world from its seeds where it runs and sends back the method's episode log: the same numbers as the
+default ``--backend local`` (:mod:`agents.backends`, :mod:`agents.eval_batches`).
 
 With no arguments it runs the default comparison: ``noise-burst``, ``urban`` and ``open-sky`` with ``kf``,
 ``sage-husa``, ``stkf`` and ``ma-stkf``, 8 episodes, seed 0, into ``results/default``.
@@ -85,6 +90,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also report the headroom: the optimized fixed parameter (a 'tuned:' method, required) "
                         "against each oracle, net of the open-sky placebo, and the share of it each method "
                         "closed (OUT/headroom.md, results.json 'headroom')")
+    p.add_argument("--backend", default="local", choices=("local", "ray"),
+                   help="where the paired episode batches run: local (this process, default) or ray (Ray tasks "
+                        "on a local Ray started here, or on a cluster with --address); same numbers on both")
+    p.add_argument("--address", default=None, metavar="ADDR",
+                   help="--backend ray: join this Ray cluster ('auto' or HOST:6379 from 'ray start --head')")
+    p.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="--backend ray: batches in flight at once (a local Ray gets N CPUs; default: all cores)")
     p.add_argument("--experiment", default=None, metavar="NAME",
                    help="run a seed-paper reproduction instead: seed000, seed001 or seed003")
     return p
@@ -166,13 +178,19 @@ def main(argv=None) -> dict:
         fail("--batch-size must be >= 1")
     if args.seed < 0 or (args.seed + 1) * 1_000_003 >= 2**30:
         fail("--seed must be in 0..1072 (episode seeds stay below the environments' training seeds, 2**30)")
+    from agents.backends import BackendUnavailable, check_backend_args
+    try:
+        check_backend_args(args.backend, args.address, args.workers)
+    except (ValueError, BackendUnavailable) as e:
+        fail(str(e))
+    if args.experiment and args.backend != "local":
+        fail("--backend ray runs the paired comparison's batches; --experiment runs here only (drop --backend)")
     out = Path(args.out)
     if args.experiment:
         return run_experiment_cli(args, out)
     if args.episodes is None:
         args.episodes = 8
-    from envs.datasets.errors import DatasetFormatError
-    from envs.worlds import REPLAY_SCENARIOS, make_world, scenario_names
+    from envs.worlds import scenario_names
 
     scenarios = args.scenario or list(DEFAULT_SCENARIOS)
     specs = _split_methods(args.methods)
@@ -212,7 +230,6 @@ def main(argv=None) -> dict:
             if n != 1:
                 fail(f"--headroom: {fixed_spec!r} must be one method; it matches {n} files on {s!r}")
 
-    from envs.episodes import concat_logs
     from envs.json_io import dumps
     from envs.metrics import paired_difference, summarize, summarize_seeds
 
@@ -222,37 +239,17 @@ def main(argv=None) -> dict:
                "config": {"episodes": args.episodes, "seed": args.seed, "dtype": args.dtype, "zupt": args.zupt,
                           "goal": _parse_goals(args.goal),
                           "methods": specs, "reference": ref, "episode_seeds": seeds}}
-    curves, tracks = {}, {}
-    timing = {"note": "wall-clock figures of this run (they vary between runs; results.json holds the rest)",
-              "wall": {}}
+    timing = {"note": "wall-clock figures of this run (they vary between runs; results.json holds the rest)"}
     for s in scenarios:
-        methods = [m for _, ms in plan[s] for m in ms]
-        ref_label = dict(plan[s])[ref][0].label
-        results["config"].setdefault("reference_labels", {})[s] = ref_label
-        logs = {m.label: [] for m in methods}
-        t_start = time.perf_counter()
-        n_done = 0
-        for c0 in range(0, len(seeds), args.batch_size):
-            chunk = seeds[c0:c0 + args.batch_size]
-            try:
-                world = make_world(sources[s], chunk)
-            except FileNotFoundError as e:
-                fail(f"scenario {s!r} needs a recorded data set: {e}")
-            except ValueError as e:
-                if not isinstance(e, DatasetFormatError) and sources[s] == s and s not in REPLAY_SCENARIOS:
-                    raise   # a simulated scenario's ValueError is a bug, not a data error
-                fail(f"scenario {s!r}: {e}")
-            if c0 == 0:
-                tracks[s] = _truth_track(world)
-            for m in methods:
-                print(f"\r[{s}] {m.label[-40:]:<40s} episodes {c0 + 1}-{c0 + len(chunk)}/{len(seeds)}"
-                      f"  ({time.perf_counter() - t_start:.0f} s)", end="", flush=True, file=sys.stderr)
-                logs[m.label].append(m.run(world, dtype=args.dtype, zupt=args.zupt))
-            n_done += len(chunk)
-        timing["wall"][s] = time.perf_counter() - t_start
-        print(f"\r[{s}] {len(methods)} methods x {n_done} episodes in {time.perf_counter() - t_start:.1f} s"
-              + " " * 30, file=sys.stderr)
-        curves[s] = {m.label: concat_logs(logs[m.label]) for m in methods}
+        results["config"].setdefault("reference_labels", {})[s] = dict(plan[s])[ref][0].label
+    t_start = time.perf_counter()
+    by_source, track_by_source = run_batches(
+        args, {sources[s]: [m for _, ms in plan[s] for m in ms] for s in scenarios}, seeds)
+    timing["wall_time_s"] = time.perf_counter() - t_start
+    curves = {s: by_source[sources[s]] for s in scenarios}
+    tracks = {s: track_by_source[sources[s]] for s in scenarios if sources[s] in track_by_source}
+    for s in scenarios:
+        ref_label = results["config"]["reference_labels"][s]
         results["scenarios"][s] = {label: summarize(log) for label, log in curves[s].items()}
         for label in curves[s]:
             if is_oracle_label(label):
@@ -269,10 +266,8 @@ def main(argv=None) -> dict:
     if args.headroom:
         results["headroom"] = compute_headroom(results, curves, plan, fixed_spec)
     (out / "results.json").write_text(dumps(results, indent=2) + "\n")
-    timing["scenarios"] = {s: {"wall_time_s": timing["wall"][s],
-                               "methods": {label: {k: r[k] for k in TIMING_KEYS if k in r} for label, r in per.items()}}
+    timing["scenarios"] = {s: {"methods": {label: {k: r[k] for k in TIMING_KEYS if k in r} for label, r in per.items()}}
                            for s, per in results["scenarios"].items()}
-    del timing["wall"]
     (out / "timing.json").write_text(dumps(timing, indent=2) + "\n")
     table = format_table(results)
     print(table)
@@ -316,13 +311,25 @@ def run_experiment_cli(args, out: Path) -> dict:
     return res
 
 
-def _truth_track(world):
-    """Row 0's true horizontal track (north, east) [m] at the epochs, from its start."""
-    from earth import C_en, ecef_to_geodetic
-    r = world.truth.r_e[0, world.epoch_idx]
-    lat, lon, _ = ecef_to_geodetic(world.truth.r_e[0, 0])
-    d = (C_en(lat, lon).T @ (r - world.truth.r_e[0, 0]).T).T
-    return d[:, :2]
+def run_batches(args, methods_by_scenario: dict, seeds: list[int]) -> tuple[dict, dict]:
+    """Run every (scenario, chunk, method) batch on ``args.backend``: ``({scenario: {label: EpisodeLog}},
+    {scenario: (M, 2) truth track of episode 0})`` (:mod:`agents.eval_batches`, :mod:`agents.backends`)."""
+    from agents.backends import BackendUnavailable, make_backend
+    from envs.datasets.errors import DatasetFormatError
+    from agents.eval_batches import clear_world_cache, gather, plan_batches, run_eval_batch
+    batches = plan_batches(methods_by_scenario, seeds, args.batch_size, args.dtype, args.zupt)
+    t0 = time.perf_counter()
+    try:
+        with make_backend(args.backend, args.address, args.workers) as backend:
+            done = backend.map(run_eval_batch, batches, desc=f"eval ({args.backend})", label=lambda b: b.describe())
+    except (FileNotFoundError, BackendUnavailable, DatasetFormatError) as e:
+        fail(str(e))
+    finally:
+        clear_world_cache()
+    n_methods = sum(len(ms) for ms in methods_by_scenario.values())
+    print(f"{n_methods} (scenario, method) pairs x {len(seeds)} episodes in {len(batches)} batches on {args.backend} "
+          f"in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
+    return gather(batches, done)
 
 
 COLUMNS = [("rmse_h_m", "RMSE h [m]"), ("rmse_h_ci95_m", "95% CI [m]"), ("rmse_3d_m", "RMSE 3D [m]"),

@@ -4,12 +4,14 @@
     python train.py rl   --env GnssIns/SageHusa-v0 --algo ppo --quick --out runs/quick
     python train.py tune --env GnssIns/SageHusa-v0 --out runs/DIR          # the optimized fixed parameter
     python train.py zupt --model lstm --seed S --out runs/DIR              # zero-velocity detector
+    python train.py sweep --config configs/sweep.yml --out runs/sweep [--backend ray [--address ADDR]]
 
 ``rl`` writes ``runs/DIR/model.zip`` (stable-baselines3), ``config.json`` (the exact settings),
 ``vecnormalize.pkl`` (when observations are normalized), ``best/best_model.zip`` (best held-out
 evaluation), ``checkpoints/`` and ``logs/`` (CSV + tensorboard). ``tune`` writes ``runs/DIR/tuning.json``
 for ``eval.py --methods tuned:runs/DIR/tuning.json``. ``zupt`` writes the detector's weights and
-``metrics.json``.
+``metrics.json``. ``sweep`` runs a grid / random search of ``rl`` runs (:mod:`agents.sweep`; on Ray Tune with
+``--backend ray``) and writes ``sweep.csv`` / ``sweep.md`` beside the trials' run folders.
 
 The environments also train unchanged under RL Zoo:
 ``python -m rl_zoo3.train --gym-packages envs --env GnssIns/SageHusa-v0 --algo ppo``.
@@ -82,6 +84,15 @@ def build_parser():
     zu.add_argument("--seed", type=int, default=0)
     zu.add_argument("--quick", action="store_true")
     zu.add_argument("--out", required=True)
+    sw = sub.add_parser("sweep", help="a grid / random search of rl runs (Ray Tune with --backend ray)")
+    sw.add_argument("--config", required=True, help="sweep file (YAML; see configs/sweep.yml)")
+    sw.add_argument("--out", required=True, help="sweep folder: the trials' run folders, sweep.csv, sweep.md")
+    sw.add_argument("--backend", default="local", choices=("local", "ray"),
+                    help="local: the trials one after another here (default); ray: Ray Tune trials on a local "
+                         "Ray or a cluster (--address)")
+    sw.add_argument("--address", default=None, metavar="ADDR", help="--backend ray: join this Ray cluster")
+    sw.add_argument("--workers", type=int, default=None, metavar="N",
+                    help="--backend ray: trials at once (a local Ray gets N CPUs; default: all cores)")
     return p
 
 
@@ -113,6 +124,11 @@ def check_out(out) -> None:
 
 def main(argv=None):
     args = build_parser().parse_args(argv)
+    if args.cmd == "sweep":
+        rows = sweep_cli(args)
+        if any(r.status == "error" for r in rows):
+            raise SystemExit(1)  # after the tables: a script does not go on with missing runs
+        return rows
     check_common(args)
     if args.cmd == "rl":
         from agents.policies import ALGOS
@@ -161,6 +177,33 @@ def main(argv=None):
         check_out(args.out)
         metrics = train_zupt_detector(args.model, args.seed, Path(args.out), quick=args.quick, progress=True)
         print(json.dumps(metrics, indent=2, default=str))
+
+
+def sweep_cli(args):
+    """``train.py sweep``: arguments and the sweep file checked before any work (one line, exit 2); the
+    trials run and the tables are written; returns the table's rows (``main`` exits 1 if a trial failed)."""
+    from agents.backends import BackendUnavailable, check_backend_args, make_backend
+    from agents.sweep import expand_trials, load_sweep, run_sweep
+    try:
+        check_backend_args(args.backend, args.address, args.workers)
+        cfg = load_sweep(args.config)
+        expand_trials(cfg, args.out)
+    except (ValueError, FileNotFoundError, BackendUnavailable) as e:
+        fail(str(e))
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        fail(f"--out {str(out)!r} is a file, not a directory")
+    try:
+        backend = make_backend(args.backend, args.address, args.workers)
+    except BackendUnavailable as e:
+        fail(str(e))
+    with backend:
+        rows = run_sweep(cfg, out, backend)
+    print((out / "sweep.md").read_text())
+    n_err = sum(r.status == "error" for r in rows)
+    print(f"wrote {out / 'sweep.csv'}, {out / 'sweep.md'}, {out / 'sweep.json'}"
+          + (f"; {n_err} of {len(rows)} trials failed (see the table)" if n_err else ""))
+    return rows
 
 
 if __name__ == "__main__":

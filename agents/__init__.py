@@ -7,5 +7,7 @@ baseline, and evaluation of policies on paired episodes.
 * :mod:`agents.oracles` -- hindsight oracles of an env's knob (greedy schedule, best constant per episode,
   cross-fitted schedule): the headroom of a policy in that action space;
 * :mod:`agents.methods` -- method specifications of eval.py (filters, fixed parameters, tuned, learned);
-* :mod:`agents.training` -- ``train.py rl``.
+* :mod:`agents.training` -- ``train.py rl``;
+* :mod:`agents.backends` -- where independent work runs: this process or Ray (tasks and Ray Tune trials);
+* :mod:`agents.eval_batches` -- eval.py's paired episode batches as units of work for a backend.
 """

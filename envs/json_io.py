@@ -27,3 +27,14 @@ def dumps(x, **kw) -> str:
     """Strict JSON text of ``x`` (:func:`jsonable` first: NaN and +-inf become ``null``, which every JSON parser
     reads; Python's default would write the non-standard ``NaN``). ``kw`` as for :func:`json.dumps`."""
     return json.dumps(jsonable(x), allow_nan=False, **kw)
+
+
+def without_timing(x):
+    """A result dictionary without its wall-clock fields (keys containing ``time`` or ``timing``, e.g.
+    ``filter_time_per_epoch_s``, ``wall_time_s``, a ``timing`` section): what two runs of the same
+    computation must agree on."""
+    if isinstance(x, dict):
+        return {k: without_timing(v) for k, v in x.items() if not ("time" in str(k) or "timing" in str(k))}
+    if isinstance(x, (list, tuple)):
+        return [without_timing(v) for v in x]
+    return x

@@ -1,0 +1,286 @@
+"""Where independent pieces of work run: in this process (``local``) or on Ray (``ray``).
+
+Two operations, with the same meaning on both backends:
+
+* :meth:`LocalBackend.map` / :meth:`RayBackend.map` -- ``fn(item)`` for every item, the results in the
+  items' order, with a tqdm progress bar over completed items (eval.py's paired episode batches). An
+  exception raised by ``fn`` is raised again here, as itself (not wrapped in a Ray error).
+* :meth:`LocalBackend.run_trials` / :meth:`RayBackend.run_trials` -- ``fn(config)`` for every trial config;
+  each :class:`TrialOutcome` holds the returned result dict or the error that ended the trial, and a failing
+  trial does not stop the others (train.py sweep's trials; on Ray they are Ray Tune trials).
+
+``local`` runs everything in this process, in order. ``ray`` starts a local Ray in this process with
+``num_cpus = workers`` (all cores without ``workers``), joins a running cluster with ``address``
+(``'auto'`` or ``'HOST:6379'``, as ``ray start --head`` prints it), or uses the Ray this process has
+already initialized. Functions and items are pickled to the workers: give module-level functions and
+plain data (frozen dataclasses). The workers import navgym from the source tree this process imports it
+from (``PYTHONPATH`` of the Ray job); on a cluster without a shared file system install navgym on every node.
+
+Ray is an optional dependency (``pip install 'navgym[distributed]'``): :func:`require_ray` raises
+:class:`BackendUnavailable` with the one-line install hint when it is missing.
+"""
+from __future__ import annotations
+
+import os
+import sys
+import traceback
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+BACKENDS = ("local", "ray")
+"""The backend names of ``--backend``."""
+RAY_INSTALL_HINT = "pip install 'navgym[distributed]' (or: pip install 'ray[tune]>=2.40,<3')"
+SOURCE_ROOT = Path(__file__).resolve().parents[1]
+"""The directory holding the ``agents``, ``envs``, ``nav_filters`` and ``earth`` packages this process runs."""
+
+
+class BackendUnavailable(RuntimeError):
+    """The requested backend cannot run here (Ray is not installed, or its cluster cannot be joined); the
+    message says what to do."""
+
+
+def require_ray():
+    """The ``ray`` module, or :class:`BackendUnavailable` with the install hint."""
+    try:
+        import ray
+    except ImportError:
+        raise BackendUnavailable(f"--backend ray needs Ray, which is not installed: {RAY_INSTALL_HINT}") from None
+    return ray
+
+
+def ray_available() -> bool:
+    """Whether Ray can be imported."""
+    try:
+        require_ray()
+    except BackendUnavailable:
+        return False
+    return True
+
+
+def check_backend_args(backend: str, address: str | None = None, workers: int | None = None) -> None:
+    """``ValueError`` naming the argument for an unknown backend, ``--address`` / ``--workers`` without
+    ``--backend ray`` or ``workers < 1``; :class:`BackendUnavailable` for ``ray`` without Ray installed."""
+    if backend not in BACKENDS:
+        raise ValueError(f"--backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
+    if workers is not None and workers < 1:
+        raise ValueError(f"--workers must be >= 1, got {workers}")
+    if backend == "local":
+        if address is not None:
+            raise ValueError("--address joins a Ray cluster: it needs --backend ray")
+        if workers is not None:
+            raise ValueError("--workers sets the number of Ray workers: it needs --backend ray")
+    else:
+        if address is not None and not address.strip():
+            raise ValueError("--address is empty (give 'auto' or HOST:PORT of the Ray head node)")
+        require_ray()
+
+
+@dataclass(frozen=True)
+class TrialOutcome:
+    """The end of one trial of :meth:`run_trials`.
+
+    Attributes
+    ----------
+    config : the trial's config, as given.
+    result : the dict the trial function returned, or None when it failed.
+    error : ``'<ExceptionType>: <message>'`` of the exception that ended the trial, or None.
+    """
+
+    config: Any
+    result: dict | None
+    error: str | None
+
+
+def error_text(exc: BaseException) -> str:
+    """``'<ExceptionType>: <message>'`` of an exception (a Ray task error: of the exception it wraps)."""
+    cause = getattr(exc, "cause", None)
+    if isinstance(cause, BaseException):
+        exc = cause
+    return f"{type(exc).__name__}: {exc}"
+
+
+def _bar(total: int, desc: str | None, progress: bool):
+    from tqdm import tqdm
+    return tqdm(total=total, desc=desc, unit="batch", file=sys.stderr, dynamic_ncols=True, disable=not progress,
+                mininterval=0.5)
+
+
+class LocalBackend:
+    """Everything in this process, in order."""
+
+    name = "local"
+    workers = 1
+
+    def map(self, fn: Callable, items: Sequence, desc: str | None = None, label: Callable | None = None,
+            progress: bool = True) -> list:
+        """``[fn(item) for item in items]`` with a progress bar (``label(item)`` shown beside it)."""
+        out = []
+        with _bar(len(items), desc, progress) as bar:
+            for item in items:
+                if label is not None:
+                    bar.set_postfix_str(label(item), refresh=True)
+                out.append(fn(item))
+                bar.update(1)
+        return out
+
+    def run_trials(self, fn: Callable[[Any], dict], configs: Sequence, storage: str | os.PathLike,
+                   name: str = "trials") -> list[TrialOutcome]:
+        """Each trial in turn; an exception ends that trial only (its traceback is printed to stderr)."""
+        out = []
+        for c in configs:
+            try:
+                out.append(TrialOutcome(c, dict(fn(c)), None))
+            except Exception as e:  # a failing trial is reported and the others go on
+                traceback.print_exc(file=sys.stderr)
+                out.append(TrialOutcome(c, None, error_text(e)))
+        return out
+
+    def close(self) -> None:
+        """Nothing to release."""
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+class RayBackend:
+    """Ray tasks (:meth:`map`) and Ray Tune trials (:meth:`run_trials`) on a local Ray or a cluster.
+
+    Parameters
+    ----------
+    workers : at most this many tasks or trials run at once; a local Ray started here gets
+        ``num_cpus = workers`` (default: every core of this machine; on a cluster: its CPUs).
+    address : a running cluster to join (``'auto'``, ``'HOST:6379'``, ``'ray://HOST:10001'``); None starts a
+        local Ray in this process (or uses the one this process already initialized).
+    """
+
+    name = "ray"
+
+    def __init__(self, workers: int | None = None, address: str | None = None):
+        ray = require_ray()
+        self.workers = workers
+        self.started = False
+        if not ray.is_initialized():
+            path = os.pathsep.join(filter(None, [str(SOURCE_ROOT), os.environ.get("PYTHONPATH")]))
+            kw = dict(include_dashboard=False, logging_level="WARNING", log_to_driver=True,
+                      runtime_env={"env_vars": {"PYTHONPATH": path}})
+            if address is None:
+                ray.init(num_cpus=workers or os.cpu_count(), **kw)
+            else:
+                try:
+                    ray.init(address=address, **kw)
+                except (ConnectionError, RuntimeError, ValueError) as e:
+                    first = next((ln for ln in str(e).splitlines() if ln.strip()), type(e).__name__)
+                    raise BackendUnavailable(
+                        f"--address {address!r}: cannot join the Ray cluster ({first.strip()}); start it with "
+                        "'ray start --head' and check the address and, with token authentication, the token "
+                        "(RAY_AUTH_TOKEN)") from None
+            self.started = True
+        if self.workers is None:
+            self.workers = max(1, int(ray.cluster_resources().get("CPU", 1)))
+
+    def map(self, fn: Callable, items: Sequence, desc: str | None = None, label: Callable | None = None,
+            progress: bool = True) -> list:
+        """``fn(item)`` as one Ray task (1 CPU) per item, at most :attr:`workers` in flight; results in order.
+
+        The first task that raises cancels the rest and its exception is raised here, unwrapped."""
+        import ray
+        from ray.exceptions import RayTaskError
+        remote = ray.remote(num_cpus=1)(fn)
+        results: list = [None] * len(items)
+        pending: dict = {}
+        todo = iter(enumerate(items))
+
+        def submit():
+            for i, item in todo:
+                pending[remote.remote(item)] = i
+                if len(pending) >= self.workers:
+                    return
+
+        with _bar(len(items), desc, progress) as bar:
+            submit()
+            while pending:
+                done, _ = ray.wait(list(pending), num_returns=1)
+                for ref in done:
+                    i = pending.pop(ref)
+                    try:
+                        results[i] = ray.get(ref)
+                    except RayTaskError as e:
+                        for other in pending:
+                            ray.cancel(other)
+                        cause = getattr(e, "cause", None)
+                        if isinstance(cause, Exception):
+                            raise cause from None
+                        raise
+                    if label is not None:
+                        bar.set_postfix_str(label(items[i]), refresh=False)
+                    bar.update(1)
+                submit()
+        return results
+
+    def run_trials(self, fn: Callable[[Any], dict], configs: Sequence, storage: str | os.PathLike,
+                   name: str = "trials") -> list[TrialOutcome]:
+        """Each config as one Ray Tune trial (1 CPU, at most :attr:`workers` at once, no retry), the Tune
+        experiment under ``storage/name``; a failing trial is recorded by Tune and the others go on."""
+        from ray import tune
+        configs = list(configs)
+        if not configs:
+            return []
+
+        def trial(config):
+            return fn(configs[config["index"]])
+
+        tuner = tune.Tuner(
+            tune.with_resources(trial, {"cpu": 1}),
+            param_space={"index": tune.grid_search(list(range(len(configs))))},
+            tune_config=tune.TuneConfig(max_concurrent_trials=self.workers, reuse_actors=False),
+            run_config=tune.RunConfig(name=name, storage_path=str(Path(storage).resolve()), verbose=1,
+                                      failure_config=tune.FailureConfig(max_failures=0, fail_fast=False)))
+        grid = tuner.fit()
+        out: list = [None] * len(configs)
+        for r in grid:
+            i = r.config["index"]
+            if r.error is not None:
+                out[i] = TrialOutcome(configs[i], None, error_text(r.error))
+            else:
+                metrics = {k: v for k, v in (r.metrics or {}).items() if not _tune_bookkeeping(k)}
+                out[i] = TrialOutcome(configs[i], metrics, None)
+        for i, o in enumerate(out):
+            if o is None:  # pragma: no cover - Tune reports every trial of a finished fit
+                out[i] = TrialOutcome(configs[i], None, "RuntimeError: Ray Tune reported no result for this trial")
+        return out
+
+    def close(self) -> None:
+        """Shut Ray down if this backend started it (a Ray this process had initialized stays)."""
+        if self.started:
+            import ray
+            ray.shutdown()
+            self.started = False
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+_TUNE_KEYS = {"timestamp", "checkpoint_dir_name", "done", "training_iteration", "trial_id", "date",
+              "time_this_iter_s", "time_total_s", "pid", "hostname", "node_ip", "config", "time_since_restore",
+              "iterations_since_restore", "experiment_tag"}
+
+
+def _tune_bookkeeping(key: str) -> bool:
+    """Whether a Tune result key is Tune's own bookkeeping rather than a metric the trial returned."""
+    return key in _TUNE_KEYS
+
+
+def make_backend(backend: str = "local", address: str | None = None, workers: int | None = None):
+    """A :class:`LocalBackend` or :class:`RayBackend` (use it as a context manager: Ray is shut down at the
+    end when it was started here). Errors as :func:`check_backend_args`."""
+    check_backend_args(backend, address, workers)
+    if backend == "local":
+        return LocalBackend()
+    return RayBackend(workers=workers, address=address)

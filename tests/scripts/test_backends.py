@@ -1,0 +1,61 @@
+"""Backends without Ray: argument errors and the one-line install hint when Ray is missing; the local trial
+runner reports a failing trial and goes on."""
+import sys
+
+import pytest
+
+import eval as eval_cli
+from agents.backends import LocalBackend, TrialOutcome, check_backend_args
+
+
+def _no_ray(monkeypatch):
+    monkeypatch.setitem(sys.modules, "ray", None)  # 'import ray' raises ImportError
+
+
+def test_backend_ray_without_ray_says_how_to_install(monkeypatch, capsys, tmp_path):
+    _no_ray(monkeypatch)
+    with pytest.raises(SystemExit) as e:
+        eval_cli.main(["--scenario", "seed000-sim", "--methods", "kf", "--episodes", "1", "--backend", "ray",
+                       "--out", str(tmp_path)])
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "pip install 'navgym[distributed]'" in err
+    assert not (tmp_path / "results.json").exists()
+
+
+@pytest.mark.parametrize("args, msg", [
+    (("--address", "auto"), "--address joins a Ray cluster: it needs --backend ray"),
+    (("--workers", "2"), "--workers sets the number of Ray workers: it needs --backend ray"),
+    (("--backend", "ray", "--workers", "0"), "--workers must be >= 1, got 0"),
+])
+def test_backend_argument_errors(args, msg, capsys, tmp_path):
+    with pytest.raises(SystemExit) as e:
+        eval_cli.main(["--scenario", "seed000-sim", "--episodes", "1", *args, "--out", str(tmp_path)])
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert msg in err and len(err.splitlines()) == 1
+
+
+def test_experiment_with_ray_backend_is_refused(capsys, tmp_path):
+    pytest.importorskip("ray", reason="Ray is not installed (pip install 'navgym[distributed]')")
+    with pytest.raises(SystemExit) as e:
+        eval_cli.main(["--experiment", "seed000", "--backend", "ray", "--out", str(tmp_path)])
+    assert e.value.code == 2 and "--experiment runs here only" in capsys.readouterr().err
+
+
+def test_check_backend_args_names_the_backend():
+    with pytest.raises(ValueError, match="--backend must be one of local, ray, got 'dask'"):
+        check_backend_args("dask")
+
+
+def _trial(c):
+    if c["x"] < 0:
+        raise ValueError(f"x must be >= 0, got {c['x']}")
+    return {"y": 2 * c["x"]}
+
+
+def test_local_trials_report_a_failure_and_go_on(tmp_path):
+    out = LocalBackend().run_trials(_trial, [{"x": 1}, {"x": -1}, {"x": 3}], storage=tmp_path)
+    assert out == [TrialOutcome({"x": 1}, {"y": 2}, None),
+                   TrialOutcome({"x": -1}, None, "ValueError: x must be >= 0, got -1"),
+                   TrialOutcome({"x": 3}, {"y": 6}, None)]
