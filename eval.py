@@ -181,7 +181,7 @@ def main(argv=None) -> dict:
                "config": {"episodes": args.episodes, "seed": args.seed, "dtype": args.dtype, "zupt": args.zupt,
                           "goal": _parse_goals(args.goal),
                           "methods": specs, "reference": ref, "episode_seeds": seeds}}
-    curves, tracks = {}, {}
+    curves, tracks, events = {}, {}, {}
     for s in scenarios:
         methods = [m for _, ms in plan[s] for m in ms]
         ref_label = dict(plan[s])[ref][0].label
@@ -197,6 +197,7 @@ def main(argv=None) -> dict:
                 fail(f"scenario {s!r} needs a recorded data set: {e}")
             if c0 == 0:
                 tracks[s] = _truth_track(world)
+            events.setdefault(s, []).append(world.gnss.event_mask)
             for m in methods:
                 print(f"\r[{s}] {m.label[-40:]:<40s} episodes {c0 + 1}-{c0 + len(chunk)}/{len(seeds)}"
                       f"  ({time.perf_counter() - t_start:.0f} s)", end="", flush=True, file=sys.stderr)
@@ -229,14 +230,7 @@ def main(argv=None) -> dict:
         print("\nHeadroom\n\n" + htable)
         (out / "headroom.md").write_text(htable + "\n")
     write_csv(results, out / "results.csv")
-    plots = []
-    if not args.no_plots:
-        for s, per in curves.items():
-            plot_error_vs_time(s, per, out / f"error_vs_time_{s}.png")
-            plot_cdf(s, per, out / f"cdf_{s}.png")
-            plot_bars(s, results["scenarios"][s], out / f"rmse_bars_{s}.png")
-            plot_trajectory(s, per, tracks[s], out / f"trajectory_{s}.png")
-            plots += [out / f"{kind}_{s}.png" for kind in ("error_vs_time", "cdf", "rmse_bars", "trajectory")]
+    plots = [] if args.no_plots else write_all_plots(out, results, curves, tracks, events, plan)
     written = [out / "results.json", out / "results.md", out / "results.csv"]
     if args.headroom:
         written.append(out / "headroom.md")
@@ -246,6 +240,21 @@ def main(argv=None) -> dict:
         written.append(Path(args.note))
     print("wrote " + ", ".join(str(p) for p in written))
     return results
+
+
+def write_all_plots(out: Path, results: dict, curves: dict, tracks: dict, events: dict, plan: dict) -> list:
+    """The PNGs of every scenario (:mod:`plots`, short labels of :mod:`agents.provenance`); their paths."""
+    import plots
+    from agents.methods import PolicyMethod
+    from agents.provenance import short_labels
+    paths = []
+    for s, per in curves.items():
+        ev = np.concatenate(events[s], 0) if s in events else None
+        ev = ev if ev is not None and ev.shape[-1] == next(iter(per.values())).t.size else None
+        learned = [m.label for _, ms in plan[s] for m in ms if isinstance(m, PolicyMethod)]
+        paths += plots.write_plots(out, s, per, results["scenarios"][s], _ref_label(results, s),
+                                   short_labels(per, s), tracks[s], ev, learned)
+    return paths
 
 
 def run_experiment_cli(args, out: Path) -> dict:
@@ -288,9 +297,12 @@ def _fmt(key, v):
 
 
 def _fmt_pair(r):
+    from envs.metrics import MIN_CI_EPISODES, no_ci_text
     p = r.get("paired_vs_reference")
     if not p:
         return "(reference)"
+    if p["episodes"] < MIN_CI_EPISODES:
+        return f"{p['diff_rmse_h_m']:+.2f} ({100 * p['rel_diff']:+.1f}%; {no_ci_text()})"
     lo, hi = p["diff_rmse_h_ci95_m"]
     return f"{p['diff_rmse_h_m']:+.2f} [{lo:+.2f}, {hi:+.2f}] ({100 * p['rel_diff']:+.1f}%)"
 
@@ -304,14 +316,18 @@ def _group_rows(results: dict, s: str):
 
 def format_table(results: dict) -> str:
     """Markdown table of every scenario x method, with the paired difference to the reference; a method
-    given as a pattern over training seeds also gets a pooled row (:func:`envs.metrics.summarize_seeds`)."""
+    given as a pattern over training seeds also gets a pooled row (:func:`envs.metrics.summarize_seeds`).
+    Below :data:`envs.metrics.MIN_CI_EPISODES` episodes the CI columns say so instead of a CI."""
+    from envs.metrics import MIN_CI_EPISODES, no_ci_text
     head = ("| scenario | method | episodes | " + " | ".join(c[1] for c in COLUMNS)
             + f" | vs {results['config']['reference']}: dRMSE h [m] (95% CI) |")
     sep = "|" + "---|" * (4 + len(COLUMNS))
     rows = [head, sep]
     for s, per in results["scenarios"].items():
         for m, r in list(per.items()) + list(_group_rows(results, s)):
-            rows.append(f"| {s} | {m} | {r['episodes']} | " + " | ".join(_fmt(k, r[k]) for k, _ in COLUMNS)
+            few = r["episodes"] < MIN_CI_EPISODES
+            rows.append(f"| {s} | {m} | {r['episodes']} | " + " | ".join(
+                no_ci_text() if few and k == "rmse_h_ci95_m" else _fmt(k, r[k]) for k, _ in COLUMNS)
                         + f" | {_fmt_pair(r)} |")
     return "\n".join(rows)
 
@@ -343,6 +359,14 @@ def _verdict(p: dict) -> str:
     if lo > 0:
         return "higher (the 95% CI excludes 0)"
     return "no significant difference (the 95% CI includes 0)"
+
+
+def _named(label: str, scenario: str, row: dict) -> str:
+    """A method in the note's sentences: its short label with the full spec (pooled rows: the seed count)."""
+    from agents.provenance import short_label
+    spec = label.split(" (pooled over ", 1)[0]
+    short = short_label(spec, scenario, row.get("seeds") if spec != label else None)
+    return label if short == label else f"{short} (`{spec}`)"
 
 
 def _parse_goals(items) -> dict | None:
@@ -385,13 +409,15 @@ def reading(results: dict, goals: dict | None = None) -> list[str]:
                 tail = f"; goal {100 * goal_rel:+.0f}% not judged (n < {MIN_CI_EPISODES})."
             else:
                 tail = f"; goal {100 * goal_rel:+.0f}% {'met' if p['rel_diff'] <= goal_rel else 'not met'}."
-            out.append(f"- `{s}`: {m}: horizontal RMSE {100 * p['rel_diff']:+.1f}% against `{c['reference']}` "
+            out.append(f"- `{s}`: {_named(m, s, r)}: horizontal RMSE {100 * p['rel_diff']:+.1f}% against `{c['reference']}` "
                        f"({p['diff_rmse_h_m']:+.2f} m{ci}; reference {ref_rmse:.2f} m): {_verdict(p)}{tail}")
     for spec in c["methods"]:
         if not spec.startswith("tuned:"):
             continue
+        used: dict = {}   # tuning file -> scenarios it was used on
         for s in results["scenarios"]:
-            path = spec.split(":", 1)[1].replace("{scenario}", s)
+            used.setdefault(spec.split(":", 1)[1].replace("{scenario}", s), []).append(s)
+        for path, scens in used.items():
             try:
                 t = json.loads(Path(path).read_text())
             except (OSError, ValueError):
@@ -401,8 +427,9 @@ def reading(results: dict, goals: dict | None = None) -> list[str]:
                 continue
             grid = t["grid"]
             edge = " (at the edge of the searched range)" if t["best"] in (grid[0], grid[-1]) else ""
-            out.append(f"- `{s}`: the optimized fixed {t['param']} = {t['best']:.4g}{edge}; over the searched "
-                       f"{t['param']} in [{grid[0]:.4g}, {grid[-1]:.4g}] the training RMSE spans "
+            where = ", ".join(f"`{x}`" for x in scens)
+            out.append(f"- {where}: the optimized fixed {t['param']} = {t['best']:.4g} (`{path}`){edge}; over the "
+                       f"searched {t['param']} in [{grid[0]:.4g}, {grid[-1]:.4g}] the training RMSE spans "
                        f"{min(r):.3f}-{max(r):.3f} m ({100 * (max(r) / min(r) - 1):.1f}% above the best at worst).")
     return out
 
@@ -571,99 +598,11 @@ def write_note(results: dict, path: Path, out: Path, cmd: str) -> None:
              "as a pattern over training seeds has a row per seed and a pooled row (the CI resamples episodes, "
              "each with all its seeds).", "",
              format_table(results), "", "## Reading", "", *reading(results, results["config"].get("goal")), "",
+
              *(["## Headroom", "", HEADROOM_INTRO, "", format_headroom(results["headroom"]), ""]
                if "headroom" in results else []),
              f"Plots and raw numbers: `{out}` (results.json, results.csv, *.png).", ""]
     path.write_text("\n".join(lines))
-
-
-def _save(plt, fig, path: Path) -> None:
-    """Lay out, write and close a figure."""
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
-
-
-def _mpl():
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    return plt
-
-
-def plot_error_vs_time(scenario: str, logs: dict, path: Path) -> None:
-    """Median and 10-90% band of the horizontal error vs time, one colour per method."""
-    plt = _mpl()
-    fig, ax = plt.subplots(figsize=(8, 4), dpi=110)
-    for m, log in logs.items():
-        h = log.horizontal_error[~log.diverged]
-        if h.size == 0:
-            continue
-        med = np.median(h, 0)
-        lo, hi = np.quantile(h, [0.1, 0.9], axis=0)
-        (line,) = ax.plot(log.t, med, label=m, lw=1.2)
-        ax.fill_between(log.t, lo, hi, color=line.get_color(), alpha=0.15)
-    ax.set_xlabel("time [s]")
-    ax.set_ylabel("horizontal position error [m]")
-    ax.set_title(f"{scenario}: horizontal error, median and 10-90% band over episodes")
-    ax.set_yscale("log")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
-    _save(plt, fig, path)
-
-
-def plot_cdf(scenario: str, logs: dict, path: Path) -> None:
-    """Empirical CDF of the horizontal error over all epochs and episodes."""
-    plt = _mpl()
-    fig, ax = plt.subplots(figsize=(6, 4), dpi=110)
-    for m, log in logs.items():
-        h = np.sort(log.horizontal_error[~log.diverged].ravel())
-        if h.size:
-            ax.plot(h, np.arange(1, h.size + 1) / h.size, label=m, lw=1.2)
-    ax.set_xscale("log")
-    ax.set_xlabel("horizontal position error [m]")
-    ax.set_ylabel("fraction of epochs")
-    ax.set_title(f"{scenario}: CDF of the horizontal error")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
-    _save(plt, fig, path)
-
-
-def plot_bars(scenario: str, per: dict, path: Path) -> None:
-    """Horizontal RMSE per method with its bootstrap 95% CI."""
-    plt = _mpl()
-    names = list(per)
-    v = np.array([per[m]["rmse_h_m"] for m in names])
-    lo = np.array([per[m]["rmse_h_ci95_m"][0] for m in names])
-    hi = np.array([per[m]["rmse_h_ci95_m"][1] for m in names])
-    fig, ax = plt.subplots(figsize=(max(5, 1.1 * len(names)), 4), dpi=110)
-    ax.bar(range(len(names)), v, yerr=[np.maximum(v - lo, 0), np.maximum(hi - v, 0)], capsize=4, color="tab:blue",
-           alpha=0.8)
-    ax.set_xticks(range(len(names)))
-    ax.set_xticklabels([n if len(n) < 24 else n[:21] + "..." for n in names], rotation=20, ha="right", fontsize=8)
-    ax.set_ylabel("horizontal RMSE [m]")
-    ax.set_title(f"{scenario}: RMSE with 95% bootstrap CI")
-    ax.grid(True, axis="y", alpha=0.3)
-    _save(plt, fig, path)
-
-
-def plot_trajectory(scenario: str, logs: dict, truth_ne, path: Path) -> None:
-    """Episode 0: the true track and each method's estimate (north/east from the start)."""
-    plt = _mpl()
-    fig, ax = plt.subplots(figsize=(6, 6), dpi=110)
-    ax.plot(truth_ne[:, 1], truth_ne[:, 0], "k-", lw=2, label="truth")
-    for m, log in logs.items():
-        if log.diverged[0]:
-            continue
-        est = truth_ne + log.pos_err_ned[0, :, :2]
-        ax.plot(est[:, 1], est[:, 0], ".", ms=2, label=m)
-    ax.set_xlabel("east [m]")
-    ax.set_ylabel("north [m]")
-    ax.set_title(f"{scenario}: episode 0 trajectory")
-    ax.axis("equal")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, markerscale=4)
-    _save(plt, fig, path)
 
 
 if __name__ == "__main__":
