@@ -197,6 +197,7 @@ def main(argv=None) -> dict:
                 fail(f"scenario {s!r} needs a recorded data set: {e}")
             if c0 == 0:
                 tracks[s] = _truth_track(world)
+                results["config"].setdefault("episode_length_s", {})[s] = float(world.scenario.duration_s)
             events.setdefault(s, []).append(world.gnss.event_mask)
             for m in methods:
                 print(f"\r[{s}] {m.label[-40:]:<40s} episodes {c0 + 1}-{c0 + len(chunk)}/{len(seeds)}"
@@ -587,6 +588,15 @@ def _ref_label(results: dict, s: str) -> str:
     return c.get("reference_labels", {}).get(s, c["reference"])
 
 
+def _trained_on(results: dict) -> list[str]:
+    """The note's section on what each tuned or learned method was trained on (:mod:`agents.provenance`)."""
+    from agents.provenance import training_notes
+    groups = {s: {spec: g["members"] for spec, g in per.items()} for s, per in results.get("seed_groups", {}).items()}
+    items = training_notes({s: list(per) for s, per in results["scenarios"].items()},
+                           results["config"].get("episode_length_s"), groups)
+    return ["## What the tuned and learned methods were trained on", "", *items, ""] if items else []
+
+
 def write_note(results: dict, path: Path, out: Path, cmd: str) -> None:
     """A Markdown results note generated from results.json (never typed by hand)."""
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -598,7 +608,7 @@ def write_note(results: dict, path: Path, out: Path, cmd: str) -> None:
              "as a pattern over training seeds has a row per seed and a pooled row (the CI resamples episodes, "
              "each with all its seeds).", "",
              format_table(results), "", "## Reading", "", *reading(results, results["config"].get("goal")), "",
-
+             *_trained_on(results),
              *(["## Headroom", "", HEADROOM_INTRO, "", format_headroom(results["headroom"]), ""]
                if "headroom" in results else []),
              f"Plots and raw numbers: `{out}` (results.json, results.csv, *.png).", ""]

@@ -169,3 +169,62 @@ def short_labels(labels, scenario: str, groups: dict | None = None) -> dict:
             out[lab] = _cut(s[:MAX_LABEL - 4]) + f" #{n + 1}"
     return out
 
+
+def training_notes(labels_by_scenario: dict, eval_length_s: dict | None = None, groups: dict | None = None) -> list:
+    """Markdown list items: what each tuned or learned method was trained on, against what it is evaluated on.
+
+    Parameters
+    ----------
+    labels_by_scenario : ``{scenario: [method label, ...]}`` of the evaluation.
+    eval_length_s : ``{scenario: evaluated episode length [s]}`` (None: not stated).
+    groups : ``{scenario: {spec: [member labels]}}`` of the seed groups: one item per group, its members'
+        records together.
+
+    Returns
+    -------
+    list of str : one item per (method, training record) with the scenarios it was evaluated on, and a
+    warning where the training scenario or episode length differs from the evaluated ones; a method without
+    a readable record says so. Filters, rules and oracles are not trained and get no item.
+    """
+    eval_length_s = eval_length_s or {}
+    items: dict = {}   # (spec, description) -> [scenarios]
+    for s, labels in labels_by_scenario.items():
+        grouped = (groups or {}).get(s, {})
+        member_of = {m: spec for spec, ms in grouped.items() for m in ms}
+        done = set()
+        for lab in labels:
+            spec = member_of.get(lab, lab)
+            if spec in done:
+                continue
+            done.add(spec)
+            kind = _kind_path(spec)[0]
+            if kind != "tuned" and kind.lower() not in ALGOS:
+                continue
+            members = grouped.get(spec, [lab])
+            recs = [training_record(m, s) for m in members]
+            if any(r is None for r in recs):
+                desc, warn = "no training record found (no tuning.json / config.json readable)", ""
+                key = (spec, desc, "")
+            else:
+                desc = describe_training(recs)
+                warn = []
+                scen = {r["scenario"] for r in recs}
+                if scen != {s}:
+                    warn.append(f"trained on {', '.join(sorted(map(str, scen)))}")
+                lengths = {r["episode_length_s"] for r in recs}
+                ev = eval_length_s.get(s)
+                if ev is not None and lengths != {float(ev)}:
+                    warn.append(f"episodes of {', '.join(f'{v:g}' for v in sorted(x for x in lengths if x))} s")
+                key = (spec, desc, "; ".join(warn))
+            name = short_label(spec, s, len(members) if len(members) > 1 else None)
+            items.setdefault(key + (name,), []).append(s)
+    out = []
+    for (spec, desc, warn, name), scens in items.items():
+        lengths = sorted({eval_length_s[s] for s in scens if s in eval_length_s})
+        on = ", ".join(f"`{s}`" for s in scens) + (f" ({', '.join(f'{v:g}' for v in lengths)} s episodes)"
+                                                   if lengths else "")
+        line = f"- {name} (`{spec}`): {desc}; evaluated on {on}."
+        if warn:
+            line += f" Note: evaluated outside its training conditions ({warn})."
+        out.append(line)
+    return out

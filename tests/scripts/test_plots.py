@@ -167,3 +167,43 @@ def test_table_says_no_ci_below_the_minimum():
         else:
             assert "0.90-1.10" in kf and "+0.10 [+0.05, +0.15] (+10.0%)" in stkf and "no CI" not in stkf
 
+
+def test_training_notes_state_and_warn(tmp_path):
+    from agents.provenance import training_notes
+    d = tmp_path / "p"
+    d.mkdir()
+    (d / "config.json").write_text(json.dumps({"env": "GnssIns/SageHusa-v0", "algo": "ppo", "seed": 0,
+                                               "env_kwargs": {"episode_length_s": 60.0}, "n_timesteps": 24576}))
+    spec = f"ppo:{d}/model.zip"
+    notes = training_notes({"noise-burst": ["kf", spec], "urban": ["kf", spec]},
+                           {"noise-burst": 300.0, "urban": 300.0})
+    assert len(notes) == 2  # kf is not trained; one item per distinct warning
+    nb = next(x for x in notes if "`noise-burst`" in x)
+    assert nb.startswith(f"- ppo (`{spec}`): trained on noise-burst, 60 s episodes, 24576 steps, seed 0")
+    assert "evaluated on `noise-burst` (300 s episodes)" in nb and "(episodes of 60 s)" in nb
+    assert "trained on noise-burst; episodes of 60 s" in next(x for x in notes if "`urban`" in x)
+    same = training_notes({"noise-burst": [spec]}, {"noise-burst": 60.0})
+    assert "outside its training conditions" not in same[0]
+    missing = training_notes({"urban": [f"tuned:{tmp_path}/none.json"]})
+    assert "no training record found" in missing[0]
+
+
+def test_note_has_the_training_section(tmp_path):
+    import eval
+    d = tmp_path / "p"
+    d.mkdir()
+    (d / "config.json").write_text(json.dumps({"env": "GnssIns/SageHusa-v0", "algo": "ppo", "seed": 2,
+                                               "env_kwargs": {"episode_length_s": 60.0}, "n_timesteps": 512}))
+    spec = f"ppo:{d}/model.zip"
+    row = {"episodes": 3, "rmse_h_m": 1.0, "rmse_h_ci95_m": [0.9, 1.1], "rmse_3d_m": 1.2, "p95_h_m": 1.5,
+           "max_h_m": 2.0, "filter_time_per_epoch_s": 1e-3, "diverged": 0}
+    pol = dict(row, paired_vs_reference={"episodes": 3, "diff_rmse_h_m": 0.1, "diff_rmse_h_ci95_m": [0.0, 0.2],
+                                         "rel_diff": 0.1})
+    res = {"config": {"reference": "kf", "episodes": 3, "seed": 0, "dtype": "float64", "methods": ["kf", spec],
+                      "episode_length_s": {"urban": 300.0}},
+           "scenarios": {"urban": {"kf": row, spec: pol}}}
+    eval.write_note(res, tmp_path / "NOTE.md", tmp_path, "x")
+    note = (tmp_path / "NOTE.md").read_text()
+    assert "## What the tuned and learned methods were trained on" in note
+    assert f"- ppo (`{spec}`): trained on noise-burst, 60 s episodes, 512 steps, seed 2; evaluated on `urban`" in note
+    assert f"- `urban`: ppo (`{spec}`): horizontal RMSE +10.0%" in note
