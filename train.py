@@ -11,8 +11,8 @@ evaluation), ``checkpoints/`` and ``logs/`` (CSV + tensorboard). ``tune`` writes
 for ``eval.py --methods tuned:runs/DIR/tuning.json``. ``zupt`` writes the detector's weights and
 ``metrics.json``.
 
-The environments also train unchanged under RL Zoo:
-``python -m rl_zoo3.train --gym-packages envs --env GnssIns/SageHusa-v0 --algo ppo``.
+The environments also train unchanged under RL Zoo, with navgym's hyperparameters from ``hyperparams/``:
+``python -m rl_zoo3.train --gym-packages envs --env GnssIns/SageHusa-v0 --algo ppo --conf-file hyperparams/ppo.yml``.
 """
 from __future__ import annotations
 

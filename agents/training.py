@@ -35,6 +35,10 @@ DEFAULT_HYPERPARAMS = {
     "td3": dict(policy="MlpPolicy", learning_rate=3e-4, buffer_size=100_000, batch_size=256, gamma=0.95,
                 learning_starts=1000, policy_kwargs=dict(net_arch=[64, 64])),
 }
+DEFAULT_SETTINGS = dict(n_timesteps=100_000, n_envs=16, normalize=True, env_kwargs={}, eval_freq=10_000,
+                        eval_episodes=16)
+"""Run settings of ``train.py rl`` without ``--quick`` or a config file (``hyperparams/*.yml`` repeat them for
+RL Zoo)."""
 QUICK = dict(n_timesteps=24_576, n_envs=8, env_kwargs=dict(episode_length_s=60.0), eval_freq=1536, eval_episodes=8,
              hyper=dict(ppo=dict(n_steps=64, batch_size=256, n_epochs=5),
                         recurrentppo=dict(n_steps=64, batch_size=256, n_epochs=5),
@@ -97,8 +101,7 @@ def train_rl(env_id: str, algo: str, out, timesteps: int | None = None, seed: in
         raise ValueError(f"unknown algorithm {algo!r}; known: {', '.join(ALGOS)}")
     env_class(env_id)
     hyper = dict(DEFAULT_HYPERPARAMS[algo])
-    settings = dict(n_timesteps=100_000, n_envs=16, normalize=True, env_kwargs={}, eval_freq=10_000,
-                    eval_episodes=16)
+    settings = {**DEFAULT_SETTINGS, "env_kwargs": dict(DEFAULT_SETTINGS["env_kwargs"])}
     if quick:
         settings.update(n_timesteps=QUICK["n_timesteps"], n_envs=QUICK["n_envs"], eval_freq=QUICK["eval_freq"],
                         eval_episodes=QUICK["eval_episodes"], env_kwargs=dict(QUICK["env_kwargs"]))
