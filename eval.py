@@ -51,12 +51,13 @@ def episode_seeds(seed: int, episodes: int) -> list[int]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="eval.py", description=__doc__.split("\n\n")[0],
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    from cli_help import HelpFormatter, method_grammar
+    p = argparse.ArgumentParser(prog="eval.py", description=__doc__.split("\n\n")[0], formatter_class=HelpFormatter,
+                                epilog=method_grammar() + "\n\n" + __doc__.strip().split("\n\n")[-1].replace("``", ""))
     p.add_argument("--scenario", action="append", metavar="NAME",
                    help=f"scenario name (repeatable); default: {', '.join(DEFAULT_SCENARIOS)}")
     p.add_argument("--methods", default=",".join(DEFAULT_METHODS),
-                   help="comma-separated method specs (see above)")
+                   help="comma-separated method specs (the grammar is below)")
     p.add_argument("--reference", default=None, help="method for the paired differences (default: the first)")
     p.add_argument("--episodes", type=int, default=None,
                    help="Monte Carlo episodes per scenario (default 8; experiments: their own default)")
