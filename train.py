@@ -76,8 +76,8 @@ def build_parser():
                          "navgym's own hyperparameters)")
     rl.add_argument("--quick", action="store_true",
                     help=f"a small run: {Q['n_timesteps']} steps, {Q['n_envs']} envs, "
-                         f"{Q['env_kwargs']['episode_length_s']:g} s episodes (PPO about 2 minutes on 2 cores; "
-                         "recurrentppo longer, see README)")
+                         f"{Q['env_kwargs']['episode_length_s']:g} s episodes (measured on 2 busy cores: PPO about 1 "
+                         "minute, recurrentppo about 1.5 minutes)")
     rl.add_argument("--no-normalize", action="store_true", help="no VecNormalize (default: normalize)")
     rl.add_argument("--no-progress", action="store_true", help="no progress bar (default: show one)")
     rl.add_argument("--out", required=True, help="output directory runs/DIR (required)")

@@ -36,12 +36,14 @@ DEFAULT_HYPERPARAMS = {
                 learning_starts=1000, policy_kwargs=dict(net_arch=[64, 64])),
 }
 DEFAULT_SETTINGS = dict(n_timesteps=100_000, n_envs=16, normalize=True, env_kwargs={}, eval_freq=10_000,
-                        eval_episodes=16)
+                        eval_episodes=16, torch_threads=1)
 """Run settings of ``train.py rl`` without ``--quick`` or a config file (``hyperparams/*.yml`` repeat them for
-RL Zoo)."""
+RL Zoo). ``torch_threads``: the policies are small (64-unit layers, a 32-unit LSTM), where torch's
+intra-op threads cost more than they give: on 2 busy cores RecurrentPPO's quick preset ran at 48 env-steps/s
+with torch's default 2 threads and 282 with 1 (``benchmarks/bench_recurrent.py``)."""
 QUICK = dict(n_timesteps=24_576, n_envs=8, env_kwargs=dict(episode_length_s=60.0), eval_freq=1536, eval_episodes=8,
              hyper=dict(ppo=dict(n_steps=64, batch_size=256, n_epochs=5),
-                        recurrentppo=dict(n_steps=64, batch_size=256, n_epochs=5),
+                        recurrentppo=dict(n_steps=128, batch_size=512, n_epochs=5),
                         sac=dict(learning_starts=512), td3=dict(learning_starts=512)))
 
 
@@ -108,7 +110,7 @@ def train_rl(env_id: str, algo: str, out, timesteps: int | None = None, seed: in
         hyper.update(QUICK["hyper"].get(algo, {}))
     if config_file is not None:
         zoo = load_zoo_config(config_file, env_id)
-        for k in ("n_timesteps", "n_envs", "normalize", "eval_freq", "eval_episodes"):
+        for k in ("n_timesteps", "n_envs", "normalize", "eval_freq", "eval_episodes", "torch_threads"):
             if k in zoo:
                 settings[k] = zoo.pop(k)
         settings["env_kwargs"].update(zoo.pop("env_kwargs", {}) or {})
@@ -125,6 +127,8 @@ def train_rl(env_id: str, algo: str, out, timesteps: int | None = None, seed: in
     settings["n_timesteps"] = int(float(settings["n_timesteps"]))
     if settings["n_timesteps"] < 1 or settings["n_envs"] < 1:
         raise ValueError("--timesteps and --n-envs must be positive")
+    if not isinstance(settings["torch_threads"], int) or settings["torch_threads"] < 1:
+        raise ValueError(f"torch_threads must be an int >= 1, got {settings['torch_threads']!r}")
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -135,6 +139,8 @@ def train_rl(env_id: str, algo: str, out, timesteps: int | None = None, seed: in
     if settings["normalize"]:
         venv = VecNormalize(venv, norm_obs=True, norm_reward=True, gamma=hyper.get("gamma", 0.99))
         eval_env = VecNormalize(eval_env, norm_obs=True, norm_reward=False, training=False)
+    import torch
+    torch.set_num_threads(int(settings["torch_threads"]))
     cls = algo_class(algo)
     policy = hyper.pop("policy")
     model = cls(policy, venv, seed=seed, device="cpu", verbose=0, **hyper)
