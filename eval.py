@@ -24,8 +24,11 @@ each oracle: headroom = (fixed - oracle) / fixed, the knob headroom net of the o
 the ``"headroom"`` key of results.json (schema in :func:`compute_headroom`).
 
 Prints a table and writes ``OUT/results.json`` (schema of DESIGN.md plus the paired difference to the
-reference method), ``results.csv``, ``results.md`` and PNG plots per scenario: error vs time (median and
-10-90% band), CDF of the horizontal error, bar chart of RMSE with 95% CIs, and one trajectory.
+reference method), ``results.csv``, ``results.md`` and PNG plots per scenario (:mod:`plots`): error vs time
+with the paired difference to the reference and the scenario's events, the trajectory of episode 0, the
+parameter a learned policy set over time, the CDF of the horizontal error and the RMSE with 95% CIs. Plots
+and the note show short method labels (:mod:`agents.provenance`); the tables keep the full specs. The note
+states what each tuned or learned method was trained on. The last line lists every file written.
 
 With no arguments it runs the default comparison: ``noise-burst``, ``urban`` and ``open-sky`` with ``kf``,
 ``sage-husa``, ``stkf`` and ``ma-stkf``, 8 episodes, seed 0, into ``results/default``.
@@ -411,8 +414,9 @@ def reading(results: dict, goals: dict | None = None) -> list[str]:
                 tail = f"; goal {100 * goal_rel:+.0f}% not judged (n < {MIN_CI_EPISODES})."
             else:
                 tail = f"; goal {100 * goal_rel:+.0f}% {'met' if p['rel_diff'] <= goal_rel else 'not met'}."
-            out.append(f"- `{s}`: {_named(m, s, r)}: horizontal RMSE {100 * p['rel_diff']:+.1f}% against `{c['reference']}` "
-                       f"({p['diff_rmse_h_m']:+.2f} m{ci}; reference {ref_rmse:.2f} m): {_verdict(p)}{tail}")
+            out.append(f"- `{s}`: {_named(m, s, r)}: horizontal RMSE {100 * p['rel_diff']:+.1f}% against "
+                       f"`{c['reference']}` ({p['diff_rmse_h_m']:+.2f} m{ci}; reference {ref_rmse:.2f} m): "
+                       f"{_verdict(p)}{tail}")
     for spec in c["methods"]:
         if not spec.startswith("tuned:"):
             continue
