@@ -222,7 +222,8 @@ def plot_trajectory(scenario: str, logs: dict, truth_ne, path: Path, ref: str, l
     ax.grid(alpha=0.3)
     ax2.set_xlabel("east error [m]")
     ax2.set_ylabel("north error [m]")
-    ax2.set_title("episode 0: position error (dots: epochs inside an event)", fontsize=10)
+    marked = any(not throughout for _, _, throughout in wins)
+    ax2.set_title("episode 0: position error" + (" (circles: epochs inside an event)" if marked else ""), fontsize=10)
     ax2.set_aspect("equal", adjustable="datalim")
     ax2.grid(alpha=0.3)
     fig.legend(*ax.get_legend_handles_labels(), fontsize=8, loc="upper left", bbox_to_anchor=(1.0, 0.95))
@@ -297,7 +298,7 @@ def plot_bars(scenario: str, per: dict, path: Path, labels: dict) -> None:
     ax.set_xticklabels([labels[m] for m in names], rotation=25, ha="right", fontsize=8)
     ax.set_ylabel("horizontal RMSE [m]")
     ax.set_title(f"{scenario}: RMSE " + (f"({no_ci_text()})" if few else "with 95% bootstrap CI")
-                 + " (oracles grey)")
+                 + (" (oracles grey)" if any(m.startswith("oracle") for m in names) else ""))
     ax.grid(True, axis="y", alpha=0.3)
     _save(plt, fig, path)
 
