@@ -24,8 +24,11 @@ each oracle: headroom = (fixed - oracle) / fixed, the knob headroom net of the o
 the ``"headroom"`` key of results.json (schema in :func:`compute_headroom`).
 
 Prints a table and writes ``OUT/results.json`` (schema of DESIGN.md plus the paired difference to the
-reference method), ``results.csv``, ``results.md`` and PNG plots per scenario: error vs time (median and
-10-90% band), CDF of the horizontal error, bar chart of RMSE with 95% CIs, and one trajectory.
+reference method), ``results.csv``, ``results.md`` and PNG plots per scenario (:mod:`plots`): error vs time
+with the paired difference to the reference and the scenario's events, the trajectory of episode 0, the
+parameter a learned policy set over time, the CDF of the horizontal error and the RMSE with 95% CIs. Plots
+and the note show short method labels (:mod:`agents.provenance`); the tables keep the full specs. The note
+states what each tuned or learned method was trained on. The last line lists every file written.
 
 ``results.json`` is strict JSON (a NaN or inf figure is written as ``null``) and, apart from the wall-clock
 figures named in :data:`TIMING_KEYS` (``filter_time_per_epoch_s`` of each method, part of the DESIGN.md
@@ -63,13 +66,14 @@ def episode_seeds(seed: int, episodes: int) -> list[int]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="eval.py", description=__doc__.split("\n\n")[0],
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    from cli_help import HelpFormatter, method_grammar
+    p = argparse.ArgumentParser(prog="eval.py", description=__doc__.split("\n\n")[0], formatter_class=HelpFormatter,
+                                epilog=method_grammar() + "\n\n" + __doc__.strip().split("\n\n")[-1].replace("``", ""))
     p.add_argument("--scenario", action="append", metavar="NAME",
                    help=f"scenario name or dataset spec path (*.toml; repeatable); default: "
                         f"{', '.join(DEFAULT_SCENARIOS)}")
     p.add_argument("--methods", default=",".join(DEFAULT_METHODS),
-                   help="comma-separated method specs (see above)")
+                   help="comma-separated method specs (the grammar is below)")
     p.add_argument("--reference", default=None, help="method for the paired differences (default: the first)")
     p.add_argument("--episodes", type=int, default=None,
                    help="Monte Carlo episodes per scenario (default 8; experiments: their own default)")
@@ -243,11 +247,15 @@ def main(argv=None) -> dict:
     for s in scenarios:
         results["config"].setdefault("reference_labels", {})[s] = dict(plan[s])[ref][0].label
     t_start = time.perf_counter()
-    by_source, track_by_source = run_batches(
+    by_source, track_by_source, events_by_source, length_by_source = run_batches(
         args, {sources[s]: [m for _, ms in plan[s] for m in ms] for s in scenarios}, seeds)
     timing["wall_time_s"] = time.perf_counter() - t_start
     curves = {s: by_source[sources[s]] for s in scenarios}
     tracks = {s: track_by_source[sources[s]] for s in scenarios if sources[s] in track_by_source}
+    events = {s: events_by_source.get(sources[s], []) for s in scenarios}
+    for s in scenarios:
+        if sources[s] in length_by_source:
+            results["config"].setdefault("episode_length_s", {})[s] = length_by_source[sources[s]]
     for s in scenarios:
         ref_label = results["config"]["reference_labels"][s]
         results["scenarios"][s] = {label: summarize(log) for label, log in curves[s].items()}
@@ -277,14 +285,7 @@ def main(argv=None) -> dict:
         print("\nHeadroom\n\n" + htable)
         (out / "headroom.md").write_text(htable + "\n")
     write_csv(results, out / "results.csv")
-    plots = []
-    if not args.no_plots:
-        for s, per in curves.items():
-            plot_error_vs_time(s, per, out / f"error_vs_time_{s}.png")
-            plot_cdf(s, per, out / f"cdf_{s}.png")
-            plot_bars(s, results["scenarios"][s], out / f"rmse_bars_{s}.png")
-            plot_trajectory(s, per, tracks[s], out / f"trajectory_{s}.png")
-            plots += [out / f"{kind}_{s}.png" for kind in ("error_vs_time", "cdf", "rmse_bars", "trajectory")]
+    plots = [] if args.no_plots else write_all_plots(out, results, curves, tracks, events, plan)
     written = [out / "results.json", out / "timing.json", out / "results.md", out / "results.csv"]
     if args.headroom:
         written.append(out / "headroom.md")
@@ -294,6 +295,21 @@ def main(argv=None) -> dict:
         written.append(Path(args.note))
     print("wrote " + ", ".join(str(p) for p in written))
     return results
+
+
+def write_all_plots(out: Path, results: dict, curves: dict, tracks: dict, events: dict, plan: dict) -> list:
+    """The PNGs of every scenario (:mod:`plots`, short labels of :mod:`agents.provenance`); their paths."""
+    import plots
+    from agents.methods import PolicyMethod
+    from agents.provenance import short_labels
+    paths = []
+    for s, per in curves.items():
+        ev = np.concatenate(events[s], 0) if s in events else None
+        ev = ev if ev is not None and ev.shape[-1] == next(iter(per.values())).t.size else None
+        learned = [m.label for _, ms in plan[s] for m in ms if isinstance(m, PolicyMethod)]
+        paths += plots.write_plots(out, s, per, results["scenarios"][s], _ref_label(results, s),
+                                   short_labels(per, s), tracks[s], ev, learned)
+    return paths
 
 
 def run_experiment_cli(args, out: Path) -> dict:
@@ -311,12 +327,13 @@ def run_experiment_cli(args, out: Path) -> dict:
     return res
 
 
-def run_batches(args, methods_by_scenario: dict, seeds: list[int]) -> tuple[dict, dict]:
+def run_batches(args, methods_by_scenario: dict, seeds: list[int]) -> tuple[dict, dict, dict, dict]:
     """Run every (scenario, chunk, method) batch on ``args.backend``: ``({scenario: {label: EpisodeLog}},
-    {scenario: (M, 2) truth track of episode 0})`` (:mod:`agents.eval_batches`, :mod:`agents.backends`)."""
+    {scenario: (M, 2) truth track of episode 0}, {scenario: [event mask of each chunk]},
+    {scenario: episode length [s]})`` (:mod:`agents.eval_batches`, :mod:`agents.backends`)."""
     from agents.backends import BackendUnavailable, make_backend
     from envs.datasets.errors import DatasetFormatError
-    from agents.eval_batches import clear_world_cache, gather, plan_batches, run_eval_batch
+    from agents.eval_batches import clear_world_cache, gather, gather_context, plan_batches, run_eval_batch
     batches = plan_batches(methods_by_scenario, seeds, args.batch_size, args.dtype, args.zupt)
     t0 = time.perf_counter()
     try:
@@ -329,7 +346,7 @@ def run_batches(args, methods_by_scenario: dict, seeds: list[int]) -> tuple[dict
     n_methods = sum(len(ms) for ms in methods_by_scenario.values())
     print(f"{n_methods} (scenario, method) pairs x {len(seeds)} episodes in {len(batches)} batches on {args.backend} "
           f"in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
-    return gather(batches, done)
+    return (*gather(batches, done), *gather_context(batches, done))
 
 
 COLUMNS = [("rmse_h_m", "RMSE h [m]"), ("rmse_h_ci95_m", "95% CI [m]"), ("rmse_3d_m", "RMSE 3D [m]"),
@@ -348,9 +365,12 @@ def _fmt(key, v):
 
 
 def _fmt_pair(r):
+    from envs.metrics import MIN_CI_EPISODES, no_ci_text
     p = r.get("paired_vs_reference")
     if not p:
         return "(reference)"
+    if p["episodes"] < MIN_CI_EPISODES:
+        return f"{p['diff_rmse_h_m']:+.2f} ({100 * p['rel_diff']:+.1f}%; {no_ci_text()})"
     lo, hi = p["diff_rmse_h_ci95_m"]
     return f"{p['diff_rmse_h_m']:+.2f} [{lo:+.2f}, {hi:+.2f}] ({100 * p['rel_diff']:+.1f}%)"
 
@@ -364,14 +384,18 @@ def _group_rows(results: dict, s: str):
 
 def format_table(results: dict) -> str:
     """Markdown table of every scenario x method, with the paired difference to the reference; a method
-    given as a pattern over training seeds also gets a pooled row (:func:`envs.metrics.summarize_seeds`)."""
+    given as a pattern over training seeds also gets a pooled row (:func:`envs.metrics.summarize_seeds`).
+    Below :data:`envs.metrics.MIN_CI_EPISODES` episodes the CI columns say so instead of a CI."""
+    from envs.metrics import MIN_CI_EPISODES, no_ci_text
     head = ("| scenario | method | episodes | " + " | ".join(c[1] for c in COLUMNS)
             + f" | vs {results['config']['reference']}: dRMSE h [m] (95% CI) |")
     sep = "|" + "---|" * (4 + len(COLUMNS))
     rows = [head, sep]
     for s, per in results["scenarios"].items():
         for m, r in list(per.items()) + list(_group_rows(results, s)):
-            rows.append(f"| {s} | {m} | {r['episodes']} | " + " | ".join(_fmt(k, r[k]) for k, _ in COLUMNS)
+            few = r["episodes"] < MIN_CI_EPISODES
+            rows.append(f"| {s} | {m} | {r['episodes']} | " + " | ".join(
+                no_ci_text() if few and k == "rmse_h_ci95_m" else _fmt(k, r[k]) for k, _ in COLUMNS)
                         + f" | {_fmt_pair(r)} |")
     return "\n".join(rows)
 
@@ -403,6 +427,14 @@ def _verdict(p: dict) -> str:
     if lo > 0:
         return "higher (the 95% CI excludes 0)"
     return "no significant difference (the 95% CI includes 0)"
+
+
+def _named(label: str, scenario: str, row: dict) -> str:
+    """A method in the note's sentences: its short label with the full spec (pooled rows: the seed count)."""
+    from agents.provenance import short_label
+    spec = label.split(" (pooled over ", 1)[0]
+    short = short_label(spec, scenario, row.get("seeds") if spec != label else None)
+    return label if short == label else f"{short} (`{spec}`)"
 
 
 def _parse_goals(items) -> dict | None:
@@ -445,13 +477,16 @@ def reading(results: dict, goals: dict | None = None) -> list[str]:
                 tail = f"; goal {100 * goal_rel:+.0f}% not judged (n < {MIN_CI_EPISODES})."
             else:
                 tail = f"; goal {100 * goal_rel:+.0f}% {'met' if p['rel_diff'] <= goal_rel else 'not met'}."
-            out.append(f"- `{s}`: {m}: horizontal RMSE {100 * p['rel_diff']:+.1f}% against `{c['reference']}` "
-                       f"({p['diff_rmse_h_m']:+.2f} m{ci}; reference {ref_rmse:.2f} m): {_verdict(p)}{tail}")
+            out.append(f"- `{s}`: {_named(m, s, r)}: horizontal RMSE {100 * p['rel_diff']:+.1f}% against "
+                       f"`{c['reference']}` ({p['diff_rmse_h_m']:+.2f} m{ci}; reference {ref_rmse:.2f} m): "
+                       f"{_verdict(p)}{tail}")
     for spec in c["methods"]:
         if not spec.startswith("tuned:"):
             continue
+        used: dict = {}   # tuning file -> scenarios it was used on
         for s in results["scenarios"]:
-            path = spec.split(":", 1)[1].replace("{scenario}", s)
+            used.setdefault(spec.split(":", 1)[1].replace("{scenario}", s), []).append(s)
+        for path, scens in used.items():
             try:
                 t = json.loads(Path(path).read_text())
             except (OSError, ValueError):
@@ -461,8 +496,9 @@ def reading(results: dict, goals: dict | None = None) -> list[str]:
                 continue
             grid = t["grid"]
             edge = " (at the edge of the searched range)" if t["best"] in (grid[0], grid[-1]) else ""
-            out.append(f"- `{s}`: the optimized fixed {t['param']} = {t['best']:.4g}{edge}; over the searched "
-                       f"{t['param']} in [{grid[0]:.4g}, {grid[-1]:.4g}] the training RMSE spans "
+            where = ", ".join(f"`{x}`" for x in scens)
+            out.append(f"- {where}: the optimized fixed {t['param']} = {t['best']:.4g} (`{path}`){edge}; over the "
+                       f"searched {t['param']} in [{grid[0]:.4g}, {grid[-1]:.4g}] the training RMSE spans "
                        f"{min(r):.3f}-{max(r):.3f} m ({100 * (max(r) / min(r) - 1):.1f}% above the best at worst).")
     return out
 
@@ -620,6 +656,15 @@ def _ref_label(results: dict, s: str) -> str:
     return c.get("reference_labels", {}).get(s, c["reference"])
 
 
+def _trained_on(results: dict) -> list[str]:
+    """The note's section on what each tuned or learned method was trained on (:mod:`agents.provenance`)."""
+    from agents.provenance import training_notes
+    groups = {s: {spec: g["members"] for spec, g in per.items()} for s, per in results.get("seed_groups", {}).items()}
+    items = training_notes({s: list(per) for s, per in results["scenarios"].items()},
+                           results["config"].get("episode_length_s"), groups)
+    return ["## What the tuned and learned methods were trained on", "", *items, ""] if items else []
+
+
 def write_note(results: dict, path: Path, out: Path, cmd: str) -> None:
     """A Markdown results note generated from results.json (never typed by hand)."""
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -631,99 +676,11 @@ def write_note(results: dict, path: Path, out: Path, cmd: str) -> None:
              "as a pattern over training seeds has a row per seed and a pooled row (the CI resamples episodes, "
              "each with all its seeds).", "",
              format_table(results), "", "## Reading", "", *reading(results, results["config"].get("goal")), "",
+             *_trained_on(results),
              *(["## Headroom", "", HEADROOM_INTRO, "", format_headroom(results["headroom"]), ""]
                if "headroom" in results else []),
              f"Plots and raw numbers: `{out}` (results.json, results.csv, *.png).", ""]
     path.write_text("\n".join(lines))
-
-
-def _save(plt, fig, path: Path) -> None:
-    """Lay out, write and close a figure."""
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
-
-
-def _mpl():
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    return plt
-
-
-def plot_error_vs_time(scenario: str, logs: dict, path: Path) -> None:
-    """Median and 10-90% band of the horizontal error vs time, one colour per method."""
-    plt = _mpl()
-    fig, ax = plt.subplots(figsize=(8, 4), dpi=110)
-    for m, log in logs.items():
-        h = log.horizontal_error[~log.diverged]
-        if h.size == 0:
-            continue
-        med = np.median(h, 0)
-        lo, hi = np.quantile(h, [0.1, 0.9], axis=0)
-        (line,) = ax.plot(log.t, med, label=m, lw=1.2)
-        ax.fill_between(log.t, lo, hi, color=line.get_color(), alpha=0.15)
-    ax.set_xlabel("time [s]")
-    ax.set_ylabel("horizontal position error [m]")
-    ax.set_title(f"{scenario}: horizontal error, median and 10-90% band over episodes")
-    ax.set_yscale("log")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
-    _save(plt, fig, path)
-
-
-def plot_cdf(scenario: str, logs: dict, path: Path) -> None:
-    """Empirical CDF of the horizontal error over all epochs and episodes."""
-    plt = _mpl()
-    fig, ax = plt.subplots(figsize=(6, 4), dpi=110)
-    for m, log in logs.items():
-        h = np.sort(log.horizontal_error[~log.diverged].ravel())
-        if h.size:
-            ax.plot(h, np.arange(1, h.size + 1) / h.size, label=m, lw=1.2)
-    ax.set_xscale("log")
-    ax.set_xlabel("horizontal position error [m]")
-    ax.set_ylabel("fraction of epochs")
-    ax.set_title(f"{scenario}: CDF of the horizontal error")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
-    _save(plt, fig, path)
-
-
-def plot_bars(scenario: str, per: dict, path: Path) -> None:
-    """Horizontal RMSE per method with its bootstrap 95% CI."""
-    plt = _mpl()
-    names = list(per)
-    v = np.array([per[m]["rmse_h_m"] for m in names])
-    lo = np.array([per[m]["rmse_h_ci95_m"][0] for m in names])
-    hi = np.array([per[m]["rmse_h_ci95_m"][1] for m in names])
-    fig, ax = plt.subplots(figsize=(max(5, 1.1 * len(names)), 4), dpi=110)
-    ax.bar(range(len(names)), v, yerr=[np.maximum(v - lo, 0), np.maximum(hi - v, 0)], capsize=4, color="tab:blue",
-           alpha=0.8)
-    ax.set_xticks(range(len(names)))
-    ax.set_xticklabels([n if len(n) < 24 else n[:21] + "..." for n in names], rotation=20, ha="right", fontsize=8)
-    ax.set_ylabel("horizontal RMSE [m]")
-    ax.set_title(f"{scenario}: RMSE with 95% bootstrap CI")
-    ax.grid(True, axis="y", alpha=0.3)
-    _save(plt, fig, path)
-
-
-def plot_trajectory(scenario: str, logs: dict, truth_ne, path: Path) -> None:
-    """Episode 0: the true track and each method's estimate (north/east from the start)."""
-    plt = _mpl()
-    fig, ax = plt.subplots(figsize=(6, 6), dpi=110)
-    ax.plot(truth_ne[:, 1], truth_ne[:, 0], "k-", lw=2, label="truth")
-    for m, log in logs.items():
-        if log.diverged[0]:
-            continue
-        est = truth_ne + log.pos_err_ned[0, :, :2]
-        ax.plot(est[:, 1], est[:, 0], ".", ms=2, label=m)
-    ax.set_xlabel("east [m]")
-    ax.set_ylabel("north [m]")
-    ax.set_title(f"{scenario}: episode 0 trajectory")
-    ax.axis("equal")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, markerscale=4)
-    _save(plt, fig, path)
 
 
 if __name__ == "__main__":

@@ -13,13 +13,12 @@ for ``eval.py --methods tuned:runs/DIR/tuning.json``. ``zupt`` writes the detect
 ``metrics.json``. ``sweep`` runs a grid / random search of ``rl`` runs (:mod:`agents.sweep`; on Ray Tune with
 ``--backend ray``) and writes ``sweep.csv`` / ``sweep.md`` beside the trials' run folders.
 
-The environments also train unchanged under RL Zoo:
-``python -m rl_zoo3.train --gym-packages envs --env GnssIns/SageHusa-v0 --algo ppo``.
+The environments also train unchanged under RL Zoo, with navgym's hyperparameters from ``hyperparams/``:
+``python -m rl_zoo3.train --gym-packages envs --env GnssIns/SageHusa-v0 --algo ppo --conf-file hyperparams/ppo.yml``.
 """
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 from pathlib import Path
@@ -56,35 +55,52 @@ def check_env_kwargs(env_id: str, kwargs: dict):
 
 
 def build_parser():
+    from agents.training import DEFAULT_SETTINGS as D, QUICK as Q
+    from cli_help import HelpFormatter
     p = argparse.ArgumentParser(prog="train.py", description="Train tuning policies, the optimized fixed "
-                                "parameter, and zero-velocity detectors.")
+                                "parameter, and zero-velocity detectors.", formatter_class=HelpFormatter)
     sub = p.add_subparsers(dest="cmd", required=True)
-    rl = sub.add_parser("rl", help="train an RL tuning policy (stable-baselines3)")
-    rl.add_argument("--env", default="GnssIns/SageHusa-v0", help="environment id (default GnssIns/SageHusa-v0)")
-    rl.add_argument("--algo", default="ppo", help="ppo, sac, td3 or recurrentppo (default ppo)")
-    rl.add_argument("--timesteps", type=float, default=None, help="total environment steps")
-    rl.add_argument("--seed", type=int, default=0)
-    rl.add_argument("--n-envs", type=int, default=None, help="rows of the native vector env")
-    rl.add_argument("--env-kwargs", nargs="*", metavar="KEY=VALUE", help="environment arguments")
-    rl.add_argument("--config", default=None, help="RL Zoo style YAML hyperparameter file")
-    rl.add_argument("--quick", action="store_true", help="a small run that finishes in a few minutes on 2 cores")
-    rl.add_argument("--no-normalize", action="store_true", help="no VecNormalize")
-    rl.add_argument("--no-progress", action="store_true")
-    rl.add_argument("--out", required=True, help="output directory runs/DIR")
-    tu = sub.add_parser("tune", help="the optimized fixed-parameter baseline (grid search on training seeds)")
-    tu.add_argument("--env", default="GnssIns/SageHusa-v0")
-    tu.add_argument("--env-kwargs", nargs="*", metavar="KEY=VALUE")
+    rl = sub.add_parser("rl", help="train an RL tuning policy (stable-baselines3)", formatter_class=HelpFormatter)
+    rl.add_argument("--env", default="GnssIns/SageHusa-v0", help="environment id")
+    rl.add_argument("--algo", default="ppo", help="ppo, sac, td3 or recurrentppo")
+    rl.add_argument("--timesteps", type=float, default=None,
+                    help=f"total environment steps (default: {D['n_timesteps']}; --quick: {Q['n_timesteps']}; or the "
+                         "--config file's)")
+    rl.add_argument("--seed", type=int, default=0, help="training seed (worlds, policy initialization)")
+    rl.add_argument("--n-envs", type=int, default=None,
+                    help=f"rows of the native vector env (default: {D['n_envs']}; --quick: {Q['n_envs']}; or the "
+                         "--config file's)")
+    rl.add_argument("--env-kwargs", nargs="*", metavar="KEY=VALUE",
+                    help="environment arguments, e.g. scenario=urban episode_length_s=300 (default: the env's; "
+                         f"--quick: episode_length_s={Q['env_kwargs']['episode_length_s']:g})")
+    rl.add_argument("--config", default=None,
+                    help="RL Zoo style YAML hyperparameter file, e.g. hyperparams/ppo.yml (default: none, "
+                         "navgym's own hyperparameters)")
+    rl.add_argument("--quick", action="store_true",
+                    help=f"a small run: {Q['n_timesteps']} steps, {Q['n_envs']} envs, "
+                         f"{Q['env_kwargs']['episode_length_s']:g} s episodes (measured on 2 busy cores: PPO about 1 "
+                         "minute, recurrentppo about 1.5 minutes)")
+    rl.add_argument("--no-normalize", action="store_true", help="no VecNormalize (default: normalize)")
+    rl.add_argument("--no-progress", action="store_true", help="no progress bar (default: show one)")
+    rl.add_argument("--out", required=True, help="output directory runs/DIR (required)")
+    tu = sub.add_parser("tune", help="the optimized fixed-parameter baseline (grid search on training seeds)",
+                        formatter_class=HelpFormatter)
+    tu.add_argument("--env", default="GnssIns/SageHusa-v0", help="environment id whose parameter is tuned")
+    tu.add_argument("--env-kwargs", nargs="*", metavar="KEY=VALUE",
+                    help="environment arguments of the training episodes, e.g. scenario=urban "
+                         "episode_length_s=300 (default: the env's)")
     tu.add_argument("--param", default=None, help="parameter to tune (default: the env's first)")
-    tu.add_argument("--n-train", type=int, default=16, help="training episodes per grid value (default 16)")
-    tu.add_argument("--grid-size", type=int, default=13)
-    tu.add_argument("--seed", type=int, default=0)
-    tu.add_argument("--out", required=True)
-    zu = sub.add_parser("zupt", help="train a zero-velocity detector")
-    zu.add_argument("--model", required=True, choices=("mlp", "lstm"))
-    zu.add_argument("--seed", type=int, default=0)
-    zu.add_argument("--quick", action="store_true")
-    zu.add_argument("--out", required=True)
-    sw = sub.add_parser("sweep", help="a grid / random search of rl runs (Ray Tune with --backend ray)")
+    tu.add_argument("--n-train", type=int, default=16, help="training episodes per grid value")
+    tu.add_argument("--grid-size", type=int, default=13, help="grid values over the parameter's range")
+    tu.add_argument("--seed", type=int, default=0, help="seed of the training episodes")
+    tu.add_argument("--out", required=True, help="output directory; writes OUT/tuning.json (required)")
+    zu = sub.add_parser("zupt", help="train a zero-velocity detector", formatter_class=HelpFormatter)
+    zu.add_argument("--model", required=True, choices=("mlp", "lstm"), help="detector model (required)")
+    zu.add_argument("--seed", type=int, default=0, help="training seed")
+    zu.add_argument("--quick", action="store_true", help="a small, fast run (smaller data set and fewer epochs)")
+    zu.add_argument("--out", required=True, help="output directory: weights, metrics.json (required)")
+    sw = sub.add_parser("sweep", help="a grid / random search of rl runs (Ray Tune with --backend ray)",
+                        formatter_class=HelpFormatter)
     sw.add_argument("--config", required=True, help="sweep file (YAML; see configs/sweep.yml)")
     sw.add_argument("--out", required=True, help="sweep folder: the trials' run folders, sweep.csv, sweep.md")
     sw.add_argument("--backend", default="local", choices=("local", "ray"),
@@ -171,12 +187,13 @@ def main(argv=None):
         print(f"wrote {path}")
     else:
         try:
-            from agents.zupt_training import train_zupt_detector
+            from agents.zupt_training import format_table, train_zupt_detector
         except ImportError as e:
             fail(f"zero-velocity detector training is not available: {e}")
         check_out(args.out)
         metrics = train_zupt_detector(args.model, args.seed, Path(args.out), quick=args.quick, progress=True)
-        print(json.dumps(metrics, indent=2, default=str))
+        print(format_table(metrics))  # the full metrics (per drive, thresholds, history) are in metrics.json
+        print(f"wrote {', '.join(str(p) for p in sorted(Path(args.out).iterdir()) if p.is_file())}")
 
 
 def sweep_cli(args):

@@ -32,7 +32,8 @@ class EvalBatch:
     method : a method of :mod:`agents.methods` (``label`` and ``run(world, dtype=, zupt=)``).
     dtype : filter arithmetic, ``'float64'`` or ``'float32'``.
     zupt : zero-velocity aiding of a method that names none.
-    track : also return row 0's true horizontal track (the trajectory plot).
+    track : also return row 0's true horizontal track (the trajectory plot) and the scenario's duration.
+    events : also return the chunk's event mask (the plots shade the scenario's event windows).
     """
 
     scenario: str
@@ -41,6 +42,7 @@ class EvalBatch:
     dtype: str = "float64"
     zupt: str = "none"
     track: bool = False
+    events: bool = False
 
     def describe(self) -> str:
         """``'<scenario> <method label> seeds a-b'`` for progress lines."""
@@ -57,10 +59,15 @@ class BatchResult:
     ----------
     log : the method's EpisodeLog of the batch's episodes, (B, M, ...) arrays.
     track : (M, 2) row 0's true north/east track from its start [m], or None.
+    events : (B, M) int event bits of the chunk's worlds (``GnssData.event_mask``; None for a recording or
+        when not asked for).
+    duration_s : the scenario's episode length [s] (with ``track``), or None.
     """
 
     log: EpisodeLog
     track: np.ndarray | None
+    events: np.ndarray | None = None
+    duration_s: float | None = None
 
 
 _LAST_WORLD: dict = {}
@@ -99,7 +106,9 @@ def run_eval_batch(batch: EvalBatch) -> BatchResult:
     """Generate the batch's world from its seeds and run the method on it."""
     world = world_for(batch.scenario, batch.seeds)
     log = batch.method.run(world, dtype=batch.dtype, zupt=batch.zupt)
-    return BatchResult(log=log, track=truth_track(world) if batch.track else None)
+    return BatchResult(log=log, track=truth_track(world) if batch.track else None,
+                       events=world.gnss.event_mask if batch.events else None,
+                       duration_s=float(world.scenario.duration_s) if batch.track else None)
 
 
 def plan_batches(methods_by_scenario: dict, seeds, batch_size: int, dtype: str = "float64",
@@ -117,7 +126,7 @@ def plan_batches(methods_by_scenario: dict, seeds, batch_size: int, dtype: str =
             for i, m in enumerate(methods):
                 if getattr(m, "progress", False):
                     m = dataclasses.replace(m, progress=False)
-                out.append(EvalBatch(s, chunk, m, dtype, zupt, track=(c0 == 0 and i == 0)))
+                out.append(EvalBatch(s, chunk, m, dtype, zupt, track=(c0 == 0 and i == 0), events=(i == 0)))
     return out
 
 
@@ -131,3 +140,16 @@ def gather(batches: list[EvalBatch], results: list[BatchResult]) -> tuple[dict, 
         if r.track is not None:
             tracks[b.scenario] = r.track
     return {s: {label: concat_logs(parts) for label, parts in per.items()} for s, per in logs.items()}, tracks
+
+
+def gather_context(batches: list[EvalBatch], results: list[BatchResult]) -> tuple[dict, dict]:
+    """``({scenario: [event mask of each chunk]}, {scenario: episode length [s]})`` from the batches that
+    were asked for them (in the order of :func:`plan_batches`)."""
+    events: dict = {}
+    durations: dict = {}
+    for b, r in zip(batches, results, strict=True):
+        if b.events:
+            events.setdefault(b.scenario, []).append(r.events)
+        if r.duration_s is not None:
+            durations[b.scenario] = r.duration_s
+    return events, durations

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import gymnasium as gym
 import numpy as np
@@ -35,7 +36,8 @@ def run_policy_episodes(env_id: str, env_kwargs: dict, policy, seeds, progress=N
     Returns
     -------
     EpisodeLog : positions errors from the core's tracks; NEES and velocity errors are NaN (the env does
-    not keep them), ``filter_time_s`` includes the policy's inference.
+    not keep them), ``filter_time_s`` includes the policy's inference, ``params`` the parameter values the
+    policy set at each epoch.
     """
     cls = env_class(env_id)
     cfg = make_config(cls.DEFAULTS, env_kwargs)
@@ -48,10 +50,13 @@ def run_policy_episodes(env_id: str, env_kwargs: dict, policy, seeds, progress=N
     nsat = np.zeros((B, core.M), int)
     zflag = np.zeros((B, core.M), bool)
     diverged = np.zeros(B, bool)
+    params = {s.name: np.full((B, core.M), np.nan) for s in cls.PARAMS}
     t0 = time.perf_counter()
     for j in range(core.M):
         res = core.step(policy.act(obs))
         obs = res.obs
+        for name, v in params.items():
+            v[:, j] = res.info[name]
         nis[:, j] = res.info["nis_pr"]
         nsat[:, j] = res.info["n_sats"]
         zflag[:, j] = res.info["zupt"]
@@ -59,7 +64,8 @@ def run_policy_episodes(env_id: str, env_kwargs: dict, policy, seeds, progress=N
         if progress is not None:
             progress(j + 1)
     elapsed = time.perf_counter() - t0
-    return core_episode_log(core, np.arange(B), nis, nsat, zflag, diverged, elapsed)
+    log = core_episode_log(core, np.arange(B), nis, nsat, zflag, diverged, elapsed)
+    return replace(log, params=params)
 
 
 def core_episode_log(core: TuningCore, rows, nis, n_sats, zupt, diverged, elapsed_s: float) -> EpisodeLog:

@@ -36,9 +36,15 @@ DEFAULT_HYPERPARAMS = {
     "td3": dict(policy="MlpPolicy", learning_rate=3e-4, buffer_size=100_000, batch_size=256, gamma=0.95,
                 learning_starts=1000, policy_kwargs=dict(net_arch=[64, 64])),
 }
+DEFAULT_SETTINGS = dict(n_timesteps=100_000, n_envs=16, normalize=True, env_kwargs={}, eval_freq=10_000,
+                        eval_episodes=16, torch_threads=1)
+"""Run settings of ``train.py rl`` without ``--quick`` or a config file (``hyperparams/*.yml`` repeat them for
+RL Zoo). ``torch_threads``: the policies are small (64-unit layers, a 32-unit LSTM), where torch's
+intra-op threads cost more than they give: on 2 busy cores RecurrentPPO's quick preset ran at 48 env-steps/s
+with torch's default 2 threads and 282 with 1 (``benchmarks/bench_recurrent.py``)."""
 QUICK = dict(n_timesteps=24_576, n_envs=8, env_kwargs=dict(episode_length_s=60.0), eval_freq=1536, eval_episodes=8,
              hyper=dict(ppo=dict(n_steps=64, batch_size=256, n_epochs=5),
-                        recurrentppo=dict(n_steps=64, batch_size=256, n_epochs=5),
+                        recurrentppo=dict(n_steps=128, batch_size=512, n_epochs=5),
                         sac=dict(learning_starts=512), td3=dict(learning_starts=512)))
 
 
@@ -122,15 +128,14 @@ def train_rl(env_id: str, algo: str, out, timesteps: int | None = None, seed: in
         raise ValueError(f"unknown algorithm {algo!r}; known: {', '.join(ALGOS)}")
     env_class(env_id)
     hyper = dict(DEFAULT_HYPERPARAMS[algo])
-    settings = dict(n_timesteps=100_000, n_envs=16, normalize=True, env_kwargs={}, eval_freq=10_000,
-                    eval_episodes=16)
+    settings = {**DEFAULT_SETTINGS, "env_kwargs": dict(DEFAULT_SETTINGS["env_kwargs"])}
     if quick:
         settings.update(n_timesteps=QUICK["n_timesteps"], n_envs=QUICK["n_envs"], eval_freq=QUICK["eval_freq"],
                         eval_episodes=QUICK["eval_episodes"], env_kwargs=dict(QUICK["env_kwargs"]))
         hyper.update(QUICK["hyper"].get(algo, {}))
     if config_file is not None:
         zoo = load_zoo_config(config_file, env_id)
-        for k in ("n_timesteps", "n_envs", "normalize", "eval_freq", "eval_episodes"):
+        for k in ("n_timesteps", "n_envs", "normalize", "eval_freq", "eval_episodes", "torch_threads"):
             if k in zoo:
                 settings[k] = zoo.pop(k)
         zkw = zoo.pop("env_kwargs", {}) or {}
@@ -155,6 +160,8 @@ def train_rl(env_id: str, algo: str, out, timesteps: int | None = None, seed: in
     settings["n_timesteps"] = int(float(settings["n_timesteps"]))
     if settings["n_timesteps"] < 1 or settings["n_envs"] < 1:
         raise ValueError("--timesteps and --n-envs must be positive")
+    if not isinstance(settings["torch_threads"], int) or settings["torch_threads"] < 1:
+        raise ValueError(f"torch_threads must be an int >= 1, got {settings['torch_threads']!r}")
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -165,6 +172,8 @@ def train_rl(env_id: str, algo: str, out, timesteps: int | None = None, seed: in
     if settings["normalize"]:
         venv = VecNormalize(venv, norm_obs=True, norm_reward=True, gamma=hyper.get("gamma", 0.99))
         eval_env = VecNormalize(eval_env, norm_obs=True, norm_reward=False, training=False)
+    import torch
+    torch.set_num_threads(int(settings["torch_threads"]))
     cls = algo_class(algo)
     policy = hyper.pop("policy")
     model = cls(policy, venv, seed=seed, device="cpu", verbose=0, **hyper)

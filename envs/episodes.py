@@ -90,6 +90,8 @@ class EpisodeLog:
     zupt : (B, M) bool, the zero-velocity constraints were applied at the epoch.
     diverged : (B,) bool.
     filter_time_s : wall time spent in the navigator (all B rows).
+    params : ``{name: (B, M)}`` the filter parameter values a policy set at each epoch (the action in the
+        parameter's units, e.g. the Sage-Husa ``b``), or None for a method with fixed parameters.
     """
 
     t: np.ndarray
@@ -103,6 +105,7 @@ class EpisodeLog:
     zupt: np.ndarray
     diverged: np.ndarray
     filter_time_s: float
+    params: dict | None = None
 
     @property
     def horizontal_error(self) -> np.ndarray:
@@ -206,6 +209,9 @@ def concat_logs(logs: list[EpisodeLog]) -> EpisodeLog:
             kw[f] = vals[0]
         elif f == "filter_time_s":
             kw[f] = float(sum(vals))
+        elif f == "params":
+            kw[f] = (None if any(v is None for v in vals) else
+                     {k: np.concatenate([v[k] for v in vals], 0) for k in vals[0]})
         else:
             kw[f] = np.concatenate(vals, 0)
     return EpisodeLog(**kw)
