@@ -4,8 +4,11 @@
 # oracle-r (the simulator's true per-satellite variances), NLOS exclusion, the hindsight-greedy b schedule
 # (10 s segments, 20 s lookahead, 7 values), the best constant b per episode and the cross-fitted time
 # schedule, and the hand-designed causal rule (rule:, low b while the satellites look degraded), on 32 held-out
-# paired episodes. No learned method is evaluated here: the scenarios and their headroom are fixed first. 37 minutes on 2 CPU cores (measured: tuning 7 min, eval 30 min). Set PY to use
-# another interpreter.
+# paired episodes. No learned method is evaluated here: the scenarios and their headroom are fixed first.
+# All nine scenarios: 37 minutes on 2 free CPU cores (measured with the earlier law: tuning 7 min, eval 30 min).
+# docs/headroom.md holds the six scenarios where adaptation matters plus the placebo (SCENARIOS="open-sky
+# urban-transition regime-switch urban noise-burst noise-mismatch"), rerun with the consensus law: 47 minutes
+# on 2 cores shared with other jobs. Set PY to use another interpreter, SCENARIOS to run a subset.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 if [ -z "${PY:-}" ]; then bash scripts/setup.sh; PY=.venv/bin/python; fi
