@@ -1,4 +1,6 @@
-"""Compiled (numba) inner loop of the navigator: one GNSS epoch of IMU samples for all rows.
+"""Compiled (numba) inner loop of the navigator: one GNSS epoch of IMU samples for all rows; and the small
+dense helpers (in-place Cholesky factor and solve) shared by the navigator's covariance check and the
+adaptive laws' residuals.
 
 The per-IMU-sample work of a tightly coupled navigator (bias compensation,
 strapdown mechanization, error-model transition) runs 100 times per GNSS epoch
@@ -277,3 +279,40 @@ def propagate_epoch(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, Cz
     kern = _parallel if f_raw.shape[0] >= PARALLEL_MIN_BATCH else _serial
     kern(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, Cz, qg, qa, qdiag, kg, ka,
          Phi_acc, Q_acc, exact, orthonormalize, nz)
+
+
+# ----------------------------------------------------------------------------- small dense helpers
+@nb.njit(cache=True)
+def cholesky_inplace(A, rel_tol):
+    """``A = L L^T`` in place (lower triangle of the square A); False when a pivot is not above
+    ``rel_tol`` times the diagonal entry (0: not positive)."""
+    p = A.shape[0]
+    for k in range(p):
+        dkk = A[k, k]
+        for q in range(k):
+            dkk -= A[k, q] * A[k, q]
+        if not dkk > rel_tol * max(A[k, k], 1e-300):
+            return False
+        A[k, k] = np.sqrt(dkk)
+        for i in range(k + 1, p):
+            s = A[i, k]
+            for q in range(k):
+                s -= A[i, q] * A[k, q]
+            A[i, k] = s / A[k, k]
+    return True
+
+
+@nb.njit(cache=True)
+def cholesky_solve(L, x):
+    """Solve ``L L^T y = x`` in place (``L`` from :func:`cholesky_inplace`)."""
+    p = L.shape[0]
+    for i in range(p):
+        s = x[i]
+        for q in range(i):
+            s -= L[i, q] * x[q]
+        x[i] = s / L[i, i]
+    for i in range(p - 1, -1, -1):
+        s = x[i]
+        for q in range(i + 1, p):
+            s -= L[q, i] * x[q]
+        x[i] = s / L[i, i]

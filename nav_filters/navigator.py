@@ -55,7 +55,7 @@ from .forms import UpdateResult
 from .registry import make_form, parse_method
 from .forms.base import check_dtype
 from .ins import _earth_rate_matrices_np, apply_correction
-from .kernels import F_NONZERO, propagate_epoch
+from .kernels import F_NONZERO, cholesky_inplace, propagate_epoch
 from .measurements import dop, gnss_innovations, measurement_keys
 from .rows import check_row_pairs, copy_rows_generic
 
@@ -556,20 +556,7 @@ def _row_is_pd(P, b, L, idx):
             if not np.isfinite(x):
                 return False
             L[i, j] = x
-    for j in range(m):
-        d = L[j, j]
-        for p in range(j):
-            d -= L[j, p] * L[j, p]
-        if not d > 0:
-            return False
-        d = np.sqrt(d)
-        L[j, j] = d
-        for i in range(j + 1, m):
-            x = L[i, j]
-            for p in range(j):
-                x -= L[i, p] * L[j, p]
-            L[i, j] = x / d
-    return True
+    return cholesky_inplace(L[:m, :m], 0.0)
 
 
 def covariance_is_pd(P) -> np.ndarray:

@@ -21,6 +21,7 @@ import numba as nb
 import numpy as np
 
 from ..error_model import CLK, DRIFT, N_STATES
+from ..kernels import cholesky_inplace as _cholesky_inplace, cholesky_solve as _cholesky_solve
 
 GROUP_NAMES = ("pseudorange", "rate", "other")
 """Measurement groups of :func:`measurement_groups`, in id order."""
@@ -157,42 +158,6 @@ def measurement_groups(H, mask) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------- geometry residuals
-@nb.njit(cache=True)
-def _cholesky_inplace(A, rel_tol):
-    """``A = L L^T`` in place (lower triangle of the square A); False when a pivot is not above
-    ``rel_tol`` times the diagonal entry (0: not positive)."""
-    p = A.shape[0]
-    for k in range(p):
-        dkk = A[k, k]
-        for q in range(k):
-            dkk -= A[k, q] * A[k, q]
-        if not dkk > rel_tol * max(A[k, k], 1e-300):
-            return False
-        A[k, k] = np.sqrt(dkk)
-        for i in range(k + 1, p):
-            s = A[i, k]
-            for q in range(k):
-                s -= A[i, q] * A[k, q]
-            A[i, k] = s / A[k, k]
-    return True
-
-
-@nb.njit(cache=True)
-def _cholesky_solve(L, x):
-    """Solve ``L L^T y = x`` in place (``L`` from :func:`_cholesky_inplace`)."""
-    p = L.shape[0]
-    for i in range(p):
-        s = x[i]
-        for q in range(i):
-            s -= L[i, q] * x[q]
-        x[i] = s / L[i, i]
-    for i in range(p - 1, -1, -1):
-        s = x[i]
-        for q in range(i + 1, p):
-            s -= L[q, i] * x[q]
-        x[i] = s / L[i, i]
-
-
 @nb.njit(cache=True)
 def _geometry_residual_row(dz, H, var, use, v_out, red_out):
     """Weighted least-squares residuals of one batch row's used measurements (see :func:`geometry_residuals`).
