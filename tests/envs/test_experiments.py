@@ -74,7 +74,12 @@ def test_ours_are_computed_and_printed(small_runs):
     """Our figures in the report are the ones in results (not constants): spot-check one per experiment."""
     _, _, runs = small_runs
     r0, rep0 = runs["seed000"]
-    assert set(r0["ours"]) == set(X.SEED000_METHODS) | {"kf (float64)"} | {f"{m} (extra)" for m in X.SEED000_EXTRA_METHODS}
+    assert set(r0["ours"]) == (set(X.SEED000_METHODS) | {"kf (float64)"} | {f"{m} (extra)" for m in X.SEED000_EXTRA_METHODS}
+                               | {f"{m} (urban-transition)" for m in X.SEED000_URBAN_METHODS})
+    u = r0["ours"]["svd-akf (urban-transition)"]
+    assert f"{u['max_3d_m']:.2f}" in rep0
+    claim = next(c for c in r0["claims"] if c["id"] == "max-urban:svd-akf<svd-kf")
+    assert claim["ours"] == pytest.approx(u["max_3d_m"] / r0["ours"]["svd-kf (urban-transition)"]["max_3d_m"] - 1)
     o = r0["ours"]["svd-kf"]
     assert len(o["rmse_enu_m"]) == 3 and len(o["rmse_ecef_m"]) == 3
     assert f"{o['rmse_3d_m']:.3f}" in rep0
