@@ -10,7 +10,7 @@
 ``vecnormalize.pkl`` (when observations are normalized), ``best/best_model.zip`` (best held-out
 evaluation), ``checkpoints/`` and ``logs/`` (CSV + tensorboard). ``tune`` writes ``runs/DIR/tuning.json``
 for ``eval.py --methods tuned:runs/DIR/tuning.json``. ``zupt`` writes the detector's weights and
-``metrics.json``. ``sweep`` runs a grid / random search of ``rl`` runs (:mod:`agents.sweep`; on Ray Tune with
+``metrics.json``. ``sweep`` runs a grid / random or Optuna search of ``rl`` runs (:mod:`agents.sweep`; on Ray Tune with
 ``--backend ray``) and writes ``sweep.csv`` / ``sweep.md`` beside the trials' run folders.
 
 The environments also train unchanged under RL Zoo, with navgym's hyperparameters from ``hyperparams/``:
@@ -99,9 +99,10 @@ def build_parser():
     zu.add_argument("--seed", type=int, default=0, help="training seed")
     zu.add_argument("--quick", action="store_true", help="a small, fast run (smaller data set and fewer epochs)")
     zu.add_argument("--out", required=True, help="output directory: weights, metrics.json (required)")
-    sw = sub.add_parser("sweep", help="a grid / random search of rl runs (Ray Tune with --backend ray)",
+    sw = sub.add_parser("sweep", help="a grid / random or Optuna search of rl runs (Ray Tune with --backend ray)",
                         formatter_class=HelpFormatter)
-    sw.add_argument("--config", required=True, help="sweep file (YAML; see configs/sweep.yml)")
+    sw.add_argument("--config", required=True,
+                    help="sweep file (YAML; see configs/sweep.yml, configs/sweep_optuna.yml)")
     sw.add_argument("--out", required=True, help="sweep folder: the trials' run folders, sweep.csv, sweep.md")
     sw.add_argument("--backend", default="local", choices=("local", "ray"),
                     help="local: the trials one after another here (default); ray: Ray Tune trials on a local "

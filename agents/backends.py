@@ -5,6 +5,8 @@ Two operations, with the same meaning on both backends:
 * :meth:`LocalBackend.map` / :meth:`RayBackend.map` -- ``fn(item)`` for every item, the results in the
   items' order, with a tqdm progress bar over completed items (eval.py's paired episode batches). An
   exception raised by ``fn`` is raised again here, as itself (not wrapped in a Ray error).
+* :meth:`RayBackend.run_search` -- Ray Tune trials whose configs a Tune searcher proposes (train.py sweep's
+  ``search: optuna``; locally that search runs optuna's ask / tell loop over :meth:`LocalBackend.run_trials`).
 * :meth:`LocalBackend.run_trials` / :meth:`RayBackend.run_trials` -- ``fn(config)`` for every trial config;
   each :class:`TrialOutcome` holds the returned result dict or the error that ended the trial, and a failing
   trial does not stop the others (train.py sweep's trials; on Ray they are Ray Tune trials).
@@ -246,12 +248,35 @@ class RayBackend:
             if r.error is not None:
                 out[i] = TrialOutcome(configs[i], None, error_text(r.error))
             else:
-                metrics = {k: v for k, v in (r.metrics or {}).items() if not _tune_bookkeeping(k)}
-                out[i] = TrialOutcome(configs[i], metrics, None)
+                out[i] = TrialOutcome(configs[i], _metrics(r), None)
         for i, o in enumerate(out):
             if o is None:  # pragma: no cover - Tune reports every trial of a finished fit
                 out[i] = TrialOutcome(configs[i], None, "RuntimeError: Ray Tune reported no result for this trial")
         return out
+
+    def run_search(self, fn: Callable[[dict], dict], searcher, num_samples: int, storage: str | os.PathLike,
+                   name: str = "search") -> list[TrialOutcome]:
+        """``num_samples`` Ray Tune trials whose configs a Tune searcher proposes (``searcher``: a
+        ``ray.tune.search.Searcher`` with its space, metric and mode set, e.g. ``OptunaSearch``), at most
+        :attr:`workers` at once (1 CPU each, no retry), the experiment under ``storage/name``. Each trial runs
+        ``fn(config)``; the outcomes hold the proposed config, in the order Tune created the trials; a failing
+        trial is recorded and the others go on."""
+        from ray import tune
+        from ray.tune.search import ConcurrencyLimiter
+        if num_samples < 1:
+            return []
+
+        def trial(config):
+            return fn(config)
+
+        tuner = tune.Tuner(
+            tune.with_resources(trial, {"cpu": 1}),
+            tune_config=tune.TuneConfig(search_alg=ConcurrencyLimiter(searcher, max_concurrent=self.workers),
+                                        num_samples=num_samples, reuse_actors=False),
+            run_config=tune.RunConfig(name=name, storage_path=str(Path(storage).resolve()), verbose=1,
+                                      failure_config=tune.FailureConfig(max_failures=0, fail_fast=False)))
+        return [TrialOutcome(dict(r.config), None, error_text(r.error)) if r.error is not None
+                else TrialOutcome(dict(r.config), _metrics(r), None) for r in tuner.fit()]
 
     def close(self) -> None:
         """Shut Ray down if this backend started it (a Ray this process had initialized stays)."""
@@ -275,6 +300,11 @@ _TUNE_KEYS = {"timestamp", "checkpoint_dir_name", "done", "training_iteration", 
 def _tune_bookkeeping(key: str) -> bool:
     """Whether a Tune result key is Tune's own bookkeeping rather than a metric the trial returned."""
     return key in _TUNE_KEYS
+
+
+def _metrics(result) -> dict:
+    """The dict a Tune trial function returned, from its ``ray.tune.Result`` (Tune's bookkeeping left out)."""
+    return {k: v for k, v in (result.metrics or {}).items() if not _tune_bookkeeping(k)}
 
 
 def make_backend(backend: str = "local", address: str | None = None, workers: int | None = None):

@@ -15,7 +15,10 @@ A sweep file (YAML; every key but ``envs`` is optional; an example: ``configs/sw
     random:                            # drawn per configuration (uniform, loguniform: [lo, hi]; choice: [...];
       gamma: {uniform: [0.9, 0.99]}    #   randint: [lo, hi] inclusive)
     samples: 2                         # random configurations per grid point (default 1)
-    search_seed: 0                     # seed of the random draws
+    search_seed: 0                     # seed of the random draws (search: optuna: of the TPE sampler)
+    search: grid                       # grid (grid x random, above) or optuna (TPE over the `random` ranges)
+    num_samples: 8                     # search: optuna: hyperparameter configurations to try
+    direction: maximize                # search: optuna: maximize or minimize the metric (also picks the best)
     run_dir: "{scenario}/{algo}{hp}-s{seed}"   # run folder of a trial under --out ({env}, {scenario}, {algo},
                                        #   {seed}, {hp}: '-name=value_...' of the searched values, '' if none)
     eval: {episodes: 50, seed: 0, baselines: [sage-husa]}   # the eval.py command of the winners
@@ -25,6 +28,10 @@ Configurations are the grid points times ``samples`` random draws (drawn once, i
 algorithm x configuration x seed. A trial writes its usual ``train.py rl`` run folder (``model.zip``,
 ``config.json``, ``best/``, ``eval/``, ...) plus ``hyperparams.yml`` (its algorithm arguments, an RL Zoo file:
 ``train.py rl --config`` reruns it) and ``trial.json`` (status, the metric, or the error with its traceback).
+With ``search: optuna`` (:mod:`agents.optuna_search`) the configurations are proposed one after another by
+Optuna's TPE sampler (seeded from ``search_seed``: a rerun proposes the same ones) over the ``random``
+ranges (``grid`` and ``samples`` are not used); each configuration is trained for every environment x
+scenario x algorithm x seed and its objective is the mean metric of those runs.
 The metric is the final held-out evaluation reward: the mean episode reward of the last ``EvalCallback``
 evaluation on held-out world seeds (``eval_mean_reward_last`` of ``config.json``; higher is better).
 
@@ -52,8 +59,11 @@ import numpy as np
 METRIC = "eval_mean_reward_last"
 """The trial metric: the mean reward of the last held-out evaluation during training (higher is better)."""
 DISTRIBUTIONS = ("uniform", "loguniform", "choice", "randint")
+SEARCHES = ("grid", "optuna")
+"""``search`` of a sweep file: grid x random draws, or Optuna's TPE sampler over the ``random`` ranges."""
+DIRECTIONS = ("maximize", "minimize")
 _TOP_KEYS = {"envs", "scenarios", "algos", "seeds", "timesteps", "n_envs", "env_kwargs", "hyperparams", "grid",
-             "random", "samples", "search_seed", "run_dir", "eval"}
+             "random", "samples", "search_seed", "run_dir", "eval", "search", "num_samples", "direction"}
 _EVAL_KEYS = {"episodes", "seed", "baselines"}
 DEFAULT_RUN_DIR = "{env}/{scenario}/{algo}{hp}-s{seed}"
 
@@ -116,6 +126,9 @@ class SweepConfig:
     eval_episodes: int = 50
     eval_seed: int = 0
     eval_baselines: tuple = ("sage-husa",)
+    search: str = "grid"
+    num_samples: int | None = None
+    direction: str = "maximize"
     source: str = "<sweep>"
 
     def _bad(self, name, msg):
@@ -159,6 +172,7 @@ class SweepConfig:
         for k, d in self.random.items():
             if not isinstance(d, Distribution):
                 self._bad(f"random.{k}", f"must be a distribution, got {d!r}")
+        self._check_search()
         searched = list(self.grid) + list(self.random)
         both = (set(self.grid) & set(self.random)) | (set(searched) & set(self.hyperparams))
         if both:
@@ -187,6 +201,39 @@ class SweepConfig:
                 expand_method_spec(b, "open-sky")
             except (ValueError, FileNotFoundError) as err:
                 self._bad("eval.baselines", str(err))
+
+
+    def _check_search(self):
+        """``search``, ``num_samples``, ``direction`` and the fields each search uses."""
+        if self.search not in SEARCHES:
+            self._bad("search", f"must be one of {', '.join(SEARCHES)}, got {self.search!r}")
+        if self.direction not in DIRECTIONS:
+            self._bad("direction", f"must be one of {', '.join(DIRECTIONS)}, got {self.direction!r}")
+        if self.search == "grid":
+            if self.num_samples is not None:
+                self._bad("num_samples", "is the number of Optuna trials: it needs search: optuna "
+                                         "(grid search: samples random draws per grid point)")
+            return
+        if not (isinstance(self.num_samples, int) and not isinstance(self.num_samples, bool)
+                and self.num_samples >= 1):
+            self._bad("num_samples", f"search: optuna needs an integer >= 1, got {self.num_samples!r}")
+        if self.grid:
+            self._bad("grid", "search: optuna takes its ranges from random (a list of values: choice: [...])")
+        if self.samples != 1:
+            self._bad("samples", "is the random draws per grid point of search: grid; search: optuna tries "
+                                 "num_samples configurations")
+        if not self.random:
+            self._bad("random", "search: optuna needs at least one range to search (uniform, loguniform, "
+                                "randint: [lo, hi]; choice: [...])")
+        for k, d in self.random.items():
+            if d.kind == "choice" and not all(v is None or isinstance(v, (bool, int, float, str)) for v in d.args):
+                self._bad(f"random.{k}", f"search: optuna needs choice values that are numbers, strings, booleans "
+                                         f"or null, got {list(d.args)}")
+        from agents.optuna_search import OPTUNA_INSTALL_HINT, require_optuna
+        try:
+            require_optuna()
+        except ImportError:
+            self._bad("search", f"optuna needs Optuna, which is not installed: {OPTUNA_INSTALL_HINT}")
 
 
 def _tuple(v, name, path):
@@ -228,7 +275,7 @@ def load_sweep(path) -> SweepConfig:
     for name in ("algos", "seeds", "scenarios"):
         if name in d:
             kw[name] = _tuple(d[name], name, path)
-    for name in ("timesteps", "n_envs", "samples", "search_seed", "run_dir"):
+    for name in ("timesteps", "n_envs", "samples", "search_seed", "run_dir", "search", "num_samples", "direction"):
         if name in d:
             kw[name] = d[name]
     if isinstance(kw.get("timesteps"), float) and kw["timesteps"].is_integer():
@@ -307,25 +354,44 @@ def configurations(cfg: SweepConfig) -> list[dict]:
     return out
 
 
-def expand_trials(cfg: SweepConfig, root) -> list[Trial]:
-    """Every trial of the sweep, run folders under ``root`` (``ValueError`` when two share a folder)."""
-    root = Path(root).resolve()
-    confs = configurations(cfg)
-    trials, seen = [], {}
-    for env, scen, algo, (cid, conf), seed in itertools.product(cfg.envs, cfg.scenarios, cfg.algos,
-                                                                enumerate(confs), cfg.seeds):
-        hp = "".join(f"{'-' if i == 0 else '_'}{k}={_fmt(v)}" for i, (k, v) in enumerate(conf.items()))
-        rel = cfg.run_dir.format(env=env.replace("/", "-"), scenario=scen or "default", algo=algo.lower(), hp=hp,
-                                 seed=seed)
-        if rel in seen:
-            raise ValueError(f"{cfg.source}: run_dir: {cfg.run_dir!r} gives two trials the same folder {rel!r}; "
-                             "add the fields that differ ({env}, {scenario}, {algo}, {hp})")
-        seen[rel] = True
-        ekw = dict(cfg.env_kwargs, **({} if scen is None else {"scenario": scen}))
-        trials.append(Trial(env=env, scenario=scen, algo=algo.lower(), seed=seed, config_id=cid, searched=conf,
-                            hyperparams={**cfg.hyperparams, **conf}, env_kwargs=ekw, timesteps=cfg.timesteps,
-                            n_envs=cfg.n_envs, run_dir=rel, out=str(root / rel)))
+def _trial(cfg: SweepConfig, root: Path, env: str, scen, algo: str, cid: int, conf: dict, seed: int) -> Trial:
+    """The trial training configuration ``conf`` (number ``cid``) of ``env`` x ``scen`` x ``algo`` x ``seed``."""
+    hp = "".join(f"{'-' if i == 0 else '_'}{k}={_fmt(v)}" for i, (k, v) in enumerate(conf.items()))
+    rel = cfg.run_dir.format(env=env.replace("/", "-"), scenario=scen or "default", algo=algo.lower(), hp=hp,
+                             seed=seed)
+    ekw = dict(cfg.env_kwargs, **({} if scen is None else {"scenario": scen}))
+    return Trial(env=env, scenario=scen, algo=algo.lower(), seed=seed, config_id=cid, searched=dict(conf),
+                 hyperparams={**cfg.hyperparams, **conf}, env_kwargs=ekw, timesteps=cfg.timesteps,
+                 n_envs=cfg.n_envs, run_dir=rel, out=str(Path(root).resolve() / rel))
+
+
+def _unique_folders(cfg: SweepConfig, trials: list[Trial]) -> list[Trial]:
+    """``trials``, or ``ValueError`` naming ``run_dir`` when two share a folder."""
+    seen = set()
+    for t in trials:
+        if t.run_dir in seen:
+            raise ValueError(f"{cfg.source}: run_dir: {cfg.run_dir!r} gives two trials the same folder "
+                             f"{t.run_dir!r}; add the fields that differ ({{env}}, {{scenario}}, {{algo}}, {{hp}})")
+        seen.add(t.run_dir)
     return trials
+
+
+def config_trials(cfg: SweepConfig, root, cid: int, conf: dict) -> list[Trial]:
+    """The trials of one configuration: every environment x scenario x algorithm x seed (the runs an Optuna
+    trial trains; ``ValueError`` when two share a folder)."""
+    return _unique_folders(cfg, [_trial(cfg, root, env, scen, algo, cid, conf, seed) for env, scen, algo, seed
+                                 in itertools.product(cfg.envs, cfg.scenarios, cfg.algos, cfg.seeds)])
+
+
+def expand_trials(cfg: SweepConfig, root) -> list[Trial]:
+    """Every trial of a grid sweep, run folders under ``root`` (``ValueError`` when two share a folder). For
+    ``search: optuna``, whose configurations are proposed while it runs: the trials of one configuration of
+    the ``random`` ranges' lower ends / first choices (it checks the run folder template)."""
+    if cfg.search == "optuna":
+        return config_trials(cfg, root, 0, {k: d.args[0] for k, d in cfg.random.items()})
+    return _unique_folders(cfg, [
+        _trial(cfg, root, env, scen, algo, cid, conf, seed) for env, scen, algo, (cid, conf), seed
+        in itertools.product(cfg.envs, cfg.scenarios, cfg.algos, enumerate(configurations(cfg)), cfg.seeds)])
 
 
 def trial_status(trial: Trial) -> dict | None:
@@ -408,6 +474,11 @@ def run_sweep(cfg: SweepConfig, root, backend) -> list[TrialRow]:
     """Run the trials that have not finished on ``backend`` (:mod:`agents.backends`), then write the tables
     (:func:`write_tables`). Returns one row per trial, in the order of :func:`expand_trials`."""
     root = Path(root)
+    if cfg.search == "optuna":
+        from agents.optuna_search import run_optuna
+        rows = run_optuna(cfg, root, backend)
+        write_tables(cfg, root, rows)
+        return rows
     trials = expand_trials(cfg, root)
     kept = {t.run_dir: trial_status(t) for t in trials}
     pending = [t for t in trials if kept[t.run_dir] is None]
@@ -426,14 +497,16 @@ def run_sweep(cfg: SweepConfig, root, backend) -> list[TrialRow]:
     return rows
 
 
-def best_per_group(rows: list[TrialRow]) -> dict:
-    """``{(env, scenario, algo): the finished row with the highest metric}`` (groups without one left out)."""
+def best_per_group(rows: list[TrialRow], direction: str = "maximize") -> dict:
+    """``{(env, scenario, algo): the finished row with the highest metric}`` (the lowest with ``direction``
+    ``minimize``; groups without a finished row left out)."""
     best: dict = {}
+    sign = 1.0 if direction == "maximize" else -1.0
     for r in rows:
         if r.metric is None:
             continue
         g = r.trial.group
-        if g not in best or r.metric > best[g].metric:
+        if g not in best or sign * r.metric > sign * best[g].metric:
             best[g] = r
     return best
 
@@ -452,7 +525,7 @@ def eval_commands(cfg: SweepConfig, root, rows: list[TrialRow]) -> list[str]:
     from agents.rollout import env_class
     from envs.gnss_ins_env import make_config
     per_scen: dict = {}
-    for (env, _, algo), r in best_per_group(rows).items():
+    for (env, _, algo), r in best_per_group(rows, cfg.direction).items():
         scen = r.trial.scenario or make_config(env_class(env).DEFAULTS, {}).scenario
         per_scen.setdefault(str(scen), []).append(f"{algo}:{_display(str(Path(r.trial.out) / 'model.zip'))}")
     script = _display(str(Path(__file__).resolve().parents[1] / "eval.py"))
@@ -485,16 +558,19 @@ def write_tables(cfg: SweepConfig, root, rows: list[TrialRow]) -> None:
         w = csv.DictWriter(f, fieldnames=FIELDS)
         w.writeheader()
         w.writerows(dicts)
-    best = best_per_group(rows)
+    best = best_per_group(rows, cfg.direction)
     cmds = eval_commands(cfg, root, rows)
 
     def cell(v):
         return "" if v is None else f"{v:.4g}" if isinstance(v, float) else str(v).replace("|", "\\|")
     n_err = sum(r.status == "error" for r in rows)
+    better = "higher" if cfg.direction == "maximize" else "lower"
     lines = [f"# Sweep `{cfg.source}`", "",
              f"{len(rows)} trials ({sum(r.status == 'done' for r in rows)} trained now, "
              f"{sum(r.status == 'kept' for r in rows)} finished before and kept, {n_err} failed). Metric "
-             f"`{METRIC}`: mean episode reward of the last held-out evaluation during training (higher is better).",
+             f"`{METRIC}`: mean episode reward of the last held-out evaluation during training ({better} is better)"
+             + (f"; configurations proposed by Optuna's TPE sampler (seed {cfg.search_seed})."
+                if cfg.search == "optuna" else "."),
              "", "| " + " | ".join(FIELDS[:-1]) + " |", "|" + "---|" * (len(FIELDS) - 1)]
     lines += ["| " + " | ".join(cell(d[k]) for k in FIELDS[:-1]) + " |" for d in dicts]
     lines += ["", "## Best trial per group", "", "| env | scenario | algo | run_dir | searched | " + METRIC + " |",

@@ -136,3 +136,44 @@ def test_resume_does_not_redo_finished_trials(sweep):
     assert (out / rows[0]["run_dir"] / "model.zip").stat().st_mtime_ns == mtime[rows[0]["run_dir"]]
     assert (out / rows[1]["run_dir"] / "model.zip").stat().st_mtime_ns > mtime[rows[1]["run_dir"]]
     assert again[0]["eval_mean_reward_last"] == rows[0]["eval_mean_reward_last"]
+
+
+OPTUNA_SWEEP = """envs: [GnssIns/SageHusa-v0]
+scenarios: [seed000-sim]
+timesteps: 256
+n_envs: 4
+env_kwargs: {episode_length_s: 6}
+search: optuna
+num_samples: 2
+search_seed: 3
+random:
+  learning_rate: {loguniform: [1.0e-4, 1.0e-3]}
+  batch_size: {choice: [32, 64]}
+eval: {episodes: 2, baselines: [kf]}
+"""
+
+
+def test_optuna_sweep_on_ray_tune_proposes_what_the_local_one_does_and_resumes(local_ray, tmp_path):
+    """OptunaSearch on Ray Tune: the TPE sampler seeded from the sweep file proposes the same configurations as
+    the local ask / tell loop (both are startup draws); a rerun tells the sampler both and trains nothing."""
+    import csv
+    import train
+    pytest.importorskip("optuna")
+    (tmp_path / "sweep.yml").write_text(OPTUNA_SWEEP)
+    tables = {}
+    for backend in ("ray", "local"):
+        train.main(["sweep", "--config", str(tmp_path / "sweep.yml"), "--out", str(tmp_path / backend),
+                    "--backend", backend])
+        tables[backend] = list(csv.DictReader(open(tmp_path / backend / "sweep.csv")))
+    ray_rows = tables["ray"]
+    assert [r["status"] for r in ray_rows] == ["done", "done"] and [r["config_id"] for r in ray_rows] == ["0", "1"]
+    assert [r["searched"] for r in ray_rows] == [r["searched"] for r in tables["local"]]
+    for r in ray_rows:
+        assert (tmp_path / "ray" / r["run_dir"] / "model.zip").is_file()
+    assert any((tmp_path / "ray" / "tune").iterdir())  # the Tune experiment
+    mtime = [(tmp_path / "ray" / r["run_dir"] / "model.zip").stat().st_mtime_ns for r in ray_rows]
+    train.main(["sweep", "--config", str(tmp_path / "sweep.yml"), "--out", str(tmp_path / "ray"), "--backend", "ray"])
+    again = list(csv.DictReader(open(tmp_path / "ray" / "sweep.csv")))
+    assert [r["status"] for r in again] == ["kept", "kept"]
+    assert [r["eval_mean_reward_last"] for r in again] == [r["eval_mean_reward_last"] for r in ray_rows]
+    assert [(tmp_path / "ray" / r["run_dir"] / "model.zip").stat().st_mtime_ns for r in ray_rows] == mtime
