@@ -304,7 +304,8 @@ def write_all_plots(out: Path, results: dict, curves: dict, tracks: dict, events
     from agents.provenance import short_labels
     paths = []
     for s, per in curves.items():
-        ev = np.concatenate(events[s], 0) if s in events else None
+        masks = events.get(s, [])  # a recording has no event mask (None): nothing to shade
+        ev = np.concatenate(masks, 0) if masks and all(m is not None for m in masks) else None
         ev = ev if ev is not None and ev.shape[-1] == next(iter(per.values())).t.size else None
         learned = [m.label for _, ms in plan[s] for m in ms if isinstance(m, PolicyMethod)]
         paths += plots.write_plots(out, s, per, results["scenarios"][s], _ref_label(results, s),
