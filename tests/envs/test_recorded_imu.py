@@ -5,12 +5,13 @@ body, another column order, g and deg/s), loads it through a spec and checks the
 the error tests check that a bad file or key is named with its line and column.
 """
 import dataclasses
+import math
 
 import numpy as np
 import pytest
 
 from earth import dcm_from_euler
-from envs.datasets.errors import DatasetFormatError
+from envs.datasets.errors import DatasetFormatError, shared_data_dir
 from envs.datasets.recorded_imu import read_imu_csv, recorded_imu_data, resample_rates
 from envs.datasets.spec import DatasetSpecError, load_dataset_spec
 from envs.sim.imu import IMU_GRADES
@@ -175,3 +176,53 @@ def test_bad_imu_keys_name_the_key(tmp_path, old, new, key, words):
     with pytest.raises(DatasetSpecError, match=words) as ei:
         load_dataset_spec(p)
     assert ei.value.key == key and str(ei.value).startswith(f"{p}: {key}: ")
+
+
+REACH = shared_data_dir() / "instinct_tckf_static"
+OBS, NAV = REACH / "reach-m2-01_raw_202306291111.23O", REACH / "reach-m2-01_raw_202306291111.nav"
+LLH = (48.7806647, 9.1714960, 330.08)          # the shipped instinct-reach-static truth
+RPY_DEG = (1.5, -2.0, 30.0)
+
+
+@pytest.mark.skipif(not NAV.is_file(), reason=f"Reach M2 RINEX files not found in {REACH} (../shared/data is "
+                                              f"absent in a fresh clone)")
+def test_replay_world_with_a_recorded_imu(tmp_path):
+    """The Reach RINEX with a static truth that has an attitude, and the ideal IMU of that static body recorded
+    by a sensor mounted upside down: the world carries the recorded samples, the truth's attitude, and the
+    filter holds the position."""
+    from earth import OMEGA_IE, C_en, geodetic_to_ecef, gravity_ecef
+    from envs.episodes import run_episodes
+    from envs.worlds import make_world
+    lat, lon = math.radians(LLH[0]), math.radians(LLH[1])
+    r = np.asarray(geodetic_to_ecef(lat, lon, LLH[2]), np.float64)
+    C_eb = C_en(lat, lon) @ dcm_from_euler(*np.radians(RPY_DEG))
+    f_b = C_eb.T @ -gravity_ecef(r)
+    w_b = C_eb.T @ np.array([0.0, 0.0, OMEGA_IE])
+    C_bs = dcm_from_euler(math.pi, 0.0, 0.0)                 # sensor z up
+    tow0 = 385962.094
+    tt = tow0 - 1.0 + 0.1 * np.arange(640)
+    (tmp_path / "truth.csv").write_text("week,tow,lat,lon,h,roll,pitch,yaw\n" + "".join(
+        f"{WEEK},{float(t)!r},{LLH[0]},{LLH[1]},{LLH[2]},{RPY_DEG[0]},{RPY_DEG[1]},{RPY_DEG[2]}\n" for t in tt))
+    ti = tow0 - 0.5 + 0.01 * np.arange(6200)
+    f_s, w_s = C_bs.T @ f_b, C_bs.T @ w_b
+    (tmp_path / "imu.csv").write_text("utc_unused,week,tow,wx,wy,wz,fx,fy,fz\n" + "".join(
+        f"-,{WEEK},{float(t)!r}," + ",".join(repr(float(v)) for v in (*w_s, *f_s)) + "\n" for t in ti))
+    p = tmp_path / "rec.toml"
+    p.write_text(f'name = "reach-recorded"\n[gnss]\nformat = "rinex"\nobs = "{OBS}"\nnav = ["{NAV}"]\n'
+                 f'systems = ["G"]\n[truth]\nformat = "csv"\nfile = "truth.csv"\n[truth.columns]\nweek = "week"\n'
+                 f'tow = "tow"\nlat = "lat"\nlon = "lon"\nheight = "h"\nroll = "roll"\npitch = "pitch"\n'
+                 f'yaw = "yaw"\n[imu]\nsource = "recorded"\ngrade = "industrial"\nfile = "imu.csv"\n'
+                 f'mounting = [180.0, 0.0, 0.0]\n[imu.columns]\nweek = "week"\ntow = "tow"\nfx = "fx"\n'
+                 f'fy = "fy"\nfz = "fz"\nwx = "wx"\nwy = "wy"\nwz = "wz"\n')
+    world = make_world(str(p), [0, 1])
+    N = world.truth.t.size
+    assert N > 5000 and world.imu.f_b.shape == (2, N, 3) and world.imu.gyro_bias is None
+    np.testing.assert_allclose(world.imu.f_b[:, 1:], np.broadcast_to(f_b, (2, N - 1, 3)), atol=1e-9)
+    np.testing.assert_allclose(world.imu.w_b[:, 1:], np.broadcast_to(w_b, (2, N - 1, 3)), atol=1e-15)
+    np.testing.assert_allclose(world.truth.C_eb, np.broadcast_to(C_eb, (2, N, 3, 3)), atol=1e-9)
+    assert np.isnan(world.truth.f_b).all()
+    log = run_episodes(world, "kf")
+    err = np.asarray(log.pos_err_ned)
+    rmse = float(np.sqrt(np.nanmean(np.sum(err[..., :2] ** 2, -1))))
+    print(f"kf horizontal RMSE with the recorded (ideal, static) IMU: {rmse:.2f} m")
+    assert rmse < 10.0
