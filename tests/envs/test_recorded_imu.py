@@ -226,3 +226,51 @@ def test_replay_world_with_a_recorded_imu(tmp_path):
     rmse = float(np.sqrt(np.nanmean(np.sum(err[..., :2] ** 2, -1))))
     print(f"kf horizontal RMSE with the recorded (ideal, static) IMU: {rmse:.2f} m")
     assert rmse < 10.0
+
+
+@pytest.mark.skipif(not (REACH / "vn310-imu.csv").is_file() or not NAV.is_file(),
+                    reason=f"VN-310 / Reach files not found in {REACH} (../shared/data is absent in a fresh clone)")
+def test_shipped_vn310_spec_replays_the_recorded_imu():
+    """envs/datasets/specs/instinct-reach-vn310.toml end to end: the replay is the 33 s the 50 Hz VN-310 log
+    covers, its samples are the log's (the grid is the log's own stamps where they are 20 ms apart), and the
+    filters run on it."""
+    from envs.datasets.spec import SPEC_DIR
+    from envs.episodes import run_episodes
+    from envs.worlds import make_world
+    spec = load_dataset_spec(SPEC_DIR / "instinct-reach-vn310.toml")
+    assert spec.imu.source == "recorded" and spec.imu.rate_hz == 50.0
+    world = make_world(str(spec.path), [0, 1])
+    assert 31.0 < world.scenario.duration_s < 33.1 and world.imu.gyro_bias is None
+    t, f, w = read_imu_csv(spec.imu, 2268)
+    mean_f = f.mean(0)
+    # at rest the recorded specific force is -g in the body: about 9.80 m/s^2, z down
+    assert abs(np.linalg.norm(mean_f) - 9.80) < 0.02 and mean_f[2] < -9.7
+    np.testing.assert_allclose(world.imu.f_b[0, 1:].mean(0), mean_f, atol=2e-3)
+    log = run_episodes(world, "kf")
+    e = np.asarray(log.pos_err_ned)
+    rmse = float(np.sqrt(np.mean(np.sum(e[..., :2] ** 2, -1))))
+    print(f"instinct-reach-vn310 kf horizontal RMSE {rmse:.2f} m")
+    assert np.isfinite(e).all() and rmse < 10.0
+
+
+def test_static_truth_attitude_key(tmp_path):
+    p = tmp_path / "s.toml"
+    p.write_text(SPEC.format(m="0, 0, 0", extra="").replace(
+        "position_ecef = [4157198.4, 671195.1, 4774772.0]\n",
+        "position_ecef = [4157198.4, 671195.1, 4774772.0]\nattitude_rpy_deg = [1, 2]\n"))
+    with pytest.raises(DatasetSpecError, match="roll, pitch, yaw") as ei:
+        load_dataset_spec(p)
+    assert ei.value.key == "truth.attitude_rpy_deg"
+
+
+@pytest.mark.skipif(not (REACH / "vn310-imu.csv").is_file() or not NAV.is_file(),
+                    reason=f"VN-310 / Reach files not found in {REACH} (../shared/data is absent in a fresh clone)")
+def test_recorded_imu_needs_the_truth_attitude(tmp_path):
+    from envs.datasets.spec import SPEC_DIR
+    from envs.worlds import make_world
+    text = (SPEC_DIR / "instinct-reach-vn310.toml").read_text()
+    p = tmp_path / "noatt.toml"
+    p.write_text(text.replace("attitude_rpy_deg = [3.90, -1.81, 0.0]\n", "").replace(
+        'name = "instinct-reach-vn310"', 'name = "vn310-no-attitude"'))
+    with pytest.raises(ValueError, match="needs the truth's attitude"):
+        make_world(str(p), [0])
