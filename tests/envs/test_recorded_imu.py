@@ -274,3 +274,17 @@ def test_recorded_imu_needs_the_truth_attitude(tmp_path):
         'name = "instinct-reach-vn310"', 'name = "vn310-no-attitude"'))
     with pytest.raises(ValueError, match="needs the truth's attitude"):
         make_world(str(p), [0])
+
+
+@pytest.mark.skipif(not (REACH / "vn310-imu.csv").is_file() or not NAV.is_file(),
+                    reason=f"VN-310 / Reach files not found in {REACH} (../shared/data is absent in a fresh clone)")
+def test_check_command_reads_the_recorded_imu(tmp_path, capsys):
+    from envs.datasets.check import main
+    from envs.datasets.spec import SPEC_DIR
+    spec = SPEC_DIR / "instinct-reach-vn310.toml"
+    assert main(["check", str(spec)]) == 0
+    assert "IMU: recorded vn310-imu.csv: 1638 rows over 33.0 s" in capsys.readouterr().out
+    p = tmp_path / "gap.toml"                          # the log's 0.29 s steps are refused at the default limit
+    p.write_text(spec.read_text().replace("max_gap_s = 0.3\n", ""))
+    assert main(["check", str(p)]) == 1
+    assert "above imu.max_gap_s = 0.1 s" in capsys.readouterr().err
