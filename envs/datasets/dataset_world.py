@@ -112,15 +112,16 @@ def _recorded_imu(spec: DatasetSpec, rec: PreparedRecording, t: np.ndarray):
     :func:`envs.datasets.replay.replay_world`: the recorded samples on the grid, the attitude linearly
     interpolated from the truth's roll, pitch, yaw (yaw unwrapped)."""
     from earth import C_en, dcm_from_euler
-    from .recorded_imu import read_imu_csv, recorded_imu_data
+    from .recorded_imu import recorded_imu_data
     tr = rec.truth
     if tr.rpy is None:
         raise ValueError(f"{spec.truth.file or spec.path}: imu.source = 'recorded' needs the truth's attitude "
                          f"(roll, pitch, yaw columns of a 'csv' truth): the filter's initial attitude and the "
                          f"attitude of the recorded sensor come from it")
-    samples = read_imu_csv(spec.imu, rec.week_ref)
+    samples = _imu_samples(spec, rec.week_ref)
     lo, hi = samples[0][0] - rec.epochs.t0_gps, samples[0][-1] - rec.epochs.t0_gps
-    inside = (t >= lo) & (t <= hi)
+    half = 0.5 / spec.imu.rate_hz                    # the grid may end up to half a sample past the last row
+    inside = (t >= lo) & (t <= hi - half)
     if inside.sum() < 5:
         raise ValueError(f"{spec.imu.file}: the recorded IMU spans [{lo:.2f}, {hi:.2f}] s after the first "
                          f"observation, the truth [{t[0]:.2f}, {t[-1]:.2f}] s: fewer than 5 truth rows in common")
@@ -139,6 +140,22 @@ def _recorded_imu(spec: DatasetSpec, rec: PreparedRecording, t: np.ndarray):
         return imu, C_en(lat, lon) @ dcm_from_euler(a[:, 0], a[:, 1], a[:, 2])
 
     return inside, recorded
+
+
+def _imu_samples(spec: DatasetSpec, week_ref: int):
+    """:func:`envs.datasets.recorded_imu.read_imu_csv` of ``spec``, memoized per process on the spec and the
+    file's size and modification time (worlds are rebuilt at every environment reset); read-only arrays."""
+    st = spec.imu.file.stat() if spec.imu.file.is_file() else None
+    return _imu_samples_cached(spec, int(week_ref), None if st is None else (st.st_size, st.st_mtime_ns))
+
+
+@functools.lru_cache(maxsize=4)
+def _imu_samples_cached(spec, week_ref, stamp):
+    from .recorded_imu import read_imu_csv
+    out = read_imu_csv(spec.imu, week_ref)
+    for a in out:
+        a.setflags(write=False)
+    return out
 
 
 @functools.lru_cache(maxsize=8)
