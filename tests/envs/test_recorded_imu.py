@@ -288,3 +288,25 @@ def test_check_command_reads_the_recorded_imu(tmp_path, capsys):
     p.write_text(spec.read_text().replace("max_gap_s = 0.3\n", ""))
     assert main(["check", str(p)]) == 1
     assert "above imu.max_gap_s = 0.1 s" in capsys.readouterr().err
+
+
+def test_utc_time_base_and_comment_lines(tmp_path, world):
+    """The same samples stamped in UTC (GPS - UTC = 18 s in 2023) read back to the same GPS times."""
+    tr = world.truth
+    spec = _write(tmp_path, tr.t[:40], tr.f_b[0, :40], tr.w_b[0, :40])
+    t_gps, f, w = read_imu_csv(spec.imu, WEEK)
+    start = np.datetime64("1980-01-06T00:00:00", "ns") + np.timedelta64(WEEK * 604800, "s")
+    lines = (tmp_path / "imu.csv").read_text().split("\n")
+    out = [lines[0], lines[1].replace("TOW", "utc").replace(",Week", ",spare")]
+    for ln, t in zip(lines[2:], t_gps):
+        cells = ln.split(",")
+        utc = start + np.timedelta64(int(round((t - 18.0) * 1e9)), "ns")
+        cells[2], cells[4] = str(utc), "0"
+        out.append(",".join(cells))
+    (tmp_path / "imu.csv").write_text("\n".join(out) + "\n")
+    p = tmp_path / "utc.toml"
+    p.write_text(spec.path.read_text().replace('week = "Week"\ntow = "TOW"\n', 'utc = "utc"\n'))
+    t2, f2, w2 = read_imu_csv(load_dataset_spec(p).imu, WEEK)
+    np.testing.assert_allclose(t2, t_gps, rtol=0, atol=1e-6)
+    np.testing.assert_array_equal(f2, f)
+    np.testing.assert_array_equal(w2, w)
