@@ -21,6 +21,7 @@ module             holds
 ``spec``           dataset spec files (TOML): a recording usable as a scenario by name or path (issue 12)
 ``dataset_world``  the replay world of a spec; the no-silent-drop rules
 ``truth_readers``  truth formats by name (navgym CSV, static, smartLoc; ``truth_generic_csv``: any CSV)
+``recorded_imu``   a recorded IMU CSV (column map, units, mounting) on the world's IMU grid
 ``nav_merge``      several navigation files as one; ephemeris coverage of the observed satellites
 ``doppler``        pseudorange rates from RINEX Doppler (sign, wavelength per system and band)
 ``cache``          parsed RINEX files cached on disk by content hash

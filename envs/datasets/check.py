@@ -40,6 +40,7 @@ class DatasetCheck:
     spp_epochs: int
     spp_h_p50_m: float
     spp_h_p95_m: float
+    imu: str = ""
 
 
 def _epochs_and_truth(spec):
@@ -81,7 +82,23 @@ def check_dataset(spec) -> DatasetCheck:
                         t0_gps=ep.t0_gps, satellites=sats, truth_rows=int(np.size(t_tr)),
                         truth_covered=int(inside.sum()), n_prr=0 if ep.prr is None else
                         int((ep.mask & (ep.prr_sigma < 1e3)).sum()), spp_epochs=int(use.sum()),
-                        spp_h_p50_m=p50, spp_h_p95_m=p95)
+                        spp_h_p50_m=p50, spp_h_p95_m=p95, imu=_imu_summary(spec, ep))
+
+
+def _imu_summary(spec, ep) -> str:
+    """One line on the IMU: the synthesized grade and rate, or the recorded file read and checked."""
+    imu = spec.imu
+    if imu.source == "synthesized":
+        return f"synthesized from the truth, {imu.grade} grade at {imu.rate_hz:g} Hz"
+    from .dataset_world import prepare_rinex
+    from .recorded_imu import read_imu_csv
+    t, _, _ = read_imu_csv(imu, prepare_rinex(spec).week_ref)
+    t = t - ep.t0_gps
+    dt = np.diff(t)
+    covered = int(((ep.t >= t[0]) & (ep.t <= t[-1])).sum())
+    return (f"recorded {imu.file.name}: {t.size} rows over {t[-1] - t[0]:.1f} s, step median "
+            f"{1e3 * float(np.median(dt)):.1f} ms, largest {1e3 * float(dt.max()):.0f} ms; covers {covered} of "
+            f"{ep.n_epochs} epochs; {imu.grade} grade for the filter, replayed at {imu.rate_hz:g} Hz")
 
 
 def format_check(c: DatasetCheck) -> str:
@@ -94,7 +111,7 @@ def format_check(c: DatasetCheck) -> str:
              f"  truth: {c.truth_rows} rows, covers {c.truth_covered} of {c.n_epochs} epochs",
              f"  pseudorange rates (Doppler): {c.n_prr}" if c.n_prr else "  pseudorange rates (Doppler): none",
              f"  SPP vs truth over {c.spp_epochs} epochs: horizontal p50 {c.spp_h_p50_m:.2f} m, "
-             f"p95 {c.spp_h_p95_m:.2f} m"]
+             f"p95 {c.spp_h_p95_m:.2f} m"] + ([f"  IMU: {c.imu}"] if c.imu else [])
     return "\n".join(lines)
 
 

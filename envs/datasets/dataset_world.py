@@ -64,9 +64,10 @@ def world_from_spec(scenario: ReplayScenario, seeds, dtype=np.float64) -> World:
     if not isinstance(scenario, ReplayScenario):
         raise ValueError(f"scenario must be a ReplayScenario, got {type(scenario).__name__}")
     spec = scenario.dataset
-    if spec.imu.source != "synthesized":  # pragma: no cover - rejected when the spec is loaded
-        raise ValueError(f"{spec.path}: imu.source {spec.imu.source!r} is not supported")
     if spec.gnss.format == "smartloc":
+        if spec.imu.source != "synthesized":
+            raise ValueError(f"{spec.path}: imu.source = 'recorded' needs gnss.format = 'rinex' (smartLoc "
+                             f"time stamps are not GPS time)")
         world = _smartloc_world(scenario, seeds, dtype)
     else:
         world = _rinex_world(scenario, seeds, dtype)
@@ -94,13 +95,67 @@ def _rinex_world(scenario: ReplayScenario, seeds, dtype) -> World:
     rec = prepare_rinex(spec)
     ep, tr = rec.epochs, rec.truth
     t = tr.t - ep.t0_gps
-    keep = t <= t[0] + scenario.duration_s
+    inside, recorded = np.ones(t.size, bool), None
+    if spec.imu.source == "recorded":
+        inside, recorded = _recorded_imu(spec, rec, t)
+    keep = inside & (t <= t[inside][0] + scenario.duration_s)
     if keep.sum() < 5:
         raise ValueError(f"{spec.path}: duration_s = {scenario.duration_s} keeps {int(keep.sum())} truth rows; "
                          f"at least 5 are needed")
     fit = _fit(spec, t[keep], tr.r_e[keep])
-    world = replay_world(scenario, ep, fit, seeds, dtype=dtype)
+    world = replay_world(scenario, ep, fit, seeds, dtype=dtype, recorded_imu=recorded)
     return dataclasses.replace(world, scenario=dataclasses.replace(scenario, duration_s=max(fit.t1 - fit.t0, 1.0)))
+
+
+def _recorded_imu(spec: DatasetSpec, rec: PreparedRecording, t: np.ndarray):
+    """The truth rows inside the recorded IMU's span, and the ``recorded_imu`` callable of
+    :func:`envs.datasets.replay.replay_world`: the recorded samples on the grid, the attitude linearly
+    interpolated from the truth's roll, pitch, yaw (yaw unwrapped)."""
+    from earth import C_en, dcm_from_euler
+    from .recorded_imu import recorded_imu_data
+    tr = rec.truth
+    if tr.rpy is None:
+        raise ValueError(f"{spec.truth.file or spec.path}: imu.source = 'recorded' needs the truth's attitude "
+                         f"(roll, pitch, yaw columns of a 'csv' truth): the filter's initial attitude and the "
+                         f"attitude of the recorded sensor come from it")
+    samples = _imu_samples(spec, rec.week_ref)
+    lo, hi = samples[0][0] - rec.epochs.t0_gps, samples[0][-1] - rec.epochs.t0_gps
+    half = 0.5 / spec.imu.rate_hz                    # the grid may end up to half a sample past the last row
+    inside = (t >= lo) & (t <= hi - half)
+    if inside.sum() < 5:
+        raise ValueError(f"{spec.imu.file}: the recorded IMU spans [{lo:.2f}, {hi:.2f}] s after the first "
+                         f"observation, the truth [{t[0]:.2f}, {t[-1]:.2f}] s: fewer than 5 truth rows in common")
+    if not inside.all():
+        report(spec, f"{int((~inside).sum())} of {t.size} truth rows lie outside the recorded IMU's span: "
+                     f"not replayed")
+    rpy = np.array(tr.rpy, np.float64)
+    rpy[:, 2] = np.unwrap(rpy[:, 2])
+
+    def recorded(t_grid, B, dtype):
+        imu = recorded_imu_data(spec.imu, rec.week_ref, rec.epochs.t0_gps + t_grid, B, dtype, samples=samples)
+        from earth import ecef_to_geodetic
+        a = np.stack([np.interp(t_grid, t, rpy[:, j]) for j in range(3)], -1)
+        r = np.stack([np.interp(t_grid, t, tr.r_e[:, j]) for j in range(3)], -1)
+        lat, lon, _ = ecef_to_geodetic(r)
+        return imu, C_en(lat, lon) @ dcm_from_euler(a[:, 0], a[:, 1], a[:, 2])
+
+    return inside, recorded
+
+
+def _imu_samples(spec: DatasetSpec, week_ref: int):
+    """:func:`envs.datasets.recorded_imu.read_imu_csv` of ``spec``, memoized per process on the spec and the
+    file's size and modification time (worlds are rebuilt at every environment reset); read-only arrays."""
+    st = spec.imu.file.stat() if spec.imu.file.is_file() else None
+    return _imu_samples_cached(spec, int(week_ref), None if st is None else (st.st_size, st.st_mtime_ns))
+
+
+@functools.lru_cache(maxsize=4)
+def _imu_samples_cached(spec, week_ref, stamp):
+    from .recorded_imu import read_imu_csv
+    out = read_imu_csv(spec.imu, week_ref)
+    for a in out:
+        a.setflags(write=False)
+    return out
 
 
 @functools.lru_cache(maxsize=8)

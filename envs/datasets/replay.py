@@ -38,6 +38,7 @@ are irregular: smartLoc 0.2 or 0.3 s apart).
 """
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from pathlib import Path
@@ -45,7 +46,7 @@ from pathlib import Path
 import numpy as np
 from scipy.interpolate import make_smoothing_spline
 
-from earth import C_en, ecef_to_geodetic
+from earth import C_en, ecef_to_geodetic, euler_from_dcm
 from earth.ranging import range_and_rate
 
 from ..sim.gnss import ClockModel, GnssData, ReceiverConfig
@@ -164,7 +165,7 @@ def gnss_data_from_epochs(epochs: GnssEpochs, r_e, batch_size: int, clock_bias_m
 
 
 def replay_world(scenario: Scenario, epochs: GnssEpochs, fit: SplineFit, seeds, dtype=np.float64,
-                 min_speed_mps: float = 1.0) -> World:
+                 min_speed_mps: float = 1.0, recorded_imu=None) -> World:
     """A :class:`World` replaying ``epochs`` along the reference trajectory ``fit`` (module docstring).
 
     Parameters
@@ -175,6 +176,11 @@ def replay_world(scenario: Scenario, epochs: GnssEpochs, fit: SplineFit, seeds, 
     seeds : int or B non-negative ints (IMU noise, vibration and initial errors per row).
     dtype : float dtype of the IMU samples.
     min_speed_mps : see :func:`~envs.datasets.spline_truth.truth_from_fit`.
+    recorded_imu : None (the IMU is synthesized from the truth) or a callable ``(t, B, dtype) -> (imu,
+        C_eb)`` of the grid times ``t`` (N,) [s, the epochs' time origin]: the recorded
+        :class:`~envs.sim.imu.ImuData` and the reference attitude (N, 3, 3) body -> ECEF, which replaces the
+        spline's (:mod:`envs.datasets.recorded_imu`); the truth's ideal ``f_b`` / ``w_b`` are then unknown
+        (NaN), as no ideal IMU exists for the recorded sensor's axes.
     """
     if not isinstance(scenario, Scenario):
         raise ValueError(f"scenario must be a Scenario, got {type(scenario).__name__}")
@@ -191,11 +197,29 @@ def replay_world(scenario: Scenario, epochs: GnssEpochs, fit: SplineFit, seeds, 
     r_ep = fit.position(epochs.t)
     bias, drift = reference_clock(epochs, r_ep, fit.velocity(epochs.t))
     gnss = gnss_data_from_epochs(epochs, r_ep, B, bias, drift, t_offset=fit.t0, v_e=fit.velocity(epochs.t))
-    imu = simulate_imu(truth.f_b, truth.w_b, rate, IMU_GRADES[scenario.imu_grade], row_generators(seeds, "imu"),
-                       engine_on=truth.engine_on, speed=truth.speed, vibration=scenario.vibration, dtype=dtype,
-                       vibration_rngs=row_generators(seeds, "vibration"))
+    if recorded_imu is None:
+        imu = simulate_imu(truth.f_b, truth.w_b, rate, IMU_GRADES[scenario.imu_grade],
+                           row_generators(seeds, "imu"), engine_on=truth.engine_on, speed=truth.speed,
+                           vibration=scenario.vibration, dtype=dtype, vibration_rngs=row_generators(seeds, "vibration"))
+    else:
+        imu, C_eb = recorded_imu(fit.t0 + truth.t, B, dtype)
+        truth = _with_attitude(truth, np.asarray(C_eb, np.float64))
     init = initial_estimate(scenario, truth, gnss, row_generators(seeds, "init"))
     return World(scenario=scenario, seeds=seeds, truth=truth, imu=imu, gnss=gnss, epoch_idx=idx, init=init)
+
+
+def _with_attitude(truth, C_eb):
+    """``truth`` with the attitude ``C_eb`` (N, 3, 3) (heading and pitch in the local NED frame) and its
+    ideal IMU unknown (NaN)."""
+    B, N = truth.batch_size, truth.t.size
+    lat, lon, _ = ecef_to_geodetic(truth.r_e[0])
+    rpy = euler_from_dcm(np.swapaxes(C_en(lat, lon), -1, -2) @ C_eb)
+
+    def bc(x):
+        return np.broadcast_to(np.asarray(x, np.float64)[None], (B,) + np.shape(x))
+
+    nan = bc(np.full((N, 3), np.nan))
+    return dataclasses.replace(truth, C_eb=bc(C_eb), heading=bc(rpy[:, 2]), pitch=bc(rpy[:, 1]), f_b=nan, w_b=nan)
 
 
 def smartloc_scenario(imu_grade: str = "industrial", imu_rate_hz: float = 100.0, duration_s: float = 282.8,

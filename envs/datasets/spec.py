@@ -30,8 +30,8 @@ key, with examples, is ``docs/datasets.md``; in short::
     file = "truth.csv"
 
     [imu]
-    source = "synthesized"                # from the truth with a named grade ("recorded": not supported yet)
-    grade = "industrial"
+    source = "synthesized"                # from the truth with a named grade, or "recorded": a CSV with its
+    grade = "industrial"                  #   column map, units and mounting (envs.datasets.recorded_imu)
     rate_hz = 100.0
 
 Every key is checked when the file is loaded (:func:`load_dataset_spec`);
@@ -159,11 +159,27 @@ class TruthSpec:
 
 @dataclass(frozen=True)
 class ImuSpec:
-    """The ``[imu]`` section: ``source = 'synthesized'`` from the truth with ``grade`` at ``rate_hz``."""
+    """The ``[imu]`` section: the world's IMU at ``rate_hz`` [Hz].
+
+    Attributes
+    ----------
+    source : ``'synthesized'`` (from the truth with ``grade``) or ``'recorded'`` (replayed from ``file``,
+        :mod:`envs.datasets.recorded_imu`).
+    grade : a name of :data:`envs.sim.imu.IMU_GRADES`: the synthesized sensor, or the data-sheet grade that
+        sets the filter's process noise for a recorded one.
+    rate_hz : the IMU grid [Hz].
+    file : Path or None, the recorded IMU CSV.
+    options : tuple of (key, value) pairs, the recorded IMU's other keys (column map, units, mounting, ...).
+    """
 
     source: str = "synthesized"
     grade: str = "industrial"
     rate_hz: float = 100.0
+    file: Path | None = None
+    options: tuple = ()
+
+    def option(self, key, default=None):
+        return dict(self.options).get(key, default)
 
 
 @dataclass(frozen=True)
@@ -364,16 +380,29 @@ def _truth(r: "_Reader", t: dict, gnss: GnssSpec) -> TruthSpec:
 
 
 def _imu(r: "_Reader", t: dict) -> ImuSpec:
-    r.keys(t, "imu", {"source", "grade", "rate_hz", "file", "columns", "mounting"})
+    from .recorded_imu import IMU_OPTIONS, check_imu_options
+    r.keys(t, "imu", {"source", "grade", "rate_hz"} | set(IMU_OPTIONS))
     src = r.choice(t, "imu.source", IMU_SOURCES, default="synthesized")
-    if src == "recorded":
-        raise DatasetSpecError(r.path, "imu.source", "a recorded IMU is not supported yet: use "
-                                                     "source = 'synthesized' (from the truth, with imu.grade)")
-    for k in ("file", "columns", "mounting"):
-        if _has(t, "imu." + k):
-            raise DatasetSpecError(r.path, "imu." + k, "applies to a recorded IMU only")
     grade = r.choice(t, "imu.grade", tuple(sorted(IMU_GRADES)), default="industrial")
-    return ImuSpec(source=src, grade=grade, rate_hz=r.num(t, "imu.rate_hz", 100.0, lo=0, lo_open=True))
+    rate = r.num(t, "imu.rate_hz", 100.0, lo=0, lo_open=True)
+    if src == "synthesized":
+        for k in IMU_OPTIONS:
+            if _has(t, "imu." + k):
+                raise DatasetSpecError(r.path, "imu." + k, "applies to a recorded IMU only (source = 'recorded')")
+        return ImuSpec(source=src, grade=grade, rate_hz=rate)
+    if "grade" not in t:
+        raise DatasetSpecError(r.path, "imu.grade", "missing: a recorded IMU needs its data-sheet grade (the "
+                                                    "filter's process noise)")
+    opts = {k: v for k, v in t.items() if k not in ("source", "grade", "rate_hz")}
+    try:
+        check_imu_options(opts)
+    except ValueError as exc:
+        key, _, msg = str(exc).partition(": ")
+        raise DatasetSpecError(r.path, f"imu.{key}", msg) from None
+    file = r.file(t, "imu.file", required=True)
+    opts.pop("file")
+    return ImuSpec(source=src, grade=grade, rate_hz=rate, file=file,
+                   options=tuple(sorted((k, _freeze(v)) for k, v in opts.items())))
 
 
 def _has(t: dict, dotted: str) -> bool:

@@ -45,7 +45,7 @@ from .errors import DatasetFormatError, require_file
 from .rinex import GPS_EPOCH
 
 __all__ = ["CSV_OPTIONS", "COLUMN_ROLES", "LEAP_SECONDS", "check_csv_options", "read_csv_truth",
-           "resolve_gps_week", "utc_to_gps_seconds"]
+           "resolve_gps_week", "utc_to_gps_seconds", "read_columns", "column_gps_times"]
 
 CSV_OPTIONS = ("columns", "delimiter", "comment", "angles")
 _GROUPS = {"time": (("week", "tow"), ("utc",)), "position": (("x", "y", "z"), ("lat", "lon", "height")),
@@ -136,14 +136,26 @@ def utc_to_gps_seconds(utc, week_ref: int) -> np.ndarray:
     return (ns + leap * 10**9 - np.int64(week_ref) * WEEK_NS).astype(np.float64) * 1e-9
 
 
-def read_csv_truth(spec, week_ref: int, span):
-    """Read the generic truth CSV of ``spec`` (a :class:`~envs.datasets.spec.TruthSpec`; module docstring)."""
-    from .truth_readers import TruthTrack
-    opts = dict(spec.options)
-    cols = dict(opts["columns"])
-    delim, comment = opts.get("delimiter", ","), opts.get("comment", "#")
-    ang = math.pi / 180.0 if opts.get("angles", "deg") == "deg" else 1.0
-    path = require_file(spec.file)
+def read_columns(path, cols: dict, delim: str = ",", comment: str = "#", key: str = "truth.columns",
+                 min_rows: int = 5):
+    """The mapped columns of a delimited text file with a header line, all or nothing.
+
+    Parameters
+    ----------
+    path : the file; cols : {role: header name}; delim, comment : one character each;
+    key : the spec key of the column map (named in errors); min_rows : fewest data rows accepted.
+
+    Returns
+    -------
+    num : {role: (G,) float64} every role but ``'utc'`` (finite numbers).
+    utc : (G,) datetime64[ns] or None, the ``'utc'`` role parsed as ISO 8601.
+    where : (G,) int, the 1-based line number of each row.
+
+    Raises
+    ------
+    DatasetFormatError : naming the file, the line and the column.
+    """
+    path = require_file(path)
     lines = path.read_text(encoding="utf-8", errors="replace").split("\n")
     if lines[-1].strip():
         raise DatasetFormatError(path, len(lines), "last line has no line end: the file is truncated")
@@ -157,7 +169,7 @@ def read_csv_truth(spec, week_ref: int, span):
             header = tok
             for role, name in cols.items():
                 if name.strip() not in header:
-                    raise DatasetFormatError(path, i, f"column {name!r} (truth.columns.{role}) is not in the "
+                    raise DatasetFormatError(path, i, f"column {name!r} ({key}.{role}) is not in the "
                                                       f"header {header[:8]}{' ...' if len(header) > 8 else ''}")
                 idx[role] = header.index(name.strip())
             continue
@@ -167,11 +179,11 @@ def read_csv_truth(spec, week_ref: int, span):
         where.append(i)
     if header is None:
         raise DatasetFormatError(path, None, "no header line")
-    if len(rows) < 5:
-        raise DatasetFormatError(path, None, f"{len(rows)} rows; at least 5 are needed")
+    if len(rows) < min_rows:
+        raise DatasetFormatError(path, None, f"{len(rows)} rows; at least {min_rows} are needed")
     roles = list(idx)
     text = np.array(rows, dtype=object)
-    num = {}
+    num, utc = {}, None
     for j, role in enumerate(roles):
         if role == "utc":
             continue
@@ -192,17 +204,34 @@ def read_csv_truth(spec, week_ref: int, span):
             except ValueError:
                 raise DatasetFormatError(path, where[k], f"{cols['utc']!r}: {x[:40]!r} is not an ISO 8601 "
                                                          f"UTC date-time") from None
-        t = utc_to_gps_seconds(utc, week_ref)
-    else:
-        for k, w in enumerate(num["week"]):
-            if w != round(w) or w < 0:
-                raise DatasetFormatError(path, where[k], f"{cols['week']!r}: GPS week must be a non-negative "
-                                                         f"integer, got {w!r}")
-            if not 0.0 <= num["tow"][k] < 604800.0:
-                raise DatasetFormatError(path, where[k], f"{cols['tow']!r}: time of week must be in "
-                                                         f"[0, 604800) s, got {num['tow'][k]!r}")
-        week = resolve_gps_week(num["week"], num.get("cycle"), week_ref, path)
-        t = (week - week_ref) * 604800.0 + num["tow"]
+    return num, utc, np.asarray(where, np.int64)
+
+
+def column_gps_times(path, cols: dict, num: dict, utc, where, week_ref: int) -> np.ndarray:
+    """GPS seconds since the start of week ``week_ref`` of rows read by :func:`read_columns`, from the
+    ``utc`` role or the ``week`` (+ ``cycle``) and ``tow`` roles (module docstring); errors name the line."""
+    if utc is not None:
+        return utc_to_gps_seconds(utc, week_ref)
+    for k, w in enumerate(num["week"]):
+        if w != round(w) or w < 0:
+            raise DatasetFormatError(path, where[k], f"{cols['week']!r}: GPS week must be a non-negative "
+                                                     f"integer, got {w!r}")
+        if not 0.0 <= num["tow"][k] < 604800.0:
+            raise DatasetFormatError(path, where[k], f"{cols['tow']!r}: time of week must be in "
+                                                     f"[0, 604800) s, got {num['tow'][k]!r}")
+    week = resolve_gps_week(num["week"], num.get("cycle"), week_ref, path)
+    return (week - week_ref) * 604800.0 + num["tow"]
+
+
+def read_csv_truth(spec, week_ref: int, span):
+    """Read the generic truth CSV of ``spec`` (a :class:`~envs.datasets.spec.TruthSpec`; module docstring)."""
+    from .truth_readers import TruthTrack
+    opts = dict(spec.options)
+    cols = dict(opts["columns"])
+    ang = math.pi / 180.0 if opts.get("angles", "deg") == "deg" else 1.0
+    path = require_file(spec.file)
+    num, utc, where = read_columns(path, cols, opts.get("delimiter", ","), opts.get("comment", "#"))
+    t = column_gps_times(path, cols, num, utc, where, week_ref)
     back = np.diff(t) <= 0
     if back.any():
         raise DatasetFormatError(path, where[int(np.argmax(back)) + 1], "time does not increase")

@@ -76,6 +76,23 @@ def _read_navgym_csv(spec, week_ref: int, span) -> TruthTrack:
     return TruthTrack(t=t, r_e=r, source=str(spec.file))
 
 
+def _static_attitude(opts: dict):
+    """The optional ``attitude_rpy_deg = [roll, pitch, yaw]`` of a static truth [rad] (3,) or None."""
+    v = opts.get("attitude_rpy_deg")
+    if v is None:
+        return None
+    if not (isinstance(v, (list, tuple)) and len(v) == 3 and all(isinstance(x, (int, float)) and
+                                                                   not isinstance(x, bool) and math.isfinite(x)
+                                                                   for x in v)):
+        raise ValueError(f"attitude_rpy_deg: must be [roll, pitch, yaw] in degrees (3 finite numbers), got {v!r}")
+    return np.radians(np.asarray(v, np.float64))
+
+
+def _check_static(opts: dict) -> None:
+    _static_position(opts)
+    _static_attitude(opts)
+
+
 def _static_position(opts: dict) -> np.ndarray:
     if ("position_ecef" in opts) == ("position_llh" in opts):
         raise ValueError("position_ecef: give exactly one of position_ecef = [x, y, z] (m) or "
@@ -101,7 +118,9 @@ def _read_static(spec, week_ref: int, span) -> TruthTrack:
     t0, t1 = float(span[0]), float(span[1])
     t = np.linspace(t0, t1, max(5, int(math.ceil(t1 - t0)) + 1))
     G = t.size
-    return TruthTrack(t=t, r_e=np.repeat(r[None], G, 0), v_e=np.zeros((G, 3)), source="static position")
+    a = _static_attitude(dict(spec.options))
+    return TruthTrack(t=t, r_e=np.repeat(r[None], G, 0), v_e=np.zeros((G, 3)),
+                      rpy=None if a is None else np.repeat(a[None], G, 0), source="static position")
 
 
 def _read_smartloc(spec, week_ref: int, span) -> TruthTrack:
@@ -124,7 +143,8 @@ def _check_csv(opts: dict) -> None:
 TRUTH_FORMATS: dict[str, TruthReader] = {
     "navgym-csv": TruthReader("navgym-csv", _read_navgym_csv, _no_options),
     "csv": TruthReader("csv", _read_csv, _check_csv, ("columns", "delimiter", "comment", "angles")),
-    "static": TruthReader("static", _read_static, _static_position, ("position_ecef", "position_llh"), False),
+    "static": TruthReader("static", _read_static, _check_static,
+                          ("position_ecef", "position_llh", "attitude_rpy_deg"), False),
     "smartloc": TruthReader("smartloc", _read_smartloc, _no_options),
 }
 """Truth format name -> reader (module table)."""

@@ -103,7 +103,8 @@ BASE = ('name = "x"\n[gnss]\nformat = "rinex"\nobs = "o.24O"\nnav = ["n.24N"]\n{
     ('signals = { G = ["C5Q"] }', "", "gnss.signals.G", "band 1"),
     ('signals = { G = ["L1C"] }', "", "gnss.signals.G", "code observable"),
     ('signals = { E = ["C1C"] }', "", "gnss.signals.E", "not in gnss.systems"),
-    ("", '[imu]\nsource = "recorded"\n', "imu.source", "not supported yet"),
+    ("", '[imu]\nsource = "recorded"\n', "imu.grade", "data-sheet grade"),
+    ("", '[imu]\nfile = "imu.csv"\n', "imu.file", "recorded IMU only"),
     ("", '[imu]\ngrade = "magic"\n', "imu.grade", "must be one of"),
     ("", '[corrections]\niono = "yes"\n', "corrections.iono", "true or false"),
 ])
