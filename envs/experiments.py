@@ -445,6 +445,18 @@ def _claims_table(claims) -> list[str]:
     return out
 
 
+def _run_variants(scenario, seeds, batch_size, variants, progress, tag) -> dict:
+    """``{label: Run}`` of each ``(label, method, dtype)`` of ``variants`` on the paired worlds of ``scenario``
+    and ``seeds`` (generated ``batch_size`` at a time; progress lines start with ``tag``)."""
+    parts = {label: [] for label, _, _ in variants}
+    for chunk in _chunks(seeds, batch_size):
+        world = generate_world(scenario, chunk)
+        for label, m, dt in variants:
+            _say(progress, f"{tag}: {label} ({dt}) on {len(chunk)} episodes")
+            parts[label].append(_from_log(world, run_episodes(world, m, dtype=dt)))
+    return {k: Run.concat(v) for k, v in parts.items()}
+
+
 def _ok(run: Run, *others: Run) -> np.ndarray:
     ok = ~run.diverged
     for o in others:
@@ -468,16 +480,10 @@ def run_seed000(seeds, batch_size=50, progress=None, duration_s=None) -> tuple[d
     scen = get_scenario("seed000-sim", events=SEED000_EVENTS, **_dur(duration_s))
     variants = ([(m, m, "float32") for m in SEED000_METHODS] + [("kf (float64)", "kf", "float64")]
                 + [(f"{m} (extra)", m, "float32") for m in SEED000_EXTRA_METHODS])
-    parts = {v[0]: [] for v in variants}
     warm = generate_world(get_scenario(scen, duration_s=2.0), seeds[:1])
     for _, m, dt in variants:  # first calls (imports, numba cache, BLAS start-up) out of the timings
         run_episodes(warm, m, dtype=dt)
-    for chunk in _chunks(seeds, batch_size):
-        world = generate_world(scen, chunk)
-        for label, m, dt in variants:
-            _say(progress, f"seed000: {label} ({dt}) on {len(chunk)} episodes")
-            parts[label].append(_from_log(world, run_episodes(world, m, dtype=dt)))
-    runs = {k: Run.concat(v) for k, v in parts.items()}
+    runs = _run_variants(scen, seeds, batch_size, variants, progress, "seed000")
     kf = runs["kf"]
     ours = {}
     for label, r in runs.items():
@@ -539,14 +545,8 @@ def run_seed000(seeds, batch_size=50, progress=None, duration_s=None) -> tuple[d
 
     # (4) the same maximum-error claim in the setting of the paper's dynamic experiment: a city drive with
     # open sky, tree cover and buildings (sec 5.2.2), which is urban-transition; float32 as in the paper
-    urban = get_scenario("urban-transition", **_dur(duration_s))
-    u_runs = {m: [] for m in SEED000_URBAN_METHODS}
-    for chunk in _chunks(seeds, batch_size):
-        world = generate_world(urban, chunk)
-        for m in SEED000_URBAN_METHODS:
-            _say(progress, f"seed000: {m} (float32) on urban-transition, {len(chunk)} episodes")
-            u_runs[m].append(_from_log(world, run_episodes(world, m, dtype="float32")))
-    u_runs = {m: Run.concat(v) for m, v in u_runs.items()}
+    u_runs = _run_variants(get_scenario("urban-transition", **_dur(duration_s)), seeds, batch_size,
+                           [(m, m, "float32") for m in SEED000_URBAN_METHODS], progress, "seed000 on urban-transition")
     for m, r in u_runs.items():
         d3 = np.linalg.norm(r.pos_ned[~r.diverged], axis=-1)
         ours[f"{m} (urban-transition)"] = {"rmse_3d_m": _rmse(d3), "max_3d_m": float(d3.max()) if d3.size else float("nan"),

@@ -47,7 +47,6 @@ same recording; it never builds a simulated world.
 """
 from __future__ import annotations
 
-import dataclasses
 import math
 import re
 from dataclasses import dataclass, field
