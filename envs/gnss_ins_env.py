@@ -108,6 +108,11 @@ Limits (a ``ValueError`` naming the argument at construction): ``episode_length_
   5) and outage (4.3 m against 4.7), and the best MA-STKF fading scale 0.01 on noise-burst,
   urban-transition and regime-switch (5.1 m against 7.3 at 0.2 on urban-transition): both optima lay
   beyond the old edges, where fading is all but off.
+* v0, revised a third time with issue 16: ``stkf`` and ``ma-stkf`` fade on state events only (the lower
+  confidence bound of the innovation excess a state error can explain, withheld while the measurements are
+  noisier than reported) and MA-STKF's measurement factor is per measurement type, from the snapshot-fit
+  residuals (:mod:`nav_filters.adaptive.strong_tracking`). The actions keep their ranges and meanings
+  (softening scales the noise term, fading_scale the ratio); policies trained before see another law.
 """
 from __future__ import annotations
 

@@ -11,7 +11,12 @@ they should be. Two helpers:
 :func:`measurement_groups`
     which rows of a tightly coupled epoch are pseudoranges and which are
     pseudorange rates (for the per-group measurement-noise scale of the
-    Sage-Husa law).
+    Sage-Husa law);
+:func:`geometry_residuals`, :func:`posterior_residuals`, :func:`deleted_residuals`
+    per-satellite residuals for the per-satellite Sage-Husa samples;
+:func:`fit_split`
+    each type's innovation energy split into what a state error can explain
+    and what it cannot (the strong-tracking laws' state-event test).
 """
 from __future__ import annotations
 
@@ -435,3 +440,86 @@ def deleted_residuals(dz, H, P, var, use):
     rs = np.where(ok, red, 1.0)
     var = np.asarray(var, np.float64)
     return np.where(ok, v / rs, 0.0), np.where(ok, var / rs - var, 0.0)
+
+
+
+@dataclass(frozen=True)
+class FitSplit:
+    """The weighted innovation energy of each measurement type split by a snapshot least-squares fit.
+
+    All (B, T) float64 arrays (T measurement types: 0 pseudoranges, 1 pseudorange rates), sums over the
+    used rows of the type with weights ``1/R_ii``.
+
+    Attributes
+    ----------
+    e_fit : ``||dz_fit||_W^2``, the energy of the part a state error can explain (the fit).
+    e_res : ``||v||_W^2``, the energy of the residual no state error explains.
+    dof : ``sum (1 - h_ii) = m_t - p_t``, the residual degrees of freedom (0: no redundancy, no split).
+    p : ``p_t``, the number of fitted columns (0 where there is no split).
+    tr_m : ``sum (H M H^T)_ii / R_ii`` with ``M`` the (unfaded) propagated covariance.
+    tr_q : ``sum (H Q H^T)_ii / R_ii``.
+    """
+
+    e_fit: np.ndarray
+    e_res: np.ndarray
+    dof: np.ndarray
+    p: np.ndarray
+    tr_m: np.ndarray
+    tr_q: np.ndarray
+
+    @property
+    def noise_scale(self) -> np.ndarray:
+        """(B, T) ``g_t = e_res / dof``: the common variance factor of the type's noise that the residuals
+        estimate (``E[v_i^2] = (1 - h_ii) g_t R_ii``); 1 where there is no redundancy."""
+        ok = self.dof > 0
+        return np.where(ok, self.e_res / np.where(ok, self.dof, 1.0), 1.0)
+
+
+def fit_split(dz, H, R, mask, prior, Q, n_types: int = 2) -> FitSplit:
+    """Split each measurement type's innovations into what a state error can explain and what it cannot.
+
+    Per batch row and type ``t`` (:func:`measurement_groups`), the weighted least-squares fit of
+    :func:`geometry_residuals` (weights ``W = R^-1``, the type's ``H`` columns) gives residuals ``v`` and the
+    fit ``dz_fit = dz - v``; ``W``-orthogonality splits the energy ``dz^T W dz = e_fit + e_res``. With
+    ``dz = H dx + eps``, ``Cov(dx) = M + Q`` and ``Cov(eps) = g R`` (the column space of ``H`` is the fitted
+    one, so the fit keeps all of ``H dx``)::
+
+        E[e_res] = g (m_t - p_t),        E[e_fit] = tr(W H (M + Q) H^T) + g p_t
+
+    so a state error shows in ``e_fit`` alone and a change of the noise level in both, in the ratio
+    ``p_t : m_t - p_t`` (the residual form of covariance matching, Mohamed & Schwarz 1999; Baarda's
+    redundancy numbers). The strong-tracking laws use it to fade on state events only
+    (:class:`~nav_filters.adaptive.StrongTracking`).
+
+    Parameters
+    ----------
+    dz : (B, m) innovations; H : (B, m, n); R : (B, m, m) measurement covariances (diagonals used);
+    mask : (B, m) bool used rows; prior : (B, n, n) ``M = Phi P Phi^T``; Q : (B, n, n) or None;
+    n_types : number of types fitted (rows of group >= n_types are left out).
+
+    Returns
+    -------
+    :class:`FitSplit` of (B, n_types) arrays.
+    """
+    mask = np.asarray(mask, bool)
+    var = np.where(mask, np.diagonal(R, axis1=1, axis2=2).astype(np.float64), 1.0)
+    groups = measurement_groups(H, mask)
+    types = np.where(groups < n_types, groups, -1)
+    v, red = geometry_residuals(dz, H, var, types, n_types)
+    onehot = (types[..., None] == np.arange(n_types)).astype(np.float64)  # (B, m, T)
+    dof = np.einsum("bm,bmt->bt", red, onehot)
+    ok = dof > 1e-9
+    w = np.where(types >= 0, 1.0 / var, 0.0)
+    dz64 = np.asarray(dz, np.float64)
+    H64 = np.asarray(H, np.float64)
+
+    def wsum(x):
+        return np.einsum("bm,bmt->bt", w * x, onehot)
+
+    e_tot, e_res = wsum(dz64 ** 2), wsum(v ** 2)
+    tr_m = wsum(quadratic_diag(H64, np.asarray(prior, np.float64)))
+    tr_q = wsum(quadratic_diag(H64, np.asarray(Q, np.float64))) if Q is not None else np.zeros_like(tr_m)
+    n_t = onehot.sum(1)
+    z = np.zeros_like(dof)
+    return FitSplit(e_fit=np.where(ok, e_tot - e_res, z), e_res=np.where(ok, e_res, z), dof=np.where(ok, dof, z),
+                    p=np.where(ok, n_t - dof, z), tr_m=np.where(ok, tr_m, z), tr_q=np.where(ok, tr_q, z))

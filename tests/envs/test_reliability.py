@@ -14,13 +14,15 @@ def _live_covariances_pd(core):
     return np.linalg.eigvalsh(0.5 * (P + P.mT))[live].min(initial=np.inf) > 0
 
 
-@pytest.mark.parametrize("env_id, seed", [("GnssIns/MASTKF-v0", 100), ("GnssIns/MASTKF-v0", 200),
-                                          ("GnssIns/STKF-v0", 600)])
-def test_float32_strong_tracking_bang_bang_after_an_outage_keeps_failures_in_their_rows(env_id, seed):
+@pytest.mark.parametrize("env_id, seed, diverges", [("GnssIns/MASTKF-v0", 100, True), ("GnssIns/MASTKF-v0", 200, True),
+                                                    ("GnssIns/STKF-v0", 600, False)])
+def test_float32_strong_tracking_bang_bang_after_an_outage_keeps_failures_in_their_rows(env_id, seed, diverges):
     """The configuration of the issue: consumer IMU, ``outage``, actions alternating -1/+1, 8 rows, float32.
     Before the fix ma-stkf (seed 100) raised LinAlgError from the Joseph update when GNSS returned (the
     navigator checked S in float64 with the raw R, not the update's float32 S with alpha R), and P became
-    non-PD without a flag (ma-stkf seed 200, stkf seed 600)."""
+    non-PD without a flag (ma-stkf seed 200, stkf seed 600). Since the strong-tracking laws fade on state
+    events only (issue 16), stkf no longer diverges here (no row of seeds 100-800), so its case checks the
+    covariances and flags without exercising the isolation."""
     env = gym.make_vec(env_id, num_envs=8, vectorization_mode="vector_entry_point", scenario="outage",
                        imu_grade="consumer", dtype="float32")
     env.reset(seed=seed)
@@ -34,7 +36,8 @@ def test_float32_strong_tracking_bang_bang_after_an_outage_keeps_failures_in_the
         reasons = info["diverged_reason"]
         assert all(reasons[term]) and not any(reasons[~term]), (t, reasons)
         flagged += int(term.sum())
-    assert flagged > 0  # the scenario does push rows over the edge: the test exercises the isolation
+    if diverges:
+        assert flagged > 0  # the scenario does push rows over the edge: the test exercises the isolation
 
 
 SOAK_SCENARIOS = ("urban", "outage", "noise-burst")
@@ -56,8 +59,9 @@ def test_soak_no_exception_no_nonfinite_output_and_every_live_covariance_pd(env_
             assert (c.exceptions, c.nonfinite, c.non_pd, c.unexplained) == (0, 0, 0, 0), (scenario, actions, c)
             assert c.row_steps == 8 * 130
             total += c
-    if env_id != "GnssIns/SageHusa-v0":
-        assert total.flagged > 0  # strong tracking on outage does diverge: the flagging path is exercised
+    if env_id == "GnssIns/MASTKF-v0":
+        assert total.flagged > 0  # MA-STKF on outage does diverge: the flagging path is exercised (STKF
+        # diverged here too until it faded on state events only, issue 16)
 
 
 def test_soak_counts_an_escaped_exception_and_a_non_pd_covariance(monkeypatch):
