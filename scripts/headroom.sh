@@ -5,10 +5,10 @@
 # (10 s segments, 20 s lookahead, 7 values), the best constant b per episode and the cross-fitted time
 # schedule, and the hand-designed causal rule (rule:, low b while the satellites look degraded), on 32 held-out
 # paired episodes. No learned method is evaluated here: the scenarios and their headroom are fixed first.
-# All nine scenarios: 37 minutes on 2 free CPU cores (measured with the earlier law: tuning 7 min, eval 30 min).
-# docs/headroom.md holds the six scenarios where adaptation matters plus the placebo (SCENARIOS="open-sky
-# urban-transition regime-switch urban noise-burst noise-mismatch"), rerun with the consensus law: 47 minutes
-# on 2 cores shared with other jobs. Set PY to use another interpreter, SCENARIOS to run a subset.
+# docs/headroom.md holds all nine scenarios (the default SCENARIOS), run with the consensus Sage-Husa law and the
+# strong-tracking laws that fade on state events: 49 minutes on 2 cores shared with two training runs (tuning
+# 7 min, eval 42 min; 37 minutes on 2 free cores with the earlier law). Set PY to use another interpreter,
+# SCENARIOS to run a subset (the note then holds only that subset).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 if [ -z "${PY:-}" ]; then bash scripts/setup.sh; PY=.venv/bin/python; fi
