@@ -30,6 +30,11 @@ is then called once with the result):
     seed paper 001 (one-step prediction of P, multiplication method, eqs
     19-20): ``Phi_acc <- Phi_i Phi_acc`` and ``Q_acc <- Q_acc + Q_i`` (the
     process noise is not propagated through the transitions).
+``integrate=True`` (with ``exact=False``)
+    the averaged dynamics of :mod:`nav_filters.averaged_transition`:
+    ``Phi_acc <- Phi_acc + F_i h`` (the integral of F, no product at all) and
+    ``Q_acc <- Q_acc + Q_i``; the transition and process noise are formed
+    from the two integrals once per epoch.
 
 Products with ``F`` use its fixed sparsity pattern (:data:`F_NONZERO`).
 """
@@ -118,7 +123,7 @@ def _sparse_left(F, X, T, nz):
 
 
 def _propagate_epoch(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, Cz, qg, qa, qdiag, kg, ka,
-                    Phi_acc, Q_acc, exact, orthonormalize, nz):
+                    Phi_acc, Q_acc, exact, orthonormalize, nz, integrate=False):
     """Advance every row by the n IMU samples of ``f_raw[:, :n]``, accumulating the transition.
 
     Parameters
@@ -133,6 +138,9 @@ def _propagate_epoch(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, C
     kg, ka : -1/tau of the bias Gauss-Markov processes (0 for random walk);
     Phi_acc, Q_acc : (B, 17, 17) accumulators (in/out); exact : bool (see module docstring);
     orthonormalize : bool, re-orthonormalize C every sample (float32); nz : F_NONZERO.
+    integrate : bool, the averaged-dynamics mode (module docstring): ``Phi_acc`` accumulates ``sum_i F_i h``
+        (zero outside ``nz``) instead of the transition, and ``Q_acc`` the summed process noise
+        (``exact`` must then be False).
     """
     B = f_raw.shape[0]
     n = f_raw.shape[1]
@@ -165,28 +173,35 @@ def _propagate_epoch(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, C
             # ---- covariance: Phi = I + F h at the state of the interval start ----
             F[:, :] = 0.0
             _fill_F(F, Cb, fc, rr, kg, ka)
-            _sparse_left(F, Phi_acc[b], T, nz)
-            if exact:
-                _sparse_left(F, Q_acc[b], T2, nz)          # T2 = F Q
-                # Q <- Q + h (F Q + Q F^T) + h^2 F Q F^T   (= Phi Q Phi^T)
-                for i in range(N):
-                    for c in range(N):
-                        Q_acc[b, i, c] += h * (T2[i, c] + T2[c, i])
-                # F (F Q)^T = F Q F^T, using T2^T as the right factor (written out: _sparse_left on the
-                # transposed view T2.T gives the same bits but runs ~1.8x slower, a non-contiguous layout)
-                FQFt[:, :] = 0.0
+            if integrate:
+                # averaged dynamics: Phi_acc holds int F dt (over the pattern nz)
                 for p in range(nz.shape[0]):
                     i = nz[p, 0]
                     j = nz[p, 1]
-                    fij = F[i, j]
-                    for c in range(N):
-                        FQFt[i, c] += fij * T2[c, j]
+                    Phi_acc[b, i, j] += h * F[i, j]
+            else:
+                _sparse_left(F, Phi_acc[b], T, nz)
+                if exact:
+                    _sparse_left(F, Q_acc[b], T2, nz)          # T2 = F Q
+                    # Q <- Q + h (F Q + Q F^T) + h^2 F Q F^T   (= Phi Q Phi^T)
+                    for i in range(N):
+                        for c in range(N):
+                            Q_acc[b, i, c] += h * (T2[i, c] + T2[c, i])
+                    # F (F Q)^T = F Q F^T, using T2^T as the right factor (written out: _sparse_left on the
+                    # transposed view T2.T gives the same bits but runs ~1.8x slower, a non-contiguous layout)
+                    FQFt[:, :] = 0.0
+                    for p in range(nz.shape[0]):
+                        i = nz[p, 0]
+                        j = nz[p, 1]
+                        fij = F[i, j]
+                        for c in range(N):
+                            FQFt[i, c] += fij * T2[c, j]
+                    for i in range(N):
+                        for c in range(N):
+                            Q_acc[b, i, c] += h * h * FQFt[i, c]
                 for i in range(N):
                     for c in range(N):
-                        Q_acc[b, i, c] += h * h * FQFt[i, c]
-            for i in range(N):
-                for c in range(N):
-                    Phi_acc[b, i, c] += h * T[i, c]
+                        Phi_acc[b, i, c] += h * T[i, c]
             # process noise of this sample: C diag(qg) C^T, C diag(qa) C^T, diag(qdiag)
             for i in range(3):
                 for j in range(3):
@@ -274,11 +289,13 @@ PARALLEL_MIN_BATCH = 64
 
 
 def propagate_epoch(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, Cz, qg, qa, qdiag, kg, ka,
-                    Phi_acc, Q_acc, exact, orthonormalize, nz):
+                    Phi_acc, Q_acc, exact, orthonormalize, nz, integrate=False):
     """Compiled epoch propagation (see :func:`_propagate_epoch`); parallel over rows for B >= 64."""
+    if integrate and exact:
+        raise ValueError("propagate_epoch: integrate (averaged dynamics) needs exact=False")
     kern = _parallel if f_raw.shape[0] >= PARALLEL_MIN_BATCH else _serial
     kern(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, Cz, qg, qa, qdiag, kg, ka,
-         Phi_acc, Q_acc, exact, orthonormalize, nz)
+         Phi_acc, Q_acc, exact, orthonormalize, nz, bool(integrate))
 
 
 # ----------------------------------------------------------------------------- small dense helpers
