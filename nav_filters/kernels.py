@@ -171,8 +171,9 @@ def _propagate_epoch(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, C
                 fc[i] = f_raw[b, k, i] - ba[b, i]
                 wc[i] = w_raw[b, k, i] - bg[b, i]
             # ---- covariance: Phi = I + F h at the state of the interval start ----
-            F[:, :] = 0.0
-            _fill_F(F, Cb, fc, rr, kg, ka)
+            if not integrate:
+                F[:, :] = 0.0
+            _fill_F(F, Cb, fc, rr, kg, ka)  # assigns every entry of the pattern (the rest stays 0)
             if integrate:
                 # averaged dynamics: Phi_acc holds int F dt (over the pattern nz)
                 for p in range(nz.shape[0]):
