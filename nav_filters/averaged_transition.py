@@ -44,6 +44,11 @@ What is approximated, compared with the per-sample composition:
   (``tests/nav_filters/test_averaged_transition.py``). The mechanization integrates position by the
   trapezoid rule, whose error propagation is the exponential's, not the Euler product's.
 
+Measured effect (``benchmarks/bench_envs.py --accuracy``, 24 paired episodes per scenario): the horizontal
+RMSE of ``sage-husa``, ``stkf`` and ``ma-stkf`` within 0.2% of the exact composition's on every built-in
+scenario, the matched-scenario ANEES unchanged; on ``urban`` with GNSS at 0.5, 0.2 and 0.1 Hz (epochs of
+2-10 s, turns inside an epoch) ``kf`` and ``sage-husa`` stayed within 0.4%.
+
 :func:`averaged_transition` is the numpy specification; :func:`averaged_transition_into` the compiled
 kernel the navigator runs (checked against it in the tests).
 """
