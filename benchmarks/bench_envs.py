@@ -20,15 +20,28 @@ Prints, in one run:
   of the nominal state), ``dop``, ``observation`` (the env's observation frame) and ``env glue`` (the
   rest of ``TuningCore.step`` and the env wrappers: actions, parameters, errors, rewards, infos).
 
+Each method runs in the transition modes of ``--transitions``: ``exact`` (the default of every env id: the
+per-sample transitions composed in the IMU kernel) and ``averaged`` (``exact_transition=False``: the epoch's
+averaged error dynamics, :mod:`nav_filters.averaged_transition`), rows ``sage-husa`` and ``sage-husa avg``.
+
 ``--compare DIR`` runs every cell twice, in this tree and in the source tree ``DIR`` (e.g. a checkout of
 an earlier commit), alternately in fresh processes, and prints both with the speed-up: before/after
-figures measured side by side under the same machine load.
+figures measured side by side under the same machine load. The *before* cell of a method is always the
+exact transition (an earlier tree may not have the option), so the ``avg`` rows read as "before: the exact
+default of DIR, after: the averaged transition of this tree".
+
+``--accuracy`` prints instead the accuracy table of the averaged transition against the exact one on every
+built-in scenario, paired episodes (:mod:`transition_accuracy`, a few minutes); ``--filterpy`` the
+side-by-side figure against filterpy's plain ``KalmanFilter`` loop (:mod:`filterpy_baseline`): filterpy
+epochs/s against navgym row-epochs/s, both per CPU second (per core), in one run.
 
 Usage::
 
     python benchmarks/bench_envs.py [--quick] [--methods sage-husa stkf] [--batches 1 16 256 1024]
                                     [--steps N] [--episode-s 60] [--no-profile] [--profile-only]
-                                    [--compare DIR]
+                                    [--transitions exact averaged] [--compare DIR]
+    python benchmarks/bench_envs.py --accuracy [--accuracy-episodes 24] [--accuracy-max-s 700]
+    python benchmarks/bench_envs.py --filterpy [--batches 1 1024]
 
 ``--quick``: B = 1, 16, 256, fewer steps, profile at B = 1 and 256 (a minute or two).
 """
@@ -71,8 +84,18 @@ def _actions(space, n, seed=0):
     return rng.uniform(-1, 1, size=(n,) + space.shape).astype(np.float32)
 
 
-def _make(method, B, episode_s, scenario):
+TRANSITIONS = ("exact", "averaged")
+"""Transition modes: the env default (``exact``) and ``exact_transition=False`` (``averaged``)."""
+
+
+def _label(method, transition):
+    return method if transition == "exact" else f"{method} avg"
+
+
+def _make(method, B, episode_s, scenario, transition="exact"):
     kw = dict(method=method, episode_length_s=float(episode_s), scenario=scenario)
+    if transition != "exact":  # only passed when needed: an earlier tree (--compare) has no such argument
+        kw["exact_transition"] = False
     if B == 1:
         return gym.make(METHOD_ENV[method], **kw)
     return gym.make_vec(METHOD_ENV[method], num_envs=B, vectorization_mode="vector_entry_point", **kw)
@@ -82,11 +105,11 @@ def _core(env):
     return env.unwrapped.core if hasattr(env, "unwrapped") and hasattr(env.unwrapped, "core") else env.core
 
 
-def bench_env(method, B, steps, episode_s, scenario, warmup=WARMUP_STEPS):
+def bench_env(method, B, steps, episode_s, scenario, transition="exact", warmup=WARMUP_STEPS):
     """(reset seconds, steps/s, CPU ms per batched step) over ``steps`` timed steps after ``warmup`` ones."""
     if warmup + steps >= episode_s:  # 1 Hz GNSS in every benchmarked scenario: stay inside one episode
         raise ValueError(f"warmup + steps ({warmup + steps}) must stay below the episode length ({episode_s} epochs)")
-    env = _make(method, B, episode_s, scenario)
+    env = _make(method, B, episode_s, scenario, transition)
     t0 = time.perf_counter()
     env.reset(seed=0)
     t_reset = time.perf_counter() - t0
@@ -144,9 +167,9 @@ class StageTimer:
         setattr(obj, name, timed)
 
 
-def profile_env(method, B, steps, episode_s, scenario, warmup=WARMUP_STEPS):
+def profile_env(method, B, steps, episode_s, scenario, transition="exact", warmup=WARMUP_STEPS):
     """Per-stage wall time per step [ms] of ``steps`` steps (after ``warmup``), and the total."""
-    env = _make(method, B, episode_s, scenario)
+    env = _make(method, B, episode_s, scenario, transition)
     env.reset(seed=0)
     acts = _actions(env.action_space, warmup + steps)
     for a in acts[:warmup]:
@@ -263,21 +286,43 @@ def _time_feedback(B, reps, tmin):
     return tmin(lambda: nav._feedback_reference(dx), reps), tmin(lambda: nav._feedback(dx), reps)
 
 
-def _run_cell(root, kind, method, B, steps, episode_s, scenario):
+def _run_cell(root, kind, method, B, steps, episode_s, scenario, transition="exact"):
     """One benchmark cell in a fresh process on the source tree ``root``; returns its JSON result."""
     env = dict(os.environ, NAVGYM_BENCH_ROOT=root)
     cmd = [sys.executable, os.path.abspath(__file__), "--cell", kind, method, str(B), str(steps), str(episode_s),
-           scenario]
+           scenario, transition]
     out = subprocess.run(cmd, env=env, cwd=root, capture_output=True, text=True, check=True).stdout
     return json.loads(out.strip().splitlines()[-1])
 
 
-def _cell_main(kind, method, B, steps, episode_s, scenario):
+def _cell_main(kind, method, B, steps, episode_s, scenario, transition):
     B, steps, episode_s = int(B), int(steps), float(episode_s)
     if kind == "rate":
-        print(json.dumps(bench_env(method, B, steps, episode_s, scenario)))
+        print(json.dumps(bench_env(method, B, steps, episode_s, scenario, transition)))
     else:
-        print(json.dumps(profile_env(method, B, steps, episode_s, scenario)))
+        print(json.dumps(profile_env(method, B, steps, episode_s, scenario, transition)))
+
+
+def print_filterpy(batches, episode_s, scenario, steps_of):
+    """filterpy's plain loop against navgym's env step (sage-husa, both transitions), per CPU second."""
+    from filterpy_baseline import N_MEAS, SAMPLES_PER_EPOCH, filterpy_rate
+    print(f"\nside by side with the plain loop: filterpy KalmanFilter, 17 states, {SAMPLES_PER_EPOCH} predict() + "
+          f"1 update() of {N_MEAS} measurements per epoch (no mechanization, no adaptive law), one Python object "
+          f"per filter;\nnavgym: GnssIns/SageHusa-v0 env steps ({scenario}; each = {SAMPLES_PER_EPOCH} IMU samples "
+          f"of mechanization + the covariance + a Sage-Husa update of ~20 measurements + feedback + observation)")
+    fp = filterpy_rate()
+    hdr = f"{'loop':28s} {'B':>5s} {'epochs/s wall':>14s} {'per CPU s (core)':>17s} {'vs filterpy/core':>17s}"
+    print(hdr + "\n" + "-" * len(hdr))
+    if fp is None:
+        print("filterpy: skipped (not installed; pip install -e \".[bench]\")")
+    else:
+        print(f"{'filterpy KalmanFilter':28s} {1:5d} {fp[0]:14.0f} {fp[1]:17.0f} {1.0:16.2f}x", flush=True)
+    for B in batches:
+        for tr in TRANSITIONS:
+            _, rate, cpu_ms = bench_env("sage-husa", B, steps_of(B), episode_s, scenario, tr)
+            per_cpu = 1e3 * B / cpu_ms
+            ratio = f"{per_cpu / fp[1]:16.2f}x" if fp else f"{'-':>17s}"
+            print(f"{'navgym ' + _label('sage-husa', tr):28s} {B:5d} {rate:14.0f} {per_cpu:17.0f} {ratio}", flush=True)
 
 
 def main(argv=None):
@@ -295,12 +340,28 @@ def main(argv=None):
                    help="only time each compiled kernel of the step against its numpy reference (B = 1, 1024)")
     p.add_argument("--compare", metavar="DIR", default=None,
                    help="also run every cell in the source tree DIR, alternately in fresh processes")
+    p.add_argument("--transitions", nargs="+", default=list(TRANSITIONS), choices=TRANSITIONS,
+                   help="transition modes to run (exact: the env default; averaged: exact_transition=False)")
+    p.add_argument("--accuracy", action="store_true",
+                   help="only the accuracy table: averaged vs exact transition on every built-in scenario")
+    p.add_argument("--accuracy-episodes", type=int, default=24, help="paired episodes per scenario (--accuracy)")
+    p.add_argument("--accuracy-max-s", type=float, default=700.0, help="longest simulated episode [s] (--accuracy)")
+    p.add_argument("--filterpy", action="store_true",
+                   help="only the side-by-side figure against filterpy's KalmanFilter loop (default B = 1, 1024)")
     args = p.parse_args(argv)
+    if args.accuracy:
+        from transition_accuracy import print_accuracy
+        print_accuracy(episodes=args.accuracy_episodes, max_duration_s=args.accuracy_max_s)
+        return
     if args.components:
         print("compiled kernels against their numpy references (min wall time, same inputs, one process)")
         print(f"{'component':42s} {'B':>5s} {'numpy [us]':>12s} {'compiled [us]':>14s} {'speed-up':>9s}")
         for name, B, t_ref, t_new in bench_components(tuple(args.batches or (1, 1024))):
             print(f"{name:42s} {B:5d} {t_ref:12.1f} {t_new:14.1f} {t_ref / t_new:8.1f}x", flush=True)
+        return
+    if args.filterpy:
+        steps = args.steps or (20 if args.quick else 30)
+        print_filterpy(args.batches or [1, 1024], args.episode_s, args.scenario, lambda B: steps if B == 1 else 8)
         return
     batches = args.batches or ([1, 16, 256] if args.quick else [1, 16, 256, 1024])
     print(f"navgym env throughput: scenario {args.scenario}, episode {args.episode_s:g} s, "
@@ -317,34 +378,41 @@ def main(argv=None):
     if args.compare:
         other = os.path.abspath(args.compare)
         print(f"before = {other}\nafter  = {here}")
-        hdr = (f"{'method':10s} {'B':>5s} {'steps/s before':>15s} {'after':>10s} {'speed-up':>9s} "
+        hdr = (f"{'method':14s} {'B':>5s} {'steps/s before':>15s} {'after':>10s} {'speed-up':>9s} "
                f"{'cpu ms before':>14s} {'after':>9s} {'reset s before':>15s} {'after':>7s}")
     else:
-        hdr = f"{'method':10s} {'B':>5s} {'reset [s]':>10s} {'steps/s':>12s} {'ms/step':>9s} {'cpu ms/step':>12s}"
+        hdr = f"{'method':14s} {'B':>5s} {'reset [s]':>10s} {'steps/s':>12s} {'ms/step':>9s} {'cpu ms/step':>12s}"
     print("\n" + hdr + "\n" + "-" * len(hdr))
     for m in ([] if args.profile_only else args.methods):
         for B in batches:
-            if args.compare:
-                cell = ("rate", m, B, n_steps(B), args.episode_s, args.scenario)
-                rb, ra = _run_cell(other, *cell), _run_cell(here, *cell)
-                print(f"{m:10s} {B:5d} {rb[1]:15.0f} {ra[1]:10.0f} {ra[1] / rb[1]:8.2f}x {rb[2]:14.2f} {ra[2]:9.2f} "
-                      f"{rb[0]:15.2f} {ra[0]:7.2f}", flush=True)
-            else:
-                t_reset, rate, cpu = bench_env(m, B, n_steps(B), args.episode_s, args.scenario)
-                print(f"{m:10s} {B:5d} {t_reset:10.2f} {rate:12.0f} {1e3 * B / rate:9.2f} {cpu:12.2f}", flush=True)
+            cell = ("rate", m, B, n_steps(B), args.episode_s, args.scenario)
+            rb = _run_cell(other, *cell) if args.compare else None  # the before tree: its exact default
+            for tr in args.transitions:
+                lab = _label(m, tr)
+                if args.compare:
+                    ra = _run_cell(here, *cell, tr)
+                    print(f"{lab:14s} {B:5d} {rb[1]:15.0f} {ra[1]:10.0f} {ra[1] / rb[1]:8.2f}x {rb[2]:14.2f} "
+                          f"{ra[2]:9.2f} {rb[0]:15.2f} {ra[0]:7.2f}", flush=True)
+                else:
+                    t_reset, rate, cpu = bench_env(m, B, n_steps(B), args.episode_s, args.scenario, tr)
+                    print(f"{lab:14s} {B:5d} {t_reset:10.2f} {rate:12.0f} {1e3 * B / rate:9.2f} {cpu:12.2f}",
+                          flush=True)
 
     if args.no_profile:
         return
     m = "sage-husa" if "sage-husa" in args.methods else args.methods[0]
     prof_b = sorted({1, max(batches)})
     cols = []
+    short = {"exact": "", "averaged": " avg"}
     for B in prof_b:
         cell = ("profile", m, B, n_steps(B), args.episode_s, args.scenario)
         if args.compare:
             cols.append((f"B={B} before", _run_cell(other, *cell)))
-            cols.append((f"B={B} after", _run_cell(here, *cell)))
-        else:
-            cols.append((f"B={B}", profile_env(*cell[1:])))
+        for tr in args.transitions:
+            if args.compare:
+                cols.append((f"B={B} after{short[tr]}", _run_cell(here, *cell, tr)))
+            else:
+                cols.append((f"B={B}{short[tr]}", profile_env(*cell[1:], tr)))
     print(f"\nprofile of one step, {m}: wall ms per step (share)")
     print(f"{'stage':14s}" + "".join(f"{name:>20s}" for name, _ in cols))
     for s in STAGES:
@@ -354,6 +422,6 @@ def main(argv=None):
 
 if __name__ == "__main__":
     if len(sys.argv) > 1 and sys.argv[1] == "--cell":
-        _cell_main(*sys.argv[2:8])
+        _cell_main(*sys.argv[2:9])
     else:
         main()

@@ -113,6 +113,10 @@ class EnvConfig:
         are fused into that epoch's update.
     zupt_weights : weights file of the ``'mlp'`` / ``'lstm'`` detector (None: the shipped default).
     dtype : filter arithmetic, ``'float64'`` or ``'float32'``.
+    exact_transition : ``True`` (default): the filter's transition and process noise are composed at every IMU
+        sample; ``False``: formed once per epoch from the epoch's averaged error dynamics (several times
+        faster; :class:`nav_filters.navigator.NavigatorConfig` and :mod:`nav_filters.averaged_transition`
+        give the equations).
     divergence_bound_m : horizontal error [m] beyond which an episode terminates as diverged.
     """
 
@@ -126,6 +130,7 @@ class EnvConfig:
     zupt: str = "none"
     zupt_weights: str | None = None
     dtype: str = "float64"
+    exact_transition: bool = True
     divergence_bound_m: float = 1000.0
 
     def __post_init__(self):
@@ -137,6 +142,8 @@ class EnvConfig:
                              f"got {self.history!r}")
         if self.dtype not in ("float64", "float32"):
             raise ValueError(f"EnvConfig.dtype must be 'float64' or 'float32', got {self.dtype!r}")
+        if not isinstance(self.exact_transition, (bool, np.bool_)):
+            raise ValueError(f"EnvConfig.exact_transition must be a bool, got {self.exact_transition!r}")
         for f in ("episode_length_s", "divergence_bound_m", "gnss_rate_hz"):
             v = getattr(self, f)
             if f == "gnss_rate_hz" and v is None:

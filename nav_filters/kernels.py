@@ -30,6 +30,13 @@ is then called once with the result):
     seed paper 001 (one-step prediction of P, multiplication method, eqs
     19-20): ``Phi_acc <- Phi_i Phi_acc`` and ``Q_acc <- Q_acc + Q_i`` (the
     process noise is not propagated through the transitions).
+``integrate=True`` (with ``exact=False``)
+    the averaged dynamics of :mod:`nav_filters.averaged_transition`:
+    ``Phi_acc <- Phi_acc + sum_i F_i h`` (the integral of F, no product at all)
+    and ``Q_acc <- Q_acc + sum_i Q_i``, from per-row sums of the parts that vary
+    (``C``, ``C f``, the gravity gradient, ``c_m c_m^T``) written once per call;
+    the transition and process noise are formed from the two integrals once
+    per epoch.
 
 Products with ``F`` use its fixed sparsity pattern (:data:`F_NONZERO`).
 """
@@ -118,7 +125,7 @@ def _sparse_left(F, X, T, nz):
 
 
 def _propagate_epoch(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, Cz, qg, qa, qdiag, kg, ka,
-                    Phi_acc, Q_acc, exact, orthonormalize, nz):
+                    Phi_acc, Q_acc, exact, orthonormalize, nz, integrate=False):
     """Advance every row by the n IMU samples of ``f_raw[:, :n]``, accumulating the transition.
 
     Parameters
@@ -133,6 +140,9 @@ def _propagate_epoch(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, C
     kg, ka : -1/tau of the bias Gauss-Markov processes (0 for random walk);
     Phi_acc, Q_acc : (B, 17, 17) accumulators (in/out); exact : bool (see module docstring);
     orthonormalize : bool, re-orthonormalize C every sample (float32); nz : F_NONZERO.
+    integrate : bool, the averaged-dynamics mode (module docstring): ``Phi_acc`` accumulates ``sum_i F_i h``
+        (zero outside ``nz``) instead of the transition, and ``Q_acc`` the summed process noise
+        (``exact`` must then be False).
     """
     B = f_raw.shape[0]
     n = f_raw.shape[1]
@@ -158,47 +168,69 @@ def _propagate_epoch(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, C
         vb = np.empty(3)
         for i in range(3):
             vb[i] = v[b, i]
+        # integrate mode: per-row sums of the time-varying parts of F and of G Q_c G^T over the samples
+        sC = np.zeros((3, 3))       # sum C
+        sa = np.zeros(3)            # sum C f
+        sG = np.zeros((3, 3))       # sum 3 GM r r^T / |r|^5
+        sk = 0.0                    # sum GM / |r|^3
+        sCC = np.zeros((3, 3, 3))   # sum c_m c_m^T per body axis m (c_m: column m of C)
         for k in range(n):
             for i in range(3):
                 fc[i] = f_raw[b, k, i] - ba[b, i]
                 wc[i] = w_raw[b, k, i] - bg[b, i]
             # ---- covariance: Phi = I + F h at the state of the interval start ----
-            F[:, :] = 0.0
-            _fill_F(F, Cb, fc, rr, kg, ka)
-            _sparse_left(F, Phi_acc[b], T, nz)
-            if exact:
-                _sparse_left(F, Q_acc[b], T2, nz)          # T2 = F Q
-                # Q <- Q + h (F Q + Q F^T) + h^2 F Q F^T   (= Phi Q Phi^T)
+            if integrate:
+                # averaged dynamics: only the parts of F (system_matrix) and of G Q_c G^T that vary are summed
+                for i in range(3):
+                    sa[i] += Cb[i, 0] * fc[0] + Cb[i, 1] * fc[1] + Cb[i, 2] * fc[2]
+                    for j in range(3):
+                        sC[i, j] += Cb[i, j]
+                        for m in range(3):
+                            sCC[m, i, j] += Cb[i, m] * Cb[j, m]
+                r2 = rr[0] * rr[0] + rr[1] * rr[1] + rr[2] * rr[2]
+                kr = _GM / (r2 * np.sqrt(r2))
+                c3 = 3.0 * kr / r2
+                sk += kr
+                for i in range(3):
+                    for j in range(3):
+                        sG[i, j] += c3 * rr[i] * rr[j]
+            else:
+                F[:, :] = 0.0
+                _fill_F(F, Cb, fc, rr, kg, ka)
+                _sparse_left(F, Phi_acc[b], T, nz)
+                if exact:
+                    _sparse_left(F, Q_acc[b], T2, nz)          # T2 = F Q
+                    # Q <- Q + h (F Q + Q F^T) + h^2 F Q F^T   (= Phi Q Phi^T)
+                    for i in range(N):
+                        for c in range(N):
+                            Q_acc[b, i, c] += h * (T2[i, c] + T2[c, i])
+                    # F (F Q)^T = F Q F^T, using T2^T as the right factor (written out: _sparse_left on the
+                    # transposed view T2.T gives the same bits but runs ~1.8x slower, a non-contiguous layout)
+                    FQFt[:, :] = 0.0
+                    for p in range(nz.shape[0]):
+                        i = nz[p, 0]
+                        j = nz[p, 1]
+                        fij = F[i, j]
+                        for c in range(N):
+                            FQFt[i, c] += fij * T2[c, j]
+                    for i in range(N):
+                        for c in range(N):
+                            Q_acc[b, i, c] += h * h * FQFt[i, c]
                 for i in range(N):
                     for c in range(N):
-                        Q_acc[b, i, c] += h * (T2[i, c] + T2[c, i])
-                # F (F Q)^T = F Q F^T, using T2^T as the right factor (written out: _sparse_left on the
-                # transposed view T2.T gives the same bits but runs ~1.8x slower, a non-contiguous layout)
-                FQFt[:, :] = 0.0
-                for p in range(nz.shape[0]):
-                    i = nz[p, 0]
-                    j = nz[p, 1]
-                    fij = F[i, j]
-                    for c in range(N):
-                        FQFt[i, c] += fij * T2[c, j]
-                for i in range(N):
-                    for c in range(N):
-                        Q_acc[b, i, c] += h * h * FQFt[i, c]
-            for i in range(N):
-                for c in range(N):
-                    Phi_acc[b, i, c] += h * T[i, c]
-            # process noise of this sample: C diag(qg) C^T, C diag(qa) C^T, diag(qdiag)
-            for i in range(3):
-                for j in range(3):
-                    sg = 0.0
-                    sa = 0.0
-                    for m in range(3):
-                        sg += Cb[i, m] * qg[m] * Cb[j, m]
-                        sa += Cb[i, m] * qa[m] * Cb[j, m]
-                    Q_acc[b, i, j] += sg * h
-                    Q_acc[b, 3 + i, 3 + j] += sa * h
-            for i in range(6, N):
-                Q_acc[b, i, i] += qdiag[i] * h
+                        Phi_acc[b, i, c] += h * T[i, c]
+                # process noise of this sample: C diag(qg) C^T, C diag(qa) C^T, diag(qdiag)
+                for i in range(3):
+                    for j in range(3):
+                        sg = 0.0
+                        sq = 0.0
+                        for m in range(3):
+                            sg += Cb[i, m] * qg[m] * Cb[j, m]
+                            sq += Cb[i, m] * qa[m] * Cb[j, m]
+                        Q_acc[b, i, j] += sg * h
+                        Q_acc[b, 3 + i, 3 + j] += sq * h
+                for i in range(6, N):
+                    Q_acc[b, i, i] += qdiag[i] * h
             # ---- mechanization (ins.mechanize, single-sample scheme) ----
             d0 = wc[0] * h
             d1 = wc[1] * h
@@ -263,6 +295,49 @@ def _propagate_epoch(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, C
             v[b, i] = vb[i]
             for j in range(3):
                 C[b, i, j] = Cb[i, j]
+        if integrate and n > 0:
+            _add_integrals(Phi_acc, Q_acc, b, n * h, h, sC, sa, sG, sk, sCC, qg, qa, qdiag, kg, ka)
+
+
+@nb.njit(cache=True, inline="always")
+def _add_integrals(A, S, b, nh, h, sC, sa, sG, sk, sCC, qg, qa, qdiag, kg, ka):
+    """``A[b] += sum_i F_i h`` and ``S[b] += sum_i G_i Q_c G_i^T h`` from the per-row sums of the varying
+    parts (the entries of :func:`_fill_F`, term by term; ``nh``: the summed interval)."""
+    for i in range(3):
+        for j in range(3):
+            A[b, i, 9 + j] -= h * sC[i, j]
+            A[b, 3 + i, 12 + j] -= h * sC[i, j]
+            A[b, 3 + i, 6 + j] += h * sG[i, j]
+            qgs = 0.0
+            qas = 0.0
+            for m in range(3):
+                qgs += qg[m] * sCC[m, i, j]
+                qas += qa[m] * sCC[m, i, j]
+            S[b, i, j] += h * qgs
+            S[b, 3 + i, 3 + j] += h * qas
+    A[b, 3, 1] += h * sa[2]
+    A[b, 3, 2] -= h * sa[1]
+    A[b, 4, 0] -= h * sa[2]
+    A[b, 4, 2] += h * sa[0]
+    A[b, 5, 0] += h * sa[1]
+    A[b, 5, 1] -= h * sa[0]
+    A[b, 3, 6] -= h * sk - nh * _W * _W
+    A[b, 4, 7] -= h * sk - nh * _W * _W
+    A[b, 5, 8] -= h * sk
+    A[b, 0, 1] += nh * _W
+    A[b, 1, 0] -= nh * _W
+    A[b, 3, 4] += 2.0 * nh * _W
+    A[b, 4, 3] -= 2.0 * nh * _W
+    A[b, 6, 3] += nh
+    A[b, 7, 4] += nh
+    A[b, 8, 5] += nh
+    for i in range(9, 12):
+        A[b, i, i] += nh * kg
+    for i in range(12, 15):
+        A[b, i, i] += nh * ka
+    A[b, 15, 16] += nh
+    for i in range(6, N):
+        S[b, i, i] += nh * qdiag[i]
 
 
 _serial = nb.njit(cache=True)(_propagate_epoch)
@@ -274,11 +349,13 @@ PARALLEL_MIN_BATCH = 64
 
 
 def propagate_epoch(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, Cz, qg, qa, qdiag, kg, ka,
-                    Phi_acc, Q_acc, exact, orthonormalize, nz):
+                    Phi_acc, Q_acc, exact, orthonormalize, nz, integrate=False):
     """Compiled epoch propagation (see :func:`_propagate_epoch`); parallel over rows for B >= 64."""
+    if integrate and exact:
+        raise ValueError("propagate_epoch: integrate (averaged dynamics) needs exact=False")
     kern = _parallel if f_raw.shape[0] >= PARALLEL_MIN_BATCH else _serial
     kern(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, Cz, qg, qa, qdiag, kg, ka,
-         Phi_acc, Q_acc, exact, orthonormalize, nz)
+         Phi_acc, Q_acc, exact, orthonormalize, nz, bool(integrate))
 
 
 # ----------------------------------------------------------------------------- small dense helpers

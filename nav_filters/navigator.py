@@ -13,6 +13,11 @@ One :class:`Navigator` runs B independent navigation solutions in lock step:
   propagated through every ``Phi_i``, identical to predicting at every sample)
   or, with the ``+onestep`` suffix, as seed paper 001's one-step prediction of
   P (eqs 19-20: the product of transitions and the summed process noise).
+  With ``NavigatorConfig(exact_transition=False)`` nothing is composed per sample:
+  the kernel integrates F and the process noise over the epoch and the transition
+  and process noise are formed once, from the averaged dynamics
+  (:mod:`nav_filters.averaged_transition`: ``Phi = exp(int F dt)``, ``Q`` its
+  Van Loan integral, as short series), several times cheaper.
 * ``update_gnss(...)`` once per GNSS epoch: pseudorange / pseudorange-rate
   innovations (:mod:`nav_filters.measurements`), the form's measurement update,
   and closed-loop feedback of the estimated errors into the INS, the IMU bias
@@ -55,6 +60,7 @@ from .forms import UpdateResult
 from .registry import make_form, parse_method
 from .forms.base import check_dtype
 from .ins import _earth_rate_matrices_np, apply_correction
+from .averaged_transition import averaged_transition_into
 from .kernels import F_NONZERO, cholesky_inplace, propagate_epoch
 from .measurements import dop, gnss_innovations, measurement_keys
 from .rows import check_row_pairs, copy_rows_generic
@@ -81,6 +87,15 @@ class NavigatorConfig:
     method : filter method name of DESIGN.md section 4 (e.g. ``'kf'``, ``'kf+onestep'``).
     use_pseudorange_rate : fuse pseudorange rates (Doppler) as well as pseudoranges.
     dtype : ``'float64'`` (default) or ``'float32'``: the filter form's arithmetic.
+    exact_transition : how the covariance is carried over the IMU samples between two predicts.
+        ``True`` (default): the per-sample transitions ``Phi_i = I + F_i dt`` and noises
+        ``Q_i = G Q_c G^T dt`` are composed at every sample (``Phi = Phi_n ... Phi_1``,
+        ``Q = Phi_n (... (Phi_1 0 Phi_1^T + Q_1) ...) Phi_n^T + Q_n``), identical to a predict per sample.
+        ``False``: the averaged dynamics (:mod:`nav_filters.averaged_transition`): the kernel only sums
+        ``A = sum_i F_i dt`` and ``S = sum_i Q_i``, and the predict gets ``Phi = exp(A)`` and
+        ``Q = sum_k N_k / (k+1)!`` (``N_0 = S``, ``N_k = A N_{k-1} + N_{k-1} A^T``), the exact transition
+        and noise of the constant system with the epoch's mean F and mean ``G Q_c G^T``. With ``+onestep``
+        the ``Phi`` is the same and ``Q = S`` (seed 001's summed noise).
 
     The transition of one IMU sample is ``Phi = I + F dt`` with the first-order process noise
     ``Q = G Q_c G^T dt`` (Groves eq 3.46 truncated; the trapezoidal form differs by O(F dt) ~ 1e-4
@@ -91,9 +106,12 @@ class NavigatorConfig:
     method: str = "kf"
     use_pseudorange_rate: bool = True
     dtype: str = "float64"
+    exact_transition: bool = True
 
     def __post_init__(self):
         parse_method(self.method)
+        if not isinstance(self.exact_transition, (bool, np.bool_)):
+            raise ValueError(f"exact_transition must be a bool, got {self.exact_transition!r}")
         if not isinstance(self.noise, ProcessNoise):
             raise ValueError(f"noise must be a ProcessNoise, got {type(self.noise).__name__}")
         check_dtype(self.dtype)
@@ -146,16 +164,29 @@ class Navigator:
         self._kg = 0.0 if noise.gyro_bias_tau_s is None else -1.0 / noise.gyro_bias_tau_s
         self._ka = 0.0 if noise.accel_bias_tau_s is None else -1.0 / noise.accel_bias_tau_s
         self._earth = {}
-        self._Phi_acc = np.zeros((B, N_STATES, N_STATES))
-        self._Q_acc = np.zeros((B, N_STATES, N_STATES))
+        self.exact_transition = bool(config.exact_transition)
+        if self.exact_transition:
+            self._Phi_acc = np.zeros((B, N_STATES, N_STATES))
+            """(B, 17, 17) the composed transition of the pending samples."""
+            self._Q_acc = np.zeros((B, N_STATES, N_STATES))
+            """(B, 17, 17) the composed (or, ``+onestep``, summed) process noise of the pending samples."""
+        else:
+            self._F_int = np.zeros((B, N_STATES, N_STATES))
+            """(B, 17, 17) ``sum_i F_i dt`` over the pending samples (averaged-dynamics mode)."""
+            self._Qc_int = np.zeros((B, N_STATES, N_STATES))
+            """(B, 17, 17) ``sum_i G Q_c G^T dt`` over the pending samples (averaged-dynamics mode)."""
         self._reset_accumulator()
 
     # ------------------------------------------------------------------ time
     def _reset_accumulator(self):
-        self._Phi_acc.fill(0.0)
-        idx = np.arange(N_STATES)
-        self._Phi_acc[:, idx, idx] = 1.0
-        self._Q_acc.fill(0.0)
+        if self.exact_transition:
+            self._Phi_acc.fill(0.0)
+            idx = np.arange(N_STATES)
+            self._Phi_acc[:, idx, idx] = 1.0
+            self._Q_acc.fill(0.0)
+        else:
+            self._F_int.fill(0.0)
+            self._Qc_int.fill(0.0)
         self._pending = 0
 
     def propagate_epoch(self, f_raw, w_raw, dt: float):
@@ -179,9 +210,14 @@ class Navigator:
         if mats is None:
             Cz, Pm, QH, Qh = _earth_rate_matrices_np(dt)
             mats = self._earth[dt] = tuple(np.ascontiguousarray(m) for m in (Pm, QH, Qh, Cz))
-        propagate_epoch(self.r, self.v, self.C, self.bg, self.ba, self.clk, self.drift, f, w, dt, *mats,
-                        self._qg, self._qa, self._qdiag, self._kg, self._ka, self._Phi_acc, self._Q_acc,
-                        not self.onestep, False, F_NONZERO)
+        if self.exact_transition:
+            propagate_epoch(self.r, self.v, self.C, self.bg, self.ba, self.clk, self.drift, f, w, dt, *mats,
+                            self._qg, self._qa, self._qdiag, self._kg, self._ka, self._Phi_acc, self._Q_acc,
+                            not self.onestep, False, F_NONZERO)
+        else:
+            propagate_epoch(self.r, self.v, self.C, self.bg, self.ba, self.clk, self.drift, f, w, dt, *mats,
+                            self._qg, self._qa, self._qdiag, self._kg, self._ka, self._F_int, self._Qc_int,
+                            False, False, F_NONZERO, True)
         self._pending += f.shape[1]
         self.time_since_update += dt * f.shape[1]
 
@@ -193,19 +229,33 @@ class Navigator:
         """Hand the accumulated transition of the pending samples to the form's ``predict``.
 
         The accumulators themselves are handed over (no copy in float64) and fresh ones are started, so a
-        form may keep what it was given."""
-        if self._pending:
-            Phi, Q = self._Phi_acc.astype(self.dtype, copy=False), self._Q_acc.astype(self.dtype, copy=False)
+        form may keep what it was given. In the averaged-dynamics mode (``exact_transition=False``) the
+        transition and process noise are formed here from the integrals
+        (:func:`~nav_filters.averaged_transition.averaged_transition_into`; with ``+onestep`` the process
+        noise is the summed one)."""
+        if not self._pending:
+            return
+        if self.exact_transition:
+            Phi64, Q64 = self._Phi_acc, self._Q_acc
+        else:
+            B = self.batch_size
+            Phi64, Q64 = np.empty((B, N_STATES, N_STATES)), np.empty((B, N_STATES, N_STATES))
+            averaged_transition_into(self._F_int, self._Qc_int, Phi64, Q64)
+            if self.onestep:
+                Q64 = self._Qc_int
+                self._Qc_int = np.empty_like(Q64)
+        Phi, Q = Phi64.astype(self.dtype, copy=False), Q64.astype(self.dtype, copy=False)
 
-            def predict(form, keep):
-                if keep is None:
-                    return form.predict(Phi, Q)
-                k = keep[:, None, None]
-                return form.predict(np.where(k, Phi, np.eye(N_STATES, dtype=self.dtype)), np.where(k, Q, 0))
+        def predict(form, keep):
+            if keep is None:
+                return form.predict(Phi, Q)
+            k = keep[:, None, None]
+            return form.predict(np.where(k, Phi, np.eye(N_STATES, dtype=self.dtype)), np.where(k, Q, 0))
 
-            self._isolated(predict)
+        self._isolated(predict)
+        if self.exact_transition:
             self._Phi_acc, self._Q_acc = np.empty_like(self._Phi_acc), np.empty_like(self._Q_acc)
-            self._reset_accumulator()
+        self._reset_accumulator()
 
     # ----------------------------------------------------------- measurement
     def update(self, dz, H, R, mask, keys=None) -> UpdateResult:

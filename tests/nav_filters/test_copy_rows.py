@@ -81,6 +81,19 @@ def test_copied_rows_continue_bit_identically(world, method, mid_epoch):
         _assert_same(_state(nav, b), _state(ref, PERM[b]), f"{method} row {b}")
 
 
+@pytest.mark.parametrize("method", ["kf", "sage-husa"])
+def test_copied_rows_continue_bit_identically_with_averaged_transition(world, method):
+    """exact_transition=False: the pending integrals of F and Q are per-row state copied mid-epoch."""
+    nav, ref = (navigator_for(world, method, exact_transition=False) for _ in range(2))
+    own = np.arange(3)
+    n0, n1 = 12, 6
+    _run(nav, world, 0, n0, own)
+    _run(ref, world, 0, n0 + n1, own)
+    _run(nav, world, n0, n0 + n1, PERM, mid_epoch_hook=lambda: nav.copy_rows(DST, SRC))
+    for b in range(3):
+        _assert_same(_state(nav, b), _state(ref, PERM[b]), f"{method} row {b}")
+
+
 def test_copy_without_continuing_is_the_source_row(world):
     nav = navigator_for(world, "sage-husa")
     _run(nav, world, 0, 12, np.arange(3))
