@@ -14,7 +14,7 @@ def _live_covariances_pd(core):
     return np.linalg.eigvalsh(0.5 * (P + P.mT))[live].min(initial=np.inf) > 0
 
 
-@pytest.mark.parametrize("env_id, seed, diverges", [("GnssIns/MASTKF-v0", 100, True), ("GnssIns/MASTKF-v0", 200, True),
+@pytest.mark.parametrize("env_id, seed, diverges", [("GnssIns/MASTKF-v0", 100, True), ("GnssIns/MASTKF-v0", 600, True),
                                                     ("GnssIns/STKF-v0", 600, False)])
 def test_float32_strong_tracking_bang_bang_after_an_outage_keeps_failures_in_their_rows(env_id, seed, diverges):
     """The configuration of the issue: consumer IMU, ``outage``, actions alternating -1/+1, 8 rows, float32.
@@ -22,7 +22,8 @@ def test_float32_strong_tracking_bang_bang_after_an_outage_keeps_failures_in_the
     navigator checked S in float64 with the raw R, not the update's float32 S with alpha R), and P became
     non-PD without a flag (ma-stkf seed 200, stkf seed 600). Since the strong-tracking laws fade on state
     events only (issue 16), stkf no longer diverges here (no row of seeds 100-800), so its case checks the
-    covariances and flags without exercising the isolation."""
+    covariances and flags without exercising the isolation; ma-stkf still pushes a row over the edge with
+    seeds 100 and 600 (no longer with 200)."""
     env = gym.make_vec(env_id, num_envs=8, vectorization_mode="vector_entry_point", scenario="outage",
                        imu_grade="consumer", dtype="float32")
     env.reset(seed=seed)
