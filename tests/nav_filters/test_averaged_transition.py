@@ -145,16 +145,7 @@ def _reference_epoch(world, n, start=1):
     return dict(Phi=Phi, Q=Q, A=A, S=S, Fh=np.stack(Fs, 1), f=f, w=w, h=h)
 
 
-def _spy(nav):
-    calls = []
-    orig = nav.form.predict
-
-    def predict(Phi, Q):
-        calls.append((np.array(Phi, np.float64), np.array(Q, np.float64)))
-        return orig(Phi, Q)
-
-    nav.form.predict = predict
-    return calls
+from test_onestep import _spy  # noqa: E402  (records the (Phi, Q) handed to the form's predict)
 
 
 @pytest.mark.parametrize("dtype", ["float64", "float32"])
