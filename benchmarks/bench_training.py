@@ -1,7 +1,8 @@
 """PPO training throughput: the native batched vector env vs SB3's DummyVecEnv of single envs (same n_envs).
 
 Prints env-steps per second of ``PPO.learn`` on both, side by side, from one run.
-Usage: ``python benchmarks/bench_training.py [--n-envs 8] [--timesteps 4096]``
+Usage: ``python benchmarks/bench_training.py [--n-envs 8] [--timesteps 4096] [--fast]`` (``--fast``: the averaged
+transition, ``exact_transition=False``).
 """
 from __future__ import annotations
 
@@ -33,14 +34,17 @@ def main():
     ap.add_argument("--n-envs", type=int, default=8)
     ap.add_argument("--timesteps", type=int, default=4096)
     ap.add_argument("--episode-length", type=float, default=60.0)
+    ap.add_argument("--fast", action="store_true",
+                    help="the averaged transition (exact_transition=False) instead of the exact per-sample one")
     a = ap.parse_args()
     from stable_baselines3.common.env_util import make_vec_env
-    kw = dict(episode_length_s=a.episode_length)
+    kw = dict(episode_length_s=a.episode_length, exact_transition=not a.fast)
     native = make_sb3_vec_env(a.env, a.n_envs, seed=0, **kw)
     dummy = make_vec_env(lambda: gym.make(a.env, **kw), n_envs=a.n_envs, seed=0)
     r_native = learn_rate(native, a.timesteps, a.n_envs)
     r_dummy = learn_rate(dummy, a.timesteps, a.n_envs)
-    print(f"PPO on {a.env}, n_envs={a.n_envs}, {a.timesteps} steps (episodes {a.episode_length:.0f} s)")
+    print(f"PPO on {a.env}, n_envs={a.n_envs}, {a.timesteps} steps (episodes {a.episode_length:.0f} s, "
+          f"{'averaged' if a.fast else 'exact'} transition)")
     print(f"  native vector env (SB3 adapter): {r_native:8.0f} env-steps/s")
     print(f"  DummyVecEnv of single envs     : {r_dummy:8.0f} env-steps/s")
     print(f"  ratio native / dummy           : {r_native / r_dummy:8.2f}")
