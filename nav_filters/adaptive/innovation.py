@@ -458,6 +458,8 @@ class FitSplit:
     p : ``p_t``, the number of fitted columns (0 where there is no split).
     tr_m : ``sum (H M H^T)_ii / R_ii`` with ``M`` the (unfaded) propagated covariance.
     tr_q : ``sum (H Q H^T)_ii / R_ii``.
+    n : used rows of the type (also where there is no split).
+    All but ``n`` are 0 where the type has no split.
     """
 
     e_fit: np.ndarray
@@ -466,6 +468,7 @@ class FitSplit:
     p: np.ndarray
     tr_m: np.ndarray
     tr_q: np.ndarray
+    n: np.ndarray
 
     @property
     def noise_scale(self) -> np.ndarray:
@@ -473,6 +476,18 @@ class FitSplit:
         estimate (``E[v_i^2] = (1 - h_ii) g_t R_ii``); 1 where there is no redundancy."""
         ok = self.dof > 0
         return np.where(ok, self.e_res / np.where(ok, self.dof, 1.0), 1.0)
+
+    def scaled(self, factors) -> "FitSplit":
+        """The same split against the noise model ``factors_t R`` (B, T): every weighted sum divided by the
+        type's factor (a common factor of a type leaves its fit, dof and fitted columns unchanged)."""
+        return FitSplit(e_fit=self.e_fit / factors, e_res=self.e_res / factors, dof=self.dof, p=self.p,
+                        tr_m=self.tr_m / factors, tr_q=self.tr_q / factors, n=self.n)
+
+    @property
+    def pooled_noise_scale(self) -> np.ndarray:
+        """(B,) ``sum_t e_res / sum_t dof`` over the types with a split; 0 where no type has one."""
+        dof = self.dof.sum(1)
+        return np.where(dof > 0, self.e_res.sum(1) / np.where(dof > 0, dof, 1.0), 0.0)
 
 
 def fit_split(dz, H, R, mask, prior, Q, n_types: int = 2) -> FitSplit:
@@ -522,4 +537,4 @@ def fit_split(dz, H, R, mask, prior, Q, n_types: int = 2) -> FitSplit:
     n_t = onehot.sum(1)
     z = np.zeros_like(dof)
     return FitSplit(e_fit=np.where(ok, e_tot - e_res, z), e_res=np.where(ok, e_res, z), dof=np.where(ok, dof, z),
-                    p=np.where(ok, n_t - dof, z), tr_m=np.where(ok, tr_m, z), tr_q=np.where(ok, tr_q, z))
+                    p=np.where(ok, n_t - dof, z), tr_m=np.where(ok, tr_m, z), tr_q=np.where(ok, tr_q, z), n=n_t)

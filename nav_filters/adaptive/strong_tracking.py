@@ -86,7 +86,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .base import AdaptiveLaw, EpochContext, UpdatePlan
-from .innovation import FitSplit, fit_split, innovation_traces, measurement_groups
+from .innovation import fit_split, innovation_traces, measurement_groups
 from .params import ParamSpec, check_option
 from .satellite_r import SatelliteNoise, check_satellite_options
 
@@ -116,7 +116,7 @@ SPLIT_STATS = 5
 """Columns of the smoothed statistics of :func:`split_fading`: ``n``, ``d``, ``s``, ``e_res``, ``dof``."""
 
 
-def split_fading(split, stats_prev, weight, softening, confidence, lambda_max, scale=1.0):
+def split_fading(split, stats_prev, weight, softening, confidence, lambda_max, noise_gate, printed, scale=1.0):
     """Fading factor from the part of the innovations a state error can explain (``fading_noise='geometry'``).
 
     Per epoch, over the measurement types with redundancy (:class:`~.innovation.FitSplit`, weights
@@ -136,42 +136,46 @@ def split_fading(split, stats_prev, weight, softening, confidence, lambda_max, s
     1.3 and 1.7 m, a 60 m jump still faded ~40-fold). The residual energy and its degrees of freedom are
     smoothed alike: ``g = e_res / dof`` is the noise scale of the recent epochs.
 
+    No fading while ``g = e_res / dof`` (smoothed) exceeds ``noise_gate`` (a measurement event); an epoch
+    with pseudoranges or rates but no split does not fade (it cannot tell a state error from noise); an
+    epoch with neither takes ``printed`` (eqs 19-21 as written).
+
     Parameters
     ----------
     split : :class:`~.innovation.FitSplit` (B, T); stats_prev : (B, SPLIT_STATS) smoothed statistics (zeros
     at the start); weight : (B,) smoothing weight in (0, 1]; softening : (B,) beta; confidence : kappa
-    (>= 0); lambda_max : float; scale : (B,) or scalar multiplier of the ratio.
+    (>= 0); lambda_max : float; noise_gate : float (>= 1, inf: no gate); printed : (B,) the printed law's
+    lambda; scale : (B,) or scalar multiplier of the ratio.
 
     Returns
     -------
-    lam : (B,) fading factors (1 where no type has redundancy at this epoch or ever);
-    stats : (B, SPLIT_STATS) the new smoothed statistics (unchanged where no type has redundancy);
-    has : (B,) bool, a split at this epoch;
-    noise : (B,) the smoothed residual noise scale ``e_res / dof`` (1 before any split).
+    lam : (B,) fading factors;
+    stats : (B, SPLIT_STATS) the new smoothed statistics (unchanged where no type has redundancy).
     """
     g = split.noise_scale
     ok = split.dof > 0
     beta = np.asarray(softening, np.float64)[:, None]
     p, dof = split.p, np.where(ok, split.dof, 1.0)
     x_k = np.stack([np.where(ok, split.e_fit - beta * g * p - split.tr_q, 0.0).sum(1),
-                    np.where(ok, split.tr_m, 0.0).sum(1),
+                    split.tr_m.sum(1),
                     np.where(ok, 2.0 * (g * p + split.tr_m + split.tr_q) ** 2 / np.where(p > 0, p, 1.0)
                              + 2.0 * g ** 2 * p ** 2 / dof, 0.0).sum(1),
-                    np.where(ok, split.e_res, 0.0).sum(1),
-                    np.where(ok, split.dof, 0.0).sum(1)], 1)
+                    split.e_res.sum(1),
+                    split.dof.sum(1)], 1)
     has = ok.any(1)
-    w = np.asarray(weight, np.float64)[:, None]
-    wk = np.ones(SPLIT_STATS)[None, :] * w
-    wk[:, 2] = w[:, 0] ** 2
+    w = np.repeat(np.asarray(weight, np.float64)[:, None], SPLIT_STATS, 1)
     keep = 1.0 - w
-    keep = np.repeat(keep, SPLIT_STATS, 1)
-    keep[:, 2] = (1.0 - w[:, 0]) ** 2
-    stats = np.where(has[:, None], keep * stats_prev + wk * x_k, stats_prev)
+    w[:, 2] **= 2  # the variance of a weighted sum
+    keep[:, 2] **= 2
+    stats = np.where(has[:, None], keep * stats_prev + w * x_k, stats_prev)
     n, d, var, e_res, dof_s = stats.T
     pos = d > 0
     lam = np.where(pos, scale * (n - confidence * np.sqrt(np.maximum(var, 0.0))) / np.where(pos, d, 1.0), 1.0)
+    lam = np.clip(lam, 1.0, lambda_max)
     noise = np.where(dof_s > 0, e_res / np.where(dof_s > 0, dof_s, 1.0), 1.0)
-    return np.clip(lam, 1.0, lambda_max), stats, has, noise
+    lam = np.where(noise > noise_gate, 1.0, lam)
+    typed = (split.n > 0).any(1)
+    return np.where(has, lam, np.where(typed, 1.0, printed)), stats
 
 
 def fading_factor(tr_c, traces, softening, lambda_max, scale=1.0):
@@ -277,11 +281,8 @@ class StrongTracking(AdaptiveLaw):
         fs = self._fs
         if cfg.fading_noise == "geometry":
             split = fit_split(r, H, R, mask, ctx.prior, ctx.Q if ctx.pending else None)
-            lam_g, fs, split_has, noise = split_fading(split, self._fs, np.where(self._count == 0, 1.0, 1.0 / (1.0 + rho)),
-                                                       self._params["softening"], cfg.fading_confidence, cfg.lambda_max)
-            lam_g = np.where(noise > cfg.noise_gate, 1.0, lam_g)
-            typed = ((measurement_groups(H, mask) >= 0) & (measurement_groups(H, mask) < 2)).any(1)
-            lam = np.where(split_has, lam_g, np.where(typed, 1.0, lam))
+            lam, fs = split_fading(split, self._fs, np.where(self._count == 0, 1.0, 1.0 / (1.0 + rho)),
+                                   self._params["softening"], cfg.fading_confidence, cfg.lambda_max, cfg.noise_gate, lam)
         lam = np.where(has & ctx.pending, lam, 1.0)
         fade = self.capped_fading(lam, ctx.prior, cfg.fading_cap)
         return UpdatePlan(fade=fade, R=R, mask=mask, pending={"v": v, "has": has, "lambda": lam, "fs": fs})
@@ -510,16 +511,12 @@ class MeasurementAdaptiveSTKF(SatelliteNoise, AdaptiveLaw):
                 sq = np.sqrt(a_model)
                 model = fit_split(r, H, R * sq[:, :, None] * sq[:, None, :], mask, ctx.prior,
                                   ctx.Q if ctx.pending else None)
-            else:  # the same split against alpha_(k-1) R: every weighted sum / alpha_t
-                a_prev = self._alpha_t
-                model = FitSplit(e_fit=split.e_fit / a_prev, e_res=split.e_res / a_prev, dof=split.dof, p=split.p,
-                                 tr_m=split.tr_m / a_prev, tr_q=split.tr_q / a_prev)
+            else:  # the same split against alpha_(k-1) R
+                model = split.scaled(self._alpha_t)
             # a fault is a jump of the measurement errors: this epoch's residual noise scale against the model
             # (a state error, which the fit absorbs, is the fading's business, not a fault)
-            dof = np.where(model.dof > 0, model.dof, 0.0).sum(1)
-            noise_now = np.where(dof > 0, np.where(model.dof > 0, model.e_res, 0.0).sum(1) / np.where(dof > 0, dof, 1.0),
-                                 0.0)
-            fault = np.where(dof > 0, acting & (noise_now > self._params["fault_threshold"]), fault)
+            fault = np.where(model.dof.sum(1) > 0, acting & (model.pooled_noise_scale > self._params["fault_threshold"]),
+                             fault)
         fault = fault & (self._streak < cfg.max_consecutive_rejections)
         accept = has & ~fault
         # eq 16: measurement factor
@@ -535,12 +532,8 @@ class MeasurementAdaptiveSTKF(SatelliteNoise, AdaptiveLaw):
             upd = ok & acting[:, None]  # a rejected epoch's residuals still measure the noise level
             alpha_t = np.where(upd, np.clip((1.0 - beta[:, None]) * self._alpha_t + beta[:, None] * split.noise_scale,
                                             cfg.alpha_min, cfg.alpha_max), self._alpha_t)
-            lam_g, fs_new, split_has, noise = split_fading(model, self._fs, beta, self._params["softening"],
-                                                           cfg.fading_confidence, cfg.lambda_max,
-                                                           scale=self._params["fading_scale"])
-            lam_g = np.where(noise > cfg.noise_gate, 1.0, lam_g)
-            typed = ((types == 0) | (types == 1)).any(1)
-            lam = np.where(split_has, lam_g, np.where(typed, 1.0, lam))
+            lam, fs_new = split_fading(model, self._fs, beta, self._params["softening"], cfg.fading_confidence,
+                                       cfg.lambda_max, cfg.noise_gate, lam, scale=self._params["fading_scale"])
             fs = np.where(accept[:, None], fs_new, self._fs)
         lam = np.where(accept & acting & ctx.pending, lam, 1.0)
         pending = {"c": np.where(accept, c, self._c), "beta": np.where(accept, beta, self._beta),
