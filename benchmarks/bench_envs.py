@@ -84,18 +84,23 @@ def _actions(space, n, seed=0):
     return rng.uniform(-1, 1, size=(n,) + space.shape).astype(np.float32)
 
 
-TRANSITIONS = ("exact", "averaged")
-"""Transition modes: the env default (``exact``) and ``exact_transition=False`` (``averaged``)."""
+TRANSITIONS = ("exact", "averaged", "fused")
+"""Modes: the env default (``exact``), ``exact_transition=False`` (``averaged``) and ``exact_transition=False,
+fused_update=True`` (``fused``: also the fused compiled predict + Joseph update and the parallel law kernels)."""
+
+_SHORT = {"exact": "", "averaged": " avg", "fused": " fused"}
 
 
 def _label(method, transition):
-    return method if transition == "exact" else f"{method} avg"
+    return method + _SHORT[transition]
 
 
 def _make(method, B, episode_s, scenario, transition="exact"):
     kw = dict(method=method, episode_length_s=float(episode_s), scenario=scenario)
     if transition != "exact":  # only passed when needed: an earlier tree (--compare) has no such argument
         kw["exact_transition"] = False
+    if transition == "fused":
+        kw["fused_update"] = True
     if B == 1:
         return gym.make(METHOD_ENV[method], **kw)
     return gym.make_vec(METHOD_ENV[method], num_envs=B, vectorization_mode="vector_entry_point", **kw)
@@ -403,7 +408,7 @@ def main(argv=None):
     m = "sage-husa" if "sage-husa" in args.methods else args.methods[0]
     prof_b = sorted({1, max(batches)})
     cols = []
-    short = {"exact": "", "averaged": " avg"}
+    short = _SHORT
     for B in prof_b:
         cell = ("profile", m, B, n_steps(B), args.episode_s, args.scenario)
         if args.compare:
