@@ -393,3 +393,123 @@ def cholesky_solve(L, x):
         for q in range(i + 1, p):
             s -= L[q, i] * x[q]
         x[i] = s / L[i, i]
+
+
+@nb.njit(cache=True, error_model="numpy")
+def sym_eig_inplace(A, d, Vt, e, v, wk):
+    """Eigen-decomposition of the symmetric ``A`` (n, n; overwritten): ``A = Vt^T diag(d) Vt``.
+
+    Householder reduction to tridiagonal form with the transformations accumulated, then the implicit
+    symmetric QR iteration with Wilkinson shifts on the tridiagonal matrix, rotations accumulated into the
+    eigenvectors (Golub & Van Loan, *Matrix Computations*, 4th ed., algorithms 8.3.1 and 8.3.3). Backward
+    stable like LAPACK's ``syevd`` (what ``np.linalg.eigh`` runs), with no allocation and no call overhead:
+    about twice as fast for n = 17 in a compiled loop over rows.
+
+    Parameters
+    ----------
+    A : (n, n) symmetric (only read as such; destroyed). d : (n,) output eigenvalues (unsorted).
+    Vt : (n, n) output, row k the eigenvector of ``d[k]``. e, v, wk : (n,) scratch.
+
+    Returns
+    -------
+    bool, False when the QR iteration did not converge in 30 n steps (outputs undefined).
+    """
+    n = A.shape[0]
+    for i in range(n):
+        for j in range(n):
+            Vt[i, j] = 0.0
+        Vt[i, i] = 1.0
+        e[i] = 0.0
+    # ---- Householder tridiagonalization: A <- H A H on the trailing block, Vt <- H Vt
+    for k in range(n - 2):
+        a2 = 0.0
+        for i in range(k + 2, n):
+            a2 += A[i, k] * A[i, k]
+        x0 = A[k + 1, k]
+        if a2 == 0.0:  # column already reduced
+            e[k] = x0
+            continue
+        a2 += x0 * x0
+        alpha = -np.sqrt(a2) if x0 >= 0 else np.sqrt(a2)
+        vn = np.sqrt(2.0 * (a2 - x0 * alpha))
+        for i in range(k + 1, n):
+            v[i] = A[i, k] / vn
+        v[k + 1] = (x0 - alpha) / vn
+        # p = A22 v, K = v^T p, q = p - K v;  A22 <- A22 - 2 (v q^T + q v^T)
+        kk = 0.0
+        for i in range(k + 1, n):
+            s = 0.0
+            for j in range(k + 1, n):
+                s += A[i, j] * v[j]
+            wk[i] = s
+            kk += v[i] * s
+        for i in range(k + 1, n):
+            wk[i] -= kk * v[i]
+        for i in range(k + 1, n):
+            for j in range(k + 1, n):
+                A[i, j] -= 2.0 * (v[i] * wk[j] + wk[i] * v[j])
+        e[k] = alpha
+        # Vt <- H Vt on rows k+1..n-1:  Vt[i, :] -= 2 v_i (v^T Vt)
+        for j in range(n):
+            wk[j] = 0.0
+        for i in range(k + 1, n):
+            vi = v[i]
+            for j in range(n):
+                wk[j] += vi * Vt[i, j]
+        for i in range(k + 1, n):
+            f = 2.0 * v[i]
+            for j in range(n):
+                Vt[i, j] -= f * wk[j]
+    if n >= 2:
+        e[n - 2] = A[n - 1, n - 2]
+    for i in range(n):
+        d[i] = A[i, i]
+    # ---- implicit symmetric QR with Wilkinson shifts; e[i] couples d[i] and d[i + 1]
+    eps = np.finfo(np.float64).eps
+    h = n - 1
+    it = 0
+    while h > 0:
+        if abs(e[h - 1]) <= eps * (abs(d[h - 1]) + abs(d[h])):
+            e[h - 1] = 0.0
+            h -= 1
+            continue
+        it += 1
+        if it > 30 * n:
+            return False
+        l = h - 1
+        while l > 0 and abs(e[l - 1]) > eps * (abs(d[l - 1]) + abs(d[l])):
+            l -= 1
+        if l > 0:
+            e[l - 1] = 0.0
+        t = 0.5 * (d[h - 1] - d[h])
+        eh = e[h - 1]
+        rr = np.sqrt(t * t + eh * eh)
+        mu = d[h] - eh * eh / (t + (rr if t >= 0 else -rr))
+        x = d[l] - mu
+        z = e[l]
+        for k in range(l, h):
+            r = np.sqrt(x * x + z * z)
+            if r == 0.0:
+                c = 1.0
+                s = 0.0
+            else:
+                c = x / r
+                s = z / r
+            if k > l:
+                e[k - 1] = r
+            dk = d[k]
+            dk1 = d[k + 1]
+            ek = e[k]
+            d[k] = c * c * dk + 2.0 * c * s * ek + s * s * dk1
+            d[k + 1] = s * s * dk - 2.0 * c * s * ek + c * c * dk1
+            e[k] = c * s * (dk1 - dk) + (c * c - s * s) * ek
+            if k < h - 1:
+                x = e[k]
+                z = s * e[k + 1]
+                e[k + 1] = c * e[k + 1]
+            for j in range(n):
+                a = Vt[k, j]
+                b = Vt[k + 1, j]
+                Vt[k, j] = c * a + s * b
+                Vt[k + 1, j] = c * b - s * a
+    return True
