@@ -130,10 +130,12 @@ def bench_env(method, B, steps, episode_s, scenario, transition="exact", warmup=
 
 
 class StageTimer:
-    """Accumulates wall time per stage by wrapping the navigator's and the core's step functions."""
+    """Accumulates time per stage by wrapping the navigator's and the core's step functions (``clock``:
+    ``time.perf_counter`` for wall time, ``time.process_time`` for the CPU time of all the process's threads)."""
 
-    def __init__(self):
+    def __init__(self, clock=time.perf_counter):
         self.t = dict.fromkeys(STAGES, 0.0)
+        self.clock = clock
         self._undo = []
 
     @contextmanager
@@ -160,32 +162,35 @@ class StageTimer:
         had = name in vars(obj)
         fn = getattr(obj, name)
         acc = self.t
+        clock = self.clock
 
         def timed(*a, **k):
-            t0 = time.perf_counter()
+            t0 = clock()
             try:
                 return fn(*a, **k)
             finally:
-                acc[stage] += time.perf_counter() - t0
+                acc[stage] += clock() - t0
 
         self._undo.append((obj, name, vars(obj).get(name), had))
         setattr(obj, name, timed)
 
 
-def profile_env(method, B, steps, episode_s, scenario, transition="exact", warmup=WARMUP_STEPS):
-    """Per-stage wall time per step [ms] of ``steps`` steps (after ``warmup``), and the total."""
+def profile_env(method, B, steps, episode_s, scenario, transition="exact", warmup=WARMUP_STEPS, cpu=False):
+    """Per-stage time per step [ms] of ``steps`` steps (after ``warmup``), and the total: wall time, or with
+    ``cpu`` the process CPU time (all threads; robust to other jobs on a shared machine)."""
     env = _make(method, B, episode_s, scenario, transition)
     env.reset(seed=0)
     acts = _actions(env.action_space, warmup + steps)
     for a in acts[:warmup]:
         env.step(a)
     core = _core(env)
-    timer = StageTimer()
+    clock = time.process_time if cpu else time.perf_counter
+    timer = StageTimer(clock)
     with timer.installed(core):
-        t0 = time.perf_counter()
+        t0 = clock()
         for a in acts[warmup:]:
             env.step(a)
-        total = time.perf_counter() - t0
+        total = clock() - t0
     env.close()
     t = timer.t
     # the stages do not nest: flush_prediction, form.update and _feedback run one after the other inside
@@ -305,7 +310,7 @@ def _cell_main(kind, method, B, steps, episode_s, scenario, transition):
     if kind == "rate":
         print(json.dumps(bench_env(method, B, steps, episode_s, scenario, transition)))
     else:
-        print(json.dumps(profile_env(method, B, steps, episode_s, scenario, transition)))
+        print(json.dumps(profile_env(method, B, steps, episode_s, scenario, transition, cpu=kind == "cpu-profile")))
 
 
 def print_filterpy(batches, episode_s, scenario, steps_of):
@@ -341,6 +346,8 @@ def main(argv=None):
     p.add_argument("--scenario", default="noise-burst")
     p.add_argument("--no-profile", action="store_true")
     p.add_argument("--profile-only", action="store_true", help="skip the throughput table")
+    p.add_argument("--cpu-profile", action="store_true",
+                   help="stage profile in process CPU time (all threads) instead of wall time")
     p.add_argument("--components", action="store_true",
                    help="only time each compiled kernel of the step against its numpy reference (B = 1, 1024)")
     p.add_argument("--compare", metavar="DIR", default=None,
@@ -410,15 +417,15 @@ def main(argv=None):
     cols = []
     short = _SHORT
     for B in prof_b:
-        cell = ("profile", m, B, n_steps(B), args.episode_s, args.scenario)
+        cell = ("cpu-profile" if args.cpu_profile else "profile", m, B, n_steps(B), args.episode_s, args.scenario)
         if args.compare:
             cols.append((f"B={B} before", _run_cell(other, *cell)))
         for tr in args.transitions:
             if args.compare:
                 cols.append((f"B={B} after{short[tr]}", _run_cell(here, *cell, tr)))
             else:
-                cols.append((f"B={B}{short[tr]}", profile_env(*cell[1:], tr)))
-    print(f"\nprofile of one step, {m}: wall ms per step (share)")
+                cols.append((f"B={B}{short[tr]}", profile_env(*cell[1:], tr, cpu=args.cpu_profile)))
+    print(f"\nprofile of one step, {m}: {'CPU' if args.cpu_profile else 'wall'} ms per step (share)")
     print(f"{'stage':14s}" + "".join(f"{name:>20s}" for name, _ in cols))
     for s in STAGES:
         print(f"{s:14s}" + "".join(f"{r[0][s]:11.3f} ({100 * r[0][s] / r[1]:4.1f}%)" for _, r in cols))

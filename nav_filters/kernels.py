@@ -49,6 +49,31 @@ from earth.wgs84 import A as _A, GM as _GM, J2 as _J2, OMEGA_IE as _W
 
 N = 17
 
+
+def serial_and_parallel(fn, **flags):
+    """Two cached numba dispatchers of the row kernel ``fn``: ``(serial, parallel)``.
+
+    Numba's on-disk cache names an entry by the function's module, qualified name and first line, and keys
+    it by the signature and the bytecode, not by the compile flags: two dispatchers of *one* Python function
+    (``njit(cache=True)(f)`` and ``njit(cache=True, parallel=True)(f)``) share one cache entry, and whichever
+    variant a process compiled first is then loaded for both. Measured: the "serial" dispatchers ran the
+    parallel code, a thread-pool launch per call, ~8 ms per call instead of ~20 us for one row on a loaded
+    2-core machine (the single env's step). Each variant here is compiled from its own function object (same
+    code and globals) with a distinct ``__qualname__``, hence its own cache entry; the arithmetic per row is
+    the same in both.
+    """
+    import types
+
+    out = []
+    for suffix, parallel in (("serial", False), ("parallel", True)):
+        f = types.FunctionType(fn.__code__, fn.__globals__, f"{fn.__name__}_{suffix}", fn.__defaults__,
+                               fn.__closure__)
+        f.__qualname__ = f"{fn.__qualname__}_{suffix}"
+        f.__module__ = fn.__module__
+        f.__doc__ = fn.__doc__
+        out.append(nb.njit(cache=True, parallel=parallel, **flags)(f))
+    return tuple(out)
+
 # Structural non-zeros of F (row, col), in the order _fill_F writes them.
 F_NONZERO = np.array(
     [(0, 1), (1, 0)] + [(i, 9 + j) for i in range(3) for j in range(3)]          # -Omega, -C (gyro bias)
@@ -340,8 +365,7 @@ def _add_integrals(A, S, b, nh, h, sC, sa, sG, sk, sCC, qg, qa, qdiag, kg, ka):
         S[b, i, i] += nh * qdiag[i]
 
 
-_serial = nb.njit(cache=True)(_propagate_epoch)
-_parallel = nb.njit(cache=True, parallel=True)(_propagate_epoch)
+_serial, _parallel = serial_and_parallel(_propagate_epoch)
 
 PARALLEL_MIN_BATCH = 64
 """Below this batch size the serial kernel is used: a parallel launch costs more than it saves, and on

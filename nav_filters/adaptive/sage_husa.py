@@ -154,7 +154,7 @@ import numba as nb
 import numpy as np
 
 from ..forms.base import symmetrize
-from ..kernels import sym_eig_inplace
+from ..kernels import serial_and_parallel, sym_eig_inplace
 from .base import AdaptiveLaw, EpochContext, UpdatePlan
 from .innovation import GROUP_NAMES, measurement_groups, quadratic_diag
 from .params import ParamSpec, check_option
@@ -455,8 +455,7 @@ def _adapt_q_rows(rows, d, dx, P_post, prior, Q_nom, b, step, e_prev, b_used, q_
         q_init[r] = True
 
 
-_adapt_q_serial = nb.njit(cache=True)(_adapt_q_rows)
-_adapt_q_parallel = nb.njit(cache=True, parallel=True)(_adapt_q_rows)
+_adapt_q_serial, _adapt_q_parallel = serial_and_parallel(_adapt_q_rows)
 PARALLEL_MIN_BATCH = 64
 """Below this batch size the serial kernel runs (a parallel launch costs more than it saves)."""
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from ..kernels import serial_and_parallel
 from .base import FilterForm, UpdateResult, symmetrize
 
 
@@ -189,8 +190,7 @@ def _joseph_rows(P, x, H, R, dz, Pn, xn, r, Sd, nis, ok):
                 Pn[b, k, l] = 0.5 * (X[k, l] + X[l, k])
 
 
-_joseph_serial = nb.njit(cache=True)(_joseph_rows)
-_joseph_parallel = nb.njit(cache=True, parallel=True)(_joseph_rows)
+_joseph_serial, _joseph_parallel = serial_and_parallel(_joseph_rows)
 
 PARALLEL_MIN_BATCH = 64
 """Below this batch size the serial kernel runs (a parallel launch costs more than it saves)."""
@@ -526,8 +526,7 @@ def _fused_rows(P, x, Phi, s, Q, prior, mode, H, R, dz, mask, Pn, xn, r, Sd, nis
                     Pn[b, j, k] = X[k, j]
 
 
-_fused_serial = nb.njit(cache=True, error_model="numpy")(_fused_rows)
-_fused_parallel = nb.njit(cache=True, parallel=True, error_model="numpy")(_fused_rows)
+_fused_serial, _fused_parallel = serial_and_parallel(_fused_rows, error_model="numpy")
 
 
 def fused_update(P, x, H, R, dz, mask, Phi=None, Q=None, fade=None, prior=None):

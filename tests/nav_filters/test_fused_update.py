@@ -271,3 +271,32 @@ def test_own_symmetric_eigendecomposition():
         assert np.abs(Vt @ Vt.mT - np.eye(n)).max() < 1e-13
         np.testing.assert_allclose(np.sort(d, 1) / scale[:, :, 0], np.linalg.eigvalsh(A) / scale[:, :, 0],
                                    rtol=0, atol=1e-13)
+
+
+def test_serial_and_parallel_kernels_have_their_own_cache_entries():
+    """numba's cache keys an entry by function name and bytecode, not by ``parallel``: each serial/parallel pair
+    of row kernels must be two functions with distinct cache files (else one process's parallel build is
+    loaded for the serial dispatcher: a thread-pool launch per single-row call), with the flags they claim,
+    and the two give the same bits on the same rows."""
+    from nav_filters import averaged_transition, kernels
+    from nav_filters.adaptive import sage_husa
+    from nav_filters.forms import kf
+
+    pairs = [(kernels._serial, kernels._parallel), (averaged_transition._serial, averaged_transition._parallel),
+             (kf._joseph_serial, kf._joseph_parallel), (kf._fused_serial, kf._fused_parallel),
+             (sage_husa._adapt_q_serial, sage_husa._adapt_q_parallel)]
+    names = set()
+    for ser, par in pairs:
+        assert ser.targetoptions["parallel"] is False and par.targetoptions["parallel"] is True
+        assert ser.py_func.__code__ is par.py_func.__code__  # one implementation
+        names |= {ser._cache._cache_file._index_name, par._cache._cache_file._index_name}
+    assert len(names) == 2 * len(pairs)
+    P, x, H, R, dz, mask, Phi, Q, fade = _problem(PARALLEL_MIN_BATCH + 3, seed=5)
+    outs = []
+    for kern, nchunk in ((kf._fused_serial, 1), (kf._fused_parallel, 7)):
+        B, m, n = H.shape
+        o = [np.empty((B, n, n)), np.empty((B, n)), np.empty((B, m)), np.empty((B, m)), np.zeros(B), np.empty(B, bool)]
+        kern(P, x, Phi, np.sqrt(fade), Q, P, 1, H, R, dz, mask, *o, nchunk)
+        outs.append(o)
+    for a, b in zip(*outs):
+        np.testing.assert_array_equal(a, b)
