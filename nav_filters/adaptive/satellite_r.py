@@ -265,6 +265,36 @@ PARALLEL_MIN_BATCH = 64
 
 
 @nb.njit(cache=True)
+def _summary_kernel(pr, s_rows, s_prev, rose_factor, out):
+    """The per-row summary of :meth:`SatelliteNoise._commit_satellites` (fused path): over the used pseudorange
+    rows ``pr`` (B, m), ``out[b] = (max scale, median scale, count risen above rose_factor x its prior, count)``;
+    1, 1, 0, 0 for a row without any. The median is ``np.nanmedian``'s (middle value, or the mean of the two)."""
+    B, m = pr.shape
+    vals = np.empty(m)
+    for b in range(B):
+        k = 0
+        rose = 0
+        mx = -np.inf
+        for i in range(m):
+            if pr[b, i]:
+                v = s_rows[b, i]
+                vals[k] = v
+                k += 1
+                mx = max(mx, v)
+                if v > rose_factor * s_prev[b, i]:
+                    rose += 1
+        if k == 0:
+            out[b, 0] = 1.0
+            out[b, 1] = 1.0
+        else:
+            srt = np.sort(vals[:k])
+            out[b, 0] = mx
+            out[b, 1] = srt[k // 2] if k % 2 == 1 else (srt[k // 2 - 1] + srt[k // 2]) / 2.0
+        out[b, 2] = rose
+        out[b, 3] = k
+
+
+@nb.njit(cache=True)
 def _weight_one(b, j):
     """Scalar :func:`sage_husa_weight` (seed 000 eqs 21-23)."""
     if b >= 1.0:
@@ -436,6 +466,11 @@ class SatelliteNoise:
         self._sat_last[b_idx, k] = epoch[b_idx]
         self._epoch = epoch
         pr = used & (keys < N_SAT_KEYS)
+        if self.fused:  # compiled, same values (the numpy lines below are its specification)
+            self._sat_summary = np.empty((pr.shape[0], 4))
+            _summary_kernel(pr, np.ascontiguousarray(s_rows, np.float64), np.ascontiguousarray(s_prev, np.float64),
+                            float(ROSE_FACTOR), self._sat_summary)
+            return
         npr = pr.sum(1)
         mx = np.where(npr > 0, np.max(np.where(pr, s_rows, -np.inf), 1), 1.0)
         # median over the used pseudorange rows; a row without any is all ones (median 1)
