@@ -30,8 +30,8 @@ figures measured side by side under the same machine load. The *before* cell of 
 exact transition (an earlier tree may not have the option), so the ``avg`` rows read as "before: the exact
 default of DIR, after: the averaged transition of this tree".
 
-``--accuracy`` prints instead the accuracy table of the averaged transition against the exact one on every
-built-in scenario, paired episodes (:mod:`transition_accuracy`, a few minutes); ``--filterpy`` the
+``--accuracy`` prints instead the accuracy table of the fast modes (averaged, fused) against the exact one on
+every built-in scenario, paired episodes (:mod:`transition_accuracy`, a few minutes); ``--filterpy`` the
 side-by-side figure against filterpy's plain ``KalmanFilter`` loop (:mod:`filterpy_baseline`): filterpy
 epochs/s against navgym row-epochs/s, both per CPU second (per core), in one run.
 
@@ -41,6 +41,7 @@ Usage::
                                     [--steps N] [--episode-s 60] [--no-profile] [--profile-only]
                                     [--transitions exact averaged] [--compare DIR]
     python benchmarks/bench_envs.py --accuracy [--accuracy-episodes 24] [--accuracy-max-s 700]
+                                    [--accuracy-scenarios urban ...] [--accuracy-nees-runs 20]
     python benchmarks/bench_envs.py --filterpy [--batches 1 1024]
 
 ``--quick``: B = 1, 16, 256, fewer steps, profile at B = 1 and 256 (a minute or two).
@@ -355,15 +356,18 @@ def main(argv=None):
     p.add_argument("--transitions", nargs="+", default=list(TRANSITIONS), choices=TRANSITIONS,
                    help="transition modes to run (exact: the env default; averaged: exact_transition=False)")
     p.add_argument("--accuracy", action="store_true",
-                   help="only the accuracy table: averaged vs exact transition on every built-in scenario")
+                   help="only the accuracy table: the fast modes vs the exact transition on every built-in scenario")
     p.add_argument("--accuracy-episodes", type=int, default=24, help="paired episodes per scenario (--accuracy)")
     p.add_argument("--accuracy-max-s", type=float, default=700.0, help="longest simulated episode [s] (--accuracy)")
+    p.add_argument("--accuracy-scenarios", nargs="+", default=None, help="scenarios (--accuracy; default: all)")
+    p.add_argument("--accuracy-nees-runs", type=int, default=20, help="matched-scenario NEES runs (--accuracy)")
     p.add_argument("--filterpy", action="store_true",
                    help="only the side-by-side figure against filterpy's KalmanFilter loop (default B = 1, 1024)")
     args = p.parse_args(argv)
     if args.accuracy:
         from transition_accuracy import print_accuracy
-        print_accuracy(episodes=args.accuracy_episodes, max_duration_s=args.accuracy_max_s)
+        print_accuracy(episodes=args.accuracy_episodes, max_duration_s=args.accuracy_max_s,
+                       scenarios=args.accuracy_scenarios, nees_runs=args.accuracy_nees_runs)
         return
     if args.components:
         print("compiled kernels against their numpy references (min wall time, same inputs, one process)")
