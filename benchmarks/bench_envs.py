@@ -20,9 +20,13 @@ Prints, in one run:
   of the nominal state), ``dop``, ``observation`` (the env's observation frame) and ``env glue`` (the
   rest of ``TuningCore.step`` and the env wrappers: actions, parameters, errors, rewards, infos).
 
-Each method runs in the transition modes of ``--transitions``: ``exact`` (the default of every env id: the
-per-sample transitions composed in the IMU kernel) and ``averaged`` (``exact_transition=False``: the epoch's
-averaged error dynamics, :mod:`nav_filters.averaged_transition`), rows ``sage-husa`` and ``sage-husa avg``.
+Each method runs in the modes of ``--transitions``: ``exact`` (the default of every env id: the per-sample
+transitions composed in the IMU kernel), ``averaged`` (``exact_transition=False``: the epoch's averaged error
+dynamics, :mod:`nav_filters.averaged_transition`) and ``fused`` (``exact_transition=False,
+fused_update=True``: also the fused compiled predict + Joseph update, :func:`nav_filters.forms.kf.fused_update`,
+and the adaptive laws' fast kernels), rows ``sage-husa``, ``sage-husa avg`` and ``sage-husa fused``.
+``--cpu-profile`` gives the stage profile in process CPU time (all threads) instead of wall time: on a
+machine shared with other jobs the wall time of a stage swings with their load, its CPU time much less.
 
 ``--compare DIR`` runs every cell twice, in this tree and in the source tree ``DIR`` (e.g. a checkout of
 an earlier commit), alternately in fresh processes, and prints both with the speed-up: before/after
@@ -394,10 +398,10 @@ def main(argv=None):
     if args.compare:
         other = os.path.abspath(args.compare)
         print(f"before = {other}\nafter  = {here}")
-        hdr = (f"{'method':14s} {'B':>5s} {'steps/s before':>15s} {'after':>10s} {'speed-up':>9s} "
+        hdr = (f"{'method':16s} {'B':>5s} {'steps/s before':>15s} {'after':>10s} {'speed-up':>9s} "
                f"{'cpu ms before':>14s} {'after':>9s} {'reset s before':>15s} {'after':>7s}")
     else:
-        hdr = f"{'method':14s} {'B':>5s} {'reset [s]':>10s} {'steps/s':>12s} {'ms/step':>9s} {'cpu ms/step':>12s}"
+        hdr = f"{'method':16s} {'B':>5s} {'reset [s]':>10s} {'steps/s':>12s} {'ms/step':>9s} {'cpu ms/step':>12s}"
     print("\n" + hdr + "\n" + "-" * len(hdr))
     for m in ([] if args.profile_only else args.methods):
         for B in batches:
@@ -407,11 +411,11 @@ def main(argv=None):
                 lab = _label(m, tr)
                 if args.compare:
                     ra = _run_cell(here, *cell, tr)
-                    print(f"{lab:14s} {B:5d} {rb[1]:15.0f} {ra[1]:10.0f} {ra[1] / rb[1]:8.2f}x {rb[2]:14.2f} "
+                    print(f"{lab:16s} {B:5d} {rb[1]:15.0f} {ra[1]:10.0f} {ra[1] / rb[1]:8.2f}x {rb[2]:14.2f} "
                           f"{ra[2]:9.2f} {rb[0]:15.2f} {ra[0]:7.2f}", flush=True)
                 else:
                     t_reset, rate, cpu = bench_env(m, B, n_steps(B), args.episode_s, args.scenario, tr)
-                    print(f"{lab:14s} {B:5d} {t_reset:10.2f} {rate:12.0f} {1e3 * B / rate:9.2f} {cpu:12.2f}",
+                    print(f"{lab:16s} {B:5d} {t_reset:10.2f} {rate:12.0f} {1e3 * B / rate:9.2f} {cpu:12.2f}",
                           flush=True)
 
     if args.no_profile:
