@@ -32,9 +32,46 @@ GROUP_NAMES = ("pseudorange", "rate", "other")
 """Measurement groups of :func:`measurement_groups`, in id order."""
 
 
-def quadratic_diag(H, X):
-    """``diag(H X H^T)`` for batched ``H`` (B, m, n) and ``X`` (B, n, n): shape (B, m)."""
+PARALLEL_MIN_BATCH = 64
+"""Fused fast path (``fast=True``): below this batch size the row kernels run serially."""
+
+
+def _nchunk(B):
+    return min(B, 4 * nb.get_num_threads())
+
+
+def quadratic_diag(H, X, fast: bool = False):
+    """``diag(H X H^T)`` for batched ``H`` (B, m, n) and ``X`` (B, n, n): shape (B, m).
+
+    ``fast`` (the fused path): compiled over the structural non-zeros of each H row
+    (:func:`_quadratic_diag_kernel`; float64, same values to round-off)."""
+    if fast:
+        out = np.empty(np.shape(H)[:2])
+        _quadratic_diag_kernel(np.ascontiguousarray(H, np.float64), np.ascontiguousarray(X, np.float64), out)
+        return out
     return np.sum((H @ X) * H, axis=-1)
+
+
+@nb.njit(cache=True)
+def _quadratic_diag_kernel(H, X, out):
+    """``out[b, i] = h^T X[b] h`` with ``h = H[b, i]``, over the non-zeros of h only."""
+    B, m, n = H.shape
+    idx = np.empty(n, np.int64)
+    for b in range(B):
+        for i in range(m):
+            k = 0
+            for l in range(n):
+                if H[b, i, l] != 0:
+                    idx[k] = l
+                    k += 1
+            acc = 0.0
+            for p in range(k):
+                lp = idx[p]
+                sp = 0.0
+                for q in range(k):
+                    sp += X[b, lp, idx[q]] * H[b, i, idx[q]]
+                acc += H[b, i, lp] * sp
+            out[b, i] = acc
 
 
 @dataclass(frozen=True)
@@ -62,17 +99,22 @@ class InnovationTraces:
         return self.tr_m + self.tr_q + self.tr_r
 
 
-def innovation_traces(dz, H, prior, Q, R, mask) -> InnovationTraces:
+def innovation_traces(dz, H, prior, Q, R, mask, fast: bool = False) -> InnovationTraces:
     """Innovation energy and the traces of the predicted innovation covariance (seed 003 eqs 12, 21).
 
     Compiled (:func:`_traces_kernel`, structural zeros of H skipped); the parameters, returns and
     equations are documented on its numpy specification :func:`innovation_traces_reference` (agreement
-    test in tests/nav_filters/test_compiled_update.py).
+    test in tests/nav_filters/test_compiled_update.py). ``fast`` (the fused path): the same kernel on row
+    chunks in parallel for B >= :data:`PARALLEL_MIN_BATCH` (the same bits).
     """
     B = dz.shape[0]
     c = np.ascontiguousarray
     out = np.empty((4, B))
-    _traces_kernel(c(dz), c(H), c(prior), c(prior if Q is None else Q), Q is not None, c(R), c(mask, bool), out)
+    args = (c(dz), c(H), c(prior), c(prior if Q is None else Q), Q is not None, c(R), c(mask, bool), out)
+    if fast and B >= PARALLEL_MIN_BATCH:
+        _traces_parallel(_nchunk(B), *args)
+    else:
+        _traces_kernel(*args)
     dt = np.result_type(dz.dtype, H.dtype, prior.dtype)
     tr_m, tr_q, tr_r, energy = (a.astype(dt) for a in out)
     return InnovationTraces(energy=energy, tr_m=tr_m, tr_q=tr_q, tr_r=tr_r, n_used=mask.sum(-1))
@@ -236,7 +278,28 @@ def _geometry_residuals_kernel(dz, H, var, types, n_types, v_out, red_out):
             _geometry_residual_row(dz[b], H[b], var[b], use, v_out[b], red_out[b])
 
 
-def geometry_residuals(dz, H, var, types, n_types: int = 2):
+@nb.njit(cache=True, parallel=True)
+def _traces_parallel(nchunk, dz, H, prior, Q, with_q, R, mask, out):
+    """:func:`_traces_kernel` on ``nchunk`` row chunks in parallel (each chunk runs the serial kernel)."""
+    B = dz.shape[0]
+    for c in nb.prange(nchunk):
+        lo = c * B // nchunk
+        hi = (c + 1) * B // nchunk
+        _traces_kernel(dz[lo:hi], H[lo:hi], prior[lo:hi], Q[lo:hi], with_q, R[lo:hi], mask[lo:hi], out[:, lo:hi])
+
+
+@nb.njit(cache=True, parallel=True)
+def _geometry_residuals_parallel(nchunk, dz, H, var, types, n_types, v_out, red_out):
+    """:func:`_geometry_residuals_kernel` on ``nchunk`` row chunks in parallel (the same bits per row)."""
+    B = dz.shape[0]
+    for c in nb.prange(nchunk):
+        lo = c * B // nchunk
+        hi = (c + 1) * B // nchunk
+        _geometry_residuals_kernel(dz[lo:hi], H[lo:hi], var[lo:hi], types[lo:hi], n_types, v_out[lo:hi],
+                                   red_out[lo:hi])
+
+
+def geometry_residuals(dz, H, var, types, n_types: int = 2, fast: bool = False):
     """Snapshot least-squares residuals of each measurement type: what no common state error can explain.
 
     For each batch row and each type ``t`` (e.g. 0 pseudoranges, 1 pseudorange rates), the rows of that type
@@ -261,14 +324,17 @@ def geometry_residuals(dz, H, var, types, n_types: int = 2):
     redundancy : (B, m) ``1 - h_ii`` in [0, 1] (0 where there is none: no more rows than fitted columns).
 
     Compiled (:func:`_geometry_residuals_kernel`); :func:`geometry_residuals_reference` is the numpy
-    specification (agreement test).
+    specification (agreement test). ``fast`` (the fused path): row chunks in parallel for B >= 64 (same bits).
     """
     c = np.ascontiguousarray
     B, m = np.shape(dz)
     v = np.empty((B, m))
     red = np.empty((B, m))
-    _geometry_residuals_kernel(c(dz, np.float64), c(H, np.float64), c(var, np.float64), c(types, np.int64),
-                               int(n_types), v, red)
+    args = (c(dz, np.float64), c(H, np.float64), c(var, np.float64), c(types, np.int64), int(n_types), v, red)
+    if fast and B >= PARALLEL_MIN_BATCH:
+        _geometry_residuals_parallel(_nchunk(B), *args)
+    else:
+        _geometry_residuals_kernel(*args)
     return v, red
 
 
@@ -490,7 +556,7 @@ class FitSplit:
         return np.where(dof > 0, self.e_res.sum(1) / np.where(dof > 0, dof, 1.0), 0.0)
 
 
-def fit_split(dz, H, R, mask, prior, Q, n_types: int = 2) -> FitSplit:
+def fit_split(dz, H, R, mask, prior, Q, n_types: int = 2, fast: bool = False) -> FitSplit:
     """Split each measurement type's innovations into what a state error can explain and what it cannot.
 
     Per batch row and type ``t`` (:func:`measurement_groups`), the weighted least-squares fit of
@@ -511,6 +577,8 @@ def fit_split(dz, H, R, mask, prior, Q, n_types: int = 2) -> FitSplit:
     dz : (B, m) innovations; H : (B, m, n); R : (B, m, m) measurement covariances (diagonals used);
     mask : (B, m) bool used rows; prior : (B, n, n) ``M = Phi P Phi^T``; Q : (B, n, n) or None;
     n_types : number of types fitted (rows of group >= n_types are left out).
+    fast : the fused path's kernels (:func:`geometry_residuals` on parallel row chunks, the compiled
+        :func:`quadratic_diag`): the same quantities to round-off.
 
     Returns
     -------
@@ -520,7 +588,7 @@ def fit_split(dz, H, R, mask, prior, Q, n_types: int = 2) -> FitSplit:
     var = np.where(mask, np.diagonal(R, axis1=1, axis2=2).astype(np.float64), 1.0)
     groups = measurement_groups(H, mask)
     types = np.where(groups < n_types, groups, -1)
-    v, red = geometry_residuals(dz, H, var, types, n_types)
+    v, red = geometry_residuals(dz, H, var, types, n_types, fast=fast)
     onehot = (types[..., None] == np.arange(n_types)).astype(np.float64)  # (B, m, T)
     dof = np.einsum("bm,bmt->bt", red, onehot)
     ok = dof > 1e-9
@@ -532,8 +600,8 @@ def fit_split(dz, H, R, mask, prior, Q, n_types: int = 2) -> FitSplit:
         return np.einsum("bm,bmt->bt", w * x, onehot)
 
     e_tot, e_res = wsum(dz64 ** 2), wsum(v ** 2)
-    tr_m = wsum(quadratic_diag(H64, np.asarray(prior, np.float64)))
-    tr_q = wsum(quadratic_diag(H64, np.asarray(Q, np.float64))) if Q is not None else np.zeros_like(tr_m)
+    tr_m = wsum(quadratic_diag(H64, np.asarray(prior, np.float64), fast))
+    tr_q = wsum(quadratic_diag(H64, np.asarray(Q, np.float64), fast)) if Q is not None else np.zeros_like(tr_m)
     n_t = onehot.sum(1)
     z = np.zeros_like(dof)
     return FitSplit(e_fit=np.where(ok, e_tot - e_res, z), e_res=np.where(ok, e_res, z), dof=np.where(ok, dof, z),

@@ -270,7 +270,7 @@ class StrongTracking(AdaptiveLaw):
 
     def _plan(self, r, H, R, mask, ctx: EpochContext) -> UpdatePlan:
         has = mask.any(-1)
-        tr = innovation_traces(r, H, ctx.prior, ctx.Q, R, mask)
+        tr = innovation_traces(r, H, ctx.prior, ctx.Q, R, mask, fast=self.fused)
         tr_r = tr.tr_r.astype(np.float64)
         ratio = tr.energy.astype(np.float64) / np.where(has, tr_r, 1.0)
         rho = self._params["rho"]
@@ -280,7 +280,7 @@ class StrongTracking(AdaptiveLaw):
         lam = fading_factor(v * tr_r, tr, self._params["softening"], cfg.lambda_max)
         fs = self._fs
         if cfg.fading_noise == "geometry":
-            split = fit_split(r, H, R, mask, ctx.prior, ctx.Q if ctx.pending else None)
+            split = fit_split(r, H, R, mask, ctx.prior, ctx.Q if ctx.pending else None, fast=self.fused)
             lam, fs = split_fading(split, self._fs, np.where(self._count == 0, 1.0, 1.0 / (1.0 + rho)),
                                    self._params["softening"], cfg.fading_confidence, cfg.lambda_max, cfg.noise_gate, lam)
         lam = np.where(has & ctx.pending, lam, 1.0)
@@ -489,7 +489,7 @@ class MeasurementAdaptiveSTKF(SatelliteNoise, AdaptiveLaw):
         cfg = self.config
         geo = cfg.fading_noise == "geometry"
         has = mask.any(-1)
-        tr = innovation_traces(r, H, ctx.prior, ctx.Q, R, mask)
+        tr = innovation_traces(r, H, ctx.prior, ctx.Q, R, mask, fast=self.fused)
         tr_m, tr_q, tr_r = (a.astype(np.float64) for a in (tr.tr_m, tr.tr_q, tr.tr_r))
         ratio = tr.energy.astype(np.float64) / np.where(has, tr_r, 1.0)
         types = np.where(mask, measurement_groups(H, mask), -1)
@@ -506,11 +506,11 @@ class MeasurementAdaptiveSTKF(SatelliteNoise, AdaptiveLaw):
         fault = acting & (tr_c > self._params["fault_threshold"] * predicted)
         if geo:
             # the snapshot split with the reported R (a common factor per type leaves the fit unchanged)
-            split = fit_split(r, H, R, mask, ctx.prior, ctx.Q if ctx.pending else None)
+            split = fit_split(r, H, R, mask, ctx.prior, ctx.Q if ctx.pending else None, fast=self.fused)
             if self._sat_enabled():  # the split against the current per-satellite noise model
                 sq = np.sqrt(a_model)
                 model = fit_split(r, H, R * sq[:, :, None] * sq[:, None, :], mask, ctx.prior,
-                                  ctx.Q if ctx.pending else None)
+                                  ctx.Q if ctx.pending else None, fast=self.fused)
             else:  # the same split against alpha_(k-1) R
                 model = split.scaled(self._alpha_t)
             # a fault is a jump of the measurement errors: this epoch's residual noise scale against the model
