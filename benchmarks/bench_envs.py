@@ -115,8 +115,11 @@ def _core(env):
     return env.unwrapped.core if hasattr(env, "unwrapped") and hasattr(env.unwrapped, "core") else env.core
 
 
-def bench_env(method, B, steps, episode_s, scenario, transition="exact", warmup=WARMUP_STEPS):
-    """(reset seconds, steps/s, CPU ms per batched step) over ``steps`` timed steps after ``warmup`` ones."""
+def bench_env(method, B, steps, episode_s, scenario, transition="exact", warmup=WARMUP_STEPS, stat="mean"):
+    """(reset seconds, steps/s, CPU ms per batched step) over ``steps`` timed steps after ``warmup`` ones.
+
+    ``stat``: ``'mean'`` (steps/s from the total wall time) or ``'median'`` (from the median wall time of one
+    step: robust to the load spikes of other jobs on a shared machine)."""
     if warmup + steps >= episode_s:  # 1 Hz GNSS in every benchmarked scenario: stay inside one episode
         raise ValueError(f"warmup + steps ({warmup + steps}) must stay below the episode length ({episode_s} epochs)")
     env = _make(method, B, episode_s, scenario, transition)
@@ -127,11 +130,15 @@ def bench_env(method, B, steps, episode_s, scenario, transition="exact", warmup=
     for a in acts[:warmup]:
         env.step(a)
     t0, c0 = time.perf_counter(), time.process_time()
+    ts = []
     for a in acts[warmup:]:
+        t1 = time.perf_counter()
         env.step(a)
+        ts.append(time.perf_counter() - t1)
     dt, dc = time.perf_counter() - t0, time.process_time() - c0
     env.close()
-    return t_reset, B * steps / dt, 1e3 * dc / steps
+    rate = B / float(np.median(ts)) if stat == "median" else B * steps / dt
+    return t_reset, rate, 1e3 * dc / steps
 
 
 class StageTimer:
@@ -347,6 +354,8 @@ def main(argv=None):
     p.add_argument("--batches", nargs="+", type=int, default=None,
                    help="batch sizes (1 = the single env via gym.make; default 1 16 256 1024)")
     p.add_argument("--steps", type=int, default=None, help="timed steps per measurement")
+    p.add_argument("--stat", choices=("mean", "median"), default="mean",
+                   help="steps/s from the total time (mean) or the median step time (robust to load spikes)")
     p.add_argument("--episode-s", type=float, default=60.0, help="episode length [s] (memory: B x IMU samples)")
     p.add_argument("--scenario", default="noise-burst")
     p.add_argument("--no-profile", action="store_true")
@@ -385,7 +394,8 @@ def main(argv=None):
         return
     batches = args.batches or ([1, 16, 256] if args.quick else [1, 16, 256, 1024])
     print(f"navgym env throughput: scenario {args.scenario}, episode {args.episode_s:g} s, "
-          f"{os.cpu_count()} CPUs; one step = one GNSS epoch (100 IMU samples + update)")
+          f"{os.cpu_count()} CPUs; one step = one GNSS epoch (100 IMU samples + update); steps/s from the "
+          f"{'median step time' if args.stat == 'median' else 'total time'}")
 
     def n_steps(B):
         if args.steps:
@@ -414,7 +424,8 @@ def main(argv=None):
                     print(f"{lab:16s} {B:5d} {rb[1]:15.0f} {ra[1]:10.0f} {ra[1] / rb[1]:8.2f}x {rb[2]:14.2f} "
                           f"{ra[2]:9.2f} {rb[0]:15.2f} {ra[0]:7.2f}", flush=True)
                 else:
-                    t_reset, rate, cpu = bench_env(m, B, n_steps(B), args.episode_s, args.scenario, tr)
+                    t_reset, rate, cpu = bench_env(m, B, n_steps(B), args.episode_s, args.scenario, tr,
+                                                   stat=args.stat)
                     print(f"{lab:16s} {B:5d} {t_reset:10.2f} {rate:12.0f} {1e3 * B / rate:9.2f} {cpu:12.2f}",
                           flush=True)
 

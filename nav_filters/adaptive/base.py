@@ -163,10 +163,13 @@ class AdaptiveLaw(FilterForm):
             raise ValueError("inner form does not match P0's shape")
 
     def set_fused(self, on: bool = True) -> bool:
-        """The fused fast path (:meth:`FilterForm.set_fused`) of the inner form. On, and where the inner form
-        has one (``kf``), an epoch's deferred prediction and update run as one compiled call
-        (:meth:`FilterForm.predicted_update`, given the prior ``Phi P Phi^T`` the law already formed); the law's own decisions are unchanged. Returns whether it is on."""
-        self.fused = self.inner.set_fused(on)
+        """The fused fast path (:meth:`FilterForm.set_fused`): the law's own fast kernels (row kernels on
+        parallel chunks, compiled replacements of numpy steps; same decisions to round-off) and, where the
+        inner form has a fused path (``kf``), the epoch's deferred prediction and update as one compiled
+        call (:meth:`FilterForm.predicted_update`, given the prior ``Phi P Phi^T`` the law already formed).
+        Returns True when on (whatever the inner form)."""
+        self.inner.set_fused(on)
+        self.fused = bool(on)
         return self.fused
 
     @property
@@ -271,7 +274,7 @@ class AdaptiveLaw(FilterForm):
             self._ctx = self._open_epoch()
         ctx = self._ctx
         plan = self._plan(r, H, R, mask, ctx)
-        if self.fused:
+        if self.inner.fused:
             # one compiled call (commits nothing when it raises, so ctx.applied stays False for a retry)
             if ctx.pending and not ctx.applied:
                 res = self.inner._predicted_update(ctx.Phi, ctx.Q, r, H, plan.R, plan.mask, fade=plan.fade,

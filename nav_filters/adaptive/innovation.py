@@ -32,14 +32,6 @@ GROUP_NAMES = ("pseudorange", "rate", "other")
 """Measurement groups of :func:`measurement_groups`, in id order."""
 
 
-PARALLEL_MIN_BATCH = 64
-"""Fused fast path (``fast=True``): below this batch size the row kernels run serially."""
-
-
-def _nchunk(B):
-    return min(B, 4 * nb.get_num_threads())
-
-
 def quadratic_diag(H, X, fast: bool = False):
     """``diag(H X H^T)`` for batched ``H`` (B, m, n) and ``X`` (B, n, n): shape (B, m).
 
@@ -99,22 +91,17 @@ class InnovationTraces:
         return self.tr_m + self.tr_q + self.tr_r
 
 
-def innovation_traces(dz, H, prior, Q, R, mask, fast: bool = False) -> InnovationTraces:
+def innovation_traces(dz, H, prior, Q, R, mask) -> InnovationTraces:
     """Innovation energy and the traces of the predicted innovation covariance (seed 003 eqs 12, 21).
 
     Compiled (:func:`_traces_kernel`, structural zeros of H skipped); the parameters, returns and
     equations are documented on its numpy specification :func:`innovation_traces_reference` (agreement
-    test in tests/nav_filters/test_compiled_update.py). ``fast`` (the fused path): the same kernel on row
-    chunks in parallel for B >= :data:`PARALLEL_MIN_BATCH` (the same bits).
+    test in tests/nav_filters/test_compiled_update.py).
     """
     B = dz.shape[0]
     c = np.ascontiguousarray
     out = np.empty((4, B))
-    args = (c(dz), c(H), c(prior), c(prior if Q is None else Q), Q is not None, c(R), c(mask, bool), out)
-    if fast and B >= PARALLEL_MIN_BATCH:
-        _traces_parallel(_nchunk(B), *args)
-    else:
-        _traces_kernel(*args)
+    _traces_kernel(c(dz), c(H), c(prior), c(prior if Q is None else Q), Q is not None, c(R), c(mask, bool), out)
     dt = np.result_type(dz.dtype, H.dtype, prior.dtype)
     tr_m, tr_q, tr_r, energy = (a.astype(dt) for a in out)
     return InnovationTraces(energy=energy, tr_m=tr_m, tr_q=tr_q, tr_r=tr_r, n_used=mask.sum(-1))
@@ -278,28 +265,7 @@ def _geometry_residuals_kernel(dz, H, var, types, n_types, v_out, red_out):
             _geometry_residual_row(dz[b], H[b], var[b], use, v_out[b], red_out[b])
 
 
-@nb.njit(cache=True, parallel=True)
-def _traces_parallel(nchunk, dz, H, prior, Q, with_q, R, mask, out):
-    """:func:`_traces_kernel` on ``nchunk`` row chunks in parallel (each chunk runs the serial kernel)."""
-    B = dz.shape[0]
-    for c in nb.prange(nchunk):
-        lo = c * B // nchunk
-        hi = (c + 1) * B // nchunk
-        _traces_kernel(dz[lo:hi], H[lo:hi], prior[lo:hi], Q[lo:hi], with_q, R[lo:hi], mask[lo:hi], out[:, lo:hi])
-
-
-@nb.njit(cache=True, parallel=True)
-def _geometry_residuals_parallel(nchunk, dz, H, var, types, n_types, v_out, red_out):
-    """:func:`_geometry_residuals_kernel` on ``nchunk`` row chunks in parallel (the same bits per row)."""
-    B = dz.shape[0]
-    for c in nb.prange(nchunk):
-        lo = c * B // nchunk
-        hi = (c + 1) * B // nchunk
-        _geometry_residuals_kernel(dz[lo:hi], H[lo:hi], var[lo:hi], types[lo:hi], n_types, v_out[lo:hi],
-                                   red_out[lo:hi])
-
-
-def geometry_residuals(dz, H, var, types, n_types: int = 2, fast: bool = False):
+def geometry_residuals(dz, H, var, types, n_types: int = 2):
     """Snapshot least-squares residuals of each measurement type: what no common state error can explain.
 
     For each batch row and each type ``t`` (e.g. 0 pseudoranges, 1 pseudorange rates), the rows of that type
@@ -324,17 +290,14 @@ def geometry_residuals(dz, H, var, types, n_types: int = 2, fast: bool = False):
     redundancy : (B, m) ``1 - h_ii`` in [0, 1] (0 where there is none: no more rows than fitted columns).
 
     Compiled (:func:`_geometry_residuals_kernel`); :func:`geometry_residuals_reference` is the numpy
-    specification (agreement test). ``fast`` (the fused path): row chunks in parallel for B >= 64 (same bits).
+    specification (agreement test).
     """
     c = np.ascontiguousarray
     B, m = np.shape(dz)
     v = np.empty((B, m))
     red = np.empty((B, m))
-    args = (c(dz, np.float64), c(H, np.float64), c(var, np.float64), c(types, np.int64), int(n_types), v, red)
-    if fast and B >= PARALLEL_MIN_BATCH:
-        _geometry_residuals_parallel(_nchunk(B), *args)
-    else:
-        _geometry_residuals_kernel(*args)
+    _geometry_residuals_kernel(c(dz, np.float64), c(H, np.float64), c(var, np.float64), c(types, np.int64),
+                               int(n_types), v, red)
     return v, red
 
 
@@ -577,8 +540,7 @@ def fit_split(dz, H, R, mask, prior, Q, n_types: int = 2, fast: bool = False) ->
     dz : (B, m) innovations; H : (B, m, n); R : (B, m, m) measurement covariances (diagonals used);
     mask : (B, m) bool used rows; prior : (B, n, n) ``M = Phi P Phi^T``; Q : (B, n, n) or None;
     n_types : number of types fitted (rows of group >= n_types are left out).
-    fast : the fused path's kernels (:func:`geometry_residuals` on parallel row chunks, the compiled
-        :func:`quadratic_diag`): the same quantities to round-off.
+    fast : the fused path: the compiled :func:`quadratic_diag` (the same quantities to round-off).
 
     Returns
     -------
@@ -588,7 +550,7 @@ def fit_split(dz, H, R, mask, prior, Q, n_types: int = 2, fast: bool = False) ->
     var = np.where(mask, np.diagonal(R, axis1=1, axis2=2).astype(np.float64), 1.0)
     groups = measurement_groups(H, mask)
     types = np.where(groups < n_types, groups, -1)
-    v, red = geometry_residuals(dz, H, var, types, n_types, fast=fast)
+    v, red = geometry_residuals(dz, H, var, types, n_types)
     onehot = (types[..., None] == np.arange(n_types)).astype(np.float64)  # (B, m, T)
     dof = np.einsum("bm,bmt->bt", red, onehot)
     ok = dof > 1e-9

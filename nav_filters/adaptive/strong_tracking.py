@@ -270,7 +270,7 @@ class StrongTracking(AdaptiveLaw):
 
     def _plan(self, r, H, R, mask, ctx: EpochContext) -> UpdatePlan:
         has = mask.any(-1)
-        tr = innovation_traces(r, H, ctx.prior, ctx.Q, R, mask, fast=self.fused)
+        tr = innovation_traces(r, H, ctx.prior, ctx.Q, R, mask)
         tr_r = tr.tr_r.astype(np.float64)
         ratio = tr.energy.astype(np.float64) / np.where(has, tr_r, 1.0)
         rho = self._params["rho"]
@@ -489,7 +489,7 @@ class MeasurementAdaptiveSTKF(SatelliteNoise, AdaptiveLaw):
         cfg = self.config
         geo = cfg.fading_noise == "geometry"
         has = mask.any(-1)
-        tr = innovation_traces(r, H, ctx.prior, ctx.Q, R, mask, fast=self.fused)
+        tr = innovation_traces(r, H, ctx.prior, ctx.Q, R, mask)
         tr_m, tr_q, tr_r = (a.astype(np.float64) for a in (tr.tr_m, tr.tr_q, tr.tr_r))
         ratio = tr.energy.astype(np.float64) / np.where(has, tr_r, 1.0)
         types = np.where(mask, measurement_groups(H, mask), -1)

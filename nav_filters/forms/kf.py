@@ -9,6 +9,13 @@ solves for the gain, structural zeros of H and R skipped; parallel over rows for
 B >= 64). :meth:`KalmanFilter._update_reference` is the same recursion in numpy
 (the readable specification); ``tests/nav_filters/test_kf_form.py`` asserts
 their agreement.
+
+Fused path (``set_fused(True)``, ``NavigatorConfig.fused_update``): :func:`fused_update`
+runs the time update and the Joseph update in one kernel over row chunks, with the
+masked rows left out and ``K H`` formed on H's non-zero columns only (an adaptive law
+hands it its deferred prediction and the prior it formed: :meth:`KalmanFilter.predicted_update`).
+Same equations, different rounding; ``tests/nav_filters/test_fused_update.py`` checks
+it against ``predict`` + :meth:`KalmanFilter._update_reference`.
 """
 from __future__ import annotations
 
