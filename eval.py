@@ -75,6 +75,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--methods", default=",".join(DEFAULT_METHODS),
                    help="comma-separated method specs (the grammar is below)")
     p.add_argument("--reference", default=None, help="method for the paired differences (default: the first)")
+    p.add_argument("--skip-missing", action="store_true",
+                   help="a file pattern of --methods ({scenario} or a glob) that matches no file on a scenario "
+                        "leaves that method out there (listed on stdout, in results.json's config.skipped and in "
+                        "the note) instead of stopping: for policies trained on some of the scenarios only; "
+                        "the reference is never skipped")
     p.add_argument("--episodes", type=int, default=None,
                    help="Monte Carlo episodes per scenario (default 8; experiments: their own default)")
     p.add_argument("--seed", type=int, default=0, help="base seed (default 0)")
@@ -154,15 +159,24 @@ def _scenario_key(s: str, names) -> str:
     return s
 
 
-def _expand(specs: list[str], scenario: str, ref: str) -> list:
+def _expand(specs: list[str], scenario: str, ref: str, skipped: list | None = None) -> list:
     """[(spec, [methods])] of ``specs`` on ``scenario`` (``{scenario}`` and glob patterns expanded); exits
-    with a one-line error for a bad spec, a reference that is not one method, or a label given twice."""
+    with a one-line error for a bad spec, a reference that is not one method, or a label given twice.
+
+    With ``skipped`` (a list; ``--skip-missing``) a spec whose file pattern matches nothing on ``scenario`` is
+    left out and ``{"scenario", "method", "why"}`` appended to ``skipped``; the reference never is."""
     from agents.methods import expand_method_spec
     plan, seen = [], set()
     for spec in specs:
         try:
             ms = expand_method_spec(spec, scenario)
-        except (ValueError, FileNotFoundError) as e:
+        except FileNotFoundError as e:
+            if skipped is None or spec == ref:
+                fail(str(e))
+            skipped.append({"scenario": scenario, "method": spec, "why": str(e)})
+            print(f"skipped on {scenario}: {spec} ({e})", file=sys.stderr)
+            continue
+        except ValueError as e:
             fail(str(e))
         if spec == ref and len(ms) != 1:
             fail(f"--reference {ref!r} must be one method; it matches {len(ms)} files on {scenario!r}")
@@ -215,7 +229,8 @@ def main(argv=None) -> dict:
     ref = args.reference or specs[0]
     if ref not in specs:
         fail(f"--reference {ref!r} is not one of --methods")
-    plan = {s: _expand(specs, s, ref) for s in scenarios}  # scenario -> [(spec, [methods])]
+    skipped = [] if args.skip_missing else None
+    plan = {s: _expand(specs, s, ref, skipped) for s in scenarios}  # scenario -> [(spec, [methods])]
     from agents.methods import is_oracle_label
     first = scenarios[0]
     if any(is_oracle_label(m.label) for m in dict(plan[first])[ref]):
@@ -230,6 +245,9 @@ def main(argv=None) -> dict:
         if fixed_spec is None:
             fail("--headroom needs the optimized fixed parameter: add a 'tuned:<tuning.json>' method to --methods")
         for s in scenarios:
+            if fixed_spec not in dict(plan[s]):
+                fail(f"--headroom: {fixed_spec!r} matches no file on {s!r} (the optimized fixed parameter is "
+                     "needed on every scenario)")
             n = len(dict(plan[s])[fixed_spec])
             if n != 1:
                 fail(f"--headroom: {fixed_spec!r} must be one method; it matches {n} files on {s!r}")
@@ -242,7 +260,8 @@ def main(argv=None) -> dict:
     results = {"scenarios": {}, "seed_groups": {},
                "config": {"episodes": args.episodes, "seed": args.seed, "dtype": args.dtype, "zupt": args.zupt,
                           "goal": _parse_goals(args.goal),
-                          "methods": specs, "reference": ref, "episode_seeds": seeds}}
+                          "methods": specs, "reference": ref, "episode_seeds": seeds,
+                          **({"skipped": skipped} if skipped else {})}}
     timing = {"note": "wall-clock figures of this run (they vary between runs; results.json holds the rest)"}
     for s in scenarios:
         results["config"].setdefault("reference_labels", {})[s] = dict(plan[s])[ref][0].label
@@ -666,6 +685,14 @@ def _trained_on(results: dict) -> list[str]:
     return ["## What the tuned and learned methods were trained on", "", *items, ""] if items else []
 
 
+def _skipped(results: dict) -> list[str]:
+    """The note's list of methods left out of a scenario by ``--skip-missing`` (no file there)."""
+    items = [f"- `{k['scenario']}`: `{k['method']}` ({k['why']})" for k in results["config"].get("skipped", [])]
+    return ["## Methods not run on every scenario", "",
+            "Left out where their file pattern matches nothing (`--skip-missing`): not trained there.", "",
+            *items, ""] if items else []
+
+
 def write_note(results: dict, path: Path, out: Path, cmd: str) -> None:
     """A Markdown results note generated from results.json (never typed by hand)."""
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -677,7 +704,7 @@ def write_note(results: dict, path: Path, out: Path, cmd: str) -> None:
              "as a pattern over training seeds has a row per seed and a pooled row (the CI resamples episodes, "
              "each with all its seeds).", "",
              format_table(results), "", "## Reading", "", *reading(results, results["config"].get("goal")), "",
-             *_trained_on(results),
+             *_trained_on(results), *_skipped(results),
              *(["## Headroom", "", HEADROOM_INTRO, "", format_headroom(results["headroom"]), ""]
                if "headroom" in results else []),
              f"Plots and raw numbers: `{out}` (results.json, results.csv, *.png).", ""]

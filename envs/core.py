@@ -27,6 +27,7 @@ from nav_filters.rows import check_row_pairs, copied_array, copy_dataclass_rows,
 
 from .config import EnvConfig, ParamSpec
 from .episodes import navigator_for, satellite_keys
+from .aiding import odometer_rows, with_rows
 from .zupt_source import STILL_SPEED_MPS, ZuptSource  # noqa: F401  (STILL_SPEED_MPS re-exported)
 
 #: World seeds the environments draw at reset, ``[low, high)``: kept apart from the small seeds that
@@ -297,6 +298,7 @@ class TuningCore:
         self.sat_vel = np.zeros((B, M, C, 3))
         self.pr, self.prr, self.pr_sigma, self.prr_sigma = (np.zeros((B, M, C)) for _ in range(4))
         self.gmask = np.zeros((B, M, C), bool)
+        self.odo = np.full((B, M), np.nan)  # odometer readings [m/s] (scenarios with an odometer)
         self.sat_keys = np.full((B, M, C), -1, np.int64)
         self.truth_r = np.zeros((B, M, 3))
         self.truth_Cne = np.zeros((B, M, 3, 3))
@@ -322,6 +324,8 @@ class TuningCore:
         if g.prr is not None:
             self.prr[rows], self.prr_sigma[rows] = g.prr, g.prr_sigma
         self.gmask[rows] = g.mask
+        if world.odometer is not None:
+            self.odo[rows] = world.odometer
         self.sat_keys[rows] = satellite_keys(g)
         ep = world.epoch_idx
         self.truth_r[rows] = tr.r_e[:, ep]
@@ -461,6 +465,9 @@ class TuningCore:
             if nav is self.nav:  # the detector runs once per step; a reference navigator reuses its decisions
                 self._zflags = self._zupt.decide(self.f[sel], self.w[sel], self.truth_still_n[sel])
             extra, zflag = self._zupt.block(nav, self.w[sel], self._zflags, self.dt)
+        odo_model = getattr(self.scenario, "odometer", None)  # a recorded data set's scenario has none
+        if odo_model is not None:  # the scenario's wheel odometer + NHC (envs.aiding)
+            extra = with_rows(extra, odometer_rows(nav, self.odo[rows, jj], odo_model))
         res, gdop = nav.update_gnss(*g, extra=extra, sat_keys=self.sat_keys[rows, jj])
         err = nav.r - self.truth_r[rows, jj]
         ned = (self.truth_Cne[rows, jj] @ err[..., None])[..., 0]
@@ -533,7 +540,7 @@ class TuningCore:
 
     # -------------------------------------------------------------- branching
     WORLD_ARRAYS = ("f", "w", "sat_pos", "sat_vel", "pr", "prr", "pr_sigma", "prr_sigma", "gmask", "truth_r",
-                    "truth_Cne", "truth_still", "truth_still_n", "origin", "origin_Cne", "sat_keys")
+                    "truth_Cne", "truth_still", "truth_still_n", "origin", "origin_Cne", "sat_keys", "odo")
     """Per-row world arrays (a function of the row's world seed: rows with equal seeds hold equal worlds)."""
     SHARED_ATTRS = frozenset({"config", "specs", "scenario", "epoch_idx", "default_action", "frame_low",
                               "frame_high", "obs_low", "obs_high", "nav", "ref", "seeds", "_zupt", "_last_res"})

@@ -19,6 +19,7 @@ from nav_filters.error_model import BA, BG, CLK, DRIFT, N_STATES, POS, VEL, ATT,
 from nav_filters.navigator import Navigator, NavigatorConfig
 
 from .sim.world import World
+from .aiding import odometer_rows, with_rows
 from .zupt_source import STILL_SPEED_MPS, ZuptSource
 
 
@@ -168,6 +169,8 @@ def run_episodes(world: World, method: str = "kf", dtype="float64", progress=Non
             if source.enabled:
                 decisions = source.decide(f_all[:, sl], w_all[:, sl], None if still is None else still[:, sl])
                 extra, zflag[:, j] = source.block(nav, w_all[:, sl], decisions, dt)
+        if world.odometer is not None:  # the scenario's wheel odometer + NHC (envs.aiding)
+            extra = with_rows(extra, odometer_rows(nav, world.odometer[:, j], world.scenario.odometer))
         prr = None if gnss.prr is None else gnss.prr[:, j]  # recorded data may have no Doppler
         prr_sigma = None if gnss.prr_sigma is None else gnss.prr_sigma[:, j]
         res, g = nav.update_gnss(gnss.sat_pos[:, j], gnss.sat_vel[:, j], gnss.pr[:, j], prr,

@@ -63,11 +63,13 @@ import numpy as np
 
 from earth import ecef_to_geodetic
 from earth.wgs84 import C_en
-from nav_filters.constraints import nhc, odometer, stack_measurements
 
+from .aiding import odometer_rows
 from .episodes import EpisodeLog, navigator_for, run_episodes, satellite_keys
 from .json_io import jsonable
 from .sim.gnss import GnssEvents
+from .sim.odometer import SEED003_ODOMETER, OdometerModel
+from .sim.odometer import simulate_odometer as _simulate_odometer
 from .sim.scenarios import get_scenario
 from .sim.world import World, generate_world
 from .worlds import make_world
@@ -162,42 +164,6 @@ east and north velocity error [m/s]."""
 SEED003_METHODS = ("kf", "stkf", "ma-stkf")
 
 
-@dataclass(frozen=True)
-class OdometerModel:
-    """Simulated odometer and NHC used for the seed003 GNSS/INS/ODO runs.
-
-    Attributes
-    ----------
-    scale_error : true odometer scale-factor error (seed 003 Table 1: 0.05 % -> 5e-4).
-    noise_mps : true white noise of a speed reading [m/s].
-    sigma_mps : odometer standard deviation the filter assumes [m/s] (covers noise and scale error).
-    nhc_sigma_mps : lateral / vertical NHC standard deviation the filter assumes [m/s].
-    """
-
-    scale_error: float = 5e-4
-    noise_mps: float = 0.05
-    sigma_mps: float = 0.1
-    nhc_sigma_mps: float = 0.1
-
-    def __post_init__(self):
-        for name in ("scale_error", "noise_mps", "sigma_mps", "nhc_sigma_mps"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                raise ValueError(f"OdometerModel.{name} must be a finite number, got {v!r}")
-        if self.noise_mps < 0:
-            raise ValueError(f"OdometerModel.noise_mps must be >= 0, got {self.noise_mps!r}")
-        for name in ("sigma_mps", "nhc_sigma_mps"):
-            if getattr(self, name) <= 0:
-                raise ValueError(f"OdometerModel.{name} must be > 0, got {getattr(self, name)!r}")
-
-
-SEED003_ODOMETER = OdometerModel()
-"""Odometer of the seed003 GNSS/INS/ODO variant (speed and NHC rows at every 1 Hz epoch, also in outages)."""
-
-_ODOMETER_STREAM = 101
-"""Random stream id of the simulated odometer noise (apart from envs.sim.rng.STREAMS)."""
-
-
 # ======================================================================================
 # running
 # ======================================================================================
@@ -255,15 +221,9 @@ def _from_log(world: World, log: EpisodeLog) -> Run:
 
 
 def simulate_odometer(world: World, model: OdometerModel = SEED003_ODOMETER) -> np.ndarray:
-    """(B, M) odometer forward-speed readings at the GNSS epochs [m/s]: true speed x (1 + scale error) + noise.
-
-    Row i draws its noise only from ``seeds[i]`` (stream :data:`_ODOMETER_STREAM`).
-    """
-    speed = world.truth.speed[:, world.epoch_idx]
-    M = speed.shape[1]
-    noise = np.stack([np.random.default_rng(np.random.SeedSequence(s, spawn_key=(_ODOMETER_STREAM,))).normal(0.0, 1.0, M)
-                      for s in world.seeds])
-    return speed * (1.0 + model.scale_error) + model.noise_mps * noise
+    """(B, M) odometer forward-speed readings of ``world`` at the GNSS epochs [m/s] for ``model``
+    (:func:`envs.sim.odometer.simulate_odometer`; equal to ``world.odometer`` when ``model`` is the scenario's)."""
+    return _simulate_odometer(world.truth.speed[:, world.epoch_idx], world.seeds, model)
 
 
 def run_navigation(world: World, method: str = "kf", dtype="float64", per_sample_predict: bool = False,
@@ -280,7 +240,9 @@ def run_navigation(world: World, method: str = "kf", dtype="float64", per_sample
         per epoch. Same result in exact arithmetic as the default; different cost.
     odometer_model : if given, fuse an odometer forward-speed row and the two NHC rows
         (:mod:`nav_filters.constraints`) at every GNSS epoch, also during GNSS outages (seed paper 003's
-        SINS/GNSS/ODO sensor set, with the odometer in velocity form).
+        SINS/GNSS/ODO sensor set, with the odometer in velocity form; :func:`envs.aiding.odometer_rows`).
+        ``world.odometer`` (the scenario's own sensor set, which :func:`envs.episodes.run_episodes` and the
+        envs fuse) is not read: the experiment compares the two sensor sets on the same worlds.
 
     Returns
     -------
@@ -311,9 +273,7 @@ def run_navigation(world: World, method: str = "kf", dtype="float64", per_sample
             k = ep[j]
         extra = None
         if odo is not None:
-            extra = stack_measurements(
-                odometer(nav.v, nav.C, odo[:, j], odometer_model.sigma_mps, np.ones(B, bool), dtype=nav.dtype),
-                nhc(nav.v, nav.C, odometer_model.nhc_sigma_mps, odometer_model.nhc_sigma_mps, dtype=nav.dtype))
+            extra = odometer_rows(nav, odo[:, j], odometer_model)
         prr = None if gnss.prr is None else gnss.prr[:, j]
         prr_sigma = None if gnss.prr_sigma is None else gnss.prr_sigma[:, j]
         nav.update_gnss(gnss.sat_pos[:, j], gnss.sat_vel[:, j], gnss.pr[:, j], prr, gnss.pr_sigma[:, j], prr_sigma,

@@ -8,12 +8,15 @@
 # docs/headroom.md holds all nine scenarios (the default SCENARIOS), run with the consensus Sage-Husa law and the
 # strong-tracking laws that fade on state events: 49 minutes on 2 cores shared with two training runs (tuning
 # 7 min, eval 42 min; 37 minutes on 2 free cores with the earlier law). Set PY to use another interpreter,
-# SCENARIOS to run a subset (the note then holds only that subset).
+# SCENARIOS to run a subset (the note then holds only that subset), NOTE and OUT for the note and the results
+# folder (defaults docs/headroom.md, results/headroom).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 if [ -z "${PY:-}" ]; then bash scripts/setup.sh; PY=.venv/bin/python; fi
 EPISODES=${EPISODES:-32}
 N_TRAIN=${N_TRAIN:-32}
+NOTE=${NOTE:-docs/headroom.md}
+OUT=${OUT:-results/headroom}
 ENV=GnssIns/SageHusa-v0
 SCENARIOS=${SCENARIOS:-"open-sky urban noise-burst outage urban-transition noise-mismatch regime-switch seed000-sim seed003-sim"}
 ARGS=()
@@ -28,4 +31,4 @@ done
 K="$ENV[segment_s=10,lookahead_s=20,n=7]"
 $PY eval.py "${ARGS[@]}" --episodes "$EPISODES" --seed 2 --no-plots --headroom \
   --methods "tuned:runs/headroom/{scenario}/tuning.json,kf,sage-husa,sage-husa-r,sage-husa-group,stkf,ma-stkf,rule:$ENV,oracle-r,oracle-nlos-excluded,oracle-schedule:$K,best-per-episode:$ENV[n=7],crossfit-schedule:$K" \
-  --reference "tuned:runs/headroom/{scenario}/tuning.json" --out results/headroom --note docs/headroom.md
+  --reference "tuned:runs/headroom/{scenario}/tuning.json" --out "$OUT" --note "$NOTE"

@@ -12,8 +12,9 @@ from typing import Sequence
 
 import numpy as np
 
-STREAMS = {"trajectory": 1, "imu": 2, "gnss": 3, "init": 4, "events": 5, "vibration": 6}
-"""Fixed stream ids: adding a component never shifts another component's draws."""
+STREAMS = {"trajectory": 1, "imu": 2, "gnss": 3, "init": 4, "events": 5, "vibration": 6, "odometer": 101}
+"""Fixed stream ids: adding a component never shifts another component's draws (``odometer``: 101, the id
+the seed003 experiment drew its odometer from before the odometer became part of the world)."""
 
 
 def as_seeds(seeds) -> list[int]:

@@ -18,7 +18,8 @@ name               length  IMU        world
                                       initial errors
 ``seed003-sim``    700 s   seed003    seed paper 003 Table 1: start 36 N 100 E heading 90 deg, stationary /
                                       accelerate / decelerate / corner, outages 100-300 s and 550-650 s,
-                                      re-acquisition noise (x5 decaying over 10 s) after each outage
+                                      re-acquisition noise (x5 decaying over 10 s) after each outage;
+                                      the paper's sensor set: GNSS + odometer (0.05 % scale error) + NHC
 ``urban-transition`` 300 s industrial seed paper 000 sec. 5.2 setting: stop-and-go drive, open sky
                                       alternating at random with street canyon / tree cover / overpass
                                       zones; smartLoc-measured NLOS probability, bias and C/N0; re-acquisition
@@ -77,6 +78,7 @@ from .constellation import Constellation
 from .events import NoiseRegimes, Reacquisition, SigmaMismatch, UrbanZones
 from .gnss import GnssEvents, ReceiverConfig
 from .imu import IMU_GRADES, ImuEvents, Vibration
+from .odometer import SEED003_ODOMETER, OdometerModel
 from .trajectory import Accelerate, Cruise, Decelerate, Motion, Static, Turn, random_drive
 
 DRIVE_STYLES = ("urban", "highway", "open")
@@ -141,6 +143,8 @@ class Scenario:
     constellation : satellite constellation.
     events : GNSS degradations (outages, noise bursts, NLOS, street canyons, random events).
     imu_events : random IMU bias steps and rough-road vibration regimes, or None.
+    odometer : a wheel odometer (:class:`~envs.sim.odometer.OdometerModel`) whose forward speed and the
+        non-holonomic constraints every filter fuses at each GNSS epoch, also in outages; or None (GNSS only).
     initial : initial-estimate errors.
     description : one line for tables and docs.
     """
@@ -159,6 +163,7 @@ class Scenario:
     initial: InitialErrors = field(default_factory=InitialErrors)
     description: str = ""
     imu_events: ImuEvents | None = None
+    odometer: OdometerModel | None = None
 
     def __post_init__(self):
         o = "Scenario"
@@ -194,6 +199,8 @@ class Scenario:
                 raise ValueError(f"{o}.{name} must be a {typ.__name__}, got {type(getattr(self, name)).__name__}")
         if self.imu_events is not None and not isinstance(self.imu_events, ImuEvents):
             raise ValueError(f"{o}.imu_events must be an ImuEvents or None, got {type(self.imu_events).__name__}")
+        if self.odometer is not None and not isinstance(self.odometer, OdometerModel):
+            raise ValueError(f"{o}.odometer must be an OdometerModel or None, got {type(self.odometer).__name__}")
 
     @property
     def samples_per_epoch(self) -> int:
@@ -253,11 +260,12 @@ def _presets() -> dict[str, Scenario]:
                                 imu_grade="seed003", drive=_seed003_motion(),
                                 events=GnssEvents(outages=((100.0, 300.0), (550.0, 650.0)),
                                                   reacquisition=Reacquisition()),
+                                odometer=SEED003_ODOMETER,
                                 initial=InitialErrors(position_sigma_m=(0.0175, 0.0175, 1.0),
                                                       velocity_sigma_mps=(0.03, 0.03, 0.03),
                                                       attitude_sigma_rad=(math.radians(1.0),) * 3),
-                                description="seed paper 003 Table 1 simulation with outages 100-300 s, 550-650 s "
-                                            "and re-acquisition noise after them"),
+                                description="seed paper 003 Table 1 simulation with outages 100-300 s, 550-650 s, "
+                                            "re-acquisition noise after them, odometer + NHC"),
         "urban-transition": Scenario(name="urban-transition", drive="urban",
                                      events=GnssEvents(zones=UrbanZones(), reacquisition=Reacquisition()),
                                      description="open sky alternating at random with street canyon, tree cover "

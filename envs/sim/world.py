@@ -15,6 +15,7 @@ from earth import C_en, exp_so3
 from . import events as ev
 from .gnss import GnssData, simulate_gnss
 from .imu import IMU_GRADES, ImuData, ImuEvents, ImuGrade, simulate_imu
+from .odometer import simulate_odometer
 from .rng import as_seeds, row_generators
 from .scenarios import Scenario, get_scenario
 from .trajectory import Truth, generate_truth
@@ -55,6 +56,8 @@ class World:
     truth : truth at the IMU rate (N samples); imu : measured IMU (N samples).
     gnss : GNSS epochs (M); epoch_idx : (M,) IMU sample index of each epoch.
     init : the navigator's initial estimate at t = 0.
+    odometer : (B, M) odometer forward-speed readings at the GNSS epochs [m/s] when the scenario has an
+        odometer (:mod:`envs.sim.odometer`), else None.
     """
 
     scenario: Scenario
@@ -64,6 +67,7 @@ class World:
     gnss: GnssData
     epoch_idx: np.ndarray
     init: InitialEstimate
+    odometer: np.ndarray | None = None
 
     @property
     def batch_size(self) -> int:
@@ -156,4 +160,6 @@ def generate_world(scenario, seeds, dtype=np.float64) -> World:
     if scen.imu_events is not None:
         gnss = replace(gnss, event_mask=gnss.event_mask | imu_event_bits(gnss.t, imu, scen.imu_events))
     init = initial_estimate(scen, truth, gnss, row_generators(seeds, "init"))
-    return World(scenario=scen, seeds=seeds, truth=truth, imu=imu, gnss=gnss, epoch_idx=epoch_idx, init=init)
+    odo = None if scen.odometer is None else simulate_odometer(truth.speed[:, epoch_idx], seeds, scen.odometer)
+    return World(scenario=scen, seeds=seeds, truth=truth, imu=imu, gnss=gnss, epoch_idx=epoch_idx, init=init,
+                 odometer=odo)

@@ -488,7 +488,9 @@ class FitSplit:
     tr_m : ``sum (H M H^T)_ii / R_ii`` with ``M`` the (unfaded) propagated covariance.
     tr_q : ``sum (H Q H^T)_ii / R_ii``.
     n : used rows of the type (also where there is no split).
-    All but ``n`` are 0 where the type has no split.
+    n_other : (B,) used rows of the 17-state model outside the fitted types (aiding rows: odometer, NHC, ZUPT);
+        0 for a model other than the 17-state one.
+    All but ``n`` and ``n_other`` are 0 where the type has no split.
     """
 
     e_fit: np.ndarray
@@ -498,6 +500,7 @@ class FitSplit:
     tr_m: np.ndarray
     tr_q: np.ndarray
     n: np.ndarray
+    n_other: np.ndarray
 
     @property
     def noise_scale(self) -> np.ndarray:
@@ -510,7 +513,7 @@ class FitSplit:
         """The same split against the noise model ``factors_t R`` (B, T): every weighted sum divided by the
         type's factor (a common factor of a type leaves its fit, dof and fitted columns unchanged)."""
         return FitSplit(e_fit=self.e_fit / factors, e_res=self.e_res / factors, dof=self.dof, p=self.p,
-                        tr_m=self.tr_m / factors, tr_q=self.tr_q / factors, n=self.n)
+                        tr_m=self.tr_m / factors, tr_q=self.tr_q / factors, n=self.n, n_other=self.n_other)
 
     @property
     def pooled_noise_scale(self) -> np.ndarray:
@@ -565,6 +568,8 @@ def fit_split(dz, H, R, mask, prior, Q, n_types: int = 2, fast: bool = False) ->
     tr_m = wsum(quadratic_diag(H64, np.asarray(prior, np.float64), fast))
     tr_q = wsum(quadratic_diag(H64, np.asarray(Q, np.float64), fast)) if Q is not None else np.zeros_like(tr_m)
     n_t = onehot.sum(1)
+    n_other = ((groups >= n_types).sum(1) if H64.shape[2] == N_STATES else np.zeros(groups.shape[0], np.int64))
     z = np.zeros_like(dof)
     return FitSplit(e_fit=np.where(ok, e_tot - e_res, z), e_res=np.where(ok, e_res, z), dof=np.where(ok, dof, z),
-                    p=np.where(ok, n_t - dof, z), tr_m=np.where(ok, tr_m, z), tr_q=np.where(ok, tr_q, z), n=n_t)
+                    p=np.where(ok, n_t - dof, z), tr_m=np.where(ok, tr_m, z), tr_q=np.where(ok, tr_q, z), n=n_t,
+                    n_other=n_other)

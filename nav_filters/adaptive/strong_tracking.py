@@ -137,8 +137,10 @@ def split_fading(split, stats_prev, weight, softening, confidence, lambda_max, n
     smoothed alike: ``g = e_res / dof`` is the noise scale of the recent epochs.
 
     No fading while ``g = e_res / dof`` (smoothed) exceeds ``noise_gate`` (a measurement event); an epoch
-    with pseudoranges or rates but no split does not fade (it cannot tell a state error from noise); an
-    epoch with neither takes ``printed`` (eqs 19-21 as written).
+    with pseudoranges, rates or aiding rows of the 17-state model (odometer, NHC, ZUPT: ``split.n_other``) but
+    no split does not fade (it cannot tell a state error from noise; on seed003-sim's odometer-only outage
+    epochs the printed form faded on noise: MA-STKF 3.49 -> 2.97 m, kf 2.81, 16 development episodes); an
+    epoch with none of them (rows of another model) takes ``printed`` (eqs 19-21 as written).
 
     Parameters
     ----------
@@ -174,7 +176,7 @@ def split_fading(split, stats_prev, weight, softening, confidence, lambda_max, n
     lam = np.clip(lam, 1.0, lambda_max)
     noise = np.where(dof_s > 0, e_res / np.where(dof_s > 0, dof_s, 1.0), 1.0)
     lam = np.where(noise > noise_gate, 1.0, lam)
-    typed = (split.n > 0).any(1)
+    typed = (split.n > 0).any(1) | (split.n_other > 0)
     return np.where(has, lam, np.where(typed, 1.0, printed)), stats
 
 
@@ -216,8 +218,9 @@ class StrongTrackingConfig:
         error can explain, with the noise level its snapshot-fit residuals estimate, as a lower confidence
         bound (:func:`split_fading`), so that the law fades on state events and not on measurement-noise
         events; ``'reported'``: eqs 19-21 as printed (``N_k = C_k - H Q H^T - beta R_k``). An epoch with
-        pseudoranges or rates but no redundancy does not fade (it cannot tell a state error from noise);
-        one with neither (other measurement rows only) uses the printed form.
+        pseudoranges, rates or aiding rows of the 17-state model (odometer, NHC, ZUPT) but no redundancy does
+        not fade (it cannot tell a state error from noise); one with none of them (another model's rows) uses
+        the printed form.
     fading_confidence : kappa of :func:`split_fading` (the fading is the lower kappa-sigma bound; 0: the
         point estimate).
     noise_gate : ``fading_noise='geometry'``: no fading while the smoothed residual noise scale exceeds this

@@ -33,6 +33,7 @@ def _row(d, b):
     ("GnssIns/SageHusa-v0", {"method": "svd-asrkf", "reward": "advantage", "history": 3}),
     ("GnssIns/STKF-v0", {}),
     ("GnssIns/MASTKF-v0", {"zupt": "truth"}),
+    ("GnssIns/STKF-v0", {"scenario": "seed003-sim", "episode_length_s": 40.0}),  # odometer rows (world array)
 ])
 def test_core_copy_rows_continues_bit_identically(env_id, kw):
     """Rows 0 <- 1 and 2 <- 0 (overlapping, different worlds) continue exactly like the uncopied rows."""

@@ -261,3 +261,29 @@ def test_ma_stkf_geometry_fault_test_rejects_a_bad_satellite_not_a_state_jump():
     assert rej_r[80].all()
     rej_f, _ = run("geometry", "fault")
     assert rej_f[80].all() and rej_f[81].sum() == 0
+
+
+def test_stkf_geometry_does_not_fade_on_aiding_rows_alone():
+    """An epoch of the 17-state model with only aiding rows (odometer / NHC / ZUPT: velocity rows, no clock
+    column) has no split: the geometry law does not fade (it cannot tell a state error from noise), whereas
+    eqs 19-21 as printed fade on the same 5 m/s innovation; rows of another model keep the printed form."""
+    from nav_filters.error_model import VEL
+    B, T = 4, 12
+
+    def last_lambda(n, noise):
+        rng = np.random.default_rng(0)
+        H = np.zeros((B, 3, n))
+        H[:, np.arange(3), VEL.start + np.arange(3)] = 1.0
+        P0 = np.broadcast_to(np.eye(n) * 0.01, (B, n, n)).copy()
+        f = StrongTracking(P0, config=StrongTrackingConfig(fading_noise=noise))
+        Q = np.broadcast_to(np.eye(n) * 1e-6, (B, n, n))
+        for k in range(T):
+            f.predict(np.broadcast_to(np.eye(n), (B, n, n)), Q)
+            z = 0.1 * rng.normal(size=(B, 3)) + (5.0 if k == T - 1 else 0.0)
+            f.update(z, H, np.full((B, 3), 0.01))
+        return f.adaptive_state()["lambda"]
+
+    assert (last_lambda(N_STATES, "reported") > 10).all()
+    np.testing.assert_array_equal(last_lambda(N_STATES, "geometry"), 1.0)
+    np.testing.assert_allclose(last_lambda(9, "geometry"), last_lambda(9, "reported"))
+    assert (last_lambda(9, "geometry") > 10).all()

@@ -275,3 +275,31 @@ def test_same_seed_same_results_bytes_apart_from_the_timing_keys(tmp_path):
     assert timing["wall_time_s"] > 0 and "filter_time_per_epoch_s" in timing["scenarios"]["seed000-sim"]["methods"]["kf"]
     from envs.json_io import dumps
     assert dumps({"x": [math.nan, math.inf, -math.inf, 1.5]}) == '{"x": [null, null, null, 1.5]}'
+
+
+def test_skip_missing_leaves_a_method_out_where_it_has_no_file(tmp_path):
+    """--skip-missing: a pattern without a file on one scenario gives no row there, says so in results.json
+    and the note; without the flag it is a one-line error; the optimized fixed parameter of --headroom and
+    the reference are never skipped."""
+    import json as _json
+    d = tmp_path / "runs" / "urban" / "t0"
+    d.mkdir(parents=True)
+    (d / "tuning.json").write_text(_json.dumps({"method": "sage-husa", "param": "b", "best": 0.9}))
+    tuned = f"tuned:{tmp_path}/runs/{{scenario}}/t*/tuning.json"
+    common = ("--scenario", "urban", "--scenario", "open-sky", "--episodes", "1", "--no-plots")
+    p = run_eval(*common, "--methods", f"kf,{tuned}", "--out", str(tmp_path / "a"))
+    assert p.returncode == 2 and "no file matches" in p.stderr and "Traceback" not in p.stderr
+    out = tmp_path / "b"
+    p = run_eval(*common, "--methods", f"kf,{tuned}", "--skip-missing", "--out", str(out),
+                 "--note", str(out / "NOTE.md"))
+    assert p.returncode == 0, p.stderr
+    res = _json.loads((out / "results.json").read_text())
+    assert set(res["scenarios"]["urban"]) == {"kf", tuned.replace("t*", "t0")}
+    assert set(res["scenarios"]["open-sky"]) == {"kf"}
+    assert [(k["scenario"], k["method"]) for k in res["config"]["skipped"]] == [("open-sky", tuned)]
+    note = (out / "NOTE.md").read_text()
+    assert "## Methods not run on every scenario" in note and f"- `open-sky`: `{tuned}`" in note
+    p = run_eval(*common, "--methods", f"{tuned},kf", "--skip-missing", "--out", str(tmp_path / "c"))
+    assert p.returncode == 2 and "no file matches" in p.stderr
+    p = run_eval(*common, "--methods", f"kf,{tuned}", "--skip-missing", "--headroom", "--out", str(tmp_path / "d"))
+    assert p.returncode == 2 and "matches no file on 'open-sky'" in p.stderr and "Traceback" not in p.stderr
