@@ -20,9 +20,13 @@ Prints, in one run:
   of the nominal state), ``dop``, ``observation`` (the env's observation frame) and ``env glue`` (the
   rest of ``TuningCore.step`` and the env wrappers: actions, parameters, errors, rewards, infos).
 
-Each method runs in the transition modes of ``--transitions``: ``exact`` (the default of every env id: the
-per-sample transitions composed in the IMU kernel) and ``averaged`` (``exact_transition=False``: the epoch's
-averaged error dynamics, :mod:`nav_filters.averaged_transition`), rows ``sage-husa`` and ``sage-husa avg``.
+Each method runs in the modes of ``--transitions``: ``exact`` (the default of every env id: the per-sample
+transitions composed in the IMU kernel), ``averaged`` (``exact_transition=False``: the epoch's averaged error
+dynamics, :mod:`nav_filters.averaged_transition`) and ``fused`` (``exact_transition=False,
+fused_update=True``: also the fused compiled predict + Joseph update, :func:`nav_filters.forms.kf.fused_update`,
+and the adaptive laws' fast kernels), rows ``sage-husa``, ``sage-husa avg`` and ``sage-husa fused``.
+``--cpu-profile`` gives the stage profile in process CPU time (all threads) instead of wall time: on a
+machine shared with other jobs the wall time of a stage swings with their load, its CPU time much less.
 
 ``--compare DIR`` runs every cell twice, in this tree and in the source tree ``DIR`` (e.g. a checkout of
 an earlier commit), alternately in fresh processes, and prints both with the speed-up: before/after
@@ -30,8 +34,8 @@ figures measured side by side under the same machine load. The *before* cell of 
 exact transition (an earlier tree may not have the option), so the ``avg`` rows read as "before: the exact
 default of DIR, after: the averaged transition of this tree".
 
-``--accuracy`` prints instead the accuracy table of the averaged transition against the exact one on every
-built-in scenario, paired episodes (:mod:`transition_accuracy`, a few minutes); ``--filterpy`` the
+``--accuracy`` prints instead the accuracy table of the fast modes (averaged, fused) against the exact one on
+every built-in scenario, paired episodes (:mod:`transition_accuracy`, a few minutes); ``--filterpy`` the
 side-by-side figure against filterpy's plain ``KalmanFilter`` loop (:mod:`filterpy_baseline`): filterpy
 epochs/s against navgym row-epochs/s, both per CPU second (per core), in one run.
 
@@ -41,6 +45,7 @@ Usage::
                                     [--steps N] [--episode-s 60] [--no-profile] [--profile-only]
                                     [--transitions exact averaged] [--compare DIR]
     python benchmarks/bench_envs.py --accuracy [--accuracy-episodes 24] [--accuracy-max-s 700]
+                                    [--accuracy-scenarios urban ...] [--accuracy-nees-runs 20]
     python benchmarks/bench_envs.py --filterpy [--batches 1 1024]
 
 ``--quick``: B = 1, 16, 256, fewer steps, profile at B = 1 and 256 (a minute or two).
@@ -84,18 +89,23 @@ def _actions(space, n, seed=0):
     return rng.uniform(-1, 1, size=(n,) + space.shape).astype(np.float32)
 
 
-TRANSITIONS = ("exact", "averaged")
-"""Transition modes: the env default (``exact``) and ``exact_transition=False`` (``averaged``)."""
+TRANSITIONS = ("exact", "averaged", "fused")
+"""Modes: the env default (``exact``), ``exact_transition=False`` (``averaged``) and ``exact_transition=False,
+fused_update=True`` (``fused``: also the fused compiled predict + Joseph update and the parallel law kernels)."""
+
+_SHORT = {"exact": "", "averaged": " avg", "fused": " fused"}
 
 
 def _label(method, transition):
-    return method if transition == "exact" else f"{method} avg"
+    return method + _SHORT[transition]
 
 
 def _make(method, B, episode_s, scenario, transition="exact"):
     kw = dict(method=method, episode_length_s=float(episode_s), scenario=scenario)
     if transition != "exact":  # only passed when needed: an earlier tree (--compare) has no such argument
         kw["exact_transition"] = False
+    if transition == "fused":
+        kw["fused_update"] = True
     if B == 1:
         return gym.make(METHOD_ENV[method], **kw)
     return gym.make_vec(METHOD_ENV[method], num_envs=B, vectorization_mode="vector_entry_point", **kw)
@@ -105,8 +115,11 @@ def _core(env):
     return env.unwrapped.core if hasattr(env, "unwrapped") and hasattr(env.unwrapped, "core") else env.core
 
 
-def bench_env(method, B, steps, episode_s, scenario, transition="exact", warmup=WARMUP_STEPS):
-    """(reset seconds, steps/s, CPU ms per batched step) over ``steps`` timed steps after ``warmup`` ones."""
+def bench_env(method, B, steps, episode_s, scenario, transition="exact", warmup=WARMUP_STEPS, stat="mean"):
+    """(reset seconds, steps/s, CPU ms per batched step) over ``steps`` timed steps after ``warmup`` ones.
+
+    ``stat``: ``'mean'`` (steps/s from the total wall time) or ``'median'`` (from the median wall time of one
+    step: robust to the load spikes of other jobs on a shared machine)."""
     if warmup + steps >= episode_s:  # 1 Hz GNSS in every benchmarked scenario: stay inside one episode
         raise ValueError(f"warmup + steps ({warmup + steps}) must stay below the episode length ({episode_s} epochs)")
     env = _make(method, B, episode_s, scenario, transition)
@@ -117,18 +130,24 @@ def bench_env(method, B, steps, episode_s, scenario, transition="exact", warmup=
     for a in acts[:warmup]:
         env.step(a)
     t0, c0 = time.perf_counter(), time.process_time()
+    ts = []
     for a in acts[warmup:]:
+        t1 = time.perf_counter()
         env.step(a)
+        ts.append(time.perf_counter() - t1)
     dt, dc = time.perf_counter() - t0, time.process_time() - c0
     env.close()
-    return t_reset, B * steps / dt, 1e3 * dc / steps
+    rate = B / float(np.median(ts)) if stat == "median" else B * steps / dt
+    return t_reset, rate, 1e3 * dc / steps
 
 
 class StageTimer:
-    """Accumulates wall time per stage by wrapping the navigator's and the core's step functions."""
+    """Accumulates time per stage by wrapping the navigator's and the core's step functions (``clock``:
+    ``time.perf_counter`` for wall time, ``time.process_time`` for the CPU time of all the process's threads)."""
 
-    def __init__(self):
+    def __init__(self, clock=time.perf_counter):
         self.t = dict.fromkeys(STAGES, 0.0)
+        self.clock = clock
         self._undo = []
 
     @contextmanager
@@ -155,32 +174,35 @@ class StageTimer:
         had = name in vars(obj)
         fn = getattr(obj, name)
         acc = self.t
+        clock = self.clock
 
         def timed(*a, **k):
-            t0 = time.perf_counter()
+            t0 = clock()
             try:
                 return fn(*a, **k)
             finally:
-                acc[stage] += time.perf_counter() - t0
+                acc[stage] += clock() - t0
 
         self._undo.append((obj, name, vars(obj).get(name), had))
         setattr(obj, name, timed)
 
 
-def profile_env(method, B, steps, episode_s, scenario, transition="exact", warmup=WARMUP_STEPS):
-    """Per-stage wall time per step [ms] of ``steps`` steps (after ``warmup``), and the total."""
+def profile_env(method, B, steps, episode_s, scenario, transition="exact", warmup=WARMUP_STEPS, cpu=False):
+    """Per-stage time per step [ms] of ``steps`` steps (after ``warmup``), and the total: wall time, or with
+    ``cpu`` the process CPU time (all threads; robust to other jobs on a shared machine)."""
     env = _make(method, B, episode_s, scenario, transition)
     env.reset(seed=0)
     acts = _actions(env.action_space, warmup + steps)
     for a in acts[:warmup]:
         env.step(a)
     core = _core(env)
-    timer = StageTimer()
+    clock = time.process_time if cpu else time.perf_counter
+    timer = StageTimer(clock)
     with timer.installed(core):
-        t0 = time.perf_counter()
+        t0 = clock()
         for a in acts[warmup:]:
             env.step(a)
-        total = time.perf_counter() - t0
+        total = clock() - t0
     env.close()
     t = timer.t
     # the stages do not nest: flush_prediction, form.update and _feedback run one after the other inside
@@ -300,7 +322,7 @@ def _cell_main(kind, method, B, steps, episode_s, scenario, transition):
     if kind == "rate":
         print(json.dumps(bench_env(method, B, steps, episode_s, scenario, transition)))
     else:
-        print(json.dumps(profile_env(method, B, steps, episode_s, scenario, transition)))
+        print(json.dumps(profile_env(method, B, steps, episode_s, scenario, transition, cpu=kind == "cpu-profile")))
 
 
 def print_filterpy(batches, episode_s, scenario, steps_of):
@@ -332,10 +354,14 @@ def main(argv=None):
     p.add_argument("--batches", nargs="+", type=int, default=None,
                    help="batch sizes (1 = the single env via gym.make; default 1 16 256 1024)")
     p.add_argument("--steps", type=int, default=None, help="timed steps per measurement")
+    p.add_argument("--stat", choices=("mean", "median"), default="mean",
+                   help="steps/s from the total time (mean) or the median step time (robust to load spikes)")
     p.add_argument("--episode-s", type=float, default=60.0, help="episode length [s] (memory: B x IMU samples)")
     p.add_argument("--scenario", default="noise-burst")
     p.add_argument("--no-profile", action="store_true")
     p.add_argument("--profile-only", action="store_true", help="skip the throughput table")
+    p.add_argument("--cpu-profile", action="store_true",
+                   help="stage profile in process CPU time (all threads) instead of wall time")
     p.add_argument("--components", action="store_true",
                    help="only time each compiled kernel of the step against its numpy reference (B = 1, 1024)")
     p.add_argument("--compare", metavar="DIR", default=None,
@@ -343,15 +369,18 @@ def main(argv=None):
     p.add_argument("--transitions", nargs="+", default=list(TRANSITIONS), choices=TRANSITIONS,
                    help="transition modes to run (exact: the env default; averaged: exact_transition=False)")
     p.add_argument("--accuracy", action="store_true",
-                   help="only the accuracy table: averaged vs exact transition on every built-in scenario")
+                   help="only the accuracy table: the fast modes vs the exact transition on every built-in scenario")
     p.add_argument("--accuracy-episodes", type=int, default=24, help="paired episodes per scenario (--accuracy)")
     p.add_argument("--accuracy-max-s", type=float, default=700.0, help="longest simulated episode [s] (--accuracy)")
+    p.add_argument("--accuracy-scenarios", nargs="+", default=None, help="scenarios (--accuracy; default: all)")
+    p.add_argument("--accuracy-nees-runs", type=int, default=20, help="matched-scenario NEES runs (--accuracy)")
     p.add_argument("--filterpy", action="store_true",
                    help="only the side-by-side figure against filterpy's KalmanFilter loop (default B = 1, 1024)")
     args = p.parse_args(argv)
     if args.accuracy:
         from transition_accuracy import print_accuracy
-        print_accuracy(episodes=args.accuracy_episodes, max_duration_s=args.accuracy_max_s)
+        print_accuracy(episodes=args.accuracy_episodes, max_duration_s=args.accuracy_max_s,
+                       scenarios=args.accuracy_scenarios, nees_runs=args.accuracy_nees_runs)
         return
     if args.components:
         print("compiled kernels against their numpy references (min wall time, same inputs, one process)")
@@ -365,7 +394,8 @@ def main(argv=None):
         return
     batches = args.batches or ([1, 16, 256] if args.quick else [1, 16, 256, 1024])
     print(f"navgym env throughput: scenario {args.scenario}, episode {args.episode_s:g} s, "
-          f"{os.cpu_count()} CPUs; one step = one GNSS epoch (100 IMU samples + update)")
+          f"{os.cpu_count()} CPUs; one step = one GNSS epoch (100 IMU samples + update); steps/s from the "
+          f"{'median step time' if args.stat == 'median' else 'total time'}")
 
     def n_steps(B):
         if args.steps:
@@ -378,10 +408,10 @@ def main(argv=None):
     if args.compare:
         other = os.path.abspath(args.compare)
         print(f"before = {other}\nafter  = {here}")
-        hdr = (f"{'method':14s} {'B':>5s} {'steps/s before':>15s} {'after':>10s} {'speed-up':>9s} "
+        hdr = (f"{'method':16s} {'B':>5s} {'steps/s before':>15s} {'after':>10s} {'speed-up':>9s} "
                f"{'cpu ms before':>14s} {'after':>9s} {'reset s before':>15s} {'after':>7s}")
     else:
-        hdr = f"{'method':14s} {'B':>5s} {'reset [s]':>10s} {'steps/s':>12s} {'ms/step':>9s} {'cpu ms/step':>12s}"
+        hdr = f"{'method':16s} {'B':>5s} {'reset [s]':>10s} {'steps/s':>12s} {'ms/step':>9s} {'cpu ms/step':>12s}"
     print("\n" + hdr + "\n" + "-" * len(hdr))
     for m in ([] if args.profile_only else args.methods):
         for B in batches:
@@ -391,11 +421,12 @@ def main(argv=None):
                 lab = _label(m, tr)
                 if args.compare:
                     ra = _run_cell(here, *cell, tr)
-                    print(f"{lab:14s} {B:5d} {rb[1]:15.0f} {ra[1]:10.0f} {ra[1] / rb[1]:8.2f}x {rb[2]:14.2f} "
+                    print(f"{lab:16s} {B:5d} {rb[1]:15.0f} {ra[1]:10.0f} {ra[1] / rb[1]:8.2f}x {rb[2]:14.2f} "
                           f"{ra[2]:9.2f} {rb[0]:15.2f} {ra[0]:7.2f}", flush=True)
                 else:
-                    t_reset, rate, cpu = bench_env(m, B, n_steps(B), args.episode_s, args.scenario, tr)
-                    print(f"{lab:14s} {B:5d} {t_reset:10.2f} {rate:12.0f} {1e3 * B / rate:9.2f} {cpu:12.2f}",
+                    t_reset, rate, cpu = bench_env(m, B, n_steps(B), args.episode_s, args.scenario, tr,
+                                                   stat=args.stat)
+                    print(f"{lab:16s} {B:5d} {t_reset:10.2f} {rate:12.0f} {1e3 * B / rate:9.2f} {cpu:12.2f}",
                           flush=True)
 
     if args.no_profile:
@@ -403,17 +434,17 @@ def main(argv=None):
     m = "sage-husa" if "sage-husa" in args.methods else args.methods[0]
     prof_b = sorted({1, max(batches)})
     cols = []
-    short = {"exact": "", "averaged": " avg"}
+    short = _SHORT
     for B in prof_b:
-        cell = ("profile", m, B, n_steps(B), args.episode_s, args.scenario)
+        cell = ("cpu-profile" if args.cpu_profile else "profile", m, B, n_steps(B), args.episode_s, args.scenario)
         if args.compare:
             cols.append((f"B={B} before", _run_cell(other, *cell)))
         for tr in args.transitions:
             if args.compare:
                 cols.append((f"B={B} after{short[tr]}", _run_cell(here, *cell, tr)))
             else:
-                cols.append((f"B={B}{short[tr]}", profile_env(*cell[1:], tr)))
-    print(f"\nprofile of one step, {m}: wall ms per step (share)")
+                cols.append((f"B={B}{short[tr]}", profile_env(*cell[1:], tr, cpu=args.cpu_profile)))
+    print(f"\nprofile of one step, {m}: {'CPU' if args.cpu_profile else 'wall'} ms per step (share)")
     print(f"{'stage':14s}" + "".join(f"{name:>20s}" for name, _ in cols))
     for s in STAGES:
         print(f"{s:14s}" + "".join(f"{r[0][s]:11.3f} ({100 * r[0][s] / r[1]:4.1f}%)" for _, r in cols))

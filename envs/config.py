@@ -117,6 +117,10 @@ class EnvConfig:
         sample; ``False``: formed once per epoch from the epoch's averaged error dynamics (several times
         faster; :class:`nav_filters.navigator.NavigatorConfig` and :mod:`nav_filters.averaged_transition`
         give the equations).
+    fused_update : ``False`` (default): the filter form computes as it always did; ``True``: the fused
+        compiled predict + Joseph update of ``kf`` and the adaptive laws around it (same equations, different
+        rounding; :class:`nav_filters.navigator.NavigatorConfig`). With ``exact_transition=False`` the fastest
+        configuration.
     divergence_bound_m : horizontal error [m] beyond which an episode terminates as diverged.
     """
 
@@ -131,6 +135,7 @@ class EnvConfig:
     zupt_weights: str | None = None
     dtype: str = "float64"
     exact_transition: bool = True
+    fused_update: bool = False
     divergence_bound_m: float = 1000.0
 
     def __post_init__(self):
@@ -144,6 +149,8 @@ class EnvConfig:
             raise ValueError(f"EnvConfig.dtype must be 'float64' or 'float32', got {self.dtype!r}")
         if not isinstance(self.exact_transition, (bool, np.bool_)):
             raise ValueError(f"EnvConfig.exact_transition must be a bool, got {self.exact_transition!r}")
+        if not isinstance(self.fused_update, (bool, np.bool_)):
+            raise ValueError(f"EnvConfig.fused_update must be a bool, got {self.fused_update!r}")
         for f in ("episode_length_s", "divergence_bound_m", "gnss_rate_hz"):
             v = getattr(self, f)
             if f == "gnss_rate_hz" and v is None:

@@ -234,7 +234,8 @@ class TuningCore:
 
     # ------------------------------------------------------------------ reset
     def _make_nav(self, world, method):
-        nav = navigator_for(world, method, dtype=self.config.dtype, exact_transition=self.config.exact_transition)
+        nav = navigator_for(world, method, dtype=self.config.dtype, exact_transition=self.config.exact_transition,
+                            fused_update=self.config.fused_update)
         if not hasattr(nav.form, "set_params"):
             raise ValueError(f"method {method!r} has no adjustable parameters "
                              f"({', '.join(s.name for s in self.specs)}); choose an adaptive method")

@@ -57,7 +57,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from .kernels import F_NONZERO, N
+from .kernels import F_NONZERO, N, serial_and_parallel
 
 SERIES_ORDER = 8
 """Highest power ``K`` of the series for ``exp(A)`` and the Van Loan integral (see the module docstring)."""
@@ -148,8 +148,7 @@ def _averaged_transition_into(A, S, Phi, Q, order, nz):
                         Q[b, c, i] += m
 
 
-_serial = nb.njit(cache=True)(_averaged_transition_into)
-_parallel = nb.njit(cache=True, parallel=True)(_averaged_transition_into)
+_serial, _parallel = serial_and_parallel(_averaged_transition_into)
 
 
 def averaged_transition_into(F_int, Qc_int, Phi, Q, order: int = SERIES_ORDER, nz=F_NONZERO):

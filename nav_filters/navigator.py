@@ -97,6 +97,15 @@ class NavigatorConfig:
         and noise of the constant system with the epoch's mean F and mean ``G Q_c G^T``. With ``+onestep``
         the ``Phi`` is the same and ``Q = S`` (seed 001's summed noise).
 
+    fused_update : ``False`` (default): the filter form computes as it always did (numpy recursion, the
+        compiled Joseph update). ``True``: the fast path of the forms that have one (``kf``, and the adaptive
+        laws around it: ``sage-husa``, ``stkf``, ``ma-stkf``, ...; :meth:`~nav_filters.forms.base.FilterForm.set_fused`):
+        an adaptive law's deferred prediction and the Joseph update run as one compiled kernel per epoch
+        (:func:`nav_filters.forms.kf.fused_update`: masked rows left out, no allocation per row, the law's
+        prior ``Phi P Phi^T`` reused) and the laws' row kernels run parallel over rows. The same equations
+        with a different rounding (checked against the numpy recursion in ``tests/nav_filters/test_fused_update.py``);
+        forms without a fused path ignore it. Independent of ``exact_transition``.
+
     The transition of one IMU sample is ``Phi = I + F dt`` with the first-order process noise
     ``Q = G Q_c G^T dt`` (Groves eq 3.46 truncated; the trapezoidal form differs by O(F dt) ~ 1e-4
     relative at 100 Hz).
@@ -107,11 +116,14 @@ class NavigatorConfig:
     use_pseudorange_rate: bool = True
     dtype: str = "float64"
     exact_transition: bool = True
+    fused_update: bool = False
 
     def __post_init__(self):
         parse_method(self.method)
         if not isinstance(self.exact_transition, (bool, np.bool_)):
             raise ValueError(f"exact_transition must be a bool, got {self.exact_transition!r}")
+        if not isinstance(self.fused_update, (bool, np.bool_)):
+            raise ValueError(f"fused_update must be a bool, got {self.fused_update!r}")
         if not isinstance(self.noise, ProcessNoise):
             raise ValueError(f"noise must be a ProcessNoise, got {type(self.noise).__name__}")
         check_dtype(self.dtype)
@@ -150,6 +162,8 @@ class Navigator:
         if P0.shape != (B, N_STATES, N_STATES):
             raise ValueError(f"P0 must have shape ({B}, {N_STATES}, {N_STATES}), got {P0.shape}")
         self.form = make_form(config.method, P0, dtype=self.dtype)
+        if config.fused_update:
+            self.form.set_fused(True)
         self.batch_size = B
         self.diverged = np.zeros(B, bool)
         self.divergence_code = np.zeros(B, np.int8)
@@ -351,7 +365,10 @@ class Navigator:
     def _neutral_form(self, n):
         """A fresh form of ``n`` rows at unit covariance (what parked rows hold)."""
         eye = np.broadcast_to(np.eye(N_STATES), (n, N_STATES, N_STATES)).copy()
-        return make_form(self.config.method, eye, dtype=self.dtype)
+        form = make_form(self.config.method, eye, dtype=self.dtype)
+        if self.config.fused_update:
+            form.set_fused(True)
+        return form
 
     def _failing_rows(self, op) -> np.ndarray:
         """(B,) bool: the live rows whose operation ``op`` raises ``LinAlgError`` when run on their own.

@@ -162,6 +162,16 @@ class AdaptiveLaw(FilterForm):
         if self.inner.batch_size != P0.shape[0] or self.inner.n != P0.shape[1]:
             raise ValueError("inner form does not match P0's shape")
 
+    def set_fused(self, on: bool = True) -> bool:
+        """The fused fast path (:meth:`FilterForm.set_fused`): the law's own fast kernels (row kernels on
+        parallel chunks, compiled replacements of numpy steps; same decisions to round-off) and, where the
+        inner form has a fused path (``kf``), the epoch's deferred prediction and update as one compiled
+        call (:meth:`FilterForm.predicted_update`, given the prior ``Phi P Phi^T`` the law already formed).
+        Returns True when on (whatever the inner form)."""
+        self.inner.set_fused(on)
+        self.fused = bool(on)
+        return self.fused
+
     @property
     def covariance(self) -> np.ndarray:
         """(B, n, n) current covariance: the inner form's, with a pending (unfaded) time update applied."""
@@ -264,8 +274,17 @@ class AdaptiveLaw(FilterForm):
             self._ctx = self._open_epoch()
         ctx = self._ctx
         plan = self._plan(r, H, R, mask, ctx)
-        self._apply_prediction(ctx, plan.fade)
-        res = self.inner.update(r, H, plan.R, plan.mask)
+        if self.inner.fused:
+            # one compiled call (commits nothing when it raises, so ctx.applied stays False for a retry)
+            if ctx.pending and not ctx.applied:
+                res = self.inner._predicted_update(ctx.Phi, ctx.Q, r, H, plan.R, plan.mask, fade=plan.fade,
+                                                   prior=ctx.prior)
+                ctx.applied = True
+            else:
+                res = self.inner._update(r, H, plan.R, plan.mask)
+        else:
+            self._apply_prediction(ctx, plan.fade)
+            res = self.inner.update(r, H, plan.R, plan.mask)
         dx = self.inner.take_correction()
         self.x = self.x + dx
         self._ctx = None

@@ -32,9 +32,38 @@ GROUP_NAMES = ("pseudorange", "rate", "other")
 """Measurement groups of :func:`measurement_groups`, in id order."""
 
 
-def quadratic_diag(H, X):
-    """``diag(H X H^T)`` for batched ``H`` (B, m, n) and ``X`` (B, n, n): shape (B, m)."""
+def quadratic_diag(H, X, fast: bool = False):
+    """``diag(H X H^T)`` for batched ``H`` (B, m, n) and ``X`` (B, n, n): shape (B, m).
+
+    ``fast`` (the fused path): compiled over the structural non-zeros of each H row
+    (:func:`_quadratic_diag_kernel`; float64, same values to round-off)."""
+    if fast:
+        out = np.empty(np.shape(H)[:2])
+        _quadratic_diag_kernel(np.ascontiguousarray(H, np.float64), np.ascontiguousarray(X, np.float64), out)
+        return out
     return np.sum((H @ X) * H, axis=-1)
+
+
+@nb.njit(cache=True)
+def _quadratic_diag_kernel(H, X, out):
+    """``out[b, i] = h^T X[b] h`` with ``h = H[b, i]``, over the non-zeros of h only."""
+    B, m, n = H.shape
+    idx = np.empty(n, np.int64)
+    for b in range(B):
+        for i in range(m):
+            k = 0
+            for l in range(n):
+                if H[b, i, l] != 0:
+                    idx[k] = l
+                    k += 1
+            acc = 0.0
+            for p in range(k):
+                lp = idx[p]
+                sp = 0.0
+                for q in range(k):
+                    sp += X[b, lp, idx[q]] * H[b, i, idx[q]]
+                acc += H[b, i, lp] * sp
+            out[b, i] = acc
 
 
 @dataclass(frozen=True)
@@ -493,7 +522,7 @@ class FitSplit:
         return np.where(dof > 0, self.e_res.sum(1) / np.where(dof > 0, dof, 1.0), 0.0)
 
 
-def fit_split(dz, H, R, mask, prior, Q, n_types: int = 2) -> FitSplit:
+def fit_split(dz, H, R, mask, prior, Q, n_types: int = 2, fast: bool = False) -> FitSplit:
     """Split each measurement type's innovations into what a state error can explain and what it cannot.
 
     Per batch row and type ``t`` (:func:`measurement_groups`), the weighted least-squares fit of
@@ -514,6 +543,7 @@ def fit_split(dz, H, R, mask, prior, Q, n_types: int = 2) -> FitSplit:
     dz : (B, m) innovations; H : (B, m, n); R : (B, m, m) measurement covariances (diagonals used);
     mask : (B, m) bool used rows; prior : (B, n, n) ``M = Phi P Phi^T``; Q : (B, n, n) or None;
     n_types : number of types fitted (rows of group >= n_types are left out).
+    fast : the fused path: the compiled :func:`quadratic_diag` (the same quantities to round-off).
 
     Returns
     -------
@@ -535,8 +565,8 @@ def fit_split(dz, H, R, mask, prior, Q, n_types: int = 2) -> FitSplit:
         return np.einsum("bm,bmt->bt", w * x, onehot)
 
     e_tot, e_res = wsum(dz64 ** 2), wsum(v ** 2)
-    tr_m = wsum(quadratic_diag(H64, np.asarray(prior, np.float64)))
-    tr_q = wsum(quadratic_diag(H64, np.asarray(Q, np.float64))) if Q is not None else np.zeros_like(tr_m)
+    tr_m = wsum(quadratic_diag(H64, np.asarray(prior, np.float64), fast))
+    tr_q = wsum(quadratic_diag(H64, np.asarray(Q, np.float64), fast)) if Q is not None else np.zeros_like(tr_m)
     n_t = onehot.sum(1)
     n_other = ((groups >= n_types).sum(1) if H64.shape[2] == N_STATES else np.zeros(groups.shape[0], np.int64))
     z = np.zeros_like(dof)

@@ -154,6 +154,7 @@ import numba as nb
 import numpy as np
 
 from ..forms.base import symmetrize
+from ..kernels import serial_and_parallel, sym_eig_inplace
 from .base import AdaptiveLaw, EpochContext, UpdatePlan
 from .innovation import GROUP_NAMES, measurement_groups, quadratic_diag
 from .params import ParamSpec, check_option
@@ -359,8 +360,14 @@ def _r_scale_kernel(r, H, prior, Q, add_q, R, mask, groups, infer, d, active, r_
 
 
 def _adapt_q_rows(rows, d, dx, P_post, prior, Q_nom, b, step, e_prev, b_used, q_init, q_ref, Q_raw, Q,
-                  jump_ratio, b_min, b_jump_factor, diagonal, floor, ceiling):
+                  jump_ratio, b_min, b_jump_factor, diagonal, floor, ceiling, own_eig=False):
     """Seed 000 eqs 18-22 and 24 (with the choices of :class:`SageHusa`) on the rows flagged in ``rows``.
+
+    ``own_eig`` (the fused fast path): the projection's eigen-decomposition by
+    :func:`~nav_filters.kernels.sym_eig_inplace` (no LAPACK call per row, about twice as fast; equal to
+    ``np.linalg.eigh``'s result to round-off, which it falls back to if the QR iteration does not converge)
+    instead of ``np.linalg.eigh``. The projection binds on every adapted row of the built-in scenarios (an
+    eigenvalue below ``floor`` and one above ``ceiling``: measured), so no cheaper test can skip it.
 
     Per row: ``Q_hat = sym(dx dx^T + P_post - prior)`` (eq 18, sign of eq 20); ``e = sum Q_hat^2`` and the
     eq 24 jump test lowering b for this correction; on the first adaptation ``q_ref`` and ``Q_raw`` from
@@ -410,23 +417,45 @@ def _adapt_q_rows(rows, d, dx, P_post, prior, Q_nom, b, step, e_prev, b_used, q_
         for i in range(n):
             for j in range(n):
                 Qw[i, j] = 0.5 * (np.float64(X[i, j]) * w[i] * w[j] + np.float64(X[j, i]) * w[j] * w[i])
-        vals, vecs = np.linalg.eigh(Qw)
-        for k in range(n):
-            vals[k] = min(max(vals[k], floor), ceiling)
-        for i in range(n):
-            for j in range(n):
-                s = 0.0
+        done = False
+        if own_eig:
+            A = Qw.copy()
+            vals = np.empty(n)
+            Vt = np.empty((n, n))
+            sc = np.empty((3, n))
+            if sym_eig_inplace(A, vals, Vt, sc[0], sc[1], sc[2]):
                 for k in range(n):
-                    s += vecs[i, k] * vals[k] * vecs[j, k]
-                Qw[i, j] = s
+                    vals[k] = min(max(vals[k], floor), ceiling)
+                for k in range(n):       # A = diag(vals) Vt
+                    for j in range(n):
+                        A[k, j] = vals[k] * Vt[k, j]
+                for i in range(n):       # Qw = Vt^T diag(vals) Vt, upper triangle, mirrored
+                    for j in range(i, n):
+                        Qw[i, j] = 0.0
+                    for k in range(n):
+                        a = Vt[k, i]
+                        for j in range(i, n):
+                            Qw[i, j] += a * A[k, j]
+                    for j in range(i + 1, n):
+                        Qw[j, i] = Qw[i, j]
+                done = True
+        if not done:
+            vals, vecs = np.linalg.eigh(Qw)
+            for k in range(n):
+                vals[k] = min(max(vals[k], floor), ceiling)
+            for i in range(n):
+                for j in range(n):
+                    s = 0.0
+                    for k in range(n):
+                        s += vecs[i, k] * vals[k] * vecs[j, k]
+                    Qw[i, j] = s
         for i in range(n):
             for j in range(n):
                 Q[r, i, j] = 0.5 * (Qw[i, j] / w[i] / w[j] + Qw[j, i] / w[j] / w[i])
         q_init[r] = True
 
 
-_adapt_q_serial = nb.njit(cache=True)(_adapt_q_rows)
-_adapt_q_parallel = nb.njit(cache=True, parallel=True)(_adapt_q_rows)
+_adapt_q_serial, _adapt_q_parallel = serial_and_parallel(_adapt_q_rows)
 PARALLEL_MIN_BATCH = 64
 """Below this batch size the serial kernel runs (a parallel launch costs more than it saves)."""
 
@@ -552,7 +581,8 @@ class SageHusa(SatelliteNoise, AdaptiveLaw):
         kern(rows, np.asarray(d, np.float64), c(dx, dt), c(self.inner.covariance, dt), c(ctx.prior, dt),
                         c(ctx.Q, dt), self._params["b"], self._step, self._e_prev, self._b_used, self._q_init,
                         self._q_ref, self._Q_raw, self._Q, float(cfg.jump_ratio), float(cfg.b_min),
-                        float(cfg.b_jump_factor), bool(cfg.diagonal_q), float(cfg.q_floor), float(cfg.q_ceiling))
+                        float(cfg.b_jump_factor), bool(cfg.diagonal_q), float(cfg.q_floor), float(cfg.q_ceiling),
+                        bool(self.fused))
 
     def _adapt_q_reference(self, rows, d, ctx: EpochContext, dx):
         """Numpy specification of :meth:`_adapt_q` (seed 000 eqs 18-22 and 24 on ``rows`` (B,) bool)."""

@@ -244,6 +244,56 @@ def _r_sat_kernel(r, H, prior, Q, add_q, R, mask, keys, bf, jcap, d_row, active,
                 R_out[b, i, j] = R[b, i, j] * sq[i] * sq[j]
 
 
+@nb.njit(cache=True, parallel=True)
+def _r_sat_parallel(nchunk, r, H, prior, Q, add_q, R, mask, keys, bf, jcap, d_row, active, epoch, s_tab, n_tab,
+                    last_tab, forget, smin, smax, sat_min, sample, min_red, k_prior, n_iter, common, r_scale, s_rows,
+                    n_rows, s_prev, s_group, R_out):
+    """:func:`_r_sat_kernel` on ``nchunk`` chunks of rows in parallel (the fused fast path): each chunk runs the
+    serial kernel itself on its slice of every per-row array, so every row gets the same bits."""
+    B = r.shape[0]
+    for c in nb.prange(nchunk):
+        lo = c * B // nchunk
+        hi = (c + 1) * B // nchunk
+        _r_sat_kernel(r[lo:hi], H[lo:hi], prior[lo:hi], Q[lo:hi], add_q, R[lo:hi], mask[lo:hi], keys[lo:hi],
+                      bf[lo:hi], jcap[lo:hi], d_row[lo:hi], active[lo:hi], epoch[lo:hi], s_tab[lo:hi], n_tab[lo:hi],
+                      last_tab[lo:hi], forget, smin, smax, sat_min, sample, min_red, k_prior, n_iter, common,
+                      r_scale[lo:hi], s_rows[lo:hi], n_rows[lo:hi], s_prev[lo:hi], s_group[lo:hi], R_out[lo:hi])
+
+
+PARALLEL_MIN_BATCH = 64
+"""Fused fast path: below this batch size the serial kernel runs (a parallel launch costs more than it saves)."""
+
+
+@nb.njit(cache=True)
+def _summary_kernel(pr, s_rows, s_prev, rose_factor, out):
+    """The per-row summary of :meth:`SatelliteNoise._commit_satellites` (fused path): over the used pseudorange
+    rows ``pr`` (B, m), ``out[b] = (max scale, median scale, count risen above rose_factor x its prior, count)``;
+    1, 1, 0, 0 for a row without any. The median is ``np.nanmedian``'s (middle value, or the mean of the two)."""
+    B, m = pr.shape
+    vals = np.empty(m)
+    for b in range(B):
+        k = 0
+        rose = 0
+        mx = -np.inf
+        for i in range(m):
+            if pr[b, i]:
+                v = s_rows[b, i]
+                vals[k] = v
+                k += 1
+                mx = max(mx, v)
+                if v > rose_factor * s_prev[b, i]:
+                    rose += 1
+        if k == 0:
+            out[b, 0] = 1.0
+            out[b, 1] = 1.0
+        else:
+            srt = np.sort(vals[:k])
+            out[b, 0] = mx
+            out[b, 1] = srt[k // 2] if k % 2 == 1 else (srt[k // 2 - 1] + srt[k // 2]) / 2.0
+        out[b, 2] = rose
+        out[b, 3] = k
+
+
 @nb.njit(cache=True)
 def _weight_one(b, j):
     """Scalar :func:`sage_husa_weight` (seed 000 eqs 21-23)."""
@@ -324,13 +374,17 @@ class SatelliteNoise:
         n_rows = np.empty((B, m), np.int64)
         s_group = np.empty((B, len(GROUP_NAMES)))
         R_used = np.empty(R.shape, R.dtype)
-        _r_sat_kernel(c(r), c(H), c(ctx.prior), c(ctx.Q if ctx.pending else ctx.prior), bool(ctx.pending), c(R),
-                      mask, c(keys, np.int64), self._sat_b(), self._sat_jcap(), d, active, epoch, self._sat_scale,
-                      self._sat_count, self._sat_last, int(cfg.forget_after_epochs), float(smin),
-                      float(smax), float(cfg.sat_scale_min), _SAMPLE_CODE[cfg.r_sample],
-                      float(cfg.min_redundancy), float(cfg.prior_inflation), int(cfg.sample_iterations),
-                      bool(cfg.common_scale), self._r_scale,
-                      s_rows, n_rows, s_prev, s_group, R_used)
+        args = (c(r), c(H), c(ctx.prior), c(ctx.Q if ctx.pending else ctx.prior), bool(ctx.pending), c(R),
+                mask, c(keys, np.int64), self._sat_b(), self._sat_jcap(), d, active, epoch, self._sat_scale,
+                self._sat_count, self._sat_last, int(cfg.forget_after_epochs), float(smin),
+                float(smax), float(cfg.sat_scale_min), _SAMPLE_CODE[cfg.r_sample],
+                float(cfg.min_redundancy), float(cfg.prior_inflation), int(cfg.sample_iterations),
+                bool(cfg.common_scale), self._r_scale,
+                s_rows, n_rows, s_prev, s_group, R_used)
+        if self.fused and B >= PARALLEL_MIN_BATCH:  # same bits per row, rows in parallel chunks
+            _r_sat_parallel(min(B, 4 * nb.get_num_threads()), *args)
+        else:
+            _r_sat_kernel(*args)
         pending.update(r_scale=s_group, sat=(keys, s_rows, n_rows, s_prev), epoch=epoch)
         return UpdatePlan(fade=np.ones(self.batch_size), R=R_used, mask=mask, pending=pending)
 
@@ -412,6 +466,11 @@ class SatelliteNoise:
         self._sat_last[b_idx, k] = epoch[b_idx]
         self._epoch = epoch
         pr = used & (keys < N_SAT_KEYS)
+        if self.fused:  # compiled, same values (the numpy lines below are its specification)
+            self._sat_summary = np.empty((pr.shape[0], 4))
+            _summary_kernel(pr, np.ascontiguousarray(s_rows, np.float64), np.ascontiguousarray(s_prev, np.float64),
+                            float(ROSE_FACTOR), self._sat_summary)
+            return
         npr = pr.sum(1)
         mx = np.where(npr > 0, np.max(np.where(pr, s_rows, -np.inf), 1), 1.0)
         # median over the used pseudorange rows; a row without any is all ones (median 1)

@@ -283,7 +283,7 @@ class StrongTracking(AdaptiveLaw):
         lam = fading_factor(v * tr_r, tr, self._params["softening"], cfg.lambda_max)
         fs = self._fs
         if cfg.fading_noise == "geometry":
-            split = fit_split(r, H, R, mask, ctx.prior, ctx.Q if ctx.pending else None)
+            split = fit_split(r, H, R, mask, ctx.prior, ctx.Q if ctx.pending else None, fast=self.fused)
             lam, fs = split_fading(split, self._fs, np.where(self._count == 0, 1.0, 1.0 / (1.0 + rho)),
                                    self._params["softening"], cfg.fading_confidence, cfg.lambda_max, cfg.noise_gate, lam)
         lam = np.where(has & ctx.pending, lam, 1.0)
@@ -509,11 +509,11 @@ class MeasurementAdaptiveSTKF(SatelliteNoise, AdaptiveLaw):
         fault = acting & (tr_c > self._params["fault_threshold"] * predicted)
         if geo:
             # the snapshot split with the reported R (a common factor per type leaves the fit unchanged)
-            split = fit_split(r, H, R, mask, ctx.prior, ctx.Q if ctx.pending else None)
+            split = fit_split(r, H, R, mask, ctx.prior, ctx.Q if ctx.pending else None, fast=self.fused)
             if self._sat_enabled():  # the split against the current per-satellite noise model
                 sq = np.sqrt(a_model)
                 model = fit_split(r, H, R * sq[:, :, None] * sq[:, None, :], mask, ctx.prior,
-                                  ctx.Q if ctx.pending else None)
+                                  ctx.Q if ctx.pending else None, fast=self.fused)
             else:  # the same split against alpha_(k-1) R
                 model = split.scaled(self._alpha_t)
             # a fault is a jump of the measurement errors: this epoch's residual noise scale against the model

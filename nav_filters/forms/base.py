@@ -217,6 +217,10 @@ class FilterForm(ABC):
     name = "base"
     _ROW_COPY_SKIP: frozenset = frozenset()
     """Attributes :meth:`copy_rows` leaves alone (caches that are not per-row state)."""
+    HAS_FUSED = False
+    """Whether the form has a fused compiled update (:meth:`set_fused`)."""
+    fused = False
+    """Whether the fused fast path is on (:meth:`set_fused`; ``NavigatorConfig.fused_update``)."""
 
     def __init__(self, P0, x0=None, dtype=None):
         P0 = np.asarray(P0)
@@ -301,6 +305,37 @@ class FilterForm(ABC):
         """
         dst, src = check_row_pairs(dst, src, self.batch_size)
         copy_rows_generic(self, dst, src, self.batch_size, skip=self._ROW_COPY_SKIP)
+
+    def set_fused(self, on: bool = True) -> bool:
+        """Switch the fused fast path on or off; returns whether it is on (False for a form without one).
+
+        With it on, a form that has one (:attr:`HAS_FUSED`: ``kf``) runs its time and measurement updates
+        through compiled kernels that fuse what the readable numpy recursion does in several calls
+        (:func:`nav_filters.forms.kf.fused_update`): same equations, different rounding. Off (the default),
+        the form computes exactly as before. Adaptive laws pass it on to their inner form."""
+        self.fused = bool(on) and self.HAS_FUSED
+        return self.fused
+
+    def predicted_update(self, Phi, Q, dz, H, R, mask=None, fade=None, prior=None) -> UpdateResult:
+        """Time update then measurement update in one call: ``predict(D Phi, Q)`` then ``update(dz, H, R, mask)``
+        with ``D = diag(sqrt(fade))`` (fade None, (B,) or (B, n) fading factors).
+
+        ``prior`` (B, n, n), optional: ``sym(Phi P Phi^T)`` when the caller already has it (a form with a
+        fused kernel then does not recompute it). A form with its fused path on runs both in one compiled
+        kernel that commits nothing when it raises; otherwise the two calls run one after the other (a
+        failing update then leaves the time update applied)."""
+        dz, H, R, mask = prepare_measurement(dz, H, R, mask, self.dtype)
+        if H.shape[2] != self.n:
+            raise ValueError(f"H must have {self.n} columns, got {H.shape[2]}")
+        return self._predicted_update(Phi, Q, dz, H, R, mask, fade, prior)
+
+    def _predicted_update(self, Phi, Q, dz, H, R, mask, fade=None, prior=None) -> UpdateResult:
+        """:meth:`predicted_update` on prepared arrays (masked rows neutral); generic: predict, then update."""
+        if fade is not None:
+            f = np.asarray(fade, np.float64)
+            Phi = np.sqrt(f if f.ndim == 2 else f[:, None]).astype(self.dtype)[:, :, None] * np.asarray(Phi, self.dtype)
+        self.predict(Phi, Q)
+        return self._update(dz, H, R, mask)
 
     def take_correction(self) -> np.ndarray:
         """Return the error-state estimate (B, n) and reset it to zero (closed-loop feedback)."""

@@ -9,12 +9,20 @@ solves for the gain, structural zeros of H and R skipped; parallel over rows for
 B >= 64). :meth:`KalmanFilter._update_reference` is the same recursion in numpy
 (the readable specification); ``tests/nav_filters/test_kf_form.py`` asserts
 their agreement.
+
+Fused path (``set_fused(True)``, ``NavigatorConfig.fused_update``): :func:`fused_update`
+runs the time update and the Joseph update in one kernel over row chunks, with the
+masked rows left out and ``K H`` formed on H's non-zero columns only (an adaptive law
+hands it its deferred prediction and the prior it formed: :meth:`KalmanFilter.predicted_update`).
+Same equations, different rounding; ``tests/nav_filters/test_fused_update.py`` checks
+it against ``predict`` + :meth:`KalmanFilter._update_reference`.
 """
 from __future__ import annotations
 
 import numba as nb
 import numpy as np
 
+from ..kernels import serial_and_parallel
 from .base import FilterForm, UpdateResult, symmetrize
 
 
@@ -189,8 +197,7 @@ def _joseph_rows(P, x, H, R, dz, Pn, xn, r, Sd, nis, ok):
                 Pn[b, k, l] = 0.5 * (X[k, l] + X[l, k])
 
 
-_joseph_serial = nb.njit(cache=True)(_joseph_rows)
-_joseph_parallel = nb.njit(cache=True, parallel=True)(_joseph_rows)
+_joseph_serial, _joseph_parallel = serial_and_parallel(_joseph_rows)
 
 PARALLEL_MIN_BATCH = 64
 """Below this batch size the serial kernel runs (a parallel launch costs more than it saves)."""
@@ -238,6 +245,7 @@ class KalmanFilter(FilterForm):
     """
 
     name = "kf"
+    HAS_FUSED = True
 
     def _init_uncertainty(self, P0):
         self.P = P0
@@ -252,7 +260,22 @@ class KalmanFilter(FilterForm):
         self.P = symmetrize(Phi @ self.P @ Phi.mT + np.asarray(Q, self.dtype))
 
     def _update(self, dz, H, R, mask):
-        P, x, r, Sd, nis = joseph_update(self.P, self.x, H, R, dz)
+        if self.fused:
+            P, x, r, Sd, nis = fused_update(self.P, self.x, H, R, dz, mask)
+        else:
+            P, x, r, Sd, nis = joseph_update(self.P, self.x, H, R, dz)
+        self.P, self.x = P, x
+        n_used = mask.sum(-1)
+        return UpdateResult(nis=nis, n_used=n_used, innovation=r, innovation_var=Sd, applied=n_used > 0)
+
+    def _predicted_update(self, Phi, Q, dz, H, R, mask, fade=None, prior=None):
+        """Fused path (:func:`fused_update`: one kernel, nothing committed when it raises); else the generic
+        predict-then-update of :meth:`FilterForm._predicted_update`."""
+        if not self.fused:
+            return super()._predicted_update(Phi, Q, dz, H, R, mask, fade, prior)
+        B, n = self.batch_size, self.n
+        Q = np.broadcast_to(np.asarray(Q, self.dtype), (B, n, n))
+        P, x, r, Sd, nis = fused_update(self.P, self.x, H, R, dz, mask, Phi=Phi, Q=Q, fade=fade, prior=prior)
         self.P, self.x = P, x
         n_used = mask.sum(-1)
         return UpdateResult(nis=nis, n_used=n_used, innovation=r, innovation_var=Sd, applied=n_used > 0)
@@ -269,3 +292,294 @@ class KalmanFilter(FilterForm):
         n_used = mask.sum(-1)
         return UpdateResult(nis=nis, n_used=n_used, innovation=r,
                             innovation_var=np.diagonal(S, axis1=1, axis2=2).copy(), applied=n_used > 0)
+
+
+# ----------------------------------------------------------------------------- fused predict + update
+def _fused_rows(P, x, Phi, s, Q, prior, mode, H, R, dz, mask, Pn, xn, r, Sd, nis, ok, nchunk):
+    """Fused time and Joseph measurement update of every batch row (the fast path, ``fused_update=True``).
+
+    The same recursion as :meth:`KalmanFilter.predict` followed by :func:`_joseph_rows` on the prepared
+    measurement, in one pass per row and with the scratch of a chunk of rows allocated once (no allocation
+    per row), and with the masked measurement rows left out of every product instead of neutralized
+    (a masked row has ``H = 0``, ``dz = 0``, unit variance and changes nothing, DESIGN.md sec 2). Per row b,
+    ``D = diag(s)``::
+
+        mode 0:  P- = P,                                       x- = x          (no time update)
+        mode 1:  P- = sym(D Phi P Phi^T D + Q),                x- = D Phi x    (seed 000 eqs 5-6)
+        mode 2:  P- = sym(D prior D + Q), prior = sym(Phi P Phi^T) given,   x- = D Phi x
+        r  = dz - H x-   (valid rows; 0 on masked rows)        HP = H P-       S = HP H^T + R   (valid rows)
+        S  = L L^T       w = L^-1 r,  nis = w^T w              K^T = L^-T L^-1 HP
+        x+ = x- + K r    P+ = A P- A^T + K R K^T,  A = I - K H   (Joseph, seed 000 eq 17), with
+                         A P- = P- - (K H) P-   and   A P- A^T = A P- - (A P-) (K H)^T
+                         where K H is non-zero only in the columns of H's non-zeros (8 of 17 for GNSS rows);
+                         the upper triangle computed and mirrored (exactly symmetric)
+
+    Parameters
+    ----------
+    P : (B, n, n); x : (B, n); Phi : (B, n, n) (modes 1, 2); s : (B, n) the square roots of the fading
+    factors (modes 1, 2); Q : (B, n, n) (modes 1, 2); prior : (B, n, n) (mode 2); mode : 0, 1 or 2;
+    H : (B, m, n); R : (B, m, m); dz : (B, m); mask : (B, m) bool (the valid rows; the others may hold
+    anything finite); all float arrays of one dtype.
+    Pn, xn : outputs (B, n, n), (B, n); r : (B, m) residual ``dz - H x-`` (0 on masked rows); Sd : (B, m)
+    diag(S) (1 on masked rows); nis : (B,); ok : (B,) bool, False where S is not positive definite (that
+    row's outputs are undefined). nchunk : number of row chunks (each allocates its scratch once).
+    """
+    B, m, n = H.shape
+    dt = P.dtype
+    for c in nb.prange(nchunk):
+        lo = c * B // nchunk
+        hi = (c + 1) * B // nchunk
+        Pm = np.empty((n, n), dt)
+        T = np.empty((n, n), dt)
+        C = np.empty((n, n), dt)
+        xm = np.empty(n, dt)
+        HP = np.empty((m, n), dt)
+        L = np.empty((m, m), dt)
+        Y = np.empty((m, n), dt)
+        w = np.empty(m, dt)
+        rv = np.empty(m, dt)
+        AP = np.empty((n, n), dt)
+        X = np.empty((n, n), dt)
+        KRt = np.empty((m, n), dt)
+        idx = np.empty(m, np.int64)
+        KHt = np.empty((n, n), dt)
+        cols = np.empty(n, np.int64)
+        pos = np.full(n, -1, np.int64)
+        nzc = np.empty((m, n), np.int64)
+        nzv = np.empty((m, n), dt)
+        cnt = np.empty(m, np.int64)
+        for b in range(lo, hi):
+            # ---- time update
+            if mode == 0:
+                for i in range(n):
+                    xm[i] = x[b, i]
+                    for j in range(n):
+                        Pm[i, j] = P[b, i, j]
+            else:
+                if mode == 1:
+                    for i in range(n):
+                        for j in range(n):
+                            T[i, j] = 0.0
+                        for k in range(n):
+                            a = Phi[b, i, k]
+                            if a != 0:
+                                for j in range(n):
+                                    T[i, j] += a * P[b, k, j]
+                    for i in range(n):
+                        for j in range(i + 1):
+                            acc = T[i, 0] * Phi[b, j, 0]
+                            for k in range(1, n):
+                                acc += T[i, k] * Phi[b, j, k]
+                            C[i, j] = acc
+                    for i in range(n):
+                        for j in range(i + 1, n):
+                            C[i, j] = C[j, i]
+                else:
+                    for i in range(n):
+                        for j in range(n):
+                            C[i, j] = prior[b, i, j]
+                for i in range(n):
+                    for j in range(i + 1):
+                        v = 0.5 * ((s[b, i] * s[b, j] * C[i, j] + Q[b, i, j])
+                                   + (s[b, j] * s[b, i] * C[j, i] + Q[b, j, i]))
+                        Pm[i, j] = v
+                        Pm[j, i] = v
+                for i in range(n):
+                    acc = 0.0
+                    for k in range(n):
+                        acc += Phi[b, i, k] * x[b, k]
+                    xm[i] = s[b, i] * acc
+            # ---- the valid rows and the non-zeros of their H rows
+            mv = 0
+            for i in range(m):
+                if mask[b, i]:
+                    idx[mv] = i
+                    q = 0
+                    for l in range(n):
+                        h = H[b, i, l]
+                        if h != 0:
+                            nzc[mv, q] = l
+                            nzv[mv, q] = h
+                            q += 1
+                    cnt[mv] = q
+                    mv += 1
+                else:
+                    r[b, i] = 0.0
+                    Sd[b, i] = 1.0
+            # ---- residual, H P-, S (lower triangle) and its Cholesky factor
+            for t in range(mv):
+                i = idx[t]
+                sres = dz[b, i]
+                for k in range(n):
+                    HP[t, k] = 0.0
+                for q in range(cnt[t]):
+                    l = nzc[t, q]
+                    h = nzv[t, q]
+                    sres -= h * xm[l]
+                    for k in range(n):
+                        HP[t, k] += h * Pm[l, k]
+                r[b, i] = sres
+                rv[t] = sres
+            for t in range(mv):
+                for u in range(t + 1):
+                    acc = R[b, idx[t], idx[u]]
+                    for q in range(cnt[u]):
+                        acc += HP[t, nzc[u, q]] * nzv[u, q]
+                    L[t, u] = acc
+                Sd[b, idx[t]] = L[t, t]
+            good = True
+            for j in range(mv):
+                d = L[j, j]
+                for p in range(j):
+                    d -= L[j, p] * L[j, p]
+                if not d > 0:
+                    good = False
+                    break
+                d = np.sqrt(d)
+                L[j, j] = d
+                for i in range(j + 1, mv):
+                    acc = L[i, j]
+                    for p in range(j):
+                        acc -= L[i, p] * L[j, p]
+                    L[i, j] = acc / d
+            ok[b] = good
+            if not good:
+                continue
+            # ---- w = L^-1 r, Y = L^-1 HP (forward), K^T = L^-T Y (backward, in place)
+            qs = 0.0
+            for i in range(mv):
+                acc = rv[i]
+                for p in range(i):
+                    acc -= L[i, p] * w[p]
+                w[i] = acc / L[i, i]
+                qs += w[i] * w[i]
+                for k in range(n):
+                    Y[i, k] = HP[i, k]
+                for p in range(i):
+                    lip = L[i, p]
+                    if lip != 0:
+                        for k in range(n):
+                            Y[i, k] -= lip * Y[p, k]
+                for k in range(n):
+                    Y[i, k] /= L[i, i]
+            nis[b] = qs
+            for i in range(mv - 1, -1, -1):
+                for p in range(i + 1, mv):
+                    lpi = L[p, i]
+                    if lpi != 0:
+                        for k in range(n):
+                            Y[i, k] -= lpi * Y[p, k]
+                for k in range(n):
+                    Y[i, k] /= L[i, i]
+            # ---- x+ = x- + K r
+            for k in range(n):
+                acc = xm[k]
+                for t in range(mv):
+                    acc += Y[t, k] * rv[t]
+                xn[b, k] = acc
+            # ---- Joseph with A = I - K H non-trivial only in the nc columns of H that hold a non-zero
+            # (8 of 17 for GNSS rows): KHt = (K H)^T on those columns, AP = P- - K H P-,
+            # X = AP A^T = AP - (AP)[:, cols] KHt   (upper triangle only: P+ is symmetric, mirrored below)
+            nc = 0
+            for t in range(mv):
+                for q in range(cnt[t]):
+                    l = nzc[t, q]
+                    if pos[l] < 0:
+                        pos[l] = nc
+                        cols[nc] = l
+                        for k in range(n):
+                            KHt[nc, k] = 0.0
+                        nc += 1
+                    ci = pos[l]
+                    h = nzv[t, q]
+                    for k in range(n):
+                        KHt[ci, k] += h * Y[t, k]
+            for k in range(n):
+                for j in range(n):
+                    AP[k, j] = Pm[k, j]
+                for ci in range(nc):
+                    a = KHt[ci, k]
+                    if a != 0:
+                        l = cols[ci]
+                        for j in range(n):
+                            AP[k, j] -= a * Pm[l, j]
+            for k in range(n):
+                for j in range(k, n):
+                    X[k, j] = AP[k, j]
+                for ci in range(nc):
+                    a = AP[k, cols[ci]]
+                    if a != 0:
+                        for j in range(k, n):
+                            X[k, j] -= a * KHt[ci, j]
+            for ci in range(nc):
+                pos[cols[ci]] = -1
+            for t in range(mv):       # KRt = (K R)^T = R^T K^T over the valid rows
+                for k in range(n):
+                    KRt[t, k] = 0.0
+                for u in range(mv):
+                    ru = R[b, idx[u], idx[t]]
+                    if ru != 0:
+                        for k in range(n):
+                            KRt[t, k] += ru * Y[u, k]
+            for k in range(n):
+                for t in range(mv):
+                    a = Y[t, k]
+                    if a != 0:
+                        for j in range(k, n):
+                            X[k, j] += a * KRt[t, j]
+            for k in range(n):
+                for j in range(k, n):
+                    Pn[b, k, j] = X[k, j]
+                    Pn[b, j, k] = X[k, j]
+
+
+_fused_serial, _fused_parallel = serial_and_parallel(_fused_rows, error_model="numpy")
+
+
+def fused_update(P, x, H, R, dz, mask, Phi=None, Q=None, fade=None, prior=None):
+    """Compiled fused time + Joseph measurement update of a batch (see :func:`_fused_rows`).
+
+    Parameters
+    ----------
+    P : (B, n, n) symmetric covariance; x : (B, n); H : (B, m, n); R : (B, m, m); dz : (B, m);
+    mask : (B, m) bool, the valid measurement rows (the others are left out whatever they hold).
+    Phi, Q : (B, n, n) transition and process noise of a time update applied first (None: no time update);
+    fade : None, (B,) or (B, n) fading factors ``lambda >= 1``: ``P- = D Phi P Phi^T D + Q``,
+        ``D = diag(sqrt(lambda))`` (seed 003 eq 23; per state with (B, n));
+    prior : (B, n, n) ``sym(Phi P Phi^T)`` when the caller already has it (then ``P`` is not read).
+    All in one float dtype (that of ``P``).
+
+    Returns
+    -------
+    P_new, x_new, r (= dz - H x-, 0 on masked rows), diag(S) (1 on masked rows), nis : new arrays.
+
+    Raises
+    ------
+    numpy.linalg.LinAlgError
+        ``S`` is not positive definite on some row; nothing is returned (the inputs are not modified).
+    """
+    B, m, n = H.shape
+    dt = P.dtype
+    c = np.ascontiguousarray
+    if Phi is None:
+        mode, Phi_, s, Q_, pri = 0, P, np.ones((B, n), dt), P, P
+    else:
+        f = np.ones((B, n)) if fade is None else np.asarray(fade, np.float64)
+        s = c(np.broadcast_to(np.sqrt(f if f.ndim == 2 else f[:, None]), (B, n)), dt)
+        mode, Phi_, Q_ = (1 if prior is None else 2), c(Phi, dt), c(Q, dt)
+        pri = P if prior is None else c(prior, dt)
+    Pn = np.empty((B, n, n), dt)
+    xn = np.empty((B, n), dt)
+    r = np.empty((B, m), dt)
+    Sd = np.empty((B, m), dt)
+    nis = np.zeros(B, dt)
+    ok = np.empty(B, bool)
+    if B >= PARALLEL_MIN_BATCH:
+        kern, nchunk = _fused_parallel, min(B, 4 * nb.get_num_threads())
+    else:
+        kern, nchunk = _fused_serial, 1
+    kern(c(P, dt), c(x, dt), Phi_, s, Q_, pri, mode, c(H, dt), c(R, dt), c(dz, dt), c(mask, bool),
+         Pn, xn, r, Sd, nis, ok, nchunk)
+    if not ok.all():
+        raise np.linalg.LinAlgError("Matrix is not positive definite")
+    return Pn, xn, r, Sd, nis

@@ -237,9 +237,11 @@ def test_sage_husa_r_law_compiled_matches_reference(dtype, groups):
 
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
 @pytest.mark.parametrize("diagonal,B", [(False, 6), (True, 6), (False, 70)])  # B = 70: the parallel kernel
-def test_sage_husa_q_law_compiled_matches_reference(dtype, diagonal, B):
+@pytest.mark.parametrize("fused", [False, True])  # True: the own eigen-decomposition (fused_update)
+def test_sage_husa_q_law_compiled_matches_reference(dtype, diagonal, B, fused):
     rng = np.random.default_rng(9)
     law = SageHusa(spd(rng, B, N), dtype=dtype, config=SageHusaConfig(diagonal_q=diagonal))
+    assert law.set_fused(fused) is fused
     jumps = 0
     for it in range(4):
         prior = spd(rng, B, N).astype(dtype)
