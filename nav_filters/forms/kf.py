@@ -49,6 +49,58 @@ def nis_and_gain(S, PHt, dz):
     return K, nis
 
 
+@nb.njit(cache=True, error_model="numpy")
+def _cholesky_lower(L, m):
+    """``S = L L^T`` in place on the lower triangle of ``L[:m, :m]`` (which holds S); False at the first pivot
+    that is not positive (the rest of L is then undefined)."""
+    for j in range(m):
+        d = L[j, j]
+        for p in range(j):
+            d -= L[j, p] * L[j, p]
+        if not d > 0:
+            return False
+        d = np.sqrt(d)
+        L[j, j] = d
+        for i in range(j + 1, m):
+            s = L[i, j]
+            for p in range(j):
+                s -= L[i, p] * L[j, p]
+            L[i, j] = s / d
+    return True
+
+
+@nb.njit(cache=True, error_model="numpy")
+def _gain_solve(L, r, HP, Y, w, m, n):
+    """With ``S = L L^T`` (:func:`_cholesky_lower`, first m rows): ``w = L^-1 r``, ``Y = L^-1 HP`` (forward), then
+    ``Y <- L^-T Y = S^-1 H P = K^T`` (backward, in place). Returns the NIS ``w^T w = r^T S^-1 r``.
+    ``r`` (>= m,), ``HP`` / ``Y`` (>= m, n), ``w`` (>= m,) scratch."""
+    q = 0.0
+    for i in range(m):
+        s = r[i]
+        for p in range(i):
+            s -= L[i, p] * w[p]
+        w[i] = s / L[i, i]
+        q += w[i] * w[i]
+        for k in range(n):
+            Y[i, k] = HP[i, k]
+        for p in range(i):
+            lip = L[i, p]
+            if lip != 0:
+                for k in range(n):
+                    Y[i, k] -= lip * Y[p, k]
+        for k in range(n):
+            Y[i, k] /= L[i, i]
+    for i in range(m - 1, -1, -1):
+        for p in range(i + 1, m):
+            lpi = L[p, i]
+            if lpi != 0:
+                for k in range(n):
+                    Y[i, k] -= lpi * Y[p, k]
+        for k in range(n):
+            Y[i, k] /= L[i, i]
+    return q
+
+
 def _joseph_rows(P, x, H, R, dz, Pn, xn, r, Sd, nis, ok):
     """Joseph-form update of every batch row (seed 000 eqs 7-8 with the Joseph covariance of eq 17).
 
@@ -108,50 +160,11 @@ def _joseph_rows(P, x, H, R, dz, Pn, xn, r, Sd, nis, ok):
                     s += HP[i, nzc[j, t]] * nzv[j, t]
                 L[i, j] = s
             Sd[b, i] = L[i, i]
-        good = True
-        for j in range(m):
-            d = L[j, j]
-            for p in range(j):
-                d -= L[j, p] * L[j, p]
-            if not d > 0:
-                good = False
-                break
-            d = np.sqrt(d)
-            L[j, j] = d
-            for i in range(j + 1, m):
-                s = L[i, j]
-                for p in range(j):
-                    s -= L[i, p] * L[j, p]
-                L[i, j] = s / d
+        good = _cholesky_lower(L, m)
         ok[b] = good
         if not good:
             continue
-        # w = L^-1 r, Y = L^-1 HP (forward), K^T = L^-T Y (backward, in place in Y)
-        q = 0.0
-        for i in range(m):
-            s = r[b, i]
-            for p in range(i):
-                s -= L[i, p] * w[p]
-            w[i] = s / L[i, i]
-            q += w[i] * w[i]
-            for k in range(n):
-                Y[i, k] = HP[i, k]
-            for p in range(i):
-                lip = L[i, p]
-                if lip != 0:
-                    for k in range(n):
-                        Y[i, k] -= lip * Y[p, k]
-            for k in range(n):
-                Y[i, k] /= L[i, i]
-        nis[b] = q
-        for i in range(m - 1, -1, -1):
-            for p in range(i + 1, m):
-                lpi = L[p, i]
-                if lpi != 0:
-                    for k in range(n):
-                        Y[i, k] -= lpi * Y[p, k]
-            for k in range(n):
-                Y[i, k] /= L[i, i]
+        nis[b] = _gain_solve(L, r[b], HP, Y, w, m, n)
         # x+ = x + K r
         for k in range(n):
             xn[b, k] = x[b, k]
@@ -427,50 +440,12 @@ def _fused_rows(P, x, Phi, s, Q, prior, mode, H, R, dz, mask, Pn, xn, r, Sd, nis
                         acc += HP[t, nzc[u, q]] * nzv[u, q]
                     L[t, u] = acc
                 Sd[b, idx[t]] = L[t, t]
-            good = True
-            for j in range(mv):
-                d = L[j, j]
-                for p in range(j):
-                    d -= L[j, p] * L[j, p]
-                if not d > 0:
-                    good = False
-                    break
-                d = np.sqrt(d)
-                L[j, j] = d
-                for i in range(j + 1, mv):
-                    acc = L[i, j]
-                    for p in range(j):
-                        acc -= L[i, p] * L[j, p]
-                    L[i, j] = acc / d
+            good = _cholesky_lower(L, mv)
             ok[b] = good
             if not good:
                 continue
             # ---- w = L^-1 r, Y = L^-1 HP (forward), K^T = L^-T Y (backward, in place)
-            qs = 0.0
-            for i in range(mv):
-                acc = rv[i]
-                for p in range(i):
-                    acc -= L[i, p] * w[p]
-                w[i] = acc / L[i, i]
-                qs += w[i] * w[i]
-                for k in range(n):
-                    Y[i, k] = HP[i, k]
-                for p in range(i):
-                    lip = L[i, p]
-                    if lip != 0:
-                        for k in range(n):
-                            Y[i, k] -= lip * Y[p, k]
-                for k in range(n):
-                    Y[i, k] /= L[i, i]
-            nis[b] = qs
-            for i in range(mv - 1, -1, -1):
-                for p in range(i + 1, mv):
-                    lpi = L[p, i]
-                    if lpi != 0:
-                        for k in range(n):
-                            Y[i, k] -= lpi * Y[p, k]
-                for k in range(n):
-                    Y[i, k] /= L[i, i]
+            nis[b] = _gain_solve(L, rv, HP, Y, w, mv, n)
             # ---- x+ = x- + K r
             for k in range(n):
                 acc = xm[k]
