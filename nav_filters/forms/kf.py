@@ -50,6 +50,34 @@ def nis_and_gain(S, PHt, dz):
 
 
 @nb.njit(cache=True, error_model="numpy")
+def _row_nonzeros(h_row, nzc_row, nzv_row):
+    """Column indices and values of the non-zeros of one row of H (n,) into ``nzc_row`` / ``nzv_row``; their
+    count."""
+    c = 0
+    for l in range(h_row.shape[0]):
+        h = h_row[l]
+        if h != 0:
+            nzc_row[c] = l
+            nzv_row[c] = h
+            c += 1
+    return c
+
+
+@nb.njit(cache=True, error_model="numpy")
+def _residual_and_hp(dz_i, nzc_row, nzv_row, cnt, x, P, hp_row):
+    """One measurement row: ``hp_row += h P`` (n,) over h's non-zeros (:func:`_row_nonzeros`); returns the
+    residual ``dz_i - h x``."""
+    s = dz_i
+    for t in range(cnt):
+        l = nzc_row[t]
+        h = nzv_row[t]
+        s -= h * x[l]
+        for k in range(hp_row.shape[0]):
+            hp_row[k] += h * P[l, k]
+    return s
+
+
+@nb.njit(cache=True, error_model="numpy")
 def _cholesky_lower(L, m):
     """``S = L L^T`` in place on the lower triangle of ``L[:m, :m]`` (which holds S); False at the first pivot
     that is not positive (the rest of L is then undefined)."""
@@ -135,23 +163,9 @@ def _joseph_rows(P, x, H, R, dz, Pn, xn, r, Sd, nis, ok):
         nzv = np.empty((m, n), dt)
         cnt = np.zeros(m, np.int64)
         for i in range(m):
-            c = 0
-            for l in range(n):
-                h = H[b, i, l]
-                if h != 0:
-                    nzc[i, c] = l
-                    nzv[i, c] = h
-                    c += 1
-            cnt[i] = c
+            cnt[i] = _row_nonzeros(H[b, i], nzc[i], nzv[i])
         for i in range(m):
-            s = dz[b, i]
-            for t in range(cnt[i]):
-                l = nzc[i, t]
-                h = nzv[i, t]
-                s -= h * x[b, l]
-                for k in range(n):
-                    HP[i, k] += h * P[b, l, k]
-            r[b, i] = s
+            r[b, i] = _residual_and_hp(dz[b, i], nzc[i], nzv[i], cnt[i], x[b], P[b], HP[i])
         # S = HP H^T + R (lower triangle) and its Cholesky factor, in place in L
         for i in range(m):
             for j in range(i + 1):
@@ -407,14 +421,7 @@ def _fused_rows(P, x, Phi, s, Q, prior, mode, H, R, dz, mask, Pn, xn, r, Sd, nis
             for i in range(m):
                 if mask[b, i]:
                     idx[mv] = i
-                    q = 0
-                    for l in range(n):
-                        h = H[b, i, l]
-                        if h != 0:
-                            nzc[mv, q] = l
-                            nzv[mv, q] = h
-                            q += 1
-                    cnt[mv] = q
+                    cnt[mv] = _row_nonzeros(H[b, i], nzc[mv], nzv[mv])
                     mv += 1
                 else:
                     r[b, i] = 0.0
@@ -422,15 +429,9 @@ def _fused_rows(P, x, Phi, s, Q, prior, mode, H, R, dz, mask, Pn, xn, r, Sd, nis
             # ---- residual, H P-, S (lower triangle) and its Cholesky factor
             for t in range(mv):
                 i = idx[t]
-                sres = dz[b, i]
                 for k in range(n):
                     HP[t, k] = 0.0
-                for q in range(cnt[t]):
-                    l = nzc[t, q]
-                    h = nzv[t, q]
-                    sres -= h * xm[l]
-                    for k in range(n):
-                        HP[t, k] += h * Pm[l, k]
+                sres = _residual_and_hp(dz[b, i], nzc[t], nzv[t], cnt[t], xm, Pm, HP[t])
                 r[b, i] = sres
                 rv[t] = sres
             for t in range(mv):
