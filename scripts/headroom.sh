@@ -6,8 +6,8 @@
 # schedule, and the hand-designed causal rule (rule:, low b while the satellites look degraded), on 32 held-out
 # paired episodes. No learned method is evaluated here: the scenarios and their headroom are fixed first.
 # docs/headroom.md holds all nine scenarios (the default SCENARIOS), run with the consensus Sage-Husa law and the
-# strong-tracking laws that fade on state events: 49 minutes on 2 cores shared with two training runs (tuning
-# 7 min, eval 42 min; 37 minutes on 2 free cores with the earlier law). Set PY to use another interpreter,
+# strong-tracking laws that fade on state events, seed003-sim with its odometer + NHC: 32 minutes on 2 cores
+# shared with a benchmarking job (tuning 7 min, eval 25 min). Set PY to use another interpreter,
 # SCENARIOS to run a subset (the note then holds only that subset), NOTE and OUT for the note and the results
 # folder (defaults docs/headroom.md, results/headroom).
 set -euo pipefail
