@@ -14,16 +14,9 @@ def _live_covariances_pd(core):
     return np.linalg.eigvalsh(0.5 * (P + P.mT))[live].min(initial=np.inf) > 0
 
 
-@pytest.mark.parametrize("env_id, seed, diverges", [("GnssIns/MASTKF-v0", 100, True), ("GnssIns/MASTKF-v0", 600, True),
-                                                    ("GnssIns/STKF-v0", 600, False)])
-def test_float32_strong_tracking_bang_bang_after_an_outage_keeps_failures_in_their_rows(env_id, seed, diverges):
+def _bang_bang_outage(env_id, seed):
     """The configuration of the issue: consumer IMU, ``outage``, actions alternating -1/+1, 8 rows, float32.
-    Before the fix ma-stkf (seed 100) raised LinAlgError from the Joseph update when GNSS returned (the
-    navigator checked S in float64 with the raw R, not the update's float32 S with alpha R), and P became
-    non-PD without a flag (ma-stkf seed 200, stkf seed 600). Since the strong-tracking laws fade on state
-    events only (issue 16), stkf no longer diverges here (no row of seeds 100-800), so its case checks the
-    covariances and flags without exercising the isolation; ma-stkf still pushes a row over the edge with
-    seeds 100 and 600 (no longer with 200)."""
+    Checks every step's invariants and returns the number of flagged row-steps."""
     env = gym.make_vec(env_id, num_envs=8, vectorization_mode="vector_entry_point", scenario="outage",
                        imu_grade="consumer", dtype="float32")
     env.reset(seed=seed)
@@ -32,13 +25,34 @@ def test_float32_strong_tracking_bang_bang_after_an_outage_keeps_failures_in_the
     flagged = 0
     for t in range(core.M):
         _, _, term, _, info = env.step(np.full((8, k), 1.0 if t % 2 else -1.0, np.float32))
-        assert _live_covariances_pd(core), t
+        assert _live_covariances_pd(core), (seed, t)
         assert np.array_equal(term, info["diverged"])
         reasons = info["diverged_reason"]
-        assert all(reasons[term]) and not any(reasons[~term]), (t, reasons)
+        assert all(reasons[term]) and not any(reasons[~term]), (seed, t, reasons)
         flagged += int(term.sum())
-    if diverges:
-        assert flagged > 0  # the scenario does push rows over the edge: the test exercises the isolation
+    return flagged
+
+
+MA_STKF_EDGE_SEEDS = (100, 600, 900, 1100)
+"""Seeds whose float32 ma-stkf run pushes a row over the edge on some machine: which ones do depends on the
+last bits of float32 rounding, which differ between CPUs (numba compiles for the host: FMA contraction, vector
+width): seeds 100 and 600 on one machine, 100, 900 and 1100 on an AVX-512 one."""
+
+
+@pytest.mark.parametrize("env_id", ["GnssIns/MASTKF-v0", "GnssIns/STKF-v0"])
+def test_float32_strong_tracking_bang_bang_after_an_outage_keeps_failures_in_their_rows(env_id):
+    """Before the fix ma-stkf (seed 100) raised LinAlgError from the Joseph update when GNSS returned (the
+    navigator checked S in float64 with the raw R, not the update's float32 S with alpha R), and P became
+    non-PD without a flag (ma-stkf seed 200, stkf seed 600). Since the strong-tracking laws fade on state
+    events only (issue 16), stkf no longer diverges here (no row of seeds 100-800), so its case checks the
+    covariances and flags without exercising the isolation; ma-stkf still pushes a row over the edge on some
+    of :data:`MA_STKF_EDGE_SEEDS` (the test needs one, so that it exercises the isolation in the env; the
+    isolation itself is tested deterministically in tests/nav_filters/test_failure_isolation.py)."""
+    if env_id == "GnssIns/STKF-v0":
+        _bang_bang_outage(env_id, 600)
+        return
+    flagged = [_bang_bang_outage(env_id, s) for s in MA_STKF_EDGE_SEEDS]
+    assert sum(flagged) > 0, flagged  # the scenario does push rows over the edge: the test exercises the isolation
 
 
 SOAK_SCENARIOS = ("urban", "outage", "noise-burst")
