@@ -30,9 +30,10 @@ machine shared with other jobs the wall time of a stage swings with their load, 
 
 ``--compare DIR`` runs every cell twice, in this tree and in the source tree ``DIR`` (e.g. a checkout of
 an earlier commit), alternately in fresh processes, and prints both with the speed-up: before/after
-figures measured side by side under the same machine load. The *before* cell of a method is always the
-exact transition (an earlier tree may not have the option), so the ``avg`` rows read as "before: the exact
-default of DIR, after: the averaged transition of this tree".
+figures measured side by side under the same machine load. The *before* cell runs the same transition mode
+as the *after* cell; where the earlier tree does not have that mode (its env rejects the argument) it falls
+back to the exact transition, and the row is marked ``*`` ("before: the exact default of DIR, after: the
+mode of this tree"). The stage profile's *before* column is the first mode of ``--transitions`` alike.
 
 ``--accuracy`` prints instead the accuracy table of the fast modes (averaged, fused) against the exact one on
 every built-in scenario, paired episodes (:mod:`transition_accuracy`, a few minutes); ``--filterpy`` the
@@ -317,6 +318,17 @@ def _run_cell(root, kind, method, B, steps, episode_s, scenario, transition="exa
     return json.loads(out.strip().splitlines()[-1])
 
 
+def _run_before(root, kind, method, B, steps, episode_s, scenario, transition):
+    """The *before* cell of ``--compare``: ``transition`` in the tree ``root``, or its exact default where that
+    tree has no such mode (its env raises). Returns (JSON result, whether it fell back)."""
+    try:
+        return _run_cell(root, kind, method, B, steps, episode_s, scenario, transition), False
+    except subprocess.CalledProcessError:
+        if transition == "exact":
+            raise
+        return _run_cell(root, kind, method, B, steps, episode_s, scenario, "exact"), True
+
+
 def _cell_main(kind, method, B, steps, episode_s, scenario, transition):
     B, steps, episode_s = int(B), int(steps), float(episode_s)
     if kind == "rate":
@@ -416,10 +428,11 @@ def main(argv=None):
     for m in ([] if args.profile_only else args.methods):
         for B in batches:
             cell = ("rate", m, B, n_steps(B), args.episode_s, args.scenario)
-            rb = _run_cell(other, *cell) if args.compare else None  # the before tree: its exact default
             for tr in args.transitions:
                 lab = _label(m, tr)
                 if args.compare:
+                    rb, fell_back = _run_before(other, *cell, tr)  # the before tree, same mode if it has it
+                    lab += "*" if fell_back else ""
                     ra = _run_cell(here, *cell, tr)
                     print(f"{lab:16s} {B:5d} {rb[1]:15.0f} {ra[1]:10.0f} {ra[1] / rb[1]:8.2f}x {rb[2]:14.2f} "
                           f"{ra[2]:9.2f} {rb[0]:15.2f} {ra[0]:7.2f}", flush=True)
@@ -438,7 +451,9 @@ def main(argv=None):
     for B in prof_b:
         cell = ("cpu-profile" if args.cpu_profile else "profile", m, B, n_steps(B), args.episode_s, args.scenario)
         if args.compare:
-            cols.append((f"B={B} before", _run_cell(other, *cell)))
+            tr0 = args.transitions[0]
+            rb, fell_back = _run_before(other, *cell, tr0)
+            cols.append((f"B={B} before{'' if fell_back else _SHORT[tr0]}", rb))
         for tr in args.transitions:
             if args.compare:
                 cols.append((f"B={B} after{short[tr]}", _run_cell(here, *cell, tr)))

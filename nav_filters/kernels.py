@@ -1,6 +1,6 @@
 """Compiled (numba) inner loop of the navigator: one GNSS epoch of IMU samples for all rows; and the small
-dense helpers (in-place Cholesky factor and solve) shared by the navigator's covariance check and the
-adaptive laws' residuals.
+dense helpers (in-place Cholesky factor and solve, the non-zeros of an H row) shared by the navigator's
+covariance check, the filter forms and the adaptive laws' residuals.
 
 The per-IMU-sample work of a tightly coupled navigator (bias compensation,
 strapdown mechanization, error-model transition) runs 100 times per GNSS epoch
@@ -417,6 +417,24 @@ def cholesky_solve(L, x):
         for q in range(i + 1, p):
             s -= L[q, i] * x[q]
         x[i] = s / L[i, i]
+
+
+@nb.njit(cache=True, error_model="numpy")
+def row_nonzeros(h_row, nzc_row, nzv_row):
+    """Column indices (increasing) and values of the non-zeros of one row of H (n,) into ``nzc_row`` /
+    ``nzv_row``; their count.
+
+    A GNSS row of the 17-state H has 4 non-zeros: products with H over these lists, in this (increasing column)
+    order, add the same terms in the same order as a loop over all n columns that skips the zeros, so they
+    give the same bits."""
+    c = 0
+    for l in range(h_row.shape[0]):
+        h = h_row[l]
+        if h != 0:
+            nzc_row[c] = l
+            nzv_row[c] = h
+            c += 1
+    return c
 
 
 @nb.njit(cache=True, error_model="numpy")

@@ -26,7 +26,8 @@ import numba as nb
 import numpy as np
 
 from ..error_model import CLK, DRIFT, N_STATES
-from ..kernels import cholesky_inplace as _cholesky_inplace, cholesky_solve as _cholesky_solve
+from ..kernels import (cholesky_inplace as _cholesky_inplace, cholesky_solve as _cholesky_solve,
+                       row_nonzeros as _row_nonzeros)
 
 GROUP_NAMES = ("pseudorange", "rate", "other")
 """Measurement groups of :func:`measurement_groups`, in id order."""
@@ -111,6 +112,8 @@ def innovation_traces(dz, H, prior, Q, R, mask) -> InnovationTraces:
 def _traces_kernel(dz, H, prior, Q, with_q, R, mask, out):
     """Rows of ``out`` (4, B): tr(H prior H^T), tr(H Q H^T), tr(R), ||dz||^2 over the used rows."""
     B, m, n = H.shape
+    nzc = np.empty(n, np.int64)
+    nzv = np.empty(n, H.dtype)
     for b in range(B):
         tm = 0.0
         tq = 0.0
@@ -119,18 +122,17 @@ def _traces_kernel(dz, H, prior, Q, with_q, R, mask, out):
         for i in range(m):
             if not mask[b, i]:
                 continue
-            for k in range(n):
-                hk = H[b, i, k]
-                if hk == 0:
-                    continue
+            cnt = _row_nonzeros(H[b, i], nzc, nzv)  # the sums below over these, in column order
+            for p in range(cnt):
+                k = nzc[p]
                 sm = 0.0
                 sq = 0.0
-                for l in range(n):
-                    h = H[b, i, l]
-                    if h != 0:
-                        sm += h * prior[b, l, k]
-                        if with_q:
-                            sq += h * Q[b, l, k]
+                for t in range(cnt):
+                    h = nzv[t]
+                    sm += h * prior[b, nzc[t], k]
+                    if with_q:
+                        sq += h * Q[b, nzc[t], k]
+                hk = nzv[p]
                 tm += sm * hk
                 tq += sq * hk
             tr += R[b, i, i]
@@ -193,21 +195,50 @@ def measurement_groups(H, mask) -> np.ndarray:
 
 # ----------------------------------------------------------------------------- geometry residuals
 @nb.njit(cache=True)
-def _geometry_residual_row(dz, H, var, use, v_out, red_out):
+def _rows_nonzeros(H, rows, nzc, nzv, cnt):
+    """The non-zeros of the rows of one batch row's ``H`` (m, n) flagged in ``rows`` (m,) bool
+    (:func:`~nav_filters.kernels.row_nonzeros`): columns ``nzc`` (m, n), values ``nzv`` (m, n, H's dtype) and
+    counts ``cnt`` (m,) (0 on the other rows)."""
+    for i in range(H.shape[0]):
+        cnt[i] = _row_nonzeros(H[i], nzc[i], nzv[i]) if rows[i] else 0
+
+
+@nb.njit(cache=True)
+def _nonzeros_work(m, n, dtype):
+    """Scratch of :func:`_rows_nonzeros` for ``m`` rows of ``n`` columns: ``(nzc, nzv, cnt)``."""
+    return np.empty((m, n), np.int64), np.empty((m, n), dtype), np.zeros(m, np.int64)
+
+
+@nb.njit(cache=True)
+def _geometry_work(n):
+    """Scratch of :func:`_geometry_residual_row` (allocated once per kernel call, not per row):
+    ``(cols, mark, A, rhs, beta, y)``."""
+    return (np.empty(n, np.int64), np.zeros(n, np.bool_), np.empty((n, n)), np.empty(n), np.empty(n),
+            np.empty(n))
+
+
+@nb.njit(cache=True)
+def _geometry_residual_row(dz, H, nzc, cnt, var, use, v_out, red_out, work):
     """Weighted least-squares residuals of one batch row's used measurements (see :func:`geometry_residuals`).
 
-    ``dz`` (m,), ``H`` (m, n), ``var`` (m,) > 0, ``use`` (m,) bool; writes ``v_out`` and ``red_out`` on the used
-    rows (0 where there is no redundancy: no more used rows than fitted columns, or a singular geometry).
+    ``dz`` (m,), ``H`` (m, n), ``nzc`` / ``cnt`` the non-zero columns of the used rows of H
+    (:func:`_rows_nonzeros`), ``var`` (m,) > 0, ``use`` (m,) bool, ``work`` :func:`_geometry_work`; writes
+    ``v_out`` and ``red_out`` on the used rows (0 where there is no redundancy: no more used rows than fitted
+    columns, or a singular geometry).
     """
     m, n = H.shape
-    cols = np.zeros(n, np.int64)
+    cols, mark, Aw, rhs_w, beta_w, y = work
+    # the fitted columns: those where some used row of H is non-zero, in increasing order
+    for i in range(m):
+        if use[i]:
+            for t in range(cnt[i]):
+                mark[nzc[i, t]] = True
     p = 0
     for k in range(n):
-        for i in range(m):
-            if use[i] and H[i, k] != 0:
-                cols[p] = k
-                p += 1
-                break
+        if mark[k]:
+            cols[p] = k
+            p += 1
+            mark[k] = False
     k_used = 0
     for i in range(m):
         if use[i]:
@@ -216,8 +247,10 @@ def _geometry_residual_row(dz, H, var, use, v_out, red_out):
             red_out[i] = 0.0
     if k_used <= p or p == 0:
         return
-    A = np.zeros((p, p))
-    rhs = np.zeros(p)
+    A = Aw[:p, :p]
+    rhs = rhs_w[:p]
+    A[:, :] = 0.0
+    rhs[:] = 0.0
     for i in range(m):
         if not use[i]:
             continue
@@ -230,9 +263,9 @@ def _geometry_residual_row(dz, H, var, use, v_out, red_out):
     # Cholesky A = L L^T in place (lower triangle); a singular geometry gives no residuals
     if not _cholesky_inplace(A, 1e-12):
         return
-    beta = rhs.copy()
+    beta = beta_w[:p]
+    beta[:] = rhs
     _cholesky_solve(A, beta)
-    y = np.empty(p)
     for i in range(m):
         if not use[i]:
             continue
@@ -255,14 +288,19 @@ def _geometry_residual_row(dz, H, var, use, v_out, red_out):
 def _geometry_residuals_kernel(dz, H, var, types, n_types, v_out, red_out):
     B, m, n = H.shape
     use = np.zeros(m, np.bool_)
+    typed = np.zeros(m, np.bool_)
+    nzc, nzv, cnt = _nonzeros_work(m, n, H.dtype)
+    work = _geometry_work(n)
     for b in range(B):
         for i in range(m):
             v_out[b, i] = 0.0
             red_out[b, i] = 0.0
+            typed[i] = types[b, i] >= 0 and types[b, i] < n_types
+        _rows_nonzeros(H[b], typed, nzc, nzv, cnt)
         for t in range(n_types):
             for i in range(m):
                 use[i] = types[b, i] == t
-            _geometry_residual_row(dz[b], H[b], var[b], use, v_out[b], red_out[b])
+            _geometry_residual_row(dz[b], H[b], nzc, cnt, var[b], use, v_out[b], red_out[b], work)
 
 
 def geometry_residuals(dz, H, var, types, n_types: int = 2):
@@ -327,11 +365,22 @@ def geometry_residuals_reference(dz, H, var, types, n_types: int = 2):
 
 
 @nb.njit(cache=True)
-def _posterior_residual_row(dz, H, P, k_prior, var, use, v_out, red_out):
-    """Post-fit residuals of one batch row's used rows against the prior ``k_prior P`` (see
-    :func:`posterior_residuals`); writes ``v_out``, ``red_out`` on the used rows."""
-    m, n = H.shape
-    idx = np.empty(m, np.int64)
+def _posterior_work(m, n):
+    """Scratch of :func:`_posterior_residual_row` (allocated once per kernel call, not per row):
+    ``(idx, S, HP, y, Linv)``."""
+    return np.empty(m, np.int64), np.empty((m, m)), np.empty((m, n)), np.empty(m), np.empty((m, m))
+
+
+@nb.njit(cache=True)
+def _posterior_residual_row(dz, nzc, nzv, cnt, P, Q, add_q, k_prior, var, use, v_out, red_out, work):
+    """Post-fit residuals of one batch row's used rows against the prior ``k_prior P-`` (see
+    :func:`posterior_residuals`), ``P- = P (+ Q with add_q)`` (n, n); writes ``v_out``, ``red_out`` on the used
+    rows. ``nzc`` / ``nzv`` / ``cnt``: the non-zeros of the used rows of H (:func:`_rows_nonzeros`): ``H P-``
+    and ``H P- H^T`` run over them (in increasing column order: the same sums as over all n columns with the
+    zeros skipped). ``work``: :func:`_posterior_work`."""
+    n = P.shape[0]
+    m = use.shape[0]
+    idx, Sw, HPw, yw, Lw = work
     q = 0
     for i in range(m):
         if use[i]:
@@ -341,35 +390,34 @@ def _posterior_residual_row(dz, H, P, k_prior, var, use, v_out, red_out):
             red_out[i] = 0.0
     if q == 0:
         return
-    S = np.zeros((q, q))
-    HP = np.zeros((q, n))
+    S = Sw[:q, :q]
+    HP = HPw[:q]
     for a in range(q):
         ia = idx[a]
         for c in range(n):
-            acc = 0.0
-            for l in range(n):
-                h = H[ia, l]
-                if h != 0:
-                    acc += np.float64(h) * np.float64(P[l, c])
-            HP[a, c] = acc
+            HP[a, c] = 0.0
+        for t in range(cnt[ia]):
+            l = nzc[ia, t]
+            h = np.float64(nzv[ia, t])
+            for c in range(n):
+                pm = P[l, c] + Q[l, c] if add_q else P[l, c]
+                HP[a, c] += h * np.float64(pm)
     for a in range(q):
         for c in range(a + 1):
             acc = 0.0
             ic = idx[c]
-            for l in range(n):
-                h = H[ic, l]
-                if h != 0:
-                    acc += HP[a, l] * np.float64(h)
+            for t in range(cnt[ic]):
+                acc += HP[a, nzc[ic, t]] * np.float64(nzv[ic, t])
             S[a, c] = k_prior * acc
             S[c, a] = S[a, c]
         S[a, a] += var[idx[a]]
     if not _cholesky_inplace(S, 0.0):
         return
-    y = np.empty(q)  # S^-1 dz
+    y = yw[:q]  # S^-1 dz
     for i in range(q):
         y[i] = np.float64(dz[idx[i]])
     _cholesky_solve(S, y)
-    Linv = np.zeros((q, q))  # (S^-1)_ii = |L^-1 e_i|^2
+    Linv = Lw[:q, :q]  # (S^-1)_ii = |L^-1 e_i|^2 (lower triangle)
     for c in range(q):
         for i in range(c, q):
             acc = 1.0 if i == c else 0.0
@@ -378,7 +426,7 @@ def _posterior_residual_row(dz, H, P, k_prior, var, use, v_out, red_out):
             Linv[i, c] = acc / S[i, i]
     for a in range(q):
         sii = 0.0
-        for i in range(q):
+        for i in range(a, q):
             sii += Linv[i, a] * Linv[i, a]
         ia = idx[a]
         v_out[ia] = var[ia] * y[a]
@@ -387,9 +435,13 @@ def _posterior_residual_row(dz, H, P, k_prior, var, use, v_out, red_out):
 
 @nb.njit(cache=True)
 def _posterior_residuals_kernel(dz, H, P, k_prior, var, use, v_out, red_out):
-    B = dz.shape[0]
+    B, m, n = H.shape
+    nzc, nzv, cnt = _nonzeros_work(m, n, H.dtype)
+    work = _posterior_work(m, n)
     for b in range(B):
-        _posterior_residual_row(dz[b], H[b], P[b], k_prior, var[b], use[b], v_out[b], red_out[b])
+        _rows_nonzeros(H[b], use[b], nzc, nzv, cnt)
+        _posterior_residual_row(dz[b], nzc, nzv, cnt, P[b], P[b], False, k_prior, var[b], use[b], v_out[b],
+                                red_out[b], work)
 
 
 def posterior_residuals(dz, H, P, var, use, prior_inflation: float = 1.0):

@@ -156,9 +156,9 @@ import numpy as np
 from ..forms.base import symmetrize
 from ..kernels import serial_and_parallel, sym_eig_inplace
 from .base import AdaptiveLaw, EpochContext, UpdatePlan
-from .innovation import GROUP_NAMES, measurement_groups, quadratic_diag
+from .innovation import GROUP_NAMES, _nonzeros_work, _rows_nonzeros, measurement_groups, quadratic_diag
 from .params import ParamSpec, check_option
-from .satellite_r import (R_SAMPLES, ROSE_FACTOR, SatelliteNoise, _group_step, _quad_row,  # noqa: F401
+from .satellite_r import (R_SAMPLES, ROSE_FACTOR, SatelliteNoise, _group_step, _quad_nz,  # noqa: F401
                           _row_group, _weight_one, check_satellite_options, sage_husa_weight)
 
 B_SPEC = ParamSpec("b", 0.0, 1.0, low_closed=False, high_closed=True, doc="Sage-Husa forgetting factor")
@@ -329,11 +329,18 @@ def _r_scale_kernel(r, H, prior, Q, add_q, R, mask, groups, infer, d, active, r_
     """
     B, m, n = H.shape
     G = s_new.shape[1]
+    nzc, nzv, nzn = _nonzeros_work(m, n, H.dtype)
+    num = np.empty(G)
+    den = np.empty(G)
+    cnt = np.empty(G, np.int64)
+    gi = np.empty(m, np.int64)
+    sq = np.empty(m, R.dtype)
     for b in range(B):
-        num = np.zeros(G)
-        den = np.zeros(G)
-        cnt = np.zeros(G, np.int64)
-        gi = np.empty(m, np.int64)
+        _rows_nonzeros(H[b], mask[b], nzc, nzv, nzn)
+        for g in range(G):
+            num[g] = 0.0
+            den[g] = 0.0
+            cnt[g] = 0
         for i in range(m):
             if not mask[b, i]:
                 gi[i] = -1
@@ -345,13 +352,12 @@ def _r_scale_kernel(r, H, prior, Q, add_q, R, mask, groups, infer, d, active, r_
             gi[i] = g
             if g < 0:
                 continue
-            q = _quad_row(H, prior, Q, add_q, b, i)
+            q = _quad_nz(nzc, nzv, nzn, i, prior, Q, add_q, b)
             rr = np.float64(r[b, i])
             num[g] += rr * rr - q
             den[g] += np.float64(R[b, i, i])
             cnt[g] += 1
         _group_step(num, den, cnt, active[b], d[b], r_scale[b], smin, smax, s_new[b])
-        sq = np.empty(m, R.dtype)
         for i in range(m):
             sq[i] = np.sqrt(s_new[b, gi[i]]) if gi[i] >= 0 else 1.0
         for i in range(m):

@@ -24,7 +24,8 @@ import numpy as np
 from ..error_model import CLK, DRIFT, N_STATES
 from ..measurements import N_SAT_KEYS
 from .base import EpochContext, UpdatePlan
-from .innovation import GROUP_NAMES, _geometry_residual_row, _posterior_residual_row, measurement_groups, quadratic_diag
+from .innovation import (GROUP_NAMES, _geometry_residual_row, _geometry_work, _nonzeros_work, _posterior_residual_row,
+                         _posterior_work, _rows_nonzeros, measurement_groups, quadratic_diag)
 from .params import check_option
 
 _SAMPLE_CODE = {"geometry": 1, "residual": 2, "innovation": 0, "loo": 3, "consensus": 4}
@@ -58,21 +59,20 @@ def check_satellite_options(owner: str, cfg) -> None:
 
 
 @nb.njit(cache=True)
-def _quad_row(H, prior, Q, add_q, b, i):
-    """``(H P- H^T)_ii`` of batch row b over the non-zeros of row i of H, ``P- = prior (+ Q)``."""
-    n = H.shape[2]
+def _quad_nz(nzc, nzv, cnt, i, prior, Q, add_q, b):
+    """``(H P- H^T)_ii`` of batch row b, ``P- = prior[b] (+ Q[b])``, from the non-zeros of row i of H (columns
+    ``nzc[i]``, values ``nzv[i]``, count ``cnt[i]``; :func:`~.innovation._rows_nonzeros`): the same sums, in the
+    same order, as over all n columns with the zeros skipped. Indices, not row views: a view per call costs
+    more than these few products."""
     q = 0.0
-    for k in range(n):
-        hk = H[b, i, k]
-        if hk == 0:
-            continue
+    for p in range(cnt[i]):
+        k = nzc[i, p]
         hp = 0.0
-        for l in range(n):
-            h = H[b, i, l]
-            if h != 0:
-                pm = prior[b, l, k] + Q[b, l, k] if add_q else prior[b, l, k]
-                hp += h * pm
-        q += hp * hk
+        for t in range(cnt[i]):
+            l = nzc[i, t]
+            pm = prior[b, l, k] + Q[b, l, k] if add_q else prior[b, l, k]
+            hp += nzv[i, t] * pm
+        q += hp * nzv[i, p]
     return q
 
 
@@ -144,7 +144,18 @@ def _r_sat_kernel(r, H, prior, Q, add_q, R, mask, keys, bf, jcap, d_row, active,
     red = np.zeros(m)
     n0s = np.zeros(m, np.int64)
     gi = np.full(m, -1, np.int64)
+    num = np.empty(G)
+    den = np.empty(G)
+    cnt_g = np.empty(G, np.int64)
+    sq = np.empty(m, R.dtype)
+    # scratch of the row helpers, allocated once per call (not per batch row)
+    nzc, nzv, cnt = _nonzeros_work(m, n, H.dtype)
+    geo_work = _geometry_work(n)
+    post_work = _posterior_work(m, n)
     for b in range(B):
+        _rows_nonzeros(H[b], mask[b], nzc, nzv, cnt)
+        j_last = -1  # the last count whose weight was computed for this row (most satellites share one)
+        d_last = 0.0
         for i in range(m):
             s_rows[b, i] = 1.0
             n_rows[b, i] = 0
@@ -155,7 +166,7 @@ def _r_sat_kernel(r, H, prior, Q, add_q, R, mask, keys, bf, jcap, d_row, active,
             if not mask[b, i]:
                 continue
             gi[i] = _row_group(H, b, i, n)
-            q = _quad_row(H, prior, Q, add_q, b, i)
+            q = _quad_nz(nzc, nzv, cnt, i, prior, Q, add_q, b)
             rr = np.float64(r[b, i])
             ex[i] = rr * rr - q
             key = keys[b, i]
@@ -188,16 +199,16 @@ def _r_sat_kernel(r, H, prior, Q, add_q, R, mask, keys, bf, jcap, d_row, active,
                     for i in range(m):
                         k = keys[b, i]
                         use[i] = mask[b, i] and k >= 0 and ((k >= _NK) == (t == 1))
-                    _geometry_residual_row(r[b], H[b], var, use, v, red)
+                    _geometry_residual_row(r[b], H[b], nzc, cnt, var, use, v, red, geo_work)
                     for i in range(m):
                         if use[i] and red[i] >= min_red:
                             xs[i] = v[i] * v[i] / (red[i] * np.float64(R[b, i, i]))
                             has_x[i] = True
             if sample >= 2:
-                Pm = prior[b] + Q[b] if add_q else prior[b]
                 for i in range(m):
                     use[i] = mask[b, i] and keys[b, i] >= 0
-                _posterior_residual_row(r[b], H[b], Pm, k_prior, var, use, v, red)
+                _posterior_residual_row(r[b], nzc, nzv, cnt, prior[b], Q[b], add_q, k_prior, var, use, v, red,
+                                        post_work)
                 for i in range(m):
                     if use[i] and red[i] >= min_red:
                         if sample == 2:
@@ -214,24 +225,27 @@ def _r_sat_kernel(r, H, prior, Q, add_q, R, mask, keys, bf, jcap, d_row, active,
                 n0 = n0s[i]
                 if active[b] and has_x[i]:
                     j = min(n0 + 1, jcap[b])
-                    d = _weight_one(bf[b], j)
+                    if j != j_last:
+                        d_last = _weight_one(bf[b], j)
+                        j_last = j
+                    d = d_last
                     s1 = (1.0 - d) * s0 + d * xs[i]
                     s_rows[b, i] = min(max(s1, sat_min), smax)
                     n_rows[b, i] = n0 + 1
                 else:
                     s_rows[b, i] = s0
                     n_rows[b, i] = n0
-        num = np.zeros(G)
-        den = np.zeros(G)
-        cnt = np.zeros(G, np.int64)
+        for g in range(G):
+            num[g] = 0.0
+            den[g] = 0.0
+            cnt_g[g] = 0
         for i in range(m):
             if gi[i] < 0 or (keys[b, i] >= 0 and not common):
                 continue
             num[gi[i]] += ex[i]
             den[gi[i]] += s_rows[b, i] * np.float64(R[b, i, i])
-            cnt[gi[i]] += 1
-        _group_step(num, den, cnt, active[b], d_row[b], r_scale[b], smin, smax, s_group[b])
-        sq = np.empty(m, R.dtype)
+            cnt_g[gi[i]] += 1
+        _group_step(num, den, cnt_g, active[b], d_row[b], r_scale[b], smin, smax, s_group[b])
         for i in range(m):
             if not mask[b, i]:
                 sq[i] = 1.0

@@ -22,7 +22,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from ..kernels import serial_and_parallel
+from ..kernels import row_nonzeros as _row_nonzeros, serial_and_parallel
 from .base import FilterForm, UpdateResult, symmetrize
 
 
@@ -47,20 +47,6 @@ def nis_and_gain(S, PHt, dz):
     w = Linv @ dz[..., None]
     nis = np.sum(w[..., 0] ** 2, axis=-1)
     return K, nis
-
-
-@nb.njit(cache=True, error_model="numpy")
-def _row_nonzeros(h_row, nzc_row, nzv_row):
-    """Column indices and values of the non-zeros of one row of H (n,) into ``nzc_row`` / ``nzv_row``; their
-    count."""
-    c = 0
-    for l in range(h_row.shape[0]):
-        h = h_row[l]
-        if h != 0:
-            nzc_row[c] = l
-            nzv_row[c] = h
-            c += 1
-    return c
 
 
 @nb.njit(cache=True, error_model="numpy")
