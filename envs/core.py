@@ -214,6 +214,7 @@ class TuningCore:
         self.config = config
         self.specs = tuple(specs)
         self.B = int(batch_size)
+        self._rows = np.arange(self.B)
         self.scenario = config.resolve_scenario()
         check_method_has_params(config.method, self.specs)
         self.k = len(self.specs)
@@ -386,14 +387,16 @@ class TuningCore:
         if self.ref is not None:
             self._set_params(self.ref, np.broadcast_to(self.default_action, a.shape))
             ref_h, ref_3d, _, _ = self._advance(self.ref, j)
-        rows = np.arange(self.B)
-        self.est_track[rows, j] = self.nav.r
+        self.est_track[self._rows, j] = self.nav.r
         bound = self.config.divergence_bound_m
         diverged = self.nav.diverged | ~np.isfinite(h_err) | (h_err > bound)
-        reason = np.where(self.nav.diverged, self.nav.divergence_reasons(),
-                          np.where(~np.isfinite(h_err), "horizontal error not finite",
-                                   np.where(h_err > bound, f"horizontal error above divergence_bound_m ({bound:g} m)",
-                                            "")))
+        if diverged.any():
+            reason = np.where(self.nav.diverged, self.nav.divergence_reasons(),
+                              np.where(~np.isfinite(h_err), "horizontal error not finite",
+                                       np.where(h_err > bound,
+                                                f"horizontal error above divergence_bound_m ({bound:g} m)", "")))
+        else:  # the common case: no strings to form
+            reason = np.full(self.B, "")
         cfg = self.config
         if cfg.reward == "horizontal":
             reward = -h_err
@@ -494,7 +497,7 @@ class TuningCore:
     def _satellite_health(self):
         """(B,) satellites whose R scale rose this epoch and (B,) the largest per-satellite R scale, from a
         per-satellite law's adaptive state (zeros and ones for other methods)."""
-        st = self.nav.form.adaptive_state() if hasattr(self.nav.form, "adaptive_state") else {}
+        st = self.nav.form.satellite_summary() if hasattr(self.nav.form, "satellite_summary") else {}
         rose = np.asarray(st.get("sats_rose", np.zeros(self.B)), np.float64)
         smax = np.asarray(st.get("sat_scale_max", np.ones(self.B)), np.float64)
         return np.ascontiguousarray(rose), np.ascontiguousarray(smax)

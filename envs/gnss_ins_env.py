@@ -146,6 +146,8 @@ def make_config(defaults: dict, kwargs: dict) -> EnvConfig:
 
 def _scalar(x):
     """A batch entry of an info array as a Python scalar (float, bool, int or str)."""
+    if isinstance(x, (np.floating, np.bool_, np.integer, np.str_)):  # what v[0] of an info array is
+        return x.item()
     kind = np.asarray(x).dtype.kind
     if kind == "f":
         return float(x)

@@ -98,7 +98,7 @@ def measurement_keys(sat_keys, with_rate: bool, n_extra: int = 0):
     k = np.asarray(sat_keys, np.int64)
     if k.ndim != 2:
         raise ValueError(f"sat_keys must have shape (B, C), got {k.shape}")
-    if np.any(k >= N_SAT_KEYS) or np.any(k < -1):
+    if k.size and (k.max() >= N_SAT_KEYS or k.min() < -1):
         raise ValueError(f"sat_keys must lie in -1..{N_SAT_KEYS - 1}")
     parts = [k]
     if with_rate:

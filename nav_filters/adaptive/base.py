@@ -365,6 +365,12 @@ class AdaptiveLaw(FilterForm):
         """Current adaptive quantities for observations: ``{name: (B,) float64 array}`` (copies)."""
         return {k: np.array(v, np.float64) for k, v in self._state().items()}
 
+    def satellite_summary(self) -> dict:
+        """The per-satellite summary entries of :meth:`adaptive_state` alone (``sat_scale_max``,
+        ``sat_scale_median``, ``sats_rose``, ``sats_used``: (B,) float64 copies; ``{}`` for a law without
+        per-satellite R): what an env's observation reads every epoch, without forming the rest of the state."""
+        return {k: np.array(v, np.float64) for k, v in self._satellite_state().items()}
+
     # -------------------------------------------------------------- hooks
     def _init_state(self):
         """Allocate the law's per-row state."""
@@ -384,4 +390,8 @@ class AdaptiveLaw(FilterForm):
         """Called after ``set_params`` changed ``name`` on ``changed_rows`` (B,) bool."""
 
     def _state(self) -> dict:
+        return {}
+
+    def _satellite_state(self) -> dict:
+        """The per-satellite summary (:class:`~.satellite_r.SatelliteNoise` overrides it)."""
         return {}

@@ -224,6 +224,28 @@ def test_without_keys_the_satellite_mode_falls_back_to_the_group_law():
     np.testing.assert_allclose(sat.x, grp.x, rtol=1e-10, atol=1e-14)
 
 
+def test_satellite_summary_is_the_summary_part_of_the_adaptive_state():
+    """What an env reads every epoch (:meth:`satellite_summary`) equals those entries of the full adaptive state
+    (copies); a law without per-satellite R has none."""
+    from nav_filters.adaptive.satellite_r import SUMMARY_NAMES
+    rng = np.random.default_rng(5)
+    B, C = 3, 7
+    H = static_problem(rng, B, C)
+    keys = np.broadcast_to(np.arange(10, 10 + C), (B, C)).copy()
+    law = sat_law(B=B)
+    run_static(law, H, keys, lambda k: np.where((np.arange(C) == 1) & (k > 30), 16.0, 1.0), 60,
+               np.random.default_rng(9))
+    summary, state = law.satellite_summary(), law.adaptive_state()
+    assert sorted(summary) == sorted(SUMMARY_NAMES)
+    for name in SUMMARY_NAMES:
+        np.testing.assert_array_equal(summary[name], state[name])
+    assert summary["sat_scale_max"].min() > 4.0  # the NLOS satellite's scale, on every row
+    summary["sats_used"][:] = -1.0  # a copy: the law's own summary is untouched
+    assert law.satellite_summary()["sats_used"].min() >= 0
+    P0 = np.broadcast_to(np.eye(17), (B, 17, 17)).copy()
+    assert SageHusa(P0, config=SageHusaConfig()).satellite_summary() == {}
+
+
 @pytest.mark.parametrize("sample,iters", [("geometry", 1), ("geometry", 3), ("residual", 1), ("residual", 2),
                                           ("innovation", 1), ("loo", 1), ("loo", 2), ("consensus", 1),
                                           ("consensus", 2)])
