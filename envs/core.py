@@ -546,7 +546,8 @@ class TuningCore:
                     "truth_Cne", "truth_still", "truth_still_n", "origin", "origin_Cne", "sat_keys", "odo")
     """Per-row world arrays (a function of the row's world seed: rows with equal seeds hold equal worlds)."""
     SHARED_ATTRS = frozenset({"config", "specs", "scenario", "epoch_idx", "default_action", "frame_low",
-                              "frame_high", "obs_low", "obs_high", "nav", "ref", "seeds", "_zupt", "_last_res"})
+                              "frame_high", "obs_low", "obs_high", "nav", "ref", "seeds", "_zupt", "_last_res",
+                              "_rows"})
     """Attributes :meth:`copy_rows` does not copy generically: shared by all rows (their length may equal B by
     chance) or copied by their own rule. Every other ndarray with leading axis B is per-row state."""
 
