@@ -179,9 +179,13 @@ def parse_rule_spec(spec: str) -> RuleMethod:
 
 
 def _eval_env_kwargs(world, dtype) -> dict:
-    """Env kwargs that make the env core run ``world``: its scenario (a recording by name) and length."""
+    """Env kwargs that make the env core run ``world``: its scenario (a recording by name) and length, with
+    the filter arithmetic of every eval.py row: the exact per-sample composition of the transition and the
+    form's own update (``exact_transition=True, fused_update=False``, the navigator's default that the filter
+    rows and ``tuned:`` run), whatever a policy was trained with (the envs' fast default is for training)."""
     return {"scenario": world.scenario.name if world.scenario.name in _replay() else world.scenario,
-            "episode_length_s": float(world.scenario.duration_s), "dtype": dtype}
+            "episode_length_s": float(world.scenario.duration_s), "dtype": dtype,
+            "exact_transition": True, "fused_update": False}
 
 
 def parse_oracle_spec(spec: str) -> OracleMethod:

@@ -20,10 +20,11 @@ Prints, in one run:
   of the nominal state), ``dop``, ``observation`` (the env's observation frame) and ``env glue`` (the
   rest of ``TuningCore.step`` and the env wrappers: actions, parameters, errors, rewards, infos).
 
-Each method runs in the modes of ``--transitions``: ``exact`` (the default of every env id: the per-sample
-transitions composed in the IMU kernel), ``averaged`` (``exact_transition=False``: the epoch's averaged error
-dynamics, :mod:`nav_filters.averaged_transition`) and ``fused`` (``exact_transition=False,
-fused_update=True``: also the fused compiled predict + Joseph update, :func:`nav_filters.forms.kf.fused_update`,
+Each method runs in the modes of ``--transitions``: ``exact`` (``exact_transition=True, fused_update=False``:
+the per-sample transitions composed in the IMU kernel, the reference eval.py runs and the envs' default before
+issue 11), ``averaged`` (``exact_transition=False, fused_update=False``: the epoch's averaged error dynamics,
+:mod:`nav_filters.averaged_transition`) and ``fused`` (``exact_transition=False, fused_update=True``, the
+default of every env id: also the fused compiled predict + Joseph update, :func:`nav_filters.forms.kf.fused_update`,
 and the adaptive laws' fast kernels), rows ``sage-husa``, ``sage-husa avg`` and ``sage-husa fused``.
 ``--cpu-profile`` gives the stage profile in process CPU time (all threads) instead of wall time: on a
 machine shared with other jobs the wall time of a stage swings with their load, its CPU time much less.
@@ -91,8 +92,10 @@ def _actions(space, n, seed=0):
 
 
 TRANSITIONS = ("exact", "averaged", "fused")
-"""Modes: the env default (``exact``), ``exact_transition=False`` (``averaged``) and ``exact_transition=False,
-fused_update=True`` (``fused``: also the fused compiled predict + Joseph update and the parallel law kernels)."""
+"""Modes: ``exact_transition=True, fused_update=False`` (``exact``: the reference, the default of eval.py and of the
+envs before issue 11), ``exact_transition=False, fused_update=False`` (``averaged``) and ``exact_transition=False,
+fused_update=True`` (``fused``: also the fused compiled predict + Joseph update and the parallel law kernels; the
+envs' default)."""
 
 _SHORT = {"exact": "", "averaged": " avg", "fused": " fused"}
 
@@ -102,11 +105,14 @@ def _label(method, transition):
 
 
 def _make(method, B, episode_s, scenario, transition="exact"):
+    from envs.config import EnvConfig
     kw = dict(method=method, episode_length_s=float(episode_s), scenario=scenario)
-    if transition != "exact":  # only passed when needed: an earlier tree (--compare) has no such argument
-        kw["exact_transition"] = False
-    if transition == "fused":
-        kw["fused_update"] = True
+    fields = EnvConfig.__dataclass_fields__  # an earlier tree (--compare) may lack the arguments (exact only)
+    for name, value in (("exact_transition", transition == "exact"), ("fused_update", transition == "fused")):
+        if name in fields:
+            kw[name] = value  # explicit: the env default is the fused mode since issue 11
+        elif value != (name == "exact_transition"):
+            raise ValueError(f"this tree's envs have no {name} argument: no {transition!r} mode")
     if B == 1:
         return gym.make(METHOD_ENV[method], **kw)
     return gym.make_vec(METHOD_ENV[method], num_envs=B, vectorization_mode="vector_entry_point", **kw)
@@ -379,7 +385,8 @@ def main(argv=None):
     p.add_argument("--compare", metavar="DIR", default=None,
                    help="also run every cell in the source tree DIR, alternately in fresh processes")
     p.add_argument("--transitions", nargs="+", default=list(TRANSITIONS), choices=TRANSITIONS,
-                   help="transition modes to run (exact: the env default; averaged: exact_transition=False)")
+                   help="transition modes to run (exact: the reference; averaged: exact_transition=False; fused: "
+                        "also fused_update=True, the env default)")
     p.add_argument("--accuracy", action="store_true",
                    help="only the accuracy table: the fast modes vs the exact transition on every built-in scenario")
     p.add_argument("--accuracy-episodes", type=int, default=24, help="paired episodes per scenario (--accuracy)")

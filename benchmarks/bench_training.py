@@ -1,9 +1,9 @@
 """PPO training throughput: the native batched vector env vs SB3's DummyVecEnv of single envs, per n_envs and
 transition mode, side by side from one run.
 
-For every ``n_envs`` of ``--n-envs`` (default 16, 64, 256) and every mode of ``--transitions`` (default
-``exact``: the per-sample composition, the env default; ``averaged``: ``exact_transition=False``; ``fused``:
-also ``fused_update=True``) it prints the env-steps per second of ``PPO.learn`` on
+For every ``n_envs`` of ``--n-envs`` (default 16, 64, 256) and every mode of ``--transitions`` (default all:
+``exact``: the per-sample composition, the envs' default before issue 11; ``averaged``:
+``exact_transition=False``; ``fused``: also ``fused_update=True``, the envs' default) it prints the env-steps per second of ``PPO.learn`` on
 
 * the native vector env behind the SB3 adapter (:func:`envs.sb3.make_sb3_vec_env`, what ``train.py rl`` uses),
 * a DummyVecEnv of ``n_envs`` single envs (what RL Zoo builds from ``gym.make``), unless ``--no-dummy``,
@@ -33,8 +33,8 @@ import envs  # noqa: E402,F401
 from agents.training import DEFAULT_HYPERPARAMS  # noqa: E402
 from envs.sb3 import make_sb3_vec_env  # noqa: E402
 
-MODES = {"exact": dict(exact_transition=True),
-         "averaged": dict(exact_transition=False),
+MODES = {"exact": dict(exact_transition=True, fused_update=False),
+         "averaged": dict(exact_transition=False, fused_update=False),
          "fused": dict(exact_transition=False, fused_update=True)}
 """Env kwargs of each transition mode (see ``benchmarks/bench_envs.py``)."""
 

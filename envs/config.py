@@ -113,14 +113,14 @@ class EnvConfig:
         are fused into that epoch's update.
     zupt_weights : weights file of the ``'mlp'`` / ``'lstm'`` detector (None: the shipped default).
     dtype : filter arithmetic, ``'float64'`` or ``'float32'``.
-    exact_transition : ``True`` (default): the filter's transition and process noise are composed at every IMU
-        sample; ``False``: formed once per epoch from the epoch's averaged error dynamics (several times
-        faster; :class:`nav_filters.navigator.NavigatorConfig` and :mod:`nav_filters.averaged_transition`
-        give the equations).
-    fused_update : ``False`` (default): the filter form computes as it always did; ``True``: the fused
-        compiled predict + Joseph update of ``kf`` and the adaptive laws around it (same equations, different
-        rounding; :class:`nav_filters.navigator.NavigatorConfig`). With ``exact_transition=False`` the fastest
-        configuration.
+    exact_transition : ``False`` (default): the filter's transition and process noise formed once per epoch
+        from the epoch's averaged error dynamics (several times faster); ``True``: composed at every IMU
+        sample, the reference (:class:`nav_filters.navigator.NavigatorConfig`'s default, what eval.py runs
+        every method with). :mod:`nav_filters.averaged_transition` gives the equations;
+        ``benchmarks/bench_envs.py --accuracy`` the paired RMSE of the two on every built-in scenario.
+    fused_update : ``True`` (default): the fused compiled predict + Joseph update of ``kf`` and the adaptive
+        laws' fast kernels (same equations, different rounding); ``False``: the form computes as the
+        navigator's default does. The defaults of the two make the fastest configuration (issue 11).
     divergence_bound_m : horizontal error [m] beyond which an episode terminates as diverged.
     """
 
@@ -134,8 +134,8 @@ class EnvConfig:
     zupt: str = "none"
     zupt_weights: str | None = None
     dtype: str = "float64"
-    exact_transition: bool = True
-    fused_update: bool = False
+    exact_transition: bool = False
+    fused_update: bool = True
     divergence_bound_m: float = 1000.0
 
     def __post_init__(self):

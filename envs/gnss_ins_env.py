@@ -83,10 +83,11 @@ At the end, ``info["episode_metrics"]`` holds the episode's horizontal RMSE and 
 ``method``, ``imu_grade``, ``episode_length_s``, ``gnss_rate_hz``, ``reward``,
 ``history``, ``zupt`` (``'none'``, ``'truth'``, or a detector: ``'shoe'``, ``'are'``, ``'mag'``, ``'mv'``,
 ``'mlp'``, ``'lstm'``; ``zupt_weights`` overrides the learned detector's shipped weights), ``dtype``,
-``exact_transition`` (``False``: the filter's transition formed once per epoch from the averaged error
-dynamics, several times faster; default ``True``, composed per IMU sample), ``fused_update`` (``True``: the
-fused compiled predict + Joseph update of ``kf`` and the adaptive laws around it, same equations with a
-different rounding; default ``False``), ``divergence_bound_m``; plus
+``exact_transition`` (default ``False``: the filter's transition formed once per epoch from the averaged
+error dynamics, several times faster; ``True``: composed per IMU sample, the reference that eval.py runs),
+``fused_update`` (default ``True``: the fused compiled predict + Joseph update of ``kf`` and the adaptive laws'
+fast kernels, same equations with a different rounding; ``False``: the navigator's default computation),
+``divergence_bound_m``; plus
 ``render_mode`` (``'ansi'``, ``'rgb_array'``).
 Limits (a ``ValueError`` naming the argument at construction): ``episode_length_s`` at most
 :data:`envs.config.MAX_EPISODE_S` (3600 s: the world is generated whole at reset), ``history`` at most

@@ -64,7 +64,8 @@ def test_env_core_fuses_the_odometer_like_run_episodes():
     """The STKF env on seed003-sim through its first outage (stepped with the default action) gives the
     errors of run_episodes with the same parameters: the odometer rows reach the env, also in outages."""
     seeds, L = [5, 6], 130.0
-    cfg = EnvConfig(scenario="seed003-sim", method="stkf", episode_length_s=L)
+    cfg = EnvConfig(scenario="seed003-sim", method="stkf", episode_length_s=L, exact_transition=True,
+                    fused_update=False)  # run_episodes' arithmetic
     core = TuningCore(cfg, STKF_PARAMS, len(seeds))
     core.reset_rows(np.arange(len(seeds)), seeds)
     act = np.broadcast_to(core.default_action, (len(seeds), core.k))

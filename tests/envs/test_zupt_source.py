@@ -14,7 +14,8 @@ from envs.zupt_source import ZuptSource
 def test_run_episodes_zupt_equals_the_environment_core(zupt):
     # seed003-sim starts with ~30 s at rest: both loops must constrain the same epochs and agree on the errors
     seeds, L = [3, 4], 45.0
-    cfg = EnvConfig(scenario="seed003-sim", method="sage-husa", episode_length_s=L, zupt=zupt)
+    cfg = EnvConfig(scenario="seed003-sim", method="sage-husa", episode_length_s=L, zupt=zupt, exact_transition=True,
+                    fused_update=False)  # run_episodes' arithmetic
     core = TuningCore(cfg, SAGE_HUSA_PARAMS, len(seeds))
     core.reset_rows(np.arange(len(seeds)), seeds)
     act = np.broadcast_to(core.default_action, (len(seeds), core.k))
