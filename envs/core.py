@@ -214,7 +214,6 @@ class TuningCore:
         self.config = config
         self.specs = tuple(specs)
         self.B = int(batch_size)
-        self._rows = np.arange(self.B)
         self.scenario = config.resolve_scenario()
         check_method_has_params(config.method, self.specs)
         self.k = len(self.specs)
@@ -387,7 +386,7 @@ class TuningCore:
         if self.ref is not None:
             self._set_params(self.ref, np.broadcast_to(self.default_action, a.shape))
             ref_h, ref_3d, _, _ = self._advance(self.ref, j)
-        self.est_track[self._rows, j] = self.nav.r
+        self.est_track[np.arange(self.B), j] = self.nav.r
         bound = self.config.divergence_bound_m
         diverged = self.nav.diverged | ~np.isfinite(h_err) | (h_err > bound)
         if diverged.any():
@@ -546,8 +545,7 @@ class TuningCore:
                     "truth_Cne", "truth_still", "truth_still_n", "origin", "origin_Cne", "sat_keys", "odo")
     """Per-row world arrays (a function of the row's world seed: rows with equal seeds hold equal worlds)."""
     SHARED_ATTRS = frozenset({"config", "specs", "scenario", "epoch_idx", "default_action", "frame_low",
-                              "frame_high", "obs_low", "obs_high", "nav", "ref", "seeds", "_zupt", "_last_res",
-                              "_rows"})
+                              "frame_high", "obs_low", "obs_high", "nav", "ref", "seeds", "_zupt", "_last_res"})
     """Attributes :meth:`copy_rows` does not copy generically: shared by all rows (their length may equal B by
     chance) or copied by their own rule. Every other ndarray with leading axis B is per-row state."""
 
