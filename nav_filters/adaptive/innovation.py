@@ -29,6 +29,8 @@ from ..error_model import CLK, DRIFT, N_STATES
 from ..kernels import (cholesky_inplace as _cholesky_inplace, cholesky_solve as _cholesky_solve,
                        row_nonzeros as _row_nonzeros)
 
+_CLK0, _DRIFT0 = CLK.start, DRIFT.start
+
 GROUP_NAMES = ("pseudorange", "rate", "other")
 """Measurement groups of :func:`measurement_groups`, in id order."""
 
@@ -595,13 +597,15 @@ def fit_split(dz, H, R, mask, prior, Q, n_types: int = 2, fast: bool = False) ->
     dz : (B, m) innovations; H : (B, m, n); R : (B, m, m) measurement covariances (diagonals used);
     mask : (B, m) bool used rows; prior : (B, n, n) ``M = Phi P Phi^T``; Q : (B, n, n) or None;
     n_types : number of types fitted (rows of group >= n_types are left out).
-    fast : the fused path: the compiled :func:`quadratic_diag` (the same quantities to round-off).
+    fast : the fused path: one compiled pass (:func:`_fit_split_kernel`; the same quantities to round-off).
 
     Returns
     -------
     :class:`FitSplit` of (B, n_types) arrays.
     """
     mask = np.asarray(mask, bool)
+    if fast:
+        return _fit_split_fast(dz, H, R, mask, prior, Q, n_types)
     var = np.where(mask, np.diagonal(R, axis1=1, axis2=2).astype(np.float64), 1.0)
     groups = measurement_groups(H, mask)
     types = np.where(groups < n_types, groups, -1)
@@ -624,4 +628,108 @@ def fit_split(dz, H, R, mask, prior, Q, n_types: int = 2, fast: bool = False) ->
     z = np.zeros_like(dof)
     return FitSplit(e_fit=np.where(ok, e_tot - e_res, z), e_res=np.where(ok, e_res, z), dof=np.where(ok, dof, z),
                     p=np.where(ok, n_t - dof, z), tr_m=np.where(ok, tr_m, z), tr_q=np.where(ok, tr_q, z), n=n_t,
+                    n_other=n_other)
+
+
+@nb.njit(cache=True)
+def _fit_split_kernel(dz, H, var, mask, prior, Q, has_q, n_types, model17, out, n_other):
+    """Compiled :func:`fit_split` (the fused path): per batch row, the groups of :func:`measurement_groups`,
+    the per-type fits of :func:`_geometry_residual_row` and the weighted sums over H's non-zeros.
+
+    ``var`` (B, m) the diagonal of R (1 on masked rows); ``model17``: H is the 17-state model's (the CLK /
+    DRIFT columns name the groups; otherwise every row is 'other'). Writes ``out`` (7, B, T): e_fit, e_res,
+    dof, p, tr_m, tr_q, n (0 where a type has no split, as :class:`FitSplit` says) and ``n_other`` (B,)."""
+    B, m, n = H.shape
+    T = n_types
+    types = np.empty(m, np.int64)
+    use = np.zeros(m, np.bool_)
+    typed = np.zeros(m, np.bool_)
+    v = np.zeros(m)
+    red = np.zeros(m)
+    nzc, nzv, cnt = _nonzeros_work(m, n, H.dtype)
+    work = _geometry_work(n)
+    e_tot = np.empty(T)
+    e_res = np.empty(T)
+    dof = np.empty(T)
+    trm = np.empty(T)
+    trq = np.empty(T)
+    nt = np.empty(T)
+    for b in range(B):
+        other = 0
+        for i in range(m):
+            g = -1
+            if mask[b, i]:
+                g = 2
+                if model17:
+                    if H[b, i, _CLK0] != 0:
+                        g = 0
+                    elif H[b, i, _DRIFT0] != 0:
+                        g = 1
+                if g >= T:
+                    other += 1
+            types[i] = g if g < T else -1
+            typed[i] = types[i] >= 0
+            v[i] = 0.0
+            red[i] = 0.0
+        n_other[b] = other if model17 else 0
+        _rows_nonzeros(H[b], typed, nzc, nzv, cnt)
+        for t in range(T):
+            for i in range(m):
+                use[i] = types[i] == t
+            _geometry_residual_row(dz[b], H[b], nzc, cnt, var[b], use, v, red, work)
+            e_tot[t] = 0.0
+            e_res[t] = 0.0
+            dof[t] = 0.0
+            trm[t] = 0.0
+            trq[t] = 0.0
+            nt[t] = 0.0
+        for i in range(m):
+            t = types[i]
+            if t < 0:
+                continue
+            w = 1.0 / var[b, i]
+            d = np.float64(dz[b, i])
+            e_tot[t] += w * d * d
+            e_res[t] += w * v[i] * v[i]
+            dof[t] += red[i]
+            nt[t] += 1.0
+            qm = 0.0
+            qq = 0.0
+            for a in range(cnt[i]):
+                ka = nzc[i, a]
+                sm = 0.0
+                sq = 0.0
+                for c in range(cnt[i]):
+                    kc = nzc[i, c]
+                    hc = np.float64(nzv[i, c])
+                    sm += prior[b, ka, kc] * hc
+                    if has_q:
+                        sq += Q[b, ka, kc] * hc
+                qm += np.float64(nzv[i, a]) * sm
+                qq += np.float64(nzv[i, a]) * sq
+            trm[t] += w * qm
+            trq[t] += w * qq
+        for t in range(T):
+            ok = dof[t] > 1e-9
+            out[0, b, t] = e_tot[t] - e_res[t] if ok else 0.0
+            out[1, b, t] = e_res[t] if ok else 0.0
+            out[2, b, t] = dof[t] if ok else 0.0
+            out[3, b, t] = nt[t] - dof[t] if ok else 0.0
+            out[4, b, t] = trm[t] if ok else 0.0
+            out[5, b, t] = trq[t] if ok else 0.0
+            out[6, b, t] = nt[t]
+
+
+def _fit_split_fast(dz, H, R, mask, prior, Q, n_types):
+    """:func:`fit_split` through :func:`_fit_split_kernel` (float64 inputs, one compiled pass)."""
+    c = np.ascontiguousarray
+    B, m, n = np.shape(H)
+    var = c(np.where(mask, np.diagonal(R, axis1=1, axis2=2), 1.0), np.float64)
+    out = np.empty((7, B, n_types))
+    n_other = np.empty(B, np.int64)
+    has_q = Q is not None
+    P = c(prior, np.float64)
+    _fit_split_kernel(c(dz, np.float64), c(H, np.float64), var, c(mask, np.bool_), P,
+                      c(Q, np.float64) if has_q else P, has_q, int(n_types), n == N_STATES, out, n_other)
+    return FitSplit(e_fit=out[0], e_res=out[1], dof=out[2], p=out[3], tr_m=out[4], tr_q=out[5], n=out[6],
                     n_other=n_other)

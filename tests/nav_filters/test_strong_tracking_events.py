@@ -34,6 +34,44 @@ def diag_R(var):
     return R
 
 
+@pytest.mark.parametrize("with_q", [False, True])
+def test_compiled_fit_split_equals_the_numpy_one(with_q):
+    """The fused path's one compiled pass (``fast=True``) gives the numpy split to round-off: pseudorange and
+    rate rows of the 17-state model, aiding rows (group 'other', counted in ``n_other``), masked rows, rows
+    without redundancy (a type with fewer rows than fitted columns: no split); and a model other than the
+    17-state one (every row 'other', ``n_other`` 0)."""
+    from nav_filters.error_model import DRIFT, VEL
+    rng = np.random.default_rng(11)
+    B, C = 40, 7
+    n = N_STATES
+    Hp = los_rows(rng, B, C)
+    Hr = np.zeros((B, C, n))
+    Hr[:, :, VEL] = Hp[:, :, :3]
+    Hr[:, :, DRIFT.start] = 1.0
+    Ho = np.zeros((B, 2, n))
+    Ho[:, 0, 4], Ho[:, 1, 5] = 1.0, 1.0  # aiding rows on velocity columns
+    H = np.concatenate([Hp, Hr, Ho], 1)
+    m = H.shape[1]
+    var = rng.uniform(0.5, 9.0, (B, m))
+    R = diag_R(var)
+    mask = rng.uniform(size=(B, m)) < 0.85
+    mask[:5, C:2 * C] = False
+    mask[5:8, 3:C] = False  # 3 pseudoranges left: no redundancy
+    dz = rng.normal(size=(B, m)) * np.sqrt(var) * 3
+    A = rng.normal(size=(B, n, n))
+    M = A @ A.mT + np.eye(n)
+    Q = (A @ A.mT) * 1e-2 if with_q else None
+    ref, fast = fit_split(dz, H, R, mask, M, Q), fit_split(dz, H, R, mask, M, Q, fast=True)
+    for name in ("e_fit", "e_res", "dof", "p", "tr_m", "tr_q", "n", "n_other"):
+        np.testing.assert_allclose(getattr(fast, name), getattr(ref, name), rtol=1e-10, atol=1e-9, err_msg=name)
+    assert (ref.dof[5:8, 0] == 0).all() and (ref.dof[:5, 1] == 0).all() and ref.n_other.max() == 2
+    H9 = H[:, :, :9].copy()  # not the 17-state model
+    ref9, fast9 = fit_split(dz, H9, R, mask, M[:, :9, :9], None), fit_split(dz, H9, R, mask, M[:, :9, :9], None,
+                                                                           fast=True)
+    for name in ("e_fit", "e_res", "dof", "p", "tr_m", "tr_q", "n", "n_other"):
+        np.testing.assert_allclose(getattr(fast9, name), getattr(ref9, name), rtol=1e-10, atol=1e-9, err_msg=name)
+
+
 def test_fit_split_is_unbiased_for_white_noise_and_puts_a_state_error_in_the_fit():
     """White noise of variance s * R on 8 satellites: the mean noise scale over 4000 rows is s within 4%
     (standard error ~1.6% with 4 residual degrees of freedom per row), dof = m - 4, p = 4; the energies add
