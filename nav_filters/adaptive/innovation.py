@@ -49,24 +49,33 @@ def quadratic_diag(H, X, fast: bool = False):
 
 @nb.njit(cache=True)
 def _quadratic_diag_kernel(H, X, out):
-    """``out[b, i] = h^T X[b] h`` with ``h = H[b, i]``, over the non-zeros of h only."""
+    """``out[b, i] = h^T X[b] h`` with ``h = H[b, i]``, over the non-zeros of h only (:func:`_quad_nz`)."""
     B, m, n = H.shape
-    idx = np.empty(n, np.int64)
+    every = np.ones(m, np.bool_)
+    nzc, nzv, cnt = _nonzeros_work(m, n, H.dtype)
     for b in range(B):
+        _rows_nonzeros(H[b], every, nzc, nzv, cnt)
         for i in range(m):
-            k = 0
-            for l in range(n):
-                if H[b, i, l] != 0:
-                    idx[k] = l
-                    k += 1
-            acc = 0.0
-            for p in range(k):
-                lp = idx[p]
-                sp = 0.0
-                for q in range(k):
-                    sp += X[b, lp, idx[q]] * H[b, i, idx[q]]
-                acc += H[b, i, lp] * sp
-            out[b, i] = acc
+            out[b, i] = _quad_nz(nzc, nzv, cnt, i, X, X, False, b)
+
+
+@nb.njit(cache=True)
+def _quad_nz(nzc, nzv, cnt, i, prior, Q, add_q, b):
+    """``(H P- H^T)_ii`` of batch row b, ``P- = prior[b] (+ Q[b])``, from the non-zeros of row i of H (columns
+    ``nzc[i]``, values ``nzv[i]``, count ``cnt[i]``; :func:`_rows_nonzeros`): the same sums, in the
+    same order, as over all n columns with the zeros skipped. Indices, not row views: a view per call costs
+    more than these few products."""
+    q = 0.0
+    for p in range(cnt[i]):
+        k = nzc[i, p]
+        hp = 0.0
+        for t in range(cnt[i]):
+            l = nzc[i, t]
+            pm = prior[b, l, k] + Q[b, l, k] if add_q else prior[b, l, k]
+            hp += nzv[i, t] * pm
+        q += hp * nzv[i, p]
+    return q
+
 
 
 @dataclass(frozen=True)
@@ -621,8 +630,8 @@ def fit_split(dz, H, R, mask, prior, Q, n_types: int = 2, fast: bool = False) ->
         return np.einsum("bm,bmt->bt", w * x, onehot)
 
     e_tot, e_res = wsum(dz64 ** 2), wsum(v ** 2)
-    tr_m = wsum(quadratic_diag(H64, np.asarray(prior, np.float64), fast))
-    tr_q = wsum(quadratic_diag(H64, np.asarray(Q, np.float64), fast)) if Q is not None else np.zeros_like(tr_m)
+    tr_m = wsum(quadratic_diag(H64, np.asarray(prior, np.float64)))
+    tr_q = wsum(quadratic_diag(H64, np.asarray(Q, np.float64))) if Q is not None else np.zeros_like(tr_m)
     n_t = onehot.sum(1)
     n_other = ((groups >= n_types).sum(1) if H64.shape[2] == N_STATES else np.zeros(groups.shape[0], np.int64))
     z = np.zeros_like(dof)
@@ -693,22 +702,9 @@ def _fit_split_kernel(dz, H, var, mask, prior, Q, has_q, n_types, model17, out, 
             e_res[t] += w * v[i] * v[i]
             dof[t] += red[i]
             nt[t] += 1.0
-            qm = 0.0
-            qq = 0.0
-            for a in range(cnt[i]):
-                ka = nzc[i, a]
-                sm = 0.0
-                sq = 0.0
-                for c in range(cnt[i]):
-                    kc = nzc[i, c]
-                    hc = np.float64(nzv[i, c])
-                    sm += prior[b, ka, kc] * hc
-                    if has_q:
-                        sq += Q[b, ka, kc] * hc
-                qm += np.float64(nzv[i, a]) * sm
-                qq += np.float64(nzv[i, a]) * sq
-            trm[t] += w * qm
-            trq[t] += w * qq
+            trm[t] += w * _quad_nz(nzc, nzv, cnt, i, prior, prior, False, b)
+            if has_q:
+                trq[t] += w * _quad_nz(nzc, nzv, cnt, i, Q, Q, False, b)
         for t in range(T):
             ok = dof[t] > 1e-9
             out[0, b, t] = e_tot[t] - e_res[t] if ok else 0.0

@@ -156,9 +156,9 @@ import numpy as np
 from ..forms.base import symmetrize
 from ..kernels import serial_and_parallel, sym_eig_inplace
 from .base import AdaptiveLaw, EpochContext, UpdatePlan
-from .innovation import GROUP_NAMES, _nonzeros_work, _rows_nonzeros, measurement_groups, quadratic_diag
+from .innovation import GROUP_NAMES, _nonzeros_work, _quad_nz, _rows_nonzeros, measurement_groups, quadratic_diag
 from .params import ParamSpec, check_option
-from .satellite_r import (R_SAMPLES, ROSE_FACTOR, SatelliteNoise, _group_step, _quad_nz,  # noqa: F401
+from .satellite_r import (R_SAMPLES, ROSE_FACTOR, SatelliteNoise, _group_step,  # noqa: F401
                           _row_group, _weight_one, check_satellite_options, sage_husa_weight)
 
 B_SPEC = ParamSpec("b", 0.0, 1.0, low_closed=False, high_closed=True, doc="Sage-Husa forgetting factor")

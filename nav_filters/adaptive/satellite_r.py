@@ -25,7 +25,7 @@ from ..error_model import CLK, DRIFT, N_STATES
 from ..measurements import N_SAT_KEYS
 from .base import EpochContext, UpdatePlan
 from .innovation import (GROUP_NAMES, _geometry_residual_row, _geometry_work, _nonzeros_work, _posterior_residual_row,
-                         _posterior_work, _rows_nonzeros, measurement_groups, quadratic_diag)
+                         _posterior_work, _quad_nz, _rows_nonzeros, measurement_groups, quadratic_diag)
 from .params import check_option
 
 _SAMPLE_CODE = {"geometry": 1, "residual": 2, "innovation": 0, "loo": 3, "consensus": 4}
@@ -56,24 +56,6 @@ def check_satellite_options(owner: str, cfg) -> None:
         raise ValueError(f"{owner}.forget_after_epochs must be an int >= 1, got {f!r}")
     if not isinstance(cfg.common_scale, (bool, np.bool_)):
         raise ValueError(f"{owner}.common_scale must be a bool, got {cfg.common_scale!r}")
-
-
-@nb.njit(cache=True)
-def _quad_nz(nzc, nzv, cnt, i, prior, Q, add_q, b):
-    """``(H P- H^T)_ii`` of batch row b, ``P- = prior[b] (+ Q[b])``, from the non-zeros of row i of H (columns
-    ``nzc[i]``, values ``nzv[i]``, count ``cnt[i]``; :func:`~.innovation._rows_nonzeros`): the same sums, in the
-    same order, as over all n columns with the zeros skipped. Indices, not row views: a view per call costs
-    more than these few products."""
-    q = 0.0
-    for p in range(cnt[i]):
-        k = nzc[i, p]
-        hp = 0.0
-        for t in range(cnt[i]):
-            l = nzc[i, t]
-            pm = prior[b, l, k] + Q[b, l, k] if add_q else prior[b, l, k]
-            hp += nzv[i, t] * pm
-        q += hp * nzv[i, p]
-    return q
 
 
 @nb.njit(cache=True)
