@@ -365,19 +365,19 @@ class TuningCore:
             a = a[None]
         if a.shape != (self.B, self.k):
             raise ValueError(f"action must have shape ({self.k},) per env (batch {self.B}), got {np.shape(actions)}")
-        bad = np.flatnonzero(~np.isfinite(a).all(1))
-        if bad.size:
+        if not np.isfinite(a).all():
+            bad = np.flatnonzero(~np.isfinite(a).all(1))
             first = ", ".join(str(int(r)) for r in bad[:5]) + (", ..." if bad.size > 5 else "")
             raise ValueError(f"action contains NaN or inf in {bad.size} of {self.B} rows (rows {first}; "
                              f"row {int(bad[0])}: {a[bad[0]].tolist()})")
-        return np.clip(a, -1.0, 1.0)
+        return np.minimum(np.maximum(a, -1.0, out=a), 1.0, out=a)  # = np.clip(a, -1, 1) on finite values
 
     def step(self, actions) -> StepResult:
         """Apply the actions, integrate to the next GNSS epoch, update, and score every row."""
         a = self.check_actions(actions)
         if self.nav is None:
             raise RuntimeError("reset() must be called before step()")
-        if np.any(self.t >= self.M):
+        if (self.t >= self.M).any():
             raise RuntimeError("step() on a finished episode: reset those rows first")
         self.action[:] = a
         vals = self._set_params(self.nav, a)
@@ -474,7 +474,7 @@ class TuningCore:
         err = nav.r - self.truth_r[rows, jj]
         ned = (self.truth_Cne[rows, jj] @ err[..., None])[..., 0]
         h = np.hypot(ned[:, 0], ned[:, 1])
-        e3 = np.linalg.norm(ned, axis=1)
+        e3 = np.sqrt(np.add.reduce(ned * ned, axis=1))  # = np.linalg.norm(ned, axis=1), without its overhead
         if nav is self.nav:
             self._last_res, self._last_gdop, self._last_mask = res, gdop, g[6] & ~nav.diverged[:, None]
             self._last_nsat = self._last_mask.sum(1)

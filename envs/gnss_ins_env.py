@@ -185,7 +185,7 @@ class GnssInsTuningEnv(gym.Env):
     def step(self, action):
         res = self.core.step(np.asarray(action)[None] if np.ndim(action) == 1 else action)
         self._last = res
-        info = {k: _scalar(v[0]) for k, v in res.info.items()}
+        info = {k: v.item(0) if type(v) is np.ndarray else _scalar(v[0]) for k, v in res.info.items()}
         terminated, truncated = bool(res.terminated[0]), bool(res.truncated[0])
         if terminated or truncated:
             info["episode_metrics"] = self.core.episode_metrics([0])[0]

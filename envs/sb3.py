@@ -42,15 +42,16 @@ class Sb3VecEnvAdapter(VecEnv):
     def step_wait(self):
         obs, rew, term, trunc, info = self.venv.step(self._actions)
         done = term | trunc
-        infos = []
-        for i in range(self.num_envs):
-            d = {k: (v[i].item() if isinstance(v, np.ndarray) and v.dtype != object else v[i])
-                 for k, v in info.items() if not k.startswith("_") and k not in ("final_obs", "final_info")}
-            if done[i]:
-                d["terminal_observation"] = info["final_obs"][i]
-                d["TimeLimit.truncated"] = bool(trunc[i] and not term[i])
-                d["episode_metrics"] = info["final_info"][i]["episode_metrics"]
-            infos.append(d)
+        keys = [k for k in info if not k.startswith("_") and k not in ("final_obs", "final_info")]
+        # one conversion per info array (Python scalars, as .item() gives), then one dict per row
+        cols = [v.tolist() if isinstance(v, np.ndarray) and v.dtype != object else [v[i] for i in range(self.num_envs)]
+                for v in (info[k] for k in keys)]
+        infos = [dict(zip(keys, vals)) for vals in zip(*cols)] if keys else [{} for _ in range(self.num_envs)]
+        for i in np.flatnonzero(done):
+            d = infos[i]
+            d["terminal_observation"] = info["final_obs"][i]
+            d["TimeLimit.truncated"] = bool(trunc[i] and not term[i])
+            d["episode_metrics"] = info["final_info"][i]["episode_metrics"]
         return obs, rew.astype(np.float32), done, infos
 
     def close(self):

@@ -413,15 +413,16 @@ class Navigator:
         dx = np.ascontiguousarray(dx, np.float64)
         P = self.form.covariance
         B = self.batch_size
-        r, v, bg, ba = (np.empty((B, 3)) for _ in range(4))
+        r, v, bg, ba = np.empty((B, 3)), np.empty((B, 3)), np.empty((B, 3)), np.empty((B, 3))
         C = np.empty((B, 3, 3))
         clk, drift = np.empty(B), np.empty(B)
         code = np.empty(B, np.int8)
         _feedback_kernel(self.r, self.v, self.C, self.bg, self.ba, self.clk, self.drift, dx, self.diverged,
                          P, r, v, C, bg, ba, clk, drift, code)
         self.r, self.v, self.C, self.bg, self.ba, self.clk, self.drift = r, v, C, bg, ba, clk, drift
-        for c in (REASON_STATE, REASON_COVARIANCE):
-            self._flag(code == c, c)
+        if code.any():
+            for c in (REASON_STATE, REASON_COVARIANCE):
+                self._flag(code == c, c)
 
     def _feedback_reference(self, dx):
         """Numpy reference of :meth:`_feedback` (Groves sec 14.1 closed-loop correction through
@@ -439,7 +440,10 @@ class Navigator:
 
     def _flag(self, bad, code):
         """Flag rows ``bad`` (B,) bool that have not diverged yet with reason ``code`` and park them."""
-        newly = np.asarray(bad, bool) & ~self.diverged
+        bad = np.asarray(bad, bool)
+        if not bad.any():  # the common case: nothing to flag
+            return
+        newly = bad & ~self.diverged
         if newly.any():
             self.diverged |= newly
             self.divergence_code[newly] = code

@@ -70,6 +70,10 @@ class ParamSpec:
                 arr = np.full(batch_size, float(arr))
             elif arr.shape != (batch_size,):
                 raise ValueError(f"{label} must be a scalar or have shape ({batch_size},), got shape {arr.shape}")
+        lo_ok = arr >= self.low if self.low_closed else arr > self.low
+        hi_ok = arr <= self.high if self.high_closed else arr < self.high
+        if bool((lo_ok & hi_ok).all()):  # the common case, all valid (NaN fails both tests): one check
+            return arr
         if np.isnan(arr).any():
             raise ValueError(f"{label} must not be NaN ({self.doc or 'adaptive parameter'})")
         lo_bad = arr < self.low if self.low_closed else arr <= self.low

@@ -291,6 +291,26 @@ def _summary_kernel(pr, s_rows, s_prev, rose_factor, out):
 
 
 @nb.njit(cache=True)
+def _commit_kernel(mask, keys, s_rows, n_rows, s_prev, epoch, n_pr_keys, rose_factor, sat_scale, sat_count,
+                   sat_last, out):
+    """The fused path of :meth:`SatelliteNoise._commit_satellites` in one call: every used row ``(b, i)``
+    (``mask`` and a key >= 0) writes its new scale, count and the epoch into the per-key tables at
+    ``keys[b, i]`` (in row order, as numpy's fancy assignment), then :func:`_summary_kernel` summarizes the
+    used pseudorange rows (keys below ``n_pr_keys``) into ``out`` (B, 4)."""
+    B, m = mask.shape
+    pr = np.zeros((B, m), np.bool_)
+    for b in range(B):
+        for i in range(m):
+            k = keys[b, i]
+            if mask[b, i] and k >= 0:
+                sat_scale[b, k] = s_rows[b, i]
+                sat_count[b, k] = n_rows[b, i]
+                sat_last[b, k] = epoch[b]
+                pr[b, i] = k < n_pr_keys
+    _summary_kernel(pr, s_rows, s_prev, rose_factor, out)
+
+
+@nb.njit(cache=True)
 def _weight_one(b, j):
     """Scalar :func:`sage_husa_weight` (seed 000 eqs 21-23)."""
     if b >= 1.0:
@@ -454,6 +474,15 @@ class SatelliteNoise:
 
     def _commit_satellites(self, mask, keys, s_rows, n_rows, s_prev, epoch):
         """Write the used satellites' new scales, counts and epoch into the per-key tables; summarize."""
+        if self.fused:  # compiled, same values (the numpy lines below are its specification)
+            self._epoch = epoch
+            self._sat_summary = np.empty((mask.shape[0], 4))
+            _commit_kernel(np.ascontiguousarray(mask), np.ascontiguousarray(keys, np.int64),
+                           np.ascontiguousarray(s_rows, np.float64), np.ascontiguousarray(n_rows, np.int64),
+                           np.ascontiguousarray(s_prev, np.float64), np.ascontiguousarray(epoch, np.int64),
+                           N_SAT_KEYS, float(ROSE_FACTOR), self._sat_scale, self._sat_count, self._sat_last,
+                           self._sat_summary)
+            return
         used = mask & (keys >= 0)
         b_idx, i_idx = np.nonzero(used)
         k = keys[b_idx, i_idx]
@@ -462,11 +491,6 @@ class SatelliteNoise:
         self._sat_last[b_idx, k] = epoch[b_idx]
         self._epoch = epoch
         pr = used & (keys < N_SAT_KEYS)
-        if self.fused:  # compiled, same values (the numpy lines below are its specification)
-            self._sat_summary = np.empty((pr.shape[0], 4))
-            _summary_kernel(pr, np.ascontiguousarray(s_rows, np.float64), np.ascontiguousarray(s_prev, np.float64),
-                            float(ROSE_FACTOR), self._sat_summary)
-            return
         npr = pr.sum(1)
         mx = np.where(npr > 0, np.max(np.where(pr, s_rows, -np.inf), 1), 1.0)
         # median over the used pseudorange rows; a row without any is all ones (median 1)

@@ -305,8 +305,9 @@ def test_serial_and_parallel_kernels_have_their_own_cache_entries():
 
 
 def test_satellite_summary_kernel_equals_numpy():
-    """The per-satellite summary of sage-husa's adaptive state (max, median, risen count, count over the used
-    pseudorange rows) is compiled on the fused path: the same values as the numpy lines, bit for bit."""
+    """The commit of sage-husa's per-satellite tables (scale, count, last epoch per key: one compiled call on the
+    fused path) and the summary of its adaptive state (max, median, risen count, count over the used pseudorange
+    rows): the same values as the numpy lines, bit for bit, also where a row holds one key twice (last wins)."""
     from nav_filters.adaptive.satellite_r import ROSE_FACTOR
     from nav_filters.registry import make_form
 
@@ -322,9 +323,15 @@ def test_satellite_summary_kernel_equals_numpy():
     s_rows[1, :4] = 2.0  # ties
     s_prev = s_rows / rng.choice([1.0, ROSE_FACTOR + 1], (B, m))
     n_rows = rng.integers(0, 5, (B, m))
+    mask[2, [3, 5]] = True
+    keys[2, [3, 5]] = 7  # one key twice in a row
+    epoch = np.arange(B) + 4
     for law in laws:
-        law._commit_satellites(mask, keys, s_rows, n_rows, s_prev, np.full(B, 4))
-    np.testing.assert_array_equal(laws[1]._sat_summary, laws[0]._sat_summary)
+        law._commit_satellites(mask, keys, s_rows, n_rows, s_prev, epoch)
+    for name in ("_sat_summary", "_sat_scale", "_sat_count", "_sat_last", "_epoch"):
+        np.testing.assert_array_equal(getattr(laws[1], name), getattr(laws[0], name), err_msg=name)
+    assert laws[0]._sat_scale[2, 7] == s_rows[2, 5] and laws[0]._sat_last[2, 7] == 6
+    assert (laws[0]._sat_last >= 0).sum() > B  # the tables were written
     assert laws[0]._sat_summary[:, 2].any() and laws[0]._sat_summary[0].tolist() == [1.0, 1.0, 0.0, 0.0]
 
 
