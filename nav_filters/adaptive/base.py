@@ -198,7 +198,7 @@ class AdaptiveLaw(FilterForm):
             raise ValueError(f"Phi must have shape ({B}, {n}, {n}), got {Phi.shape}")
         Q = np.asarray(Q, self.dtype)
         try:
-            Q = np.broadcast_to(Q, (B, n, n))
+            Q = Q if Q.shape == (B, n, n) else np.broadcast_to(Q, (B, n, n))
         except ValueError:
             raise ValueError(f"Q must broadcast to ({B}, {n}, {n}), got {Q.shape}") from None
         self._ctx = None

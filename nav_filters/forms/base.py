@@ -71,7 +71,7 @@ def prepare_measurement(dz, H, R, mask, dtype):
     H = np.asarray(H)
     R = np.asarray(R)
     if not (dz.ndim == 2 and H.ndim == 3 and H.shape[:2] == dz.shape and R.shape in (dz.shape, dz.shape + dz.shape[1:])
-            and all(a.dtype.kind == "f" for a in (dz, H, R))):
+            and dz.dtype.kind == H.dtype.kind == R.dtype.kind == "f"):
         return prepare_measurement_reference(dz, H, R, mask, dtype)
     B, m = dz.shape
     mask = np.ones((B, m), bool) if mask is None else np.asarray(mask, bool)
@@ -340,5 +340,5 @@ class FilterForm(ABC):
     def take_correction(self) -> np.ndarray:
         """Return the error-state estimate (B, n) and reset it to zero (closed-loop feedback)."""
         x = self.x
-        self.x = np.zeros_like(x)
+        self.x = np.zeros(x.shape, x.dtype)
         return x

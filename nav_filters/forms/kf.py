@@ -287,7 +287,8 @@ class KalmanFilter(FilterForm):
         if not self.fused:
             return super()._predicted_update(Phi, Q, dz, H, R, mask, fade, prior)
         B, n = self.batch_size, self.n
-        Q = np.broadcast_to(np.asarray(Q, self.dtype), (B, n, n))
+        Q = np.asarray(Q, self.dtype)
+        Q = Q if Q.shape == (B, n, n) else np.broadcast_to(Q, (B, n, n))
         P, x, r, Sd, nis = fused_update(self.P, self.x, H, R, dz, mask, Phi=Phi, Q=Q, fade=fade, prior=prior)
         self.P, self.x = P, x
         n_used = mask.sum(-1)
@@ -527,7 +528,8 @@ def fused_update(P, x, H, R, dz, mask, Phi=None, Q=None, fade=None, prior=None):
         mode, Phi_, s, Q_, pri = 0, P, np.ones((B, n), dt), P, P
     else:
         f = np.ones((B, n)) if fade is None else np.asarray(fade, np.float64)
-        s = c(np.broadcast_to(np.sqrt(f if f.ndim == 2 else f[:, None]), (B, n)), dt)
+        s = np.sqrt(f if f.ndim == 2 else f[:, None])
+        s = c(s if s.shape == (B, n) else np.broadcast_to(s, (B, n)), dt)
         mode, Phi_, Q_ = (1 if prior is None else 2), c(Phi, dt), c(Q, dt)
         pri = P if prior is None else c(prior, dt)
     Pn = np.empty((B, n, n), dt)
