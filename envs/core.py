@@ -395,7 +395,7 @@ class TuningCore:
                                        np.where(h_err > bound,
                                                 f"horizontal error above divergence_bound_m ({bound:g} m)", "")))
         else:  # the common case: no strings to form
-            reason = np.full(self.B, "")
+            reason = np.zeros(self.B, "<U1")  # = np.full(B, ""), cheaper
         cfg = self.config
         if cfg.reward == "horizontal":
             reward = -h_err

@@ -528,8 +528,8 @@ def fused_update(P, x, H, R, dz, mask, Phi=None, Q=None, fade=None, prior=None):
         mode, Phi_, s, Q_, pri = 0, P, np.ones((B, n), dt), P, P
     else:
         f = np.ones((B, n)) if fade is None else np.asarray(fade, np.float64)
-        s = np.sqrt(f if f.ndim == 2 else f[:, None])
-        s = c(s if s.shape == (B, n) else np.broadcast_to(s, (B, n)), dt)
+        s = np.empty((B, n), dt)
+        s[...] = np.sqrt(f if f.ndim == 2 else f[:, None])  # the (B, n) scales of P, cast to the filter dtype
         mode, Phi_, Q_ = (1 if prior is None else 2), c(Phi, dt), c(Q, dt)
         pri = P if prior is None else c(prior, dt)
     Pn = np.empty((B, n, n), dt)
