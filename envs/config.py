@@ -65,6 +65,10 @@ class ParamSpec:
             raise ValueError(f"ParamSpec {self.name}: a log1m parameter needs high < 1, got {self.high}")
         if self.map == "log" and not (self.low > 0):
             raise ValueError(f"ParamSpec {self.name}: a log parameter needs low > 0, got {self.low}")
+        # the map's end points in its own coordinate (log(low), log(high); log(1 - low), log(1 - high)), once
+        ends = {"log": (np.log(self.low), np.log(self.high)) if self.map == "log" else None,
+                "log1m": (np.log(1.0 - self.low), np.log(1.0 - self.high)) if self.map == "log1m" else None}
+        object.__setattr__(self, "_ends", ends[self.map] if self.map != "linear" else None)
 
     def to_value(self, a):
         """Physical value(s) for action component(s) ``a`` in [-1, 1] (clipped)."""
@@ -72,9 +76,9 @@ class ParamSpec:
         s = 0.5 * (a + 1.0)
         if self.map == "linear":
             return self.low + s * (self.high - self.low)
+        lo, hi = self._ends
         if self.map == "log":
-            return np.exp(np.log(self.low) + s * (np.log(self.high) - np.log(self.low)))
-        lo, hi = np.log(1.0 - self.low), np.log(1.0 - self.high)
+            return np.exp(lo + s * (hi - lo))
         return 1.0 - np.exp(lo + s * (hi - lo))
 
     def to_action(self, value):

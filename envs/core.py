@@ -386,7 +386,10 @@ class TuningCore:
         if self.ref is not None:
             self._set_params(self.ref, np.broadcast_to(self.default_action, a.shape))
             ref_h, ref_3d, _, _ = self._advance(self.ref, j)
-        self.est_track[np.arange(self.B), j] = self.nav.r
+        if self.B == 1:
+            self.est_track[0, j[0]] = self.nav.r[0]
+        else:
+            self.est_track[np.arange(self.B), j] = self.nav.r
         bound = self.config.divergence_bound_m
         diverged = self.nav.diverged | ~np.isfinite(h_err) | (h_err > bound)
         if diverged.any():
