@@ -83,6 +83,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 
 from .base import AdaptiveLaw, EpochContext, UpdatePlan
@@ -116,7 +117,8 @@ SPLIT_STATS = 5
 """Columns of the smoothed statistics of :func:`split_fading`: ``n``, ``d``, ``s``, ``e_res``, ``dof``."""
 
 
-def split_fading(split, stats_prev, weight, softening, confidence, lambda_max, noise_gate, printed, scale=1.0):
+def split_fading(split, stats_prev, weight, softening, confidence, lambda_max, noise_gate, printed, scale=1.0,
+                 fast: bool = False):
     """Fading factor from the part of the innovations a state error can explain (``fading_noise='geometry'``).
 
     Per epoch, over the measurement types with redundancy (:class:`~.innovation.FitSplit`, weights
@@ -147,13 +149,25 @@ def split_fading(split, stats_prev, weight, softening, confidence, lambda_max, n
     split : :class:`~.innovation.FitSplit` (B, T); stats_prev : (B, SPLIT_STATS) smoothed statistics (zeros
     at the start); weight : (B,) smoothing weight in (0, 1]; softening : (B,) beta; confidence : kappa
     (>= 0); lambda_max : float; noise_gate : float (>= 1, inf: no gate); printed : (B,) the printed law's
-    lambda; scale : (B,) or scalar multiplier of the ratio.
+    lambda; scale : (B,) or scalar multiplier of the ratio; fast : the compiled form
+    (:func:`_split_fading_kernel`, the fused path's: the same values bit for bit for the laws' 2 types, tested
+    with 1-3 in ``tests/nav_filters/test_fused_update.py``; the numpy lines here are its specification).
 
     Returns
     -------
     lam : (B,) fading factors;
     stats : (B, SPLIT_STATS) the new smoothed statistics (unchanged where no type has redundancy).
     """
+    if fast:
+        B = split.e_fit.shape[0]
+        f64 = lambda a: np.ascontiguousarray(np.broadcast_to(np.asarray(a, np.float64), (B,)))  # noqa: E731
+        lam, stats = np.empty(B), np.empty((B, SPLIT_STATS))
+        _split_fading_kernel(*(np.ascontiguousarray(a, np.float64) for a in (
+            split.e_fit, split.e_res, split.dof, split.p, split.tr_m, split.tr_q, split.n)),
+            np.ascontiguousarray(split.n_other, np.float64), np.ascontiguousarray(stats_prev, np.float64),
+            f64(weight), f64(softening), float(confidence), float(lambda_max), float(noise_gate), f64(printed),
+            f64(scale), lam, stats)
+        return lam, stats
     g = split.noise_scale
     ok = split.dof > 0
     beta = np.asarray(softening, np.float64)[:, None]
@@ -178,6 +192,76 @@ def split_fading(split, stats_prev, weight, softening, confidence, lambda_max, n
     lam = np.where(noise > noise_gate, 1.0, lam)
     typed = (split.n > 0).any(1) | (split.n_other > 0)
     return np.where(has, lam, np.where(typed, 1.0, printed)), stats
+
+
+@nb.njit(cache=True)
+def _row_sum(a, b):
+    """``a[b].sum()`` of a (B, T) array with few columns, in numpy's order there (from the first column on,
+    one column at a time)."""
+    s = a[b, 0]
+    for t in range(1, a.shape[1]):
+        s += a[b, t]
+    return s
+
+
+@nb.njit(cache=True)
+def _split_fading_kernel(e_fit, e_res, dof, p, tr_m, tr_q, n_typed, n_other, stats_prev, weight, softening,
+                         confidence, lambda_max, noise_gate, printed, scale, lam, stats):
+    """Compiled :func:`split_fading` (its numpy lines are the specification): per row, the epoch statistics
+    ``x_k``, their smoothing into ``stats`` (B, SPLIT_STATS) and the fading factor into ``lam`` (B,)."""
+    B, T = e_fit.shape
+    x = np.empty((1, T))
+    xk = np.empty(SPLIT_STATS)
+    for b in range(B):
+        has = False
+        typed = n_other[b] > 0
+        for t in range(T):
+            has = has or dof[b, t] > 0
+            typed = typed or n_typed[b, t] > 0
+        beta = softening[b]
+        for t in range(T):  # n_k terms
+            if dof[b, t] > 0:
+                g = e_res[b, t] / dof[b, t]
+                x[0, t] = e_fit[b, t] - beta * g * p[b, t] - tr_q[b, t]
+            else:
+                x[0, t] = 0.0
+        xk[0] = _row_sum(x, 0)
+        xk[1] = _row_sum(tr_m, b)
+        for t in range(T):  # s_k terms
+            if dof[b, t] > 0:
+                g = e_res[b, t] / dof[b, t]
+                pp = p[b, t]
+                u = g * pp + tr_m[b, t] + tr_q[b, t]
+                x[0, t] = 2.0 * (u * u) / (pp if pp > 0 else 1.0) + 2.0 * (g * g) * (pp * pp) / dof[b, t]
+            else:
+                x[0, t] = 0.0
+        xk[2] = _row_sum(x, 0)
+        xk[3] = _row_sum(e_res, b)
+        xk[4] = _row_sum(dof, b)
+        w = weight[b]
+        keep = 1.0 - w
+        for c in range(SPLIT_STATS):
+            if not has:
+                stats[b, c] = stats_prev[b, c]
+            elif c == 2:  # the variance of a weighted sum
+                stats[b, c] = (keep * keep) * stats_prev[b, c] + (w * w) * xk[c]
+            else:
+                stats[b, c] = keep * stats_prev[b, c] + w * xk[c]
+        n, d, var, er, ds = stats[b, 0], stats[b, 1], stats[b, 2], stats[b, 3], stats[b, 4]
+        if d > 0:
+            if var < 0.0:  # np.maximum(var, 0): NaN stays NaN
+                var = 0.0
+            v = scale[b] * (n - confidence * np.sqrt(var)) / d
+        else:
+            v = 1.0
+        if not (v >= 1.0 or v != v):  # np.clip(v, 1, lambda_max): NaN stays NaN
+            v = 1.0
+        if not (v <= lambda_max or v != v):
+            v = lambda_max
+        noise = er / ds if ds > 0 else 1.0
+        if noise > noise_gate:
+            v = 1.0
+        lam[b] = v if has else (1.0 if typed else printed[b])
 
 
 def fading_factor(tr_c, traces, softening, lambda_max, scale=1.0):
@@ -285,7 +369,8 @@ class StrongTracking(AdaptiveLaw):
         if cfg.fading_noise == "geometry":
             split = fit_split(r, H, R, mask, ctx.prior, ctx.Q if ctx.pending else None, fast=self.fused)
             lam, fs = split_fading(split, self._fs, np.where(self._count == 0, 1.0, 1.0 / (1.0 + rho)),
-                                   self._params["softening"], cfg.fading_confidence, cfg.lambda_max, cfg.noise_gate, lam)
+                                   self._params["softening"], cfg.fading_confidence, cfg.lambda_max, cfg.noise_gate, lam,
+                                   fast=self.fused)
         lam = np.where(has & ctx.pending, lam, 1.0)
         fade = self.capped_fading(lam, ctx.prior, cfg.fading_cap)
         return UpdatePlan(fade=fade, R=R, mask=mask, pending={"v": v, "has": has, "lambda": lam, "fs": fs})
@@ -536,7 +621,8 @@ class MeasurementAdaptiveSTKF(SatelliteNoise, AdaptiveLaw):
             alpha_t = np.where(upd, np.clip((1.0 - beta[:, None]) * self._alpha_t + beta[:, None] * split.noise_scale,
                                             cfg.alpha_min, cfg.alpha_max), self._alpha_t)
             lam, fs_new = split_fading(model, self._fs, beta, self._params["softening"], cfg.fading_confidence,
-                                       cfg.lambda_max, cfg.noise_gate, lam, scale=self._params["fading_scale"])
+                                       cfg.lambda_max, cfg.noise_gate, lam, scale=self._params["fading_scale"],
+                                       fast=self.fused)
             fs = np.where(accept[:, None], fs_new, self._fs)
         lam = np.where(accept & acting & ctx.pending, lam, 1.0)
         pending = {"c": np.where(accept, c, self._c), "beta": np.where(accept, beta, self._beta),
