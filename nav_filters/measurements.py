@@ -78,7 +78,26 @@ def satellite_key(system_index, prn):
     return np.where(valid, sysi * MAX_PRN + prn - 1, -1).astype(np.int64)
 
 
-def measurement_keys(sat_keys, with_rate: bool, n_extra: int = 0):
+@nb.njit(cache=True)
+def _measurement_keys_kernel(k, mask, with_rate, n_extra, out):
+    """Fill ``out`` (B, m) with the row identities of :func:`measurement_keys` (channels outside ``mask``: -1);
+    returns False where a used key lies outside ``-1 .. N_SAT_KEYS - 1``."""
+    B, C = k.shape
+    valid = True
+    for b in range(B):
+        for i in range(C):
+            v = k[b, i] if mask[b, i] else -1
+            if v >= N_SAT_KEYS or v < -1:
+                valid = False
+            out[b, i] = v
+            if with_rate:
+                out[b, C + i] = v + N_SAT_KEYS if v >= 0 else -1
+        for e in range(C * (1 + with_rate), C * (1 + with_rate) + n_extra):
+            out[b, e] = -1
+    return valid
+
+
+def measurement_keys(sat_keys, with_rate: bool, n_extra: int = 0, mask=None):
     """Per measurement row identity of a tightly coupled epoch, rows ``[pr_1..pr_C, prr_1..prr_C, extra...]``.
 
     A pseudorange row of satellite key ``s`` gets ``s``, its pseudorange-rate row ``N_SAT_KEYS + s``
@@ -90,22 +109,22 @@ def measurement_keys(sat_keys, with_rate: bool, n_extra: int = 0):
     sat_keys : (B, C) int satellite keys of the channels (:func:`satellite_key`), -1 on empty channels.
     with_rate : whether the epoch has pseudorange-rate rows.
     n_extra : number of extra (constraint) rows stacked after the GNSS rows.
+    mask : (B, C) bool channels in use, or None (all): the others get -1 (their keys are not checked).
 
     Returns
     -------
     (B, m) int64 with ``m = C (1 + with_rate) + n_extra``, values in ``[-1, 2 N_SAT_KEYS)``.
     """
-    k = np.asarray(sat_keys, np.int64)
+    k = np.ascontiguousarray(sat_keys, np.int64)
     if k.ndim != 2:
         raise ValueError(f"sat_keys must have shape (B, C), got {k.shape}")
-    if k.size and (k.max() >= N_SAT_KEYS or k.min() < -1):
+    mask = np.ones(k.shape, bool) if mask is None else np.ascontiguousarray(mask, bool)
+    if mask.shape != k.shape:
+        raise ValueError(f"mask must have the shape of sat_keys {k.shape}, got {mask.shape}")
+    out = np.empty((k.shape[0], k.shape[1] * (1 + bool(with_rate)) + int(n_extra)), np.int64)
+    if not _measurement_keys_kernel(k, mask, bool(with_rate), int(n_extra), out):
         raise ValueError(f"sat_keys must lie in -1..{N_SAT_KEYS - 1}")
-    parts = [k]
-    if with_rate:
-        parts.append(np.where(k >= 0, k + N_SAT_KEYS, -1))
-    if n_extra:
-        parts.append(np.full((k.shape[0], n_extra), -1, np.int64))
-    return np.concatenate(parts, 1) if len(parts) > 1 else k.copy()
+    return out
 
 
 def gnss_innovations_reference(r_e, v_e, clk_m, drift_mps, sat_pos, sat_vel, pr, prr, pr_var, prr_var, mask,

@@ -337,7 +337,7 @@ class Navigator:
             sk = np.asarray(sat_keys)
             if sk.shape != mask.shape:
                 raise ValueError(f"sat_keys must have shape {mask.shape} (one per channel), got {sk.shape}")
-            keys = measurement_keys(np.where(mask, sk, -1), n_gnss > mask.shape[1], dz.shape[1] - n_gnss)
+            keys = measurement_keys(sk, n_gnss > mask.shape[1], dz.shape[1] - n_gnss, mask=mask)
         self.flush_prediction()  # the state was checked above and the prediction does not change it
         res = self._update_checked(dz, H, R, row_mask, keys)
         self.time_since_update[mask.any(-1)] = 0.0

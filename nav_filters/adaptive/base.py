@@ -50,6 +50,7 @@ factor, weights, noise scales) as (B,) arrays for observations.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -251,7 +252,7 @@ class AdaptiveLaw(FilterForm):
         (B,) ``lam`` itself when ``cap`` is inf, else (B, n).
         """
         lam = np.asarray(lam, np.float64)
-        if np.isinf(cap):
+        if math.isinf(cap):
             return lam
         d = np.diagonal(prior, axis1=1, axis2=2).astype(np.float64)
         room = np.where(d > 0, cap * self._p0_diag / np.where(d > 0, d, 1.0), np.inf)

@@ -160,7 +160,10 @@ def split_fading(split, stats_prev, weight, softening, confidence, lambda_max, n
     """
     if fast:
         B = split.e_fit.shape[0]
-        f64 = lambda a: np.ascontiguousarray(np.broadcast_to(np.asarray(a, np.float64), (B,)))  # noqa: E731
+
+        def f64(a):  # (B,) float64, contiguous (a scalar broadcast)
+            a = np.asarray(a, np.float64)
+            return np.ascontiguousarray(a) if a.shape == (B,) else np.full(B, a)
         lam, stats = np.empty(B), np.empty((B, SPLIT_STATS))
         _split_fading_kernel(*(np.ascontiguousarray(a, np.float64) for a in (
             split.e_fit, split.e_res, split.dof, split.p, split.tr_m, split.tr_q, split.n)),

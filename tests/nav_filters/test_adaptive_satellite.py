@@ -76,6 +76,16 @@ def test_satellite_key_encoding_and_measurement_keys():
         satellite_key(9, 3)
     k = measurement_keys(np.array([[3, -1, 7]]), with_rate=True, n_extra=2)
     np.testing.assert_array_equal(k, [[3, -1, 7, N_SAT_KEYS + 3, -1, N_SAT_KEYS + 7, -1, -1]])
+    sk = np.array([[3, 5, N_SAT_KEYS], [0, -1, 2]])
+    mask = np.array([[True, False, False], [True, True, True]])  # the out-of-range key is masked out
+    k = measurement_keys(sk, with_rate=False, mask=mask)
+    np.testing.assert_array_equal(k, np.where(mask, sk, -1))
+    assert k is not sk and k.dtype == np.int64
+    for bad in (np.array([[N_SAT_KEYS]]), np.array([[-2]])):
+        with pytest.raises(ValueError, match="sat_keys must lie"):
+            measurement_keys(bad, with_rate=True)
+    with pytest.raises(ValueError, match="mask"):
+        measurement_keys(sk, with_rate=True, mask=mask[:, :2])
 
 
 def test_a_satellite_that_turns_nlos_converges_to_its_true_variance_while_the_others_stay_nominal():
