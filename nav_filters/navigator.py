@@ -50,6 +50,7 @@ updates skipped) when
 from __future__ import annotations
 
 import copy
+import math
 from dataclasses import dataclass
 
 import numba as nb
@@ -218,7 +219,7 @@ class Navigator:
         if f.ndim != 3 or f.shape[0] != B or f.shape[2] != 3 or w.shape != f.shape:
             raise ValueError(f"f_raw and w_raw must both have shape ({B}, n, 3), got {f.shape} and {w.shape}")
         dt = float(dt)
-        if not (dt > 0 and np.isfinite(dt)):
+        if not (dt > 0 and math.isfinite(dt)):
             raise ValueError(f"dt must be a positive finite number of seconds, got {dt!r}")
         mats = self._earth.get(dt)
         if mats is None:
