@@ -571,10 +571,9 @@ class MeasurementAdaptiveSTKF(SatelliteNoise, AdaptiveLaw):
     def _row_factors(self, alpha, alpha_t, types):
         """(B, m) measurement factor of each row: its type's ``alpha_t`` (pseudoranges 0, rates 1) in the
         geometry mode, else the scalar ``alpha``."""
-        a = np.broadcast_to(alpha[:, None], types.shape)
         if self.config.fading_noise != "geometry":
-            return a
-        return np.where(types == 0, alpha_t[:, :1], np.where(types == 1, alpha_t[:, 1:2], a))
+            return np.broadcast_to(alpha[:, None], types.shape)
+        return np.where(types == 0, alpha_t[:, :1], np.where(types == 1, alpha_t[:, 1:2], alpha[:, None]))
 
     def _plan(self, r, H, R, mask, ctx: EpochContext) -> UpdatePlan:
         cfg = self.config
