@@ -8,6 +8,8 @@ For every ``n_envs`` of ``--n-envs`` (default 16, 64, 256) and every mode of ``-
 * the native vector env behind the SB3 adapter (:func:`envs.sb3.make_sb3_vec_env`, what ``train.py rl`` uses),
 * a DummyVecEnv of ``n_envs`` single envs (what RL Zoo builds from ``gym.make``), unless ``--no-dummy``,
 * the same native vector env stepped alone with random actions (``env only``): the ceiling the env sets,
+  and the share of that time spent in automatic resets (``resets``: world generation and filter construction
+  for each finished episode; it grows with 1 / episode length),
 
 and the share of the learning time spent outside the env (PPO's rollout glue, the policy forward passes and
 the gradient epochs). PPO runs with the hyperparameters of ``train.py rl`` (``agents.training.DEFAULT_HYPERPARAMS
@@ -54,17 +56,34 @@ def learn_rate(venv, n_envs: int, rollouts: int) -> float:
     return rollouts * steps / (time.perf_counter() - t)
 
 
-def env_rate(venv, n_envs: int, steps: int) -> float:
-    """Env-steps/s of the SB3 vector env stepped with random actions (``steps`` batched steps)."""
+def env_rate(venv, n_envs: int, steps: int) -> tuple[float, float]:
+    """(env-steps/s, share of the time in automatic resets) of the SB3 vector env stepped with random actions
+    (``steps`` batched steps, at least two whole episodes so that the resets come at their rate in training)."""
     rng = np.random.default_rng(0)
     venv.reset()
     shape = (n_envs,) + venv.action_space.shape
     acts = [rng.uniform(-1, 1, shape).astype(np.float32) for _ in range(8)]
     venv.step(acts[0])
-    t = time.perf_counter()
-    for i in range(steps):
-        venv.step(acts[i % 8])
-    return steps * n_envs / (time.perf_counter() - t)
+    core = venv.venv.core
+    steps = max(steps, 2 * core.M)
+    reset_rows, spent = core.reset_rows, [0.0]
+
+    def timed_reset_rows(*args, **kwargs):
+        t0 = time.perf_counter()
+        try:
+            return reset_rows(*args, **kwargs)
+        finally:
+            spent[0] += time.perf_counter() - t0
+
+    core.reset_rows = timed_reset_rows
+    try:
+        t = time.perf_counter()
+        for i in range(steps):
+            venv.step(acts[i % 8])
+        wall = time.perf_counter() - t
+    finally:
+        del core.reset_rows  # back to the method
+    return steps * n_envs / wall, spent[0] / wall
 
 
 def main():
@@ -84,7 +103,7 @@ def main():
           f"{DEFAULT_HYPERPARAMS['ppo']['batch_size']}, {DEFAULT_HYPERPARAMS['ppo']['n_epochs']} epochs), episodes "
           f"{a.episode_length:.0f} s, {a.rollouts} timed rollouts per cell, {os.cpu_count()} CPUs; env-steps/s\n")
     head = f"{'n_envs':>6}  {'transition':<10} {'native':>9} {'dummy':>9} {'native/dummy':>13} {'env only':>9} " \
-           f"{'not env':>8}"
+           f"{'resets':>7} {'not env':>8}"
     print(head)
     print("-" * len(head))
     best = {}
@@ -93,7 +112,7 @@ def main():
             kw = dict(episode_length_s=a.episode_length, **MODES[mode])
             native = make_sb3_vec_env(a.env, n, seed=0, **kw)
             r_native = learn_rate(native, n, a.rollouts)
-            r_env = env_rate(native, n, max(8, a.rollouts * n_steps // 4))
+            r_env, reset_share = env_rate(native, n, max(8, a.rollouts * n_steps // 4))
             native.close()
             r_dummy = float("nan")
             if not a.no_dummy:
@@ -102,7 +121,7 @@ def main():
                 dummy.close()
             not_env = 1.0 - r_native / r_env  # share of PPO.learn's time outside env.step
             print(f"{n:>6}  {mode:<10} {r_native:9.0f} {r_dummy:9.0f} {r_native / r_dummy:13.2f} {r_env:9.0f} "
-                  f"{not_env:8.0%}", flush=True)
+                  f"{reset_share:7.0%} {not_env:8.0%}", flush=True)
             if r_native > best.get(mode, (0, 0))[1]:
                 best[mode] = (n, r_native)
     print()
