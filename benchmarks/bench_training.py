@@ -17,16 +17,25 @@ the gradient epochs). PPO runs with the hyperparameters of ``train.py rl`` (``ag
 without VecNormalize. Each cell first learns one rollout (JIT compilation, first resets), then times
 ``--rollouts`` rollouts (``n_steps x n_envs`` env steps each).
 
-Usage: ``python benchmarks/bench_training.py [--n-envs 16 64 256] [--transitions exact fused] [--no-dummy]``.
+``--compare DIR`` measures instead the native vector env's PPO rate (and the env alone) in this tree and in the
+source tree ``DIR`` (e.g. a checkout of an earlier commit), each cell in a fresh process, alternately, and prints
+before, after and the speed-up side by side: before/after figures under the same machine load. A mode the
+earlier tree's env does not take falls back to its exact default (marked ``*``).
+
+Usage: ``python benchmarks/bench_training.py [--n-envs 16 64 256] [--transitions exact fused] [--no-dummy]
+[--compare DIR]``.
 """
 from __future__ import annotations
 
 import argparse
+import json
 import os
+import subprocess
 import sys
 import time
 
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+ROOT = os.environ.get("NAVGYM_BENCH_ROOT") or os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, ROOT)
 
 import gymnasium as gym  # noqa: E402
 import numpy as np  # noqa: E402
@@ -86,7 +95,52 @@ def env_rate(venv, n_envs: int, steps: int) -> tuple[float, float]:
     return steps * n_envs / wall, spent[0] / wall
 
 
+def native_cell(env_id, n, mode, rollouts, episode_length):
+    """(PPO env-steps/s, env-only env-steps/s, reset share) of the native vector env in this process."""
+    n_steps = DEFAULT_HYPERPARAMS["ppo"]["n_steps"]
+    native = make_sb3_vec_env(env_id, n, seed=0, episode_length_s=episode_length, **MODES[mode])
+    r_native = learn_rate(native, n, rollouts)
+    r_env, reset_share = env_rate(native, n, max(8, rollouts * n_steps // 4))
+    native.close()
+    return r_native, r_env, reset_share
+
+
+def _run_cell(root, env_id, n, mode, rollouts, episode_length):
+    """:func:`native_cell` in a fresh process on the source tree ``root`` (its JSON result)."""
+    cmd = [sys.executable, os.path.abspath(__file__), "--cell", env_id, str(n), mode, str(rollouts),
+           str(episode_length)]
+    out = subprocess.run(cmd, env=dict(os.environ, NAVGYM_BENCH_ROOT=root), cwd=root, capture_output=True,
+                         text=True, check=True).stdout
+    return json.loads(out.strip().splitlines()[-1])
+
+
+def compare(a, other):
+    """The ``--compare`` table: every cell before (tree ``other``) and after (this tree), alternately."""
+    here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    print(f"before = {other}\nafter  = {here}\n")
+    head = (f"{'n_envs':>6}  {'transition':<11} {'PPO before':>10} {'after':>8} {'speed-up':>9} "
+            f"{'env before':>11} {'after':>8} {'resets before':>14} {'after':>6}")
+    print(head + "\n" + "-" * len(head))
+    for n in a.n_envs:
+        for mode in a.transitions:
+            cell = (a.env, n, mode, a.rollouts, a.episode_length)
+            mark = ""
+            try:
+                rb = _run_cell(other, *cell)
+            except subprocess.CalledProcessError:
+                if mode == "exact":
+                    raise
+                rb, mark = _run_cell(other, a.env, n, "exact", a.rollouts, a.episode_length), "*"
+            ra = _run_cell(here, *cell)
+            print(f"{n:>6}  {mode + mark:<11} {rb[0]:10.0f} {ra[0]:8.0f} {ra[0] / rb[0]:8.2f}x {rb[1]:11.0f} "
+                  f"{ra[1]:8.0f} {rb[2]:14.0%} {ra[2]:6.0%}", flush=True)
+
+
 def main():
+    if len(sys.argv) > 1 and sys.argv[1] == "--cell":  # one cell of --compare, in a fresh process
+        env_id, n, mode, rollouts, episode_length = sys.argv[2:7]
+        print(json.dumps(native_cell(env_id, int(n), mode, int(rollouts), float(episode_length))))
+        return
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--env", default="GnssIns/SageHusa-v0")
     ap.add_argument("--n-envs", type=int, nargs="+", default=[16, 64, 256])
@@ -94,14 +148,20 @@ def main():
     ap.add_argument("--rollouts", type=int, default=2, help="timed rollouts per cell (n_steps x n_envs steps each)")
     ap.add_argument("--episode-length", type=float, default=60.0, help="episode length [s]")
     ap.add_argument("--no-dummy", action="store_true", help="skip the DummyVecEnv of single envs")
+    ap.add_argument("--compare", metavar="DIR", default=None,
+                    help="native vector env before (source tree DIR) / after (this tree), side by side")
     a = ap.parse_args()
     if min(a.n_envs) < 1 or a.rollouts < 1 or not a.episode_length > 0:
         ap.error("--n-envs and --rollouts must be >= 1 and --episode-length > 0")
+    if a.compare is not None and not os.path.isdir(os.path.join(a.compare, "envs")):
+        ap.error(f"--compare: {a.compare} is not a navgym source tree (no envs/ in it)")
     from stable_baselines3.common.env_util import make_vec_env
     n_steps = DEFAULT_HYPERPARAMS["ppo"]["n_steps"]
     print(f"PPO on {a.env} (train.py rl hyperparameters: n_steps {n_steps}, batch "
           f"{DEFAULT_HYPERPARAMS['ppo']['batch_size']}, {DEFAULT_HYPERPARAMS['ppo']['n_epochs']} epochs), episodes "
           f"{a.episode_length:.0f} s, {a.rollouts} timed rollouts per cell, {os.cpu_count()} CPUs; env-steps/s\n")
+    if a.compare is not None:
+        return compare(a, os.path.abspath(a.compare))
     head = f"{'n_envs':>6}  {'transition':<10} {'native':>9} {'dummy':>9} {'native/dummy':>13} {'env only':>9} " \
            f"{'resets':>7} {'not env':>8}"
     print(head)
@@ -110,10 +170,7 @@ def main():
     for n in a.n_envs:
         for mode in a.transitions:
             kw = dict(episode_length_s=a.episode_length, **MODES[mode])
-            native = make_sb3_vec_env(a.env, n, seed=0, **kw)
-            r_native = learn_rate(native, n, a.rollouts)
-            r_env, reset_share = env_rate(native, n, max(8, a.rollouts * n_steps // 4))
-            native.close()
+            r_native, r_env, reset_share = native_cell(a.env, n, mode, a.rollouts, a.episode_length)
             r_dummy = float("nan")
             if not a.no_dummy:
                 dummy = make_vec_env(lambda kw=kw: gym.make(a.env, **kw), n_envs=n, seed=0)
