@@ -531,8 +531,7 @@ class _Pieces(NamedTuple):
     pl: _Plan           # the rows' plans concatenated (times from each row's own start)
     row: np.ndarray     # (P,) row of the piece
     last: np.ndarray    # (P,) bool: the row's last (open-ended) piece
-    ang0: np.ndarray    # (P,) start value of the angle an arc turns: heading (horizontal arcs), else pitch [rad]
-    rate: np.ndarray    # (P,) its rate: w (horizontal arcs), else q [rad/s]
+    rate: np.ndarray    # (P,) turning rate of an arc: w (horizontal arcs), else q [rad/s]
     trig: np.ndarray    # (P, 4) cos/sin of the start heading and pitch (columns cpsi, spsi, cgam, sgam)
     re0: np.ndarray     # (P, 3) piece start position, ECEF [m]
     xe: np.ndarray      # (P, 3) body x axis (direction of motion), ECEF
@@ -571,8 +570,7 @@ def _pieces(plans: Sequence[_Plan], C_eL, r0, wL) -> _Pieces:
         re0[a:b] = r0[u] + p.p0 @ C_eL[u].T
         wb[a:b] = np.einsum("pji,j->pi", C_Lb[a:b], wL[u])       # C_bL omega_ie_L
         a = b
-    harc = pl.kind == _HARC
-    return _Pieces(pl, row, last, np.where(harc, pl.psi0, pl.gam0), np.where(harc, pl.w, pl.q),
+    return _Pieces(pl, row, last, np.where(pl.kind == _HARC, pl.w, pl.q),
                    np.stack([pl.cpsi, pl.spsi, pl.cgam, pl.sgam], axis=1), re0,
                    np.ascontiguousarray(C_eb[:, :, 0]), C_eb, wb, _wrap(pl.psi0), C_eL, r0,
                    np.ascontiguousarray(wL[:, ::2]))
@@ -637,19 +635,19 @@ def _positions(pl: _Plan, t, pid) -> np.ndarray:
     return out
 
 
-def _arc_trig(pc: _Pieces, t, pid, idx):
-    """Cos and sin of the turning angle (heading on horizontal arcs, pitch on vertical ones) at the arc points
-    ``idx`` (m,) of the points at times ``t`` (M,) on pieces ``pid`` (M,). Computed here, not in the compiled
-    kernels, so that the values are numpy's cos and sin."""
-    p = pid[idx]
-    ang = pc.rate[p] * (t[idx] - pc.pl.t0[p])
-    ang += pc.ang0[p]
-    return np.cos(ang), np.sin(ang)
+def _arc_kin(pl: _Plan, t, pid):
+    """:func:`_kin` at points that all lie on arcs (times ``t`` (m,), pieces ``pid`` (m,)), and the cos and sin of
+    each point's turning angle (heading on horizontal arcs, pitch on vertical ones): the compiled kernels' arc
+    input, so that the kernels use numpy's cos and sin."""
+    k = _kin(pl, t, pid, lambda x: x[pid])
+    c, s = k.cgam.copy(), k.sgam.copy()
+    c[k.i_h], s[k.i_h] = k.cpsi[k.i_h], k.spsi[k.i_h]
+    return k, c, s
 
 
 # The compiled kernels below evaluate the closed forms point by point in the order of operations of numpy's
 # elementwise evaluation (no fastmath: the same roundings); the cos/sin of arc angles come from numpy
-# (:func:`_arc_trig`). Their helpers take scalars: passing arrays into a helper call costs reference counting
+# (:func:`_arc_kin`). Their helpers take scalars: passing arrays into a helper call costs reference counting
 # on every point.
 @nb.njit(cache=True)
 def _gravity_at(tk, u, gA, dgA, inv_h):
@@ -710,7 +708,7 @@ def _point_at(tau, kind, v0, acc, rate, cpsi, spsi, cgam, sgam, arc_c, arc_s, wb
 def _imu_points(t, pid, arc_c, arc_s, pc, gA, dgA, inv_h, f, w):
     """Instantaneous ideal IMU at times ``t`` (M,) on pieces ``pid`` (M,) into ``f``, ``w`` (M, 3).
 
-    ``arc_c``, ``arc_s``: :func:`_arc_trig` of the points on arcs, in point order.
+    ``arc_c``, ``arc_s``: the turning angle's cos/sin at the points on arcs, in point order (:func:`_arc_kin`).
     """
     t0, v0, acc, kind, trig, rate, row, wb, wND = (pc.pl.t0, pc.pl.v0, pc.pl.acc, pc.pl.kind, pc.trig, pc.rate,
                                                    pc.row, pc.wb, pc.wND)
@@ -731,8 +729,8 @@ def _imu_points(t, pid, arc_c, arc_s, pc, gA, dgA, inv_h, f, w):
 
 @nb.njit(cache=True)
 def _node_kernel(t, dtk, pn, arc_c, arc_s, pc, gA, dgA, inv_h, r, ve, C, speed, heading, pitch, engine, fo, wo):
-    """One pass over the U x N grid nodes (``pn`` (U N,) their pieces; ``arc_c``, ``arc_s``: :func:`_arc_trig`
-    of the nodes on arcs, in node order).
+    """One pass over the U x N grid nodes (``pn`` (U N,) their pieces; ``arc_c``, ``arc_s``: the turning angle's
+    cos/sin at the nodes on arcs, in node order, :func:`_arc_kin`).
 
     Writes speed and engine_on everywhere; heading (off horizontal arcs), pitch (off vertical arcs) and
     r_e, v_e, C_eb on the straight pieces (the arcs' states are numpy's, :func:`_arc_node_states`); and the
@@ -781,18 +779,14 @@ def _node_kernel(t, dtk, pn, arc_c, arc_s, pc, gA, dgA, inv_h, r, ve, C, speed, 
             a0, a1, a2, b0, b1, b2 = f0, f1, f2, w0, w1, w2
 
 
-def _arc_node_states(pc: _Pieces, t, pn, ia, out: dict) -> None:
-    """Write r_e, v_e, C_eb, heading / pitch at the arc nodes ``ia`` (global node indices, U N grid) into ``out``.
+def _arc_node_states(pc: _Pieces, ia, p, k: _Kin, out: dict) -> None:
+    """Write r_e, v_e, C_eb, heading / pitch at the arc nodes ``ia`` (m,) (global node indices of the U x N grid;
+    pieces ``p``, kinematics ``k``) into ``out``.
 
     ``r_e = r0_e + C_eL p_L`` is formed row by row with the row's arc nodes in the order (horizontal, vertical)
     of a row alone: the BLAS product's rounding may depend on its row count.
     """
-    n = t.shape[0]
     U = pc.C_eL.shape[0]
-    p = pn[ia]
-    order = np.lexsort((pc.pl.kind[p], pc.row[p]))                 # by row, then horizontal before vertical
-    ia, p = ia[order], p[order]
-    k = _kin(pc.pl, t[ia % n], p, lambda x: x[p])
     ca, sa, cb, sb = k.cgam, k.sgam, k.cpsi, k.spsi
     C_Lb = np.empty((ia.size, 3, 3))
     C_Lb[:, 0, 0], C_Lb[:, 1, 0], C_Lb[:, 2, 0] = ca * cb, ca * sb, -sa
@@ -802,15 +796,17 @@ def _arc_node_states(pc: _Pieces, t, pn, ia, out: dict) -> None:
     Ca = pc.C_eL[rows] @ C_Lb
     pa = np.empty((ia.size, 3))
     _arc_positions(pc.pl, p, k, pa)
+    order = np.lexsort((pc.pl.kind[p], rows))                     # by row, then horizontal before vertical
+    pa, rows = pa[order], rows[order]
     r = np.empty((ia.size, 3))
     bounds = np.searchsorted(rows, np.arange(U + 1))
-    for u in np.unique(rows):
+    for u in np.flatnonzero(np.diff(bounds)):
         a, b = bounds[u], bounds[u + 1]
         r[a:b] = pa[a:b] @ pc.C_eL[u].T + pc.r0[u]
-    flat = lambda name: out[name].reshape((U * n,) + out[name].shape[2:])  # noqa: E731
+    flat = lambda name: out[name].reshape((-1,) + out[name].shape[2:])  # noqa: E731
     flat("C_eb")[ia] = Ca
     flat("v_e")[ia] = Ca[:, :, 0] * k.v[:, None]
-    flat("r_e")[ia] = r
+    flat("r_e")[ia[order]] = r
     flat("heading")[ia[k.i_h]] = _wrap(k.psi_h)
     flat("pitch")[ia[k.i_v]] = k.gam_v
 
@@ -844,15 +840,20 @@ def _split_means(pc: _Pieces, t, dtk, starts, pn, ia, grav, linear_gravity: bool
     first[1:] = qi[1:] != qi[:-1]                                  # first boundary of its interval
     last = np.ones(ji.size, bool)
     last[:-1] = qi[:-1] != qi[1:]
-    qs = np.unique(qi)
+    special = np.zeros(U * m, bool)
+    special[qi] = True
+    qs = np.flatnonzero(special)
     # intervals needing a midpoint value: on an arc piece (or all when gravity has kinks inside intervals)
     if linear_gravity:
         ga = ia[ia % n != m]                                       # arc nodes that start an interval
         qa = ga - ga // n
+        qa = qa[~special[qa]]
     else:
-        qa = np.arange(U * m)
-    qa = np.setdiff1d(qa, qs, assume_unique=True)
-    Q = np.union1d(np.union1d(qo, qa), qs)                         # every interval to redo
+        qa = np.flatnonzero(~special)
+    redo = special.copy()                                          # every interval to redo
+    redo[qo] = True
+    redo[qa] = True
+    Q = np.flatnonzero(redo)
     gs = Q + Q // m                                                # its start node
     kQ = Q % m
     # sub-intervals of the split intervals: [t_q, b_first] (type A), [b_i, next] (type B)
@@ -864,7 +865,8 @@ def _split_means(pc: _Pieces, t, dtk, starts, pn, ia, grav, linear_gravity: bool
                          0.5 * (t[qa % m] + t[qa % m + 1])])
     pe = np.concatenate([pn[gs], pn[gs + 1], jo - 1, ji, ji - 1, jA - 1, ji, pn[qa + qa // m]])
     o = np.cumsum([0, Q.size, Q.size, ko.size, ji.size, ji.size, jA.size, ji.size, qa.size])
-    arc_c, arc_s = _arc_trig(pc, te, pe, np.flatnonzero(pl.kind[pe] != _STRAIGHT))
+    on_arc = np.flatnonzero(pl.kind[pe] != _STRAIGHT)
+    _, arc_c, arc_s = _arc_kin(pl, te[on_arc], pe[on_arc])
     FE, WE = np.empty((te.size, 3)), np.empty((te.size, 3))
     _imu_points(te, pe, arc_c, arc_s, pc, *grav, FE, WE)
     dq = dtk[kQ][:, None]
@@ -890,6 +892,18 @@ def _split_means(pc: _Pieces, t, dtk, starts, pn, ia, grav, linear_gravity: bool
         out[name][Q // m, kQ + 1] = S
 
 
+def _grid_pieces(pc: _Pieces, t):
+    """The pieces on a time grid ``t`` (N,) shared by the U rows of ``pc``: the first grid index of each piece
+    in its row (P,), the number of grid points on it (P,), and the piece of each point (U N,) (right-continuous:
+    the last piece starting at or before the point)."""
+    n = t.shape[0]
+    starts = np.searchsorted(t, pc.pl.t0)
+    ends = np.append(starts[1:], n)
+    ends[pc.last] = n
+    cnt = ends - starts
+    return starts, cnt, np.repeat(np.arange(starts.shape[0]), cnt)
+
+
 def _evaluate(pc: _Pieces, t, grav, linear_gravity: bool, dtype) -> dict:
     """All outputs of the U rows of ``pc`` on the grid ``t`` (N,): a dict of (U, N, ...) arrays of :class:`Truth`.
 
@@ -913,20 +927,17 @@ def _evaluate(pc: _Pieces, t, grav, linear_gravity: bool, dtype) -> dict:
         "heading": np.empty((U, n), dtype), "pitch": np.empty((U, n), dtype),
         "engine_on": np.empty((U, n), bool),
     }
-    starts = np.searchsorted(t, pl.t0)                             # first node of each piece (in its row)
-    ends = np.append(starts[1:], n)
-    ends[pc.last] = n
-    cnt = ends - starts
-    pn = np.repeat(np.arange(pl.t0.shape[0]), cnt)                # piece of each node (right-continuous), (U N,)
+    starts, cnt, pn = _grid_pieces(pc, t)
     arcs = np.flatnonzero((pl.kind != _STRAIGHT) & (cnt > 0))
     c = cnt[arcs]
     ia = np.repeat(pc.row[arcs] * n + starts[arcs] - (np.cumsum(c) - c), c) + np.arange(c.sum())  # arc nodes
-    arc_c, arc_s = _arc_trig(pc, t[ia % n], pn[ia], np.arange(ia.size))
+    pa = pn[ia]
+    ka, arc_c, arc_s = _arc_kin(pl, t[ia % n], pa)
     dtk = np.diff(t)
     _node_kernel(t, dtk, pn, arc_c, arc_s, pc, *grav, out["r_e"], out["v_e"], out["C_eb"], out["speed"],
                  out["heading"], out["pitch"], out["engine_on"], out["f_b"], out["w_b"])
     if ia.size:
-        _arc_node_states(pc, t, pn, ia, out)
+        _arc_node_states(pc, ia, pa, ka, out)
     _split_means(pc, t, dtk, starts, pn, ia, grav, linear_gravity, out)
     return out
 
@@ -1011,14 +1022,16 @@ def generate_truth(motions: Sequence[Motion], duration_s: float, imu_rate_hz: fl
     r0 = geodetic_to_ecef(lat0, lon0, h0)                          # (U, 3)
     wL = np.einsum("uji,j->ui", C_eL, OMEGA_IE_E)                  # C_Le omega_ie_e, (U, 3); east = 0
 
+    pc = _pieces([m._plan for m in ums], C_eL, r0, wL)
+
     # exact gravity on the anchor grid, one batched call
     ta, h, on_nodes = _anchor_grid(n, rate)
-    pa = np.stack([_positions(m._plan, ta, np.searchsorted(m._plan.t0, ta, "right") - 1) for m in ums])
+    pa = _positions(pc.pl, np.tile(ta, U), _grid_pieces(pc, ta)[2]).reshape(U, ta.shape[0], 3)
     ga_e = gravity_ecef(pa @ C_eL.mT + r0[:, None, :])            # r_e = r0 + C_eL p_L
     ga_L = (ga_e @ C_eL).mT.copy()                                 # (U, 3, A): C_Le g_e
     dga_L = np.diff(ga_L, axis=-1)
 
-    out = _evaluate(_pieces([m._plan for m in ums], C_eL, r0, wL), t, (ga_L, dga_L, 1.0 / h), on_nodes, dtype)
+    out = _evaluate(pc, t, (ga_L, dga_L, 1.0 / h), on_nodes, dtype)
     idx = np.array(row_of)
     if not np.array_equal(idx, np.arange(B)):                     # copy the rows of equal motions
         out = {key: val[idx] for key, val in out.items()}
