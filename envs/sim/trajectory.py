@@ -728,20 +728,24 @@ def _imu_points(t, pid, arc_c, arc_s, pc, gA, dgA, inv_h, f, w):
 
 
 @nb.njit(cache=True)
-def _node_kernel(t, dtk, pn, arc_c, arc_s, pc, gA, dgA, inv_h, r, ve, C, speed, heading, pitch, engine, fo, wo):
-    """One pass over the U x N grid nodes (``pn`` (U N,) their pieces; ``arc_c``, ``arc_s``: the turning angle's
-    cos/sin at the nodes on arcs, in node order, :func:`_arc_kin`).
+def _node_kernel(t, dtk, pn, arc_c, arc_s, mid_c, mid_s, simpson, pc, gA, dgA, inv_h,
+                 r, ve, C, speed, heading, pitch, engine, fo, wo):
+    """One pass over the U x N grid nodes (``pn`` (U N,) their pieces).
 
     Writes speed and engine_on everywhere; heading (off horizontal arcs), pitch (off vertical arcs) and
     r_e, v_e, C_eb on the straight pieces (the arcs' states are numpy's, :func:`_arc_node_states`); and the
-    IMU outputs ``fo``, ``wo`` (U, N, 3) as the instantaneous value at node 0 and the trapezoid of the node
-    values over each interval (= Simpson on straight pieces; :func:`_split_means` replaces the others).
+    IMU outputs ``fo``, ``wo`` (U, N, 3): the instantaneous value at node 0, and the mean over each interval
+    that lies on one piece: the trapezoid of the node values on a straight piece (= Simpson there), Simpson
+    with the midpoint value on an arc, or everywhere with ``simpson`` (gravity with kinks inside intervals).
+    The intervals at segment boundaries get the trapezoid as a placeholder (:func:`_split_means`).
+    ``arc_c``, ``arc_s``: the turning angle's cos/sin at the nodes on arcs; ``mid_c``, ``mid_s``: at the
+    midpoints of the intervals on one arc; each in grid order (:func:`_arc_kin`).
     """
     t0, v0, acc, kind, trig, rate, row, wb, wND = (pc.pl.t0, pc.pl.v0, pc.pl.acc, pc.pl.kind, pc.trig, pc.rate,
                                                    pc.row, pc.wb, pc.wND)
     eng, gam0, psi0w, xe, re0, C_eb = pc.pl.engine, pc.pl.gam0, pc.psi0w, pc.xe, pc.re0, pc.C_eb
     U, n = speed.shape
-    j = 0
+    j = jm = 0
     a0 = a1 = a2 = b0 = b1 = b2 = 0.0
     for u in range(U):
         for k in range(n):
@@ -772,7 +776,24 @@ def _node_kernel(t, dtk, pn, arc_c, arc_s, pc, gA, dgA, inv_h, r, ve, C, speed, 
             if k == 0:
                 fo[u, 0, 0], fo[u, 0, 1], fo[u, 0, 2] = f0, f1, f2
                 wo[u, 0, 0], wo[u, 0, 1], wo[u, 0, 2] = w0, w1, w2
-            else:
+            elif pn[u * n + k - 1] == p and (simpson or kd != _STRAIGHT):    # Simpson with the midpoint value
+                tm = 0.5 * (t[k - 1] + t[k])
+                ac = sc = 0.0
+                if kd != _STRAIGHT:
+                    ac, sc = mid_c[jm], mid_s[jm]
+                    jm += 1
+                gN, gE, gD = _gravity_at(tm, u, gA, dgA, inv_h)
+                _, m0, m1, m2, n0, n1, n2 = _point_at(
+                    tm - t0[p], kd, v0[p], acc[p], rate[p], trig[p, 0], trig[p, 1], trig[p, 2], trig[p, 3], ac, sc,
+                    wb[p, 0], wb[p, 1], wb[p, 2], wND[u, 0], wND[u, 1], gN, gE, gD)
+                e, d = dtk[k - 1] / 6.0, dtk[k - 1]
+                fo[u, k, 0] = (a0 + f0 + 4.0 * m0) * e / d
+                fo[u, k, 1] = (a1 + f1 + 4.0 * m1) * e / d
+                fo[u, k, 2] = (a2 + f2 + 4.0 * m2) * e / d
+                wo[u, k, 0] = (b0 + w0 + 4.0 * n0) * e / d
+                wo[u, k, 1] = (b1 + w1 + 4.0 * n1) * e / d
+                wo[u, k, 2] = (b2 + w2 + 4.0 * n2) * e / d
+            else:                                                   # trapezoid (= Simpson on straight pieces)
                 h, d = 0.5 * dtk[k - 1], dtk[k - 1]
                 fo[u, k, 0], fo[u, k, 1], fo[u, k, 2] = (a0 + f0) * h / d, (a1 + f1) * h / d, (a2 + f2) * h / d
                 wo[u, k, 0], wo[u, k, 1], wo[u, k, 2] = (b0 + w0) * h / d, (b1 + w1) * h / d, (b2 + w2) * h / d
@@ -811,15 +832,14 @@ def _arc_node_states(pc: _Pieces, ia, p, k: _Kin, out: dict) -> None:
     flat("pitch")[ia[k.i_v]] = k.gam_v
 
 
-def _split_means(pc: _Pieces, t, dtk, starts, pn, ia, grav, linear_gravity: bool, out: dict) -> None:
-    """Replace the trapezoid means of :func:`_node_kernel` where it is not Simpson's rule, in ``out`` f_b, w_b.
+def _split_means(pc: _Pieces, t, dtk, starts, pn, grav, linear_gravity: bool, out: dict) -> None:
+    """The IMU means of the intervals at segment boundaries, in ``out`` f_b, w_b (over the kernel's placeholder).
 
-    * an interval on an arc: Simpson with the analytic midpoint value;
     * an interval ending on a node where a piece starts: the end value is the left-hand one (of the piece
-      that ends there);
+      that ends there); trapezoid on a straight piece, Simpson with the midpoint value on an arc (or
+      everywhere when gravity has kinks inside intervals);
     * an interval holding segment boundaries: split there, Simpson on each part with the one-sided end
-      values of the part's own piece;
-    * all intervals outside the split ones when gravity has kinks inside intervals (anchors off the nodes).
+      values of the part's own piece.
 
     Global indices: node ``g = u N + k``, interval ``q = u (N - 1) + k`` for ``(t_k, t_k+1]`` of row ``u``.
     """
@@ -843,17 +863,14 @@ def _split_means(pc: _Pieces, t, dtk, starts, pn, ia, grav, linear_gravity: bool
     special = np.zeros(U * m, bool)
     special[qi] = True
     qs = np.flatnonzero(special)
-    # intervals needing a midpoint value: on an arc piece (or all when gravity has kinks inside intervals)
-    if linear_gravity:
-        ga = ia[ia % n != m]                                       # arc nodes that start an interval
-        qa = ga - ga // n
-        qa = qa[~special[qa]]
-    else:
-        qa = np.flatnonzero(~special)
     redo = special.copy()                                          # every interval to redo
     redo[qo] = True
-    redo[qa] = True
     Q = np.flatnonzero(redo)
+    # intervals ending on a boundary node that need a midpoint value: on an arc piece (or all when gravity has
+    # kinks inside intervals); the other intervals on one piece are the kernel's
+    qa = qo[~special[qo]]
+    if linear_gravity:
+        qa = qa[pl.kind[pn[qa + qa // m]] != _STRAIGHT]
     gs = Q + Q // m                                                # its start node
     kQ = Q % m
     # sub-intervals of the split intervals: [t_q, b_first] (type A), [b_i, next] (type B)
@@ -933,12 +950,16 @@ def _evaluate(pc: _Pieces, t, grav, linear_gravity: bool, dtype) -> dict:
     ia = np.repeat(pc.row[arcs] * n + starts[arcs] - (np.cumsum(c) - c), c) + np.arange(c.sum())  # arc nodes
     pa = pn[ia]
     ka, arc_c, arc_s = _arc_kin(pl, t[ia % n], pa)
+    gm = ia[ia % n != n - 1]
+    gm = gm[pn[gm + 1] == pn[gm]]                                  # arc nodes starting an interval on one piece
+    km = gm % n
+    _, mid_c, mid_s = _arc_kin(pl, 0.5 * (t[km] + t[km + 1]), pn[gm])
     dtk = np.diff(t)
-    _node_kernel(t, dtk, pn, arc_c, arc_s, pc, *grav, out["r_e"], out["v_e"], out["C_eb"], out["speed"],
-                 out["heading"], out["pitch"], out["engine_on"], out["f_b"], out["w_b"])
+    _node_kernel(t, dtk, pn, arc_c, arc_s, mid_c, mid_s, not linear_gravity, pc, *grav, out["r_e"], out["v_e"],
+                 out["C_eb"], out["speed"], out["heading"], out["pitch"], out["engine_on"], out["f_b"], out["w_b"])
     if ia.size:
         _arc_node_states(pc, ia, pa, ka, out)
-    _split_means(pc, t, dtk, starts, pn, ia, grav, linear_gravity, out)
+    _split_means(pc, t, dtk, starts, pn, grav, linear_gravity, out)
     return out
 
 
