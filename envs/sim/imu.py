@@ -50,6 +50,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Sequence
 
+import numba as nb
 import numpy as np
 from scipy.signal import lfilter
 
@@ -68,6 +69,8 @@ __all__ = [
     "allan_deviation",
     "density_from_sample_sigma",
 ]
+
+_U64_MAX = np.iinfo(np.uint64).max
 
 _COMPONENTS = ("constants", "gyro_white", "accel_white", "gyro_gm", "accel_gm", "vibration", "events")
 """Child streams derived from each row's generator; spawn key = index here (never reorder)."""
@@ -530,7 +533,7 @@ def _vibration_row(gen: np.random.Generator, dt: float, engine_on: np.ndarray | 
             coef += [amp * atten * np.cos(phases[j]), amp * atten * np.sin(phases[j])]
         vals = np.zeros((idx.size, 6))
         tmp = np.empty(idx.size)
-        for c in range(6):  # (M, 4) x (4, 6) without BLAS threads, see _apply_matrix
+        for c in range(6):  # (M, 4) x (4, 6) without BLAS threads (see _apply_matrix)
             col = vals[:, c]
             for bj, cj in zip(basis, coef):
                 np.multiply(bj, cj[c], out=tmp)
@@ -793,7 +796,7 @@ def _check_motion(speed, engine_on, b: int, n: int):
 # --------------------------------------------------------------------------- simulation
 def _children(rng: np.random.Generator) -> dict[str, np.random.Generator]:
     """Independent per-component streams of one row (2 draws from ``rng``)."""
-    words = rng.integers(0, np.iinfo(np.uint64).max, size=2, dtype=np.uint64, endpoint=True)
+    words = rng.integers(0, _U64_MAX, size=2, dtype=np.uint64, endpoint=True)
     entropy = [int(w) for w in words]
     return {
         c: np.random.Generator(np.random.SFC64(np.random.SeedSequence(entropy, spawn_key=(k,))))
@@ -830,20 +833,18 @@ def _gauss_markov_row(gen: np.random.Generator, sigma: float, tau: float, dt: fl
     return y
 
 
-def _apply_matrix(a: np.ndarray, x: np.ndarray, out: np.ndarray, tmp: np.ndarray) -> None:
-    """``out = x @ a.T`` for x, out (n, 3) and a (3, 3), column by column.
+@nb.njit(cache=True, nogil=True)
+def _apply_matrix(a: np.ndarray, x: np.ndarray, out: np.ndarray) -> None:
+    """``out = x @ a.T`` for x, out (n, 3) and a (3, 3), sample by sample: ``(x0 a_j0 + x1 a_j1) + x2 a_j2``.
 
-    Plain ufunc loops along time: ``np.matmul`` would hand this tiny product to
-    a threaded BLAS whose spinning worker threads steal the cores that the
-    row-parallel simulation uses. ``tmp`` is an (n,) work array (may be strided).
+    Compiled (releasing the GIL for the row threads) rather than ``np.matmul``, which would hand this tiny
+    product to a threaded BLAS whose spinning worker threads steal the cores that the row-parallel
+    simulation uses.
     """
-    for j in range(3):
-        oj = out[:, j]
-        np.multiply(x[:, 0], a[j, 0], out=oj)
-        np.multiply(x[:, 1], a[j, 1], out=tmp)
-        oj += tmp
-        np.multiply(x[:, 2], a[j, 2], out=tmp)
-        oj += tmp
+    for k in range(x.shape[0]):
+        x0, x1, x2 = x[k, 0], x[k, 1], x[k, 2]
+        for j in range(3):
+            out[k, j] = x0 * a[j, 0] + x1 * a[j, 1] + x2 * a[j, 2]
 
 
 @dataclass(frozen=True)
@@ -1013,7 +1014,7 @@ def simulate_imu(f_true, w_true, imu_rate_hz: float, grade, rngs: Sequence[np.ra
             if vib_row is not None:
                 src = np.add(vib_row[1 - k], src, out=vib_row[1 - k])  # vib_row = (f_vib, w_vib)
             if s.has_sm:
-                _apply_matrix(np.eye(3) + sm[k][i], src, o, noise[:, 0])
+                _apply_matrix(np.eye(3) + sm[k][i], src, o)
             else:
                 o[...] = src
             const = bias_const[k][i]
