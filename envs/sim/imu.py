@@ -52,7 +52,6 @@ from typing import Sequence
 
 import numba as nb
 import numpy as np
-from scipy.signal import lfilter
 
 from earth.units import DEG, deg, dph, dpsh, mg, mpsph, ppm, ugpsh, ugpshz
 
@@ -489,6 +488,33 @@ def _ar2_coefficients(center_hz: float, damping: float, dt: float) -> tuple[floa
     return a1, a2, gamma0
 
 
+@nb.njit(cache=True, nogil=True)
+def _all_pole_filter(a: np.ndarray, x: np.ndarray, zi: np.ndarray) -> np.ndarray:
+    """``scipy.signal.lfilter([1.0], a, x, axis=0, zi=zi)[0]``: the all-pole filter ``1 / A(z)`` along axis 0.
+
+    ``a`` (L,) with ``a[0] == 1``, ``x`` (n, c), ``zi`` (L - 1, c) the initial delay state; returns y (n, c).
+    lfilter's direct form II transposed recursion (its operations in its order, with the numerator padded
+    to ``[1, 0, ..., 0]`` as lfilter pads it), so the result is lfilter's to the bit; compiled, releasing the
+    GIL for the row threads, and about twice as fast as lfilter on these short filters.
+    """
+    n, c = x.shape
+    L = a.shape[0]
+    b = np.zeros(L)
+    b[0] = 1.0
+    y = np.empty((n, c))
+    z = np.empty(L - 1)
+    for j in range(c):
+        z[:] = zi[:, j]
+        for k in range(n):
+            xn = x[k, j]
+            yn = z[0] + b[0] * xn
+            for i in range(L - 2):
+                z[i] = z[i + 1] + xn * b[i + 1] - yn * a[i + 1]
+            z[L - 2] = xn * b[L - 1] - yn * a[L - 1]
+            y[k, j] = yn
+    return y
+
+
 def _vibration_row(gen: np.random.Generator, dt: float, engine_on: np.ndarray | None, speed: np.ndarray,
                    vib: Vibration) -> tuple[np.ndarray, np.ndarray] | None:
     """Vibration of one run: ``(f_vib, w_vib)``, each (N, 3) float64, or None if it is zero throughout.
@@ -552,7 +578,7 @@ def _vibration_row(gen: np.random.Generator, dt: float, engine_on: np.ndarray | 
         y1 = z[0]
         y2 = rho1 * z[0] + math.sqrt(max(1.0 - rho1 * rho1, 0.0)) * z[1]
         zi = np.stack([a1 * y1 + a2 * y2, a2 * y1]) * math.sqrt(gamma0)  # state in the unscaled process
-        y, _ = lfilter([1.0], [1.0, -a1, -a2], e, axis=0, zi=zi)  # stationary variance gamma0
+        y = _all_pole_filter(np.array([1.0, -a1, -a2]), e, zi)  # stationary variance gamma0
         level = np.abs(speed[ridx]) * (1.0 / vib.road_ref_speed_mps)
         if vib.road_speed_exponent != 1.0:
             level **= vib.road_speed_exponent
@@ -821,7 +847,7 @@ def _gauss_markov_row(gen: np.random.Generator, sigma: float, tau: float, dt: fl
     (exact discretization of the continuous first-order Markov process,
     Groves 2013 sec. 4.4 / Brown & Hwang, *Introduction to Random Signals and
     Applied Kalman Filtering*, first-order Gauss-Markov process). Computed with
-    ``scipy.signal.lfilter`` along time. Draws: 3 (b_0), then n x 3.
+    :func:`_all_pole_filter` (``scipy.signal.lfilter``'s recursion) along time. Draws: 3 (b_0), then n x 3.
     ``scratch`` is an optional (n, 3) float64 work array (overwritten).
     """
     phi = math.exp(-dt / tau)
@@ -829,7 +855,7 @@ def _gauss_markov_row(gen: np.random.Generator, sigma: float, tau: float, dt: fl
     u = np.empty((n, 3)) if scratch is None else scratch
     gen.standard_normal(out=u)
     u *= sigma * math.sqrt(-math.expm1(-2.0 * dt / tau))
-    y, _ = lfilter([1.0], [1.0, -phi], u, axis=0, zi=(phi * b0)[None, :])
+    y = _all_pole_filter(np.array([1.0, -phi]), u, (phi * b0)[None, :])
     return y
 
 
