@@ -583,12 +583,9 @@ def _pieces(plans: Sequence[_Plan], C_eL, r0, wL) -> _Pieces:
                    np.ascontiguousarray(wL[:, ::2]))
 
 
-def _kin(pl: _Plan, t, pid, gat) -> _Kin:
-    """Speed and heading/pitch trigonometry at times ``t`` (M,) on pieces ``pid`` (M,).
-
-    ``gat(x)`` maps a per-piece array ``x`` (P, ...) to the points, i.e. ``x[pid]``
-    (``np.repeat`` with piece counts when the points are sorted).
-    """
+def _kin(pl: _Plan, t, pid) -> _Kin:
+    """Speed and heading/pitch trigonometry at times ``t`` (M,) on pieces ``pid`` (M,)."""
+    gat = lambda x: x[pid]  # noqa: E731
     tau = t - gat(pl.t0)
     v0 = gat(pl.v0)
     v = gat(pl.acc)
@@ -629,8 +626,7 @@ def _arc_positions(pl: _Plan, pid, k: _Kin, out) -> None:
 
 def _positions(pl: _Plan, t, pid) -> np.ndarray:
     """Position in L (NED) [m] at times ``t`` (M,) on pieces ``pid`` (M,), shape (M, 3)."""
-    gat = lambda x: x[pid]  # noqa: E731
-    k = _kin(pl, t, pid, gat)
+    k = _kin(pl, t, pid)
     s = k.v0 + k.v
     s *= 0.5 * k.tau                                                # straight: s = tau (v0 + v) / 2
     cg = k.cgam * s
@@ -646,7 +642,7 @@ def _arc_kin(pl: _Plan, t, pid):
     """:func:`_kin` at points that all lie on arcs (times ``t`` (m,), pieces ``pid`` (m,)), and the cos and sin of
     each point's turning angle (heading on horizontal arcs, pitch on vertical ones): the compiled kernels' arc
     input, so that the kernels use numpy's cos and sin."""
-    k = _kin(pl, t, pid, lambda x: x[pid])
+    k = _kin(pl, t, pid)
     c, s = k.cgam.copy(), k.sgam.copy()
     c[k.i_h], s[k.i_h] = k.cpsi[k.i_h], k.spsi[k.i_h]
     return k, c, s
