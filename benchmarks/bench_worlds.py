@@ -7,7 +7,9 @@ world and IMU samples per second (B x N / wall time), and the split into ``truth
 (:func:`envs.sim.imu.simulate_imu`: sensor errors, vibration), ``gnss`` (:func:`envs.sim.gnss.simulate_gnss`:
 constellation, receiver, events) and ``rest`` (motions, epochs, initial estimate, odometer, event bits). The
 stages are timed by wrapping the names that :mod:`envs.sim.world` calls. Wall time: on a machine shared with
-other jobs run ``--compare`` (side by side) rather than trusting one figure.
+other jobs run ``--compare`` (side by side) rather than trusting one figure, or ``--cpu``: the process CPU time
+(all threads) instead of the wall time, which swings much less with the other jobs' load (the IMU stage runs
+its rows on threads: with ``--cpu`` it counts their CPU time, not the wall time they overlap in).
 
 ``--compare DIR`` runs every cell twice, in this tree and in the source tree ``DIR`` (e.g. ``git worktree add
 /tmp/before <commit>``), alternately in fresh processes (``--rounds`` times, median over the rounds), and
@@ -17,7 +19,7 @@ have this script: the cells run this file with ``NAVGYM_BENCH_ROOT=DIR``, which 
 Usage::
 
     python benchmarks/bench_worlds.py [--scenarios noise-burst urban] [--batches 1 64] [--duration-s 60]
-                                      [--reps 5] [--compare DIR] [--rounds 1] [--dtype float64]
+                                      [--reps 5] [--compare DIR] [--rounds 1] [--dtype float64] [--cpu]
 
 Defaults: noise-burst and urban, 60 s episodes, B = 1 and 64 (a minute or so; ``--compare`` twice that).
 """
@@ -48,22 +50,24 @@ def _make_world(scenario, seeds, duration_s, dtype):
     return generate_world(get_scenario(scenario, duration_s=duration_s), seeds, dtype=dtype)
 
 
-def bench_cell(scenario, B, duration_s, reps, dtype="float64"):
-    """Median wall time per row [s] of the world and of each stage over ``reps`` draws of B rows, and N.
+def bench_cell(scenario, B, duration_s, reps, dtype="float64", cpu=False):
+    """Median wall time (``cpu``: process CPU time) per row [s] of the world and of each stage over ``reps`` draws
+    of B rows, and N.
 
     Returns ``{"total": s, "truth": s, "imu": s, "gnss": s, "rest": s, "n": N}`` (per row; each stage the
     median of its own times, ``rest`` the median of the per-draw remainders).
     """
     from envs.sim import world as wmod
     acc = dict.fromkeys(_WRAPPED, 0.0)
+    clock = time.process_time if cpu else time.perf_counter
 
     def timed(stage, fn):
         def wrapper(*a, **k):
-            t0 = time.perf_counter()
+            t0 = clock()
             try:
                 return fn(*a, **k)
             finally:
-                acc[stage] += time.perf_counter() - t0
+                acc[stage] += clock() - t0
         return wrapper
 
     for stage, name in _WRAPPED.items():
@@ -76,18 +80,19 @@ def bench_cell(scenario, B, duration_s, reps, dtype="float64"):
         for k in acc:
             acc[k] = 0.0
         seeds = list(range((r + 1) * B, (r + 2) * B))
-        t0 = time.perf_counter()
+        t0 = clock()
         _make_world(scenario, seeds, duration_s, np.dtype(dtype))
-        total = time.perf_counter() - t0
+        total = clock() - t0
         rows.append((total, *(acc[k] for k in _WRAPPED), total - sum(acc.values())))
     med = np.median(np.array(rows), axis=0) / B
     return dict(zip(("total",) + STAGES, map(float, med)), n=n)
 
 
-def _run_cell(root, scenario, B, duration_s, reps, dtype):
+def _run_cell(root, scenario, B, duration_s, reps, dtype, cpu):
     """One cell in a fresh process on the source tree ``root``; returns its JSON result."""
     env = dict(os.environ, NAVGYM_BENCH_ROOT=root)
-    cmd = [sys.executable, os.path.abspath(__file__), "--cell", scenario, str(B), str(duration_s), str(reps), dtype]
+    cmd = [sys.executable, os.path.abspath(__file__), "--cell", scenario, str(B), str(duration_s), str(reps), dtype,
+           "cpu" if cpu else "wall"]
     out = subprocess.run(cmd, env=env, cwd=root, capture_output=True, text=True, check=True).stdout
     return json.loads(out.strip().splitlines()[-1])
 
@@ -106,11 +111,12 @@ def main(argv=None):
     p.add_argument("--compare", metavar="DIR", default=None,
                    help="also run every cell in the source tree DIR, alternately in fresh processes")
     p.add_argument("--rounds", type=int, default=1, help="alternating rounds per cell with --compare (median)")
+    p.add_argument("--cpu", action="store_true", help="process CPU time (all threads) instead of wall time")
     args = p.parse_args(argv)
     reps = lambda B: args.reps or (20 if B == 1 else 5)  # noqa: E731
     here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     print(f"world generation per row: {args.duration_s:g} s episodes, IMU dtype {args.dtype}, {os.cpu_count()} CPUs; "
-          f"median of the draws; ms per row (share of the world's time)")
+          f"median of the draws; {'CPU' if args.cpu else 'wall'} ms per row (share of the world's time)")
     if args.compare:
         other = os.path.abspath(args.compare)
         print(f"before = {other}\nafter  = {here}")
@@ -122,7 +128,7 @@ def main(argv=None):
     print("\n" + hdr + "\n" + "-" * len(hdr))
     for scen in args.scenarios:
         for B in args.batches:
-            cell = (scen, B, args.duration_s, reps(B), args.dtype)
+            cell = (scen, B, args.duration_s, reps(B), args.dtype, args.cpu)
             if args.compare:
                 before, after = [], []
                 for _ in range(args.rounds):
@@ -142,7 +148,7 @@ def main(argv=None):
 
 if __name__ == "__main__":
     if len(sys.argv) > 1 and sys.argv[1] == "--cell":
-        scenario, B, duration_s, reps, dtype = sys.argv[2:7]
-        print(json.dumps(bench_cell(scenario, int(B), float(duration_s), int(reps), dtype)))
+        scenario, B, duration_s, reps, dtype, clock = sys.argv[2:8]
+        print(json.dumps(bench_cell(scenario, int(B), float(duration_s), int(reps), dtype, clock == "cpu")))
     else:
         main()
