@@ -84,12 +84,14 @@ Evaluation: the grid nodes of all rows in one compiled pass (states on the
 straight pieces, instantaneous IMU, the interval means of the intervals that
 lie on one piece); numpy for everything else (the cos/sin of the arc angles,
 the arcs' states, gravity, the intervals at segment boundaries), with the same
-operations in the same order as an elementwise numpy evaluation, so the
-outputs do not depend on the batch. Throughput (2-core machine shared with
-other jobs): 60 s noise-burst drives at B = 64 about 0.5 ms per row; B = 64,
-600 s at 100 Hz, random urban drives about 6e6 IMU samples per second, most of
-it the first touch of the ~0.7 GB of outputs (the compiled pass alone runs at
-~4e7 nodes per second on warm memory).
+operations in the same order as an elementwise numpy evaluation and the
+products whose rounding could depend on the array shapes (BLAS, einsum) formed
+with a single row's shapes, so no output depends on the batch. Throughput
+(2-core machine shared with other jobs): 60 s noise-burst drives at B = 64
+about 0.6 ms of CPU per row; B = 64, 600 s at 100 Hz, random urban drives
+about 6e6 IMU samples per second, most of it the first touch of the ~0.7 GB
+of outputs (the compiled pass alone runs at ~4e7 nodes per second on warm
+memory).
 
 Rows are independent and deterministic: row ``i`` depends only on
 ``motions[i]`` (equal motions are evaluated once and copied). Random drives are
