@@ -495,22 +495,22 @@ def _all_pole_filter(a: np.ndarray, x: np.ndarray, zi: np.ndarray) -> np.ndarray
     ``a`` (L,) with ``a[0] == 1``, ``x`` (n, c), ``zi`` (L - 1, c) the initial delay state; returns y (n, c).
     lfilter's direct form II transposed recursion (its operations in its order, with the numerator padded
     to ``[1, 0, ..., 0]`` as lfilter pads it), so the result is lfilter's to the bit; compiled, releasing the
-    GIL for the row threads, and about twice as fast as lfilter on these short filters.
+    GIL for the row threads, and the c columns' recursions interleaved (independent dependency chains):
+    1.5 to 3 times as fast as lfilter on these short filters.
     """
     n, c = x.shape
     L = a.shape[0]
     b = np.zeros(L)
     b[0] = 1.0
     y = np.empty((n, c))
-    z = np.empty(L - 1)
-    for j in range(c):
-        z[:] = zi[:, j]
-        for k in range(n):
+    z = zi.copy()
+    for k in range(n):
+        for j in range(c):
             xn = x[k, j]
-            yn = z[0] + b[0] * xn
+            yn = z[0, j] + b[0] * xn
             for i in range(L - 2):
-                z[i] = z[i + 1] + xn * b[i + 1] - yn * a[i + 1]
-            z[L - 2] = xn * b[L - 1] - yn * a[L - 1]
+                z[i, j] = z[i + 1, j] + xn * b[i + 1] - yn * a[i + 1]
+            z[L - 2, j] = xn * b[L - 1] - yn * a[L - 1]
             y[k, j] = yn
     return y
 
