@@ -515,6 +515,22 @@ def _all_pole_filter(a: np.ndarray, x: np.ndarray, zi: np.ndarray) -> np.ndarray
     return y
 
 
+@nb.njit(cache=True, nogil=True)
+def _sum_of_products(basis: np.ndarray, coef: np.ndarray) -> np.ndarray:
+    """``basis.T @ coef`` (M, c) for basis (m, M) and coef (m, c), each sum taken in order from 0.0:
+    ``((0 + b_0 c_0) + b_1 c_1) + ...``; compiled (no BLAS threads, see :func:`_apply_matrix`)."""
+    m, M = basis.shape
+    c = coef.shape[1]
+    out = np.empty((M, c))
+    for k in range(M):
+        for j in range(c):
+            s = 0.0
+            for i in range(m):
+                s += basis[i, k] * coef[i, j]
+            out[k, j] = s
+    return out
+
+
 def _vibration_row(gen: np.random.Generator, dt: float, engine_on: np.ndarray | None, speed: np.ndarray,
                    vib: Vibration) -> tuple[np.ndarray, np.ndarray] | None:
     """Vibration of one run: ``(f_vib, w_vib)``, each (N, 3) float64, or None if it is zero throughout.
@@ -557,13 +573,7 @@ def _vibration_row(gen: np.random.Generator, dt: float, engine_on: np.ndarray | 
             basis += [np.sin(th), np.cos(th)]
             # A sin(th + phi) = A cos(phi) sin(th) + A sin(phi) cos(th)
             coef += [amp * atten * np.cos(phases[j]), amp * atten * np.sin(phases[j])]
-        vals = np.zeros((idx.size, 6))
-        tmp = np.empty(idx.size)
-        for c in range(6):  # (M, 4) x (4, 6) without BLAS threads (see _apply_matrix)
-            col = vals[:, c]
-            for bj, cj in zip(basis, coef):
-                np.multiply(bj, cj[c], out=tmp)
-                col += tmp
+        vals = _sum_of_products(np.stack(basis), np.stack(coef))  # (M, 4) x (4, 6)
         fv[idx] = vals[:, :3]
         wv[idx] = vals[:, 3:]
 
