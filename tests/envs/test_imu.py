@@ -384,3 +384,14 @@ def test_apply_matrix_sums_in_order():
     _apply_matrix(a, x, out)
     ref = np.stack([x[:, 0] * a[j, 0] + x[:, 1] * a[j, 1] + x[:, 2] * a[j, 2] for j in range(3)], axis=1)
     np.testing.assert_array_equal(out, ref)
+
+
+def test_sum_of_products_sums_in_order():
+    from envs.sim.imu import _sum_of_products
+    rng = np.random.default_rng(7)
+    basis, coef = rng.normal(size=(4, 40)), rng.normal(size=(4, 6))
+    ref = np.zeros((40, 6))
+    for c in range(6):
+        for bj, cj in zip(basis, coef):
+            ref[:, c] += bj * cj[c]
+    np.testing.assert_array_equal(_sum_of_products(basis, coef), ref)
