@@ -837,6 +837,48 @@ def _arc_node_states(pc: _Pieces, ia, p, k: _Kin, out: dict) -> None:
     flat("pitch")[ia[k.i_v]] = k.gam_v
 
 
+@nb.njit(cache=True)
+def _boundary_means(u, k, t, dtk, left, mid, qi, last, bi, endB, o, FE, WE, fo, wo):
+    """Write the means of the intervals at segment boundaries (:func:`_split_means`) into ``fo``, ``wo`` (U, N, 3).
+
+    Intervals ``(t_k, t_k+1]`` of rows ``u`` (Q,) in global order; ``FE``, ``WE`` (M, 3): the IMU at the points
+    of :func:`_split_means`, in blocks ``o``: start nodes, end nodes, left values at boundary nodes (interval
+    ``left`` >= 0), right and left values at the boundaries inside intervals (``qi``, ``bi``, ``last``, ``endB``
+    of each, in interval order), midpoints of the first parts, of the other parts, of the intervals on one arc
+    (``mid`` >= 0). The same operations in the same order as the numpy rule they replace: trapezoid,
+    Simpson, or the split intervals' parts summed from 0.0 in order (first part, then the others).
+    """
+    nb_ = qi.shape[0]
+    ib = 0                                                          # next boundary inside an interval
+    nfirst = 0                                                      # split intervals done
+    for iq in range(u.shape[0]):
+        d = dtk[k[iq]]
+        q = qi[ib] if ib < nb_ else -1
+        split = q == u[iq] * dtk.shape[0] + k[iq]
+        for E, out in ((FE, fo), (WE, wo)):
+            for c in range(3):
+                Fa = E[o[0] + iq, c]
+                Fe = E[o[2] + left[iq], c] if left[iq] >= 0 else E[o[1] + iq, c]
+                if split:
+                    SA = (Fa + 4.0 * E[o[5] + nfirst, c] + E[o[4] + ib, c]) * ((bi[ib] - t[k[iq]]) / 6.0)
+                    SB = 0.0
+                    jb = ib
+                    while jb < nb_ and qi[jb] == q:
+                        endv = Fe if last[jb] else E[o[4] + jb + 1, c]
+                        SB += (E[o[3] + jb, c] + 4.0 * E[o[6] + jb, c] + endv) * ((endB[jb] - bi[jb]) / 6.0)
+                        jb += 1
+                    S = (0.0 + SA) + SB
+                elif mid[iq] >= 0:
+                    S = (Fa + Fe + 4.0 * E[o[7] + mid[iq], c]) * (d / 6.0)
+                else:
+                    S = (Fa + Fe) * (0.5 * d)
+                out[u[iq], k[iq] + 1, c] = S / d
+        if split:
+            while ib < nb_ and qi[ib] == q:
+                ib += 1
+            nfirst += 1
+
+
 def _split_means(pc: _Pieces, t, dtk, starts, pn, grav, linear_gravity: bool, out: dict) -> None:
     """The IMU means of the intervals at segment boundaries, in ``out`` f_b, w_b (over the kernel's placeholder).
 
@@ -867,7 +909,6 @@ def _split_means(pc: _Pieces, t, dtk, starts, pn, grav, linear_gravity: bool, ou
     last[:-1] = qi[:-1] != qi[1:]
     special = np.zeros(U * m, bool)
     special[qi] = True
-    qs = np.flatnonzero(special)
     redo = special.copy()                                          # every interval to redo
     redo[qo] = True
     Q = np.flatnonzero(redo)
@@ -891,27 +932,11 @@ def _split_means(pc: _Pieces, t, dtk, starts, pn, grav, linear_gravity: bool, ou
     _, arc_c, arc_s = _arc_kin(pl, te[on_arc], pe[on_arc])
     FE, WE = np.empty((te.size, 3)), np.empty((te.size, 3))
     _imu_points(te, pe, arc_c, arc_s, pc, *grav, FE, WE)
-    dq = dtk[kQ][:, None]
-    iA, iS = np.searchsorted(Q, qa), np.searchsorted(Q, qs)
-    for name, E in (("f_b", FE), ("w_b", WE)):
-        Fa = E[o[0]:o[1]]
-        Fe = E[o[1]:o[2]]
-        Fe[np.searchsorted(Q, qo)] = E[o[2]:o[3]]                  # left values at boundary nodes
-        S = Fa + Fe
-        S *= 0.5 * dq                                              # trapezoid (= Simpson on straight pieces)
-        S[iA] = (Fa[iA] + Fe[iA] + 4.0 * E[o[7]:o[8]]) * (dq[iA] / 6.0)
-        if ji.size:
-            ER, EL = E[o[3]:o[4]], E[o[4]:o[5]]
-            SA = (Fa[np.searchsorted(Q, qi[first])] + 4.0 * E[o[5]:o[6]] + EL[first]) \
-                * ((bi[first] - t[qA_k]) / 6.0)[:, None]
-            endv = np.where(last[:, None], Fe[np.searchsorted(Q, qi)], np.roll(EL, -1, axis=0))
-            SB = (ER + 4.0 * E[o[6]:o[7]] + endv) * ((endB - bi) / 6.0)[:, None]
-            pos = np.searchsorted(qs, qi)
-            for c in range(3):
-                S[iS, c] = (np.bincount(pos[first], SA[:, c], minlength=qs.size)
-                            + np.bincount(pos, SB[:, c], minlength=qs.size))
-        S /= dq
-        out[name][Q // m, kQ + 1] = S
+    left = np.full(Q.size, -1)                                     # per interval redone: its left value ...
+    left[np.searchsorted(Q, qo)] = np.arange(qo.size)
+    mid = np.full(Q.size, -1)                                      # ... and its midpoint value, if any
+    mid[np.searchsorted(Q, qa)] = np.arange(qa.size)
+    _boundary_means(Q // m, kQ, t, dtk, left, mid, qi, last, bi, endB, o, FE, WE, out["f_b"], out["w_b"])
 
 
 def _grid_pieces(pc: _Pieces, t):
