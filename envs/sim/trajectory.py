@@ -746,8 +746,8 @@ def _node_kernel(t, dtk, pn, arc_c, arc_s, mid_c, mid_s, simpson, pc, gA, dgA, i
     ``arc_c``, ``arc_s``: the turning angle's cos/sin at the nodes on arcs; ``mid_c``, ``mid_s``: at the
     midpoints of the intervals on one arc; each in grid order (:func:`_arc_kin`).
     """
-    t0, v0, acc, kind, trig, rate, row, wb, wND = (pc.pl.t0, pc.pl.v0, pc.pl.acc, pc.pl.kind, pc.trig, pc.rate,
-                                                   pc.row, pc.wb, pc.wND)
+    t0, v0, acc, kind, trig, rate, wb, wND = (pc.pl.t0, pc.pl.v0, pc.pl.acc, pc.pl.kind, pc.trig, pc.rate, pc.wb,
+                                              pc.wND)
     eng, gam0, psi0w, xe, re0, C_eb = pc.pl.engine, pc.pl.gam0, pc.psi0w, pc.xe, pc.re0, pc.C_eb
     U, n = speed.shape
     j = jm = 0
