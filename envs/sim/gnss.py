@@ -65,6 +65,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, fields, replace
 
+import numba as nb
 import numpy as np
 from scipy.signal import lfilter
 
@@ -839,26 +840,62 @@ def _geometry(t_rx: np.ndarray, r_e: np.ndarray, constellation: Constellation, l
     t_tx, el, az : (B, m, S) [s, rad, rad]
     """
     p, v = constellation.positions_velocities(t_rx)        # (B, m, S, 3)
-    r = r_e[..., None, :]
-    d = p - r
+    d = p - r_e[..., None, :]
     tau = np.sqrt(np.einsum("...i,...i->...", d, d)) / C_LIGHT
     t_tx = t_rx[..., None] - tau
-    p -= v * tau[..., None]
     th = OMEGA_IE * tau
-    c, s = np.cos(th), np.sin(th)
-    dx = c * p[..., 0] + s * p[..., 1] - r[..., 0]
-    dy = -s * p[..., 0] + c * p[..., 1] - r[..., 1]
-    dz = p[..., 2] - r[..., 2]
     # elevation / azimuth from the NED components of the (unnormalized) line of sight
-    sl, cl, so, co = (np.sin(lat)[..., None], np.cos(lat)[..., None], np.sin(lon)[..., None],
-                      np.cos(lon)[..., None])
-    h1 = co * dx + so * dy
-    n = -sl * h1 + cl * dz
-    e = -so * dx + co * dy
-    up = cl * h1 + sl * dz
+    n, e, up = _los_ned(p, v, tau, np.cos(th), np.sin(th), r_e, np.sin(lat), np.cos(lat), np.sin(lon), np.cos(lon))
     el = np.arctan2(up, np.hypot(n, e))
-    az = np.mod(np.arctan2(e, n), 2.0 * np.pi)
+    az = _wrap_2pi(np.arctan2(e, n))
     return t_tx, el, az
+
+
+@nb.njit(cache=True)
+def _los_ned(p, v, tau, c, s, r, sl, cl, so, co):
+    """NED components of the line of sight of :func:`_geometry`, one pass (numpy's operation order).
+
+    ``d = C_z(OMEGA_IE tau) (r_s - v_s tau) - r_r`` resolved in the local NED frame:
+    ``h = cos(lon) d_x + sin(lon) d_y``, ``n = -sin(lat) h + cos(lat) d_z``,
+    ``e = -sin(lon) d_x + cos(lon) d_y``, ``up = cos(lat) h + sin(lat) d_z``.
+
+    Parameters
+    ----------
+    p, v : (B, m, S, 3) satellite ECEF position [m] / velocity [m/s] at the reception time.
+    tau : (B, m, S) signal flight time [s]; c, s : (B, m, S) cos / sin of ``OMEGA_IE tau``.
+    r : (B, m, 3) receiver ECEF position [m]; sl, cl, so, co : (B, m) sin / cos of latitude and longitude.
+
+    Returns
+    -------
+    n, e, up : (B, m, S) [m].
+    """
+    B, m, S = tau.shape
+    n = np.empty((B, m, S))
+    e = np.empty((B, m, S))
+    up = np.empty((B, m, S))
+    for b in range(B):
+        for j in range(m):
+            for k in range(S):
+                px = p[b, j, k, 0] - v[b, j, k, 0] * tau[b, j, k]
+                py = p[b, j, k, 1] - v[b, j, k, 1] * tau[b, j, k]
+                pz = p[b, j, k, 2] - v[b, j, k, 2] * tau[b, j, k]
+                dx = c[b, j, k] * px + s[b, j, k] * py - r[b, j, 0]
+                dy = -s[b, j, k] * px + c[b, j, k] * py - r[b, j, 1]
+                dz = pz - r[b, j, 2]
+                h1 = co[b, j] * dx + so[b, j] * dy
+                n[b, j, k] = -sl[b, j] * h1 + cl[b, j] * dz
+                e[b, j, k] = -so[b, j] * dx + co[b, j] * dy
+                up[b, j, k] = cl[b, j] * h1 + sl[b, j] * dz
+    return n, e, up
+
+
+def _wrap_2pi(x: np.ndarray) -> np.ndarray:
+    """``np.mod(x, 2 pi)`` for ``x`` in [-pi, pi] (arctan2's range), without its fmod.
+
+    There ``fmod(x, 2 pi) = x``: np.mod adds ``2 pi`` to a negative ``x`` and turns ``-0.0`` into ``+0.0``
+    (``x + 0.0`` does the same), so the result is the same to the bit.
+    """
+    return np.where(x < 0.0, x + 2.0 * np.pi, x + 0.0)
 
 
 def _orbit_at(constellation: Constellation, t_sat: np.ndarray, sat_index=None):
