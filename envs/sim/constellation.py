@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numba as nb
 import numpy as np
@@ -145,6 +146,14 @@ class Constellation:
         u0 = np.deg2rad(self.arg_lat0_deg) + 2.0 * np.pi * k / Sp + 2.0 * np.pi * self.phasing * p / T
         return raan, u0
 
+    @cached_property
+    def _satellite_trig(self) -> np.ndarray:
+        """(4, T) read-only ``cos u0, sin u0, cos RAAN, sin RAAN`` of the satellites (computed once per instance)."""
+        raan, u0 = self._elements()
+        trig = np.stack([np.cos(u0), np.sin(u0), np.cos(raan), np.sin(raan)])
+        trig.setflags(write=False)
+        return trig
+
     # ---------------------------------------------------------------- positions
     def positions_velocities(self, t_gps, sat_index=None):
         """Satellite ECEF positions and velocities at GPS time ``t_gps``.
@@ -176,7 +185,6 @@ class Constellation:
             ECEF velocity [m/s] (includes ``-Omega_ie x r_e``).
         """
         t = np.asarray(t_gps, dtype=np.float64)
-        raan, u0 = self._elements()
         if sat_index is None:
             idx = np.arange(self.n_sats)
         else:
@@ -189,12 +197,11 @@ class Constellation:
         # satellite axis separately (u = u0 + n t, Om_e = Om_p - OMEGA_IE t)
         n = self.mean_motion
         nt, wt = n * t, OMEGA_IE * t
-        time_terms = [np.broadcast_to(x, shape[:-1]).reshape(-1)
+        time_terms = [(x if x.shape == shape[:-1] else np.broadcast_to(x, shape[:-1])).reshape(-1)
                       for x in (np.cos(nt), np.sin(nt), np.cos(wt), np.sin(wt))]
         pos = np.empty(shape + (3,))
         vel = np.empty(shape + (3,))
-        _walker_kernel(*time_terms, np.broadcast_to(idx, shape).reshape(-1, shape[-1]),
-                       np.cos(u0), np.sin(u0), np.cos(raan), np.sin(raan),
+        _walker_kernel(*time_terms, np.broadcast_to(idx, shape).reshape(-1, shape[-1]), *self._satellite_trig,
                        self.semi_major_axis_m, math.cos(inc), math.sin(inc), n,
                        pos.reshape(-1, shape[-1], 3), vel.reshape(-1, shape[-1], 3))
         return pos, vel
