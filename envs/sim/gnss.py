@@ -1191,7 +1191,7 @@ def simulate_gnss(t, r_e, v_e, heading, constellation: Constellation, receiver: 
         bits |= np.where(in_c, ev.NLOS_ZONE, 0).astype(np.uint16)[None]
     reacq_sat = None
     if events.reacquisition is not None:
-        reacq_sat = np.stack([ev.reacquisition_multiplier(t, visible[i], events.reacquisition) for i in range(B)])
+        reacq_sat = ev.reacquisition_multiplier(t, visible, events.reacquisition)
 
     # ---- channel allocation: visible satellites by elevation, descending
     key = np.where(visible, el_all, -np.inf)

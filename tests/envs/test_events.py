@@ -162,6 +162,21 @@ def test_reacquisition_multiplier_rule():
     vis_out[30, :] = False    # a full outage: the rising satellite 1 re-acquires too
     m2 = ev.reacquisition_multiplier(t, vis_out, cfg)
     assert m2[31, 1] == 5.0 and m2[31, 0] == 5.0
+    batch = np.stack([vis, vis_out, ~vis])              # rows of a batch are independent
+    mb = ev.reacquisition_multiplier(t, batch, cfg)
+    for i in range(3):
+        np.testing.assert_array_equal(mb[i], ev.reacquisition_multiplier(t, batch[i], cfg))
+
+
+def test_renewal_segment_index_is_searchsorted_per_column():
+    t = np.concatenate([[0.0, 0.5], np.arange(1.0, 120.0, 1.0), [120.25]])
+    for length_s, n in (((2.0, 20.0), 7), ((20.0, 90.0), 1), ((1.0, 1.0), 3)):
+        idx, starts, K = ev._renewal(t, length_s, np.random.default_rng(4), n=n)
+        lengths = np.random.default_rng(4).uniform(length_s[0], length_s[1], size=(K, n))
+        ends = t[0] + np.cumsum(lengths, axis=0)
+        ref = np.stack([np.searchsorted(ends[:, j], t, side="right") for j in range(n)], axis=1)
+        np.testing.assert_array_equal(idx, np.minimum(ref, K - 1))
+        np.testing.assert_array_equal(starts, ends - lengths)
 
 
 # ----------------------------------------------------------------------------- oracle truth
