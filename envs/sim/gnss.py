@@ -1215,19 +1215,24 @@ def simulate_gnss(t, r_e, v_e, heading, constellation: Constellation, receiver: 
     cn0_z = np.stack([s[_SUB_CN0].standard_normal((M, S)) for s in subs])     # C/N0 jitter, per satellite
     cn0 = ev.cn0_los(el) + CN0_JITTER_DB * gather(cn0_z)
     del el_all, az_all, key, order, cn0_z
-    # ---- ephemeris at transmission time and true range / rate of the tracked satellites
+    # ---- ephemeris at transmission time and true range / rate, on the tracked channels only (the
+    # others are zeroed at the end; every formula is elementwise, so a value does not depend on which
+    # channels are evaluated with it), in blocks of _CHUNK_ELEMS channels
     t_tx_ch = gather(t_tx)
     del t_tx
-    sat_pos = np.empty((B, M, C, 3))
-    sat_vel = np.empty((B, M, C, 3))
-    rho = np.empty((B, M, C))
-    rho_dot = np.empty((B, M, C))
-    chunk = max(1, _CHUNK_ELEMS // (B * C))
-    for k0 in range(0, M, chunk):
-        sl_ = slice(k0, min(M, k0 + chunk))
-        sp, sv = _orbit_at(constellation, t_tx_ch[:, sl_], sel[:, sl_])
-        sat_pos[:, sl_], sat_vel[:, sl_] = sp, sv
-        rho[:, sl_], rho_dot[:, sl_], _ = range_and_rate(sp, sv, r_e[:, sl_], v_e[:, sl_])
+    sat_pos = np.zeros((B, M, C, 3))
+    sat_vel = np.zeros((B, M, C, 3))
+    rho = np.zeros((B, M, C))
+    rho_dot = np.zeros((B, M, C))
+    tracked = np.flatnonzero(mask)                          # flat (b, k, c) index of the tracked channels
+    for k0 in range(0, tracked.size, _CHUNK_ELEMS):
+        ch = tracked[k0:k0 + _CHUNK_ELEMS]
+        epoch = ch // C                                    # flat (b, k) index
+        sp, sv = _orbit_at(constellation, t_tx_ch.reshape(-1)[ch], sel.reshape(-1)[ch])
+        sat_pos.reshape(-1, 3)[ch], sat_vel.reshape(-1, 3)[ch] = sp, sv
+        rho_ch, rho_dot_ch, _ = range_and_rate(sp[:, None], sv[:, None], r_e.reshape(-1, 3)[epoch],
+                                               v_e.reshape(-1, 3)[epoch])
+        rho.reshape(-1)[ch], rho_dot.reshape(-1)[ch] = rho_ch[:, 0], rho_dot_ch[:, 0]
 
     # ---- error processes
     clock = receiver.clock
