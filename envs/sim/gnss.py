@@ -1002,7 +1002,8 @@ def _canyon(t, v_e, heading, el, az, cfg: UrbanCanyon, g: np.random.Generator):
     if cfg.intervals:
         under &= _in_intervals(t, cfg.intervals)[:, None]
     refl = under & reflect[blk]
-    excess = np.where(refl, cfg.street_width_m * np.cos(el) * np.abs(sa), 0.0)
+    excess = np.zeros((M, S))
+    excess[refl] = cfg.street_width_m * np.cos(el[refl]) * np.abs(sa[refl])   # the reflected few only
     return under & ~refl, refl, excess
 
 
@@ -1295,22 +1296,26 @@ def simulate_gnss(t, r_e, v_e, heading, constellation: Constellation, receiver: 
         pr_sigma = pr_sigma * rep_fac[0][..., None]
         sig_prr = sig_prr * rep_fac[1][..., None]
 
-    # ---- masked channels: finite zeros (in place, then one cast)
+    # ---- masked channels: finite zeros (in place, then one cast); sat_pos / sat_vel (evaluated on the
+    # tracked channels only) and the NLOS biases (nlos implies mask) are zero there already
     off = ~mask
 
     def z(a):
         a[off] = 0.0
         return a.astype(dtype, copy=False)
 
+    def zero_already(a):
+        return a.astype(dtype, copy=False)
+
     prn = np.where(mask, sel + 1, -1).astype(np.int64)
     return GnssData(
         t=t.astype(dtype),
         t0_gps=t0_gps.copy(),
-        sat_pos=z(sat_pos), sat_vel=z(sat_vel),
+        sat_pos=zero_already(sat_pos), sat_vel=zero_already(sat_vel),
         pr=z(pr), prr=z(prr), pr_sigma=z(pr_sigma), prr_sigma=z(sig_prr),
         mask=mask, prn=prn, elevation=z(el), azimuth=z(az),
         clock_bias_m=bias_m.astype(dtype, copy=False), clock_drift_mps=drift_mps.astype(dtype, copy=False),
         nlos=nlos, pr_error_m=z(pr_err), prr_error_mps=z(prr_err),
         cn0_dbhz=z(cn0), pr_var_true=pr_var_true.astype(dtype), prr_var_true=prr_var_true.astype(dtype),
-        pr_bias_m=z(pr_bias), prr_bias_mps=z(prr_bias), event_mask=bits,
+        pr_bias_m=zero_already(pr_bias), prr_bias_mps=zero_already(prr_bias), event_mask=bits,
     )
