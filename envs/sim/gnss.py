@@ -98,7 +98,8 @@ CN0_JITTER_DB = 1.0
 _MIN_EL_SIGMA = math.radians(1.0)
 """The 1/sin(el) sigma model is evaluated at max(el, 1 deg) (finite at a 0-deg mask)."""
 _CHUNK_ELEMS = 50_000
-"""Satellite-epochs per vectorized geometry block (cache-sized; results do not depend on it)."""
+"""Satellite-epochs per vectorized geometry block and tracked channels per ranging block (cache-sized; results
+do not depend on it)."""
 
 
 # =============================================================================
@@ -862,7 +863,8 @@ def _geometry(t_rx: np.ndarray, r_e: np.ndarray, constellation: Constellation, l
     t_tx = t_rx[..., None] - tau
     th = OMEGA_IE * tau
     # elevation / azimuth from the NED components of the (unnormalized) line of sight
-    n, e, up = _los_ned(p, v, tau, np.cos(th), np.sin(th), r_e, np.sin(lat), np.cos(lat), np.sin(lon), np.cos(lon))
+    n, e, up = _los_ned(p, v, tau, np.cos(th), np.sin(th), r_e,
+                        np.sin(lat), np.cos(lat), np.sin(lon), np.cos(lon))
     el = np.arctan2(up, np.hypot(n, e))
     az = _wrap_2pi(np.arctan2(e, n))
     return t_tx, el, az
