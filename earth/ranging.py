@@ -24,18 +24,6 @@ import numpy as np
 from .wgs84 import C_LIGHT, OMEGA_IE
 
 
-def _rot_sagnac(theta, v):
-    """Apply C_z(theta) = [[c, s, 0], [-s, c, 0], [0, 0, 1]] to (..., 3) vectors."""
-    c, s = np.cos(theta), np.sin(theta)
-    x, y, z = v[..., 0], v[..., 1], v[..., 2]
-    return np.stack([c * x + s * y, -s * x + c * y, z], -1)
-
-
-def _omega_cross(r):
-    """Omega_ie x r for (..., 3) vectors."""
-    return np.stack([-OMEGA_IE * r[..., 1], OMEGA_IE * r[..., 0], np.zeros_like(r[..., 2])], -1)
-
-
 def range_and_rate(sat_pos, sat_vel, rx_pos, rx_vel, iterations: int = 3):
     """Geometric range, range rate and line of sight with the Sagnac correction.
 
@@ -56,17 +44,32 @@ def range_and_rate(sat_pos, sat_vel, rx_pos, rx_vel, iterations: int = 3):
     sat_vel = np.asarray(sat_vel)
     rp = np.asarray(rx_pos)[..., None, :]
     rv = np.asarray(rx_vel)[..., None, :]
-    d = sat_pos - rp
-    rho = np.sqrt(np.sum(d * d, -1))
+    # the light-time iterations run on the components (no stacked temporaries); the sum of squares
+    # is added in np.sum's order, so rho equals np.sqrt(np.sum(d * d, -1)) bit for bit
+    sx, sy = sat_pos[..., 0], sat_pos[..., 1]
+    rx, ry = rp[..., 0], rp[..., 1]
+    dx, dy, dz = sx - rx, sy - ry, sat_pos[..., 2] - rp[..., 2]
+    dz2 = dz * dz
+    rho = np.sqrt(dx * dx + dy * dy + dz2)
     for _ in range(iterations):
         theta = OMEGA_IE * rho / C_LIGHT
-        d = _rot_sagnac(theta, sat_pos) - rp
-        rho = np.sqrt(np.sum(d * d, -1))
+        c, s = np.cos(theta), np.sin(theta)
+        dx = c * sx + s * sy - rx                       # C_z(theta) r_s - r_r (the z row is unchanged)
+        dy = -s * sx + c * sy - ry
+        rho = np.sqrt(dx * dx + dy * dy + dz2)
     theta = OMEGA_IE * rho / C_LIGHT
-    u = d / rho[..., None]
-    vs = _rot_sagnac(theta, sat_vel + _omega_cross(sat_pos))
-    vr = rv + _omega_cross(rp)
-    rho_dot = np.sum(u * (vs - vr), -1)
+    c, s = np.cos(theta), np.sin(theta)
+    u = np.stack([dx, dy, dz], -1) / rho[..., None]
+    # C_z(theta) (v_s + Omega x r_s) - (v_r + Omega x r_r), per component; Omega x r has a zero z
+    # component (added as a zero of r's dtype, as the full vector sum would)
+    wx = sat_vel[..., 0] + -OMEGA_IE * sy
+    wy = sat_vel[..., 1] + OMEGA_IE * sx
+    wz = sat_vel[..., 2] + np.zeros((), sat_pos.dtype)
+    dvx = (c * wx + s * wy) - (rv[..., 0] + -OMEGA_IE * ry)
+    dvy = (-s * wx + c * wy) - (rv[..., 1] + OMEGA_IE * rx)
+    dvz = wz - (rv[..., 2] + np.zeros((), rp.dtype))
+    # u^T dv summed in np.sum's order (it starts from +0.0)
+    rho_dot = u[..., 0] * dvx + 0.0 + u[..., 1] * dvy + u[..., 2] * dvz
     return rho, rho_dot, u
 
 

@@ -22,7 +22,9 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
+import numba as nb
 import numpy as np
 
 from earth.wgs84 import A as EARTH_A
@@ -144,6 +146,14 @@ class Constellation:
         u0 = np.deg2rad(self.arg_lat0_deg) + 2.0 * np.pi * k / Sp + 2.0 * np.pi * self.phasing * p / T
         return raan, u0
 
+    @cached_property
+    def _satellite_trig(self) -> np.ndarray:
+        """(4, T) read-only ``cos u0, sin u0, cos RAAN, sin RAAN`` of the satellites (computed once per instance)."""
+        raan, u0 = self._elements()
+        trig = np.stack([np.cos(u0), np.sin(u0), np.cos(raan), np.sin(raan)])
+        trig.setflags(write=False)
+        return trig
+
     # ---------------------------------------------------------------- positions
     def positions_velocities(self, t_gps, sat_index=None):
         """Satellite ECEF positions and velocities at GPS time ``t_gps``.
@@ -175,45 +185,63 @@ class Constellation:
             ECEF velocity [m/s] (includes ``-Omega_ie x r_e``).
         """
         t = np.asarray(t_gps, dtype=np.float64)
-        raan, u0 = self._elements()
-        if sat_index is not None:
+        if sat_index is None:
+            idx = np.arange(self.n_sats)
+        else:
             idx = np.asarray(sat_index)
             if idx.size and (idx.min() < 0 or idx.max() >= self.n_sats):
                 raise ValueError(f"sat_index must lie in 0..{self.n_sats - 1}")
-            raan, u0 = raan[idx], u0[idx]
-        a, n = self.semi_major_axis_m, self.mean_motion
+        shape = np.broadcast_shapes(t.shape + (1,), idx.shape)
         inc = np.deg2rad(self.inclination_deg)
-        ci, si = math.cos(inc), math.sin(inc)
         # angle-sum identities: the trigonometry runs on the time axes and the
         # satellite axis separately (u = u0 + n t, Om_e = Om_p - OMEGA_IE t)
-        nt, wt = (n * t)[..., None], (OMEGA_IE * t)[..., None]
-        cnt, snt, cwt, swt = np.cos(nt), np.sin(nt), np.cos(wt), np.sin(wt)
-        cu0, su0, cr, sr = np.cos(u0), np.sin(u0), np.cos(raan), np.sin(raan)
-        cu = cu0 * cnt - su0 * snt
-        su = su0 * cnt + cu0 * snt
-        co = cr * cwt + sr * swt
-        so = sr * cwt - cr * swt
-        shape = np.broadcast_shapes(cu.shape, co.shape)
+        n = self.mean_motion
+        nt, wt = n * t, OMEGA_IE * t
+        time_terms = [(x if x.shape == shape[:-1] else np.broadcast_to(x, shape[:-1])).reshape(-1)
+                      for x in (np.cos(nt), np.sin(nt), np.cos(wt), np.sin(wt))]
         pos = np.empty(shape + (3,))
         vel = np.empty(shape + (3,))
-        a_ci_su = a * ci * su
-        a_cu = a * cu
-        x = np.multiply(co, a_cu, out=pos[..., 0])
-        x -= so * a_ci_su
-        y = np.multiply(so, a_cu, out=pos[..., 1])
-        y += co * a_ci_su
-        np.multiply(a * si, su, out=pos[..., 2])
-        # inertial velocity rotated into ECEF (same rotation as the position)
-        # minus Omega_ie x r_e = (-w y, w x, 0)
-        a_ci_cu = ci * a_cu
-        a_su = a * su
-        vx = np.multiply(co, a_su, out=vel[..., 0])
-        vx += so * a_ci_cu
-        vx *= -n
-        vx += OMEGA_IE * y
-        vy = np.multiply(co, a_ci_cu, out=vel[..., 1])
-        vy -= so * a_su
-        vy *= n
-        vy -= OMEGA_IE * x
-        np.multiply(a * n * si, cu, out=vel[..., 2])
+        _walker_kernel(*time_terms, np.broadcast_to(idx, shape).reshape(-1, shape[-1]), *self._satellite_trig,
+                       self.semi_major_axis_m, math.cos(inc), math.sin(inc), n,
+                       pos.reshape(-1, shape[-1], 3), vel.reshape(-1, shape[-1], 3))
         return pos, vel
+
+
+@nb.njit(cache=True)
+def _walker_kernel(cnt, snt, cwt, swt, idx, cu0, su0, cr, sr, a, ci, si, n, pos, vel):
+    """The arithmetic of :meth:`Constellation.positions_velocities`, one pass over (time point, satellite).
+
+    With ``u = u0 + n t`` and ``Om_e = Om_p - OMEGA_IE t`` expanded by the angle-sum identities::
+
+        r_e = a [cos Om_e cos u - sin Om_e sin u cos i, sin Om_e cos u + cos Om_e sin u cos i, sin u sin i]
+        v_e = C_z(OMEGA_IE t) v_i - Omega_ie x r_e
+
+    Parameters
+    ----------
+    cnt, snt, cwt, swt : (N,) cos / sin of ``n t`` and of ``OMEGA_IE t`` at the N time points.
+    idx : (N, K) int, satellite index of each output (0 .. T-1).
+    cu0, su0, cr, sr : (T,) cos / sin of the argument of latitude at t = 0 and of the RAAN.
+    a : orbit radius [m]; ci, si : cos / sin of the inclination; n : mean motion [rad/s].
+    pos, vel : (N, K, 3) outputs, ECEF position [m] and velocity [m/s].
+    """
+    a_ci, a_si, a_n_si = a * ci, a * si, a * n * si
+    for j in range(idx.shape[0]):
+        for k in range(idx.shape[1]):
+            i = idx[j, k]
+            cu = cu0[i] * cnt[j] - su0[i] * snt[j]
+            su = su0[i] * cnt[j] + cu0[i] * snt[j]
+            co = cr[i] * cwt[j] + sr[i] * swt[j]
+            so = sr[i] * cwt[j] - cr[i] * swt[j]
+            a_ci_su = a_ci * su
+            a_cu = a * cu
+            x = co * a_cu - so * a_ci_su
+            y = so * a_cu + co * a_ci_su
+            pos[j, k, 0] = x
+            pos[j, k, 1] = y
+            pos[j, k, 2] = a_si * su
+            # inertial velocity rotated into ECEF (same rotation as the position) minus Omega_ie x r_e
+            a_ci_cu = ci * a_cu
+            a_su = a * su
+            vel[j, k, 0] = (co * a_su + so * a_ci_cu) * -n + OMEGA_IE * y
+            vel[j, k, 1] = (co * a_ci_cu - so * a_su) * n - OMEGA_IE * x
+            vel[j, k, 2] = a_n_si * cu

@@ -109,9 +109,11 @@ def _renewal(t: np.ndarray, length_s: tuple, g: np.random.Generator, n: int = 1)
     K = int(math.ceil(span / length_s[0])) + 1
     lengths = g.uniform(length_s[0], length_s[1], size=(K, n))
     ends = t[0] + np.cumsum(lengths, axis=0)
-    idx = np.empty((t.size, n), dtype=np.int64)
-    for j in range(n):
-        idx[:, j] = np.searchsorted(ends[:, j], t, side="right")
+    # idx[i, j] = number of ends[:, j] <= t[i] (np.searchsorted(ends[:, j], t, side="right")), for all
+    # columns at once: segment end k is passed from epoch first[k, j] = #(t < ends[k, j]) on (t is increasing)
+    first = np.searchsorted(t, ends, side="left")
+    passed = np.bincount((first + (t.size + 1) * np.arange(n)).ravel(), minlength=(t.size + 1) * n)
+    idx = np.cumsum(passed.reshape(n, t.size + 1)[:, :t.size], axis=1).T
     return np.minimum(idx, K - 1), ends - lengths, K
 
 
@@ -542,35 +544,38 @@ def draw_zone_schedule(t: np.ndarray, cfg: UrbanZones, g: np.random.Generator):
 
 
 def reacquisition_multiplier(t: np.ndarray, visible: np.ndarray, cfg: Reacquisition) -> np.ndarray:
-    """Sigma multiplier of the re-acquisition transient per (epoch, satellite) of one row (:class:`Reacquisition`).
+    """Sigma multiplier of the re-acquisition transient per (epoch, satellite) (:class:`Reacquisition`).
+
+    Each row of a batch is independent of the others (the rule runs along the epoch axis of each satellite,
+    and a full outage is one of that row's epochs without any tracked satellite).
 
     Parameters
     ----------
-    t : (M,) epochs [s]; visible : (M, S) bool, the satellite is tracked.
+    t : (M,) epochs [s]; visible : (..., M, S) bool, the satellite is tracked (one row, or a batch of rows).
 
     Returns
     -------
-    (M, S) float64, >= 1 (1 outside transients and where not visible).
+    (..., M, S) float64, >= 1 (1 outside transients and where not visible).
     """
-    M, S = visible.shape
-    out = np.ones((M, S))
+    M = visible.shape[-2]
+    out = np.ones(visible.shape)
     if M < 2:
         return out
     idx = np.arange(M)[:, None]
-    start = np.zeros((M, S), dtype=bool)
-    start[1:] = visible[1:] & ~visible[:-1]
-    last_vis = np.maximum.accumulate(np.where(visible, idx, -1), axis=0)       # last visible epoch <= k
-    prev_last = np.full((M, S), -1)
-    prev_last[1:] = last_vis[:-1]                                            # last visible epoch < k
+    start = np.zeros(visible.shape, dtype=bool)
+    start[..., 1:, :] = visible[..., 1:, :] & ~visible[..., :-1, :]
+    last_vis = np.maximum.accumulate(np.where(visible, idx, -1), axis=-2)      # last visible epoch <= k
+    prev_last = np.full(visible.shape, -1)
+    prev_last[..., 1:, :] = last_vis[..., :-1, :]                              # last visible epoch < k
     gap = t[:, None] - t[np.maximum(prev_last, 0)]
     lost = (prev_last >= 0) & (gap >= cfg.min_gap_s)
-    after_outage = np.zeros(M, dtype=bool)
-    after_outage[1:] = ~visible[:-1].any(axis=1)
-    eligible = start & (lost | after_outage[:, None])
-    run_start = np.maximum.accumulate(np.where(start, idx, -1), axis=0)       # start of the current run
+    after_outage = np.zeros(visible.shape[:-1], dtype=bool)
+    after_outage[..., 1:] = ~visible[..., :-1, :].any(axis=-1)
+    eligible = start & (lost | after_outage[..., None])
+    run_start = np.maximum.accumulate(np.where(start, idx, -1), axis=-2)      # start of the current run
     rs = np.maximum(run_start, 0)
     tau = t[:, None] - t[rs]
-    on = visible & (run_start >= 0) & np.take_along_axis(eligible, rs, axis=0) & (tau < cfg.duration_s)
+    on = visible & (run_start >= 0) & np.take_along_axis(eligible, rs, axis=-2) & (tau < cfg.duration_s)
     out[on] = cfg.scale ** (1.0 - tau[on] / cfg.duration_s)
     return out
 
@@ -621,7 +626,8 @@ def zone_effects(t, kind, zone_id, windows, el, az, v_e, heading, cfg: UrbanZone
         refl |= rf
     passes = u_pass[np.maximum(zone_id, 0)] < cfg.overpass_pass_probability           # (M, S)
     blocked |= in_o & ~passes
-    p = np.where(in_c, nlos_probability(el), np.where(in_t, cfg.trees_multipath_scale * nlos_probability(el), 0.0))
+    p_nlos = nlos_probability(el)
+    p = np.where(in_c, p_nlos, np.where(in_t, cfg.trees_multipath_scale * p_nlos, 0.0))
     nlos = ((at(u_nlos) < p) & ~blocked) | refl
     bias = nlos_bias(el, at(z_bias), at(u_sign)) * np.where(in_t, cfg.trees_bias_scale, 1.0)
     bias = np.where(nlos, bias, 0.0)

@@ -80,9 +80,18 @@ and an interval that holds a boundary between two pieces turning about
 different axes (a turn running into a pitch arc) carries ``|phi_1 x phi_2| / 2``
 (up to ~4e-7 rad for 10 deg/s rates at 100 Hz).
 
-Throughput (B = 64, 600 s at 100 Hz, random urban drives, 2-core machine):
-about 6e6 IMU samples per second once the process's memory is warm; the first
-call in a fresh process pays the first touch of the ~0.7 GB of outputs.
+Evaluation: the grid nodes of all rows in one compiled pass (states on the
+straight pieces, instantaneous IMU, the interval means of the intervals that
+lie on one piece); numpy for everything else (the cos/sin of the arc angles,
+the arcs' states, gravity, the intervals at segment boundaries), with the same
+operations in the same order as an elementwise numpy evaluation and the
+products whose rounding could depend on the array shapes (BLAS, einsum) formed
+with a single row's shapes, so no output depends on the batch. Throughput
+(2-core machine shared with other jobs): 60 s noise-burst drives at B = 64
+about 0.6 ms of CPU per row; B = 64, 600 s at 100 Hz, random urban drives
+about 6e6 IMU samples per second, most of it the first touch of the ~0.7 GB
+of outputs (the compiled pass alone runs at ~4e7 nodes per second on warm
+memory).
 
 Rows are independent and deterministic: row ``i`` depends only on
 ``motions[i]`` (equal motions are evaluated once and copied). Random drives are
@@ -94,6 +103,7 @@ import math
 from dataclasses import dataclass, field
 from typing import NamedTuple, Sequence, Union
 
+import numba as nb
 import numpy as np
 
 from earth import C_en, OMEGA_IE_E, dcm_from_euler, geodetic_to_ecef, gravity_ecef
@@ -520,20 +530,26 @@ class _Kin(NamedTuple):
     sgam: np.ndarray
 
 
-class _Frame(NamedTuple):
-    """Per-piece constants in the row's frames (valid on the straight pieces), arrays of leading size P."""
+class _Pieces(NamedTuple):
+    """The pieces of the U evaluated rows back to back (P in all, row by row) with their frame constants.
 
-    r0: np.ndarray      # (3,) start point, ECEF [m]
-    C_eL: np.ndarray    # (3, 3) L (NED at the start) -> ECEF
-    wN: float           # Earth rate in L, north and down [rad/s] (east is 0)
-    wD: float
+    Per piece (leading size P) unless noted; the frame constants are those of the piece start
+    (valid on the whole of a straight piece).
+    """
+
+    pl: _Plan           # the rows' plans concatenated (times from each row's own start)
+    row: np.ndarray     # (P,) row of the piece
+    last: np.ndarray    # (P,) bool: the row's last (open-ended) piece
+    rate: np.ndarray    # (P,) turning rate of an arc: w (horizontal arcs), else q [rad/s]
+    trig: np.ndarray    # (P, 4) cos/sin of the start heading and pitch (columns cpsi, spsi, cgam, sgam)
     re0: np.ndarray     # (P, 3) piece start position, ECEF [m]
     xe: np.ndarray      # (P, 3) body x axis (direction of motion), ECEF
     C_eb: np.ndarray    # (P, 3, 3) attitude at the piece start
-    wbx: np.ndarray     # (P,) Earth rate in the body at the piece start [rad/s]
-    wby: np.ndarray
-    wbz: np.ndarray
+    wb: np.ndarray      # (P, 3) Earth rate in the body at the piece start [rad/s]
     psi0w: np.ndarray   # (P,) piece start heading wrapped to [-pi, pi)
+    C_eL: np.ndarray    # (U, 3, 3) per row: L (NED at the start) -> ECEF
+    r0: np.ndarray      # (U, 3) per row: start point, ECEF [m]
+    wND: np.ndarray     # (U, 2) per row: Earth rate in L, north and down [rad/s] (east is 0)
 
 
 def _wrap(a):
@@ -541,20 +557,37 @@ def _wrap(a):
     return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 
-def _frame(pl: _Plan, C_eL, r0, wL) -> _Frame:
-    C_Lb = dcm_from_euler(0.0, pl.gam0, pl.psi0)                  # (P, 3, 3)
-    C_eb = C_eL @ C_Lb
-    wb = np.einsum("pji,j->pi", C_Lb, wL)                         # C_bL omega_ie_L
-    return _Frame(r0, C_eL, float(wL[0]), float(wL[2]), r0 + pl.p0 @ C_eL.T, np.ascontiguousarray(C_eb[:, :, 0]),
-                  C_eb, wb[:, 0].copy(), wb[:, 1].copy(), wb[:, 2].copy(), _wrap(pl.psi0))
+def _pieces(plans: Sequence[_Plan], C_eL, r0, wL) -> _Pieces:
+    """Concatenate the U rows' plans and add the per-piece frame constants (C_eL (U, 3, 3), r0 (U, 3), wL (U, 3)).
 
-
-def _kin(pl: _Plan, t, pid, gat) -> _Kin:
-    """Speed and heading/pitch trigonometry at times ``t`` (M,) on pieces ``pid`` (M,).
-
-    ``gat(x)`` maps a per-piece array ``x`` (P, ...) to the points, i.e. ``x[pid]``
-    (``np.repeat`` with piece counts when the points are sorted).
+    The products whose rounding could depend on the array shapes (a BLAS product with the row's piece count
+    as a dimension, the einsum) are formed row by row, exactly as for a row alone; the stacked 3 x 3 products
+    and the elementwise terms are formed once for all rows.
     """
+    pl = _Plan(*(np.concatenate(f) for f in zip(*plans)))
+    counts = [p.t0.shape[0] for p in plans]
+    row = np.repeat(np.arange(len(plans)), counts)
+    last = np.zeros(row.shape[0], bool)
+    last[np.cumsum(counts) - 1] = True
+    C_Lb = dcm_from_euler(0.0, pl.gam0, pl.psi0)                  # (P, 3, 3)
+    C_eb = C_eL[row] @ C_Lb
+    re0 = np.empty((row.shape[0], 3))
+    wb = np.empty((row.shape[0], 3))
+    a = 0
+    for u, p in enumerate(plans):
+        b = a + counts[u]
+        re0[a:b] = r0[u] + p.p0 @ C_eL[u].T
+        wb[a:b] = np.einsum("pji,j->pi", C_Lb[a:b], wL[u])       # C_bL omega_ie_L
+        a = b
+    return _Pieces(pl, row, last, np.where(pl.kind == _HARC, pl.w, pl.q),
+                   np.stack([pl.cpsi, pl.spsi, pl.cgam, pl.sgam], axis=1), re0,
+                   np.ascontiguousarray(C_eb[:, :, 0]), C_eb, wb, _wrap(pl.psi0), C_eL, r0,
+                   np.ascontiguousarray(wL[:, ::2]))
+
+
+def _kin(pl: _Plan, t, pid) -> _Kin:
+    """Speed and heading/pitch trigonometry at times ``t`` (M,) on pieces ``pid`` (M,)."""
+    gat = lambda x: x[pid]  # noqa: E731
     tau = t - gat(pl.t0)
     v0 = gat(pl.v0)
     v = gat(pl.acc)
@@ -573,14 +606,16 @@ def _kin(pl: _Plan, t, pid, gat) -> _Kin:
     return _Kin(tau, v0, v, i_h, i_v, psi_h, gam_v, cpsi, spsi, cgam, sgam)
 
 
-def _arc_positions(pl: _Plan, pid, k: _Kin) -> tuple[np.ndarray, np.ndarray]:
-    """Position in L [m] on the arc points: (indices (m,), positions (m, 3)), closed forms of the module docstring."""
+def _arc_positions(pl: _Plan, pid, k: _Kin, out) -> None:
+    """Write the position in L [m] at the arc points ``k.i_h``, ``k.i_v`` into ``out`` (M, 3) (closed forms of the
+    module docstring)."""
     i, pp = k.i_h, pid[k.i_h]                                       # horizontal arcs
     R = k.v[i] * k.cgam[i] / pl.w[pp]
     ph = pl.p0[pp]
     ph[:, 0] += R * (k.spsi[i] - pl.spsi[pp])
     ph[:, 1] -= R * (k.cpsi[i] - pl.cpsi[pp])
     ph[:, 2] -= k.v[i] * k.sgam[i] * k.tau[i]
+    out[i] = ph
     i, pp = k.i_v, pid[k.i_v]                                       # vertical arcs
     Rv = k.v[i] / pl.q[pp]
     d = Rv * (k.sgam[i] - pl.sgam[pp])
@@ -588,13 +623,12 @@ def _arc_positions(pl: _Plan, pid, k: _Kin) -> tuple[np.ndarray, np.ndarray]:
     pv[:, 0] += d * k.cpsi[i]
     pv[:, 1] += d * k.spsi[i]
     pv[:, 2] += Rv * (k.cgam[i] - pl.cgam[pp])
-    return np.concatenate([k.i_h, k.i_v]), np.concatenate([ph, pv])
+    out[i] = pv
 
 
 def _positions(pl: _Plan, t, pid) -> np.ndarray:
     """Position in L (NED) [m] at times ``t`` (M,) on pieces ``pid`` (M,), shape (M, 3)."""
-    gat = lambda x: x[pid]  # noqa: E731
-    k = _kin(pl, t, pid, gat)
+    k = _kin(pl, t, pid)
     s = k.v0 + k.v
     s *= 0.5 * k.tau                                                # straight: s = tau (v0 + v) / 2
     cg = k.cgam * s
@@ -602,95 +636,361 @@ def _positions(pl: _Plan, t, pid) -> np.ndarray:
     out[:, 0] += cg * k.cpsi
     out[:, 1] += cg * k.spsi
     out[:, 2] -= s * k.sgam
-    i, pa = _arc_positions(pl, pid, k)
-    out[i] = pa
+    _arc_positions(pl, pid, k, out)
     return out
 
 
-def _imu(pl: _Plan, fr: _Frame, t, pid, k: _Kin, gat, grav):
-    """Instantaneous ideal IMU (f_b, w_ib^b), each (3, M), at times ``t`` on pieces ``pid``.
+def _arc_kin(pl: _Plan, t, pid):
+    """:func:`_kin` at points that all lie on arcs (times ``t`` (m,), pieces ``pid`` (m,)), and the cos and sin of
+    each point's turning angle (heading on horizontal arcs, pitch on vertical ones): the compiled kernels' arc
+    input, so that the kernels use numpy's cos and sin."""
+    k = _kin(pl, t, pid)
+    c, s = k.cgam.copy(), k.sgam.copy()
+    c[k.i_h], s[k.i_h] = k.cpsi[k.i_h], k.spsi[k.i_h]
+    return k, c, s
+
+
+# The compiled kernels below evaluate the closed forms point by point in the order of operations of numpy's
+# elementwise evaluation (no fastmath: the same roundings); the cos/sin of arc angles come from numpy
+# (:func:`_arc_kin`). Their helpers take scalars: passing arrays into a helper call costs reference counting
+# on every point.
+@nb.njit(cache=True)
+def _gravity_at(tk, u, gA, dgA, inv_h):
+    """Gravity in L [m/s^2] (three scalars) at time ``tk`` of row ``u``: linear interpolation on the anchor grid
+    (``gA`` (U, 3, A) at the anchors, ``dgA`` (U, 3, A - 1) their differences, ``inv_h`` the inverse spacing)."""
+    x = tk * inv_h
+    j = min(int(x), dgA.shape[2] - 1)
+    x -= j
+    return dgA[u, 0, j] * x + gA[u, 0, j], dgA[u, 1, j] * x + gA[u, 1, j], dgA[u, 2, j] * x + gA[u, 2, j]
+
+
+@nb.njit(cache=True, inline="always")
+def _point_at(tau, kind, v0, acc, rate, cpsi, spsi, cgam, sgam, arc_c, arc_s, wb0, wb1, wb2, wN, wD, gN, gE, gD):
+    """Speed, cos/sin of heading and pitch, and the instantaneous ideal IMU (f_b, w_ib^b) at time ``tau`` into a
+    piece (all scalars).
+
+    Piece constants: ``kind``, start speed ``v0``, acceleration ``acc``, arc rate ``rate`` (yaw or pitch),
+    the start cos/sin of heading and pitch, the Earth rate in the body ``wb0..2`` (straight pieces); on an
+    arc ``arc_c``, ``arc_s`` are the cos/sin of the turning angle at the point. Row constants: the Earth rate
+    in L, north ``wN`` and down ``wD``; gravity in L ``gN, gE, gD`` at the point.
 
     With no sideslip ``v_b = [v, 0, 0]`` and ``a_b = C_bL a_L = [a, v psi_dot cos g, -v g_dot]``,
     so ``f_b = a_b + 2 omega_b x v_b - g_b`` (the module docstring's
     ``C_be (a_e + 2 Omega v_e - g_e)`` resolved in the body) and ``w_ib^b = w_Lb^b + omega_b``,
     ``omega_b = C_bL omega_ie_L``.
     """
-    wN, wD = fr.wN, fr.wD
-    gA, dgA, inv_h = grav
-    cpsi, spsi, cgam, sgam = k.cpsi, k.spsi, k.cgam, k.sgam
-    w = np.empty((3, t.shape[0]))
-    w[0], w[1], w[2] = gat(fr.wbx), gat(fr.wby), gat(fr.wbz)       # Earth rate in the body (straight pieces)
-    i_a = np.concatenate([k.i_h, k.i_v])
-    if i_a.size:                                                    # arcs: C_bL [wN, 0, wD] at the current attitude
-        ca, sa, cb, sb = cgam[i_a], sgam[i_a], cpsi[i_a], spsi[i_a]
-        w[0, i_a] = ca * cb * wN - sa * wD
-        w[1, i_a] = -sb * wN
-        w[2, i_a] = sa * cb * wN + ca * wD
-    # gravity in L, linear interpolation on the anchor grid
-    x = t * inv_h
-    j = x.astype(np.intp)
-    np.minimum(j, dgA.shape[1] - 1, out=j)
-    x -= j
-    gN = dgA[0][j]; gN *= x; gN += gA[0][j]          # noqa: E702
-    gE = dgA[1][j]; gE *= x; gE += gA[1][j]          # noqa: E702
-    gD = dgA[2][j]; gD *= x; gD += gA[2][j]          # noqa: E702
+    v = acc * tau + v0
+    cp, sp, cg, sg = cpsi, spsi, cgam, sgam
+    if kind == _HARC:
+        cp, sp = arc_c, arc_s
+    elif kind == _VARC:
+        cg, sg = arc_c, arc_s
+    if kind == _STRAIGHT:                                           # Earth rate in the body (piece constant)
+        w0, w1, w2 = wb0, wb1, wb2
+    else:                                                           # arcs: C_bL [wN, 0, wD] at the current attitude
+        w0 = cg * cp * wN - sg * wD
+        w1 = -sp * wN
+        w2 = sg * cp * wN + cg * wD
     # -g_b = -C_bL g_L; rows of C_bL: x_b=[cg cp, cg sp, -sg], y_b=[-sp, cp, 0], z_b=[sg cp, sg sp, cg]
-    hN = cpsi * gN
-    hN += spsi * gE
-    f = np.empty((3, t.shape[0]))
-    np.multiply(sgam, gD, out=f[0]); f[0] -= cgam * hN                                      # noqa: E702
-    np.multiply(spsi, gN, out=f[1]); f[1] -= cpsi * gE                                      # noqa: E702
-    np.multiply(sgam, hN, out=f[2]); f[2] += cgam * gD; np.negative(f[2], out=f[2])     # noqa: E702
-    f[0] += gat(pl.acc)
-    v2 = 2.0 * k.v
-    f[1] += v2 * w[2]                                               # Coriolis 2 omega_b x [v, 0, 0]
-    f[2] -= v2 * w[1]
-    if k.i_h.size:                                                  # turn: centripetal + yaw rate
-        i = k.i_h
-        wr = pl.w[pid[i]]
-        f[1, i] += k.v[i] * wr * cgam[i]
-        w[0, i] -= wr * sgam[i]
-        w[2, i] += wr * cgam[i]
-    if k.i_v.size:                                                  # pitch arc: normal acceleration + pitch rate
-        i = k.i_v
-        qr = pl.q[pid[i]]
-        f[2, i] -= k.v[i] * qr
-        w[1, i] += qr
-    return f, w
+    hN = cp * gN + sp * gE
+    f0 = sg * gD - cg * hN + acc
+    f1 = sp * gN - cp * gE
+    f2 = -(sg * hN + cg * gD)
+    v2 = 2.0 * v
+    f1 += v2 * w2                                                   # Coriolis 2 omega_b x [v, 0, 0]
+    f2 -= v2 * w1
+    if kind == _HARC:                                               # turn: centripetal + yaw rate
+        f1 += v * rate * cg
+        w0 -= rate * sg
+        w2 += rate * cg
+    elif kind == _VARC:                                             # pitch arc: normal acceleration + pitch rate
+        f2 -= v * rate
+        w1 += rate
+    return v, f0, f1, f2, w0, w1, w2
 
 
-def _node_states(pl: _Plan, fr: _Frame, pn, k: _Kin, gat, out: dict) -> None:
-    """Write r_e, v_e, C_eb, speed, heading, pitch, engine_on at the grid nodes into ``out``."""
-    s = k.v0 + k.v
-    s *= 0.5 * k.tau                                                # straight: s = tau (v0 + v) / 2
-    xe = gat(fr.xe)
-    r = xe * s[:, None]
-    r += gat(fr.re0)
-    ve = xe
-    ve *= k.v[:, None]
-    C = out["C_eb"]
-    np.take(fr.C_eb.astype(C.dtype, copy=False), pn, axis=0, out=C, mode="clip")
-    heading = gat(fr.psi0w)
-    pitch = gat(pl.gam0)
-    i_a, pa = _arc_positions(pl, pn, k)
-    if i_a.size:
-        ca, sa, cb, sb = k.cgam[i_a], k.sgam[i_a], k.cpsi[i_a], k.spsi[i_a]
-        C_Lb = np.empty((i_a.size, 3, 3))
-        C_Lb[:, 0, 0], C_Lb[:, 1, 0], C_Lb[:, 2, 0] = ca * cb, ca * sb, -sa
-        C_Lb[:, 0, 1], C_Lb[:, 1, 1], C_Lb[:, 2, 1] = -sb, cb, 0.0
-        C_Lb[:, 0, 2], C_Lb[:, 1, 2], C_Lb[:, 2, 2] = sa * cb, sa * sb, ca
-        Ca = fr.C_eL @ C_Lb
-        C[i_a] = Ca
-        ve[i_a] = Ca[:, :, 0] * k.v[i_a, None]
-        r[i_a] = pa @ fr.C_eL.T + fr.r0
-        heading[k.i_h] = _wrap(k.psi_h)
-        pitch[k.i_v] = k.gam_v
-    out["r_e"][...] = r
-    out["v_e"][...] = ve
-    out["speed"][...] = k.v
-    out["heading"][...] = heading
-    out["pitch"][...] = pitch
-    out["engine_on"][...] = gat(pl.engine)
+@nb.njit(cache=True)
+def _imu_points(t, pid, arc_c, arc_s, pc, gA, dgA, inv_h, f, w):
+    """Instantaneous ideal IMU at times ``t`` (M,) on pieces ``pid`` (M,) into ``f``, ``w`` (M, 3).
+
+    ``arc_c``, ``arc_s``: the turning angle's cos/sin at the points on arcs, in point order (:func:`_arc_kin`).
+    """
+    t0, v0, acc, kind, trig, rate, row, wb, wND = (pc.pl.t0, pc.pl.v0, pc.pl.acc, pc.pl.kind, pc.trig, pc.rate,
+                                                   pc.row, pc.wb, pc.wND)
+    j = 0
+    for i in range(t.shape[0]):
+        p = pid[i]
+        u = row[p]
+        kd = kind[p]
+        ac = sc = 0.0
+        if kd != _STRAIGHT:
+            ac, sc = arc_c[j], arc_s[j]
+            j += 1
+        gN, gE, gD = _gravity_at(t[i], u, gA, dgA, inv_h)
+        _, f[i, 0], f[i, 1], f[i, 2], w[i, 0], w[i, 1], w[i, 2] = _point_at(
+            t[i] - t0[p], kd, v0[p], acc[p], rate[p], trig[p, 0], trig[p, 1], trig[p, 2], trig[p, 3], ac, sc,
+            wb[p, 0], wb[p, 1], wb[p, 2], wND[u, 0], wND[u, 1], gN, gE, gD)
+
+
+@nb.njit(cache=True)
+def _node_kernel(t, dtk, pn, arc_c, arc_s, mid_c, mid_s, simpson, pc, gA, dgA, inv_h,
+                 r, ve, C, speed, heading, pitch, engine, fo, wo):
+    """One pass over the U x N grid nodes (``pn`` (U N,) their pieces).
+
+    Writes speed and engine_on everywhere; heading (off horizontal arcs), pitch (off vertical arcs) and
+    r_e, v_e, C_eb on the straight pieces (the arcs' states are numpy's, :func:`_arc_node_states`); and the
+    IMU outputs ``fo``, ``wo`` (U, N, 3): the instantaneous value at node 0, and the mean over each interval
+    that lies on one piece: the trapezoid of the node values on a straight piece (= Simpson there), Simpson
+    with the midpoint value on an arc, or everywhere with ``simpson`` (gravity with kinks inside intervals).
+    The intervals at segment boundaries get the trapezoid as a placeholder (:func:`_split_means`).
+    ``arc_c``, ``arc_s``: the turning angle's cos/sin at the nodes on arcs; ``mid_c``, ``mid_s``: at the
+    midpoints of the intervals on one arc; each in grid order (:func:`_arc_kin`).
+    """
+    t0, v0, acc, kind, trig, rate, wb, wND = (pc.pl.t0, pc.pl.v0, pc.pl.acc, pc.pl.kind, pc.trig, pc.rate, pc.wb,
+                                              pc.wND)
+    eng, gam0, psi0w, xe, re0, C_eb = pc.pl.engine, pc.pl.gam0, pc.psi0w, pc.xe, pc.re0, pc.C_eb
+    U, n = speed.shape
+    j = jm = 0
+    a0 = a1 = a2 = b0 = b1 = b2 = 0.0
+    for u in range(U):
+        for k in range(n):
+            p = pn[u * n + k]
+            kd = kind[p]
+            ac = sc = 0.0
+            if kd != _STRAIGHT:
+                ac, sc = arc_c[j], arc_s[j]
+                j += 1
+            gN, gE, gD = _gravity_at(t[k], u, gA, dgA, inv_h)
+            tau = t[k] - t0[p]
+            v, f0, f1, f2, w0, w1, w2 = _point_at(
+                tau, kd, v0[p], acc[p], rate[p], trig[p, 0], trig[p, 1], trig[p, 2], trig[p, 3], ac, sc,
+                wb[p, 0], wb[p, 1], wb[p, 2], wND[u, 0], wND[u, 1], gN, gE, gD)
+            speed[u, k] = v
+            engine[u, k] = eng[p]
+            if kd != _HARC:
+                heading[u, k] = psi0w[p]
+            if kd != _VARC:
+                pitch[u, k] = gam0[p]
+            if kd == _STRAIGHT:
+                s = (v0[p] + v) * (0.5 * tau)                       # straight: s = tau (v0 + v) / 2
+                for c in range(3):
+                    r[u, k, c] = xe[p, c] * s + re0[p, c]
+                    ve[u, k, c] = xe[p, c] * v
+                    for d in range(3):
+                        C[u, k, c, d] = C_eb[p, c, d]
+            if k == 0:
+                fo[u, 0, 0], fo[u, 0, 1], fo[u, 0, 2] = f0, f1, f2
+                wo[u, 0, 0], wo[u, 0, 1], wo[u, 0, 2] = w0, w1, w2
+            elif pn[u * n + k - 1] == p and (simpson or kd != _STRAIGHT):    # Simpson with the midpoint value
+                tm = 0.5 * (t[k - 1] + t[k])
+                ac = sc = 0.0
+                if kd != _STRAIGHT:
+                    ac, sc = mid_c[jm], mid_s[jm]
+                    jm += 1
+                gN, gE, gD = _gravity_at(tm, u, gA, dgA, inv_h)
+                _, m0, m1, m2, n0, n1, n2 = _point_at(
+                    tm - t0[p], kd, v0[p], acc[p], rate[p], trig[p, 0], trig[p, 1], trig[p, 2], trig[p, 3], ac, sc,
+                    wb[p, 0], wb[p, 1], wb[p, 2], wND[u, 0], wND[u, 1], gN, gE, gD)
+                e, d = dtk[k - 1] / 6.0, dtk[k - 1]
+                fo[u, k, 0] = (a0 + f0 + 4.0 * m0) * e / d
+                fo[u, k, 1] = (a1 + f1 + 4.0 * m1) * e / d
+                fo[u, k, 2] = (a2 + f2 + 4.0 * m2) * e / d
+                wo[u, k, 0] = (b0 + w0 + 4.0 * n0) * e / d
+                wo[u, k, 1] = (b1 + w1 + 4.0 * n1) * e / d
+                wo[u, k, 2] = (b2 + w2 + 4.0 * n2) * e / d
+            else:                                                   # trapezoid (= Simpson on straight pieces)
+                h, d = 0.5 * dtk[k - 1], dtk[k - 1]
+                fo[u, k, 0], fo[u, k, 1], fo[u, k, 2] = (a0 + f0) * h / d, (a1 + f1) * h / d, (a2 + f2) * h / d
+                wo[u, k, 0], wo[u, k, 1], wo[u, k, 2] = (b0 + w0) * h / d, (b1 + w1) * h / d, (b2 + w2) * h / d
+            a0, a1, a2, b0, b1, b2 = f0, f1, f2, w0, w1, w2
+
+
+def _arc_node_states(pc: _Pieces, ia, p, k: _Kin, out: dict) -> None:
+    """Write r_e, v_e, C_eb, heading / pitch at the arc nodes ``ia`` (m,) (global node indices of the U x N grid;
+    pieces ``p``, kinematics ``k``) into ``out``.
+
+    ``r_e = r0_e + C_eL p_L`` is formed row by row with the row's arc nodes in the order (horizontal, vertical)
+    of a row alone: the BLAS product's rounding may depend on its row count.
+    """
+    U = pc.C_eL.shape[0]
+    ca, sa, cb, sb = k.cgam, k.sgam, k.cpsi, k.spsi
+    C_Lb = np.empty((ia.size, 3, 3))
+    C_Lb[:, 0, 0], C_Lb[:, 1, 0], C_Lb[:, 2, 0] = ca * cb, ca * sb, -sa
+    C_Lb[:, 0, 1], C_Lb[:, 1, 1], C_Lb[:, 2, 1] = -sb, cb, 0.0
+    C_Lb[:, 0, 2], C_Lb[:, 1, 2], C_Lb[:, 2, 2] = sa * cb, sa * sb, ca
+    rows = pc.row[p]
+    Ca = pc.C_eL[rows] @ C_Lb
+    pa = np.empty((ia.size, 3))
+    _arc_positions(pc.pl, p, k, pa)
+    order = np.lexsort((pc.pl.kind[p], rows))                     # by row, then horizontal before vertical
+    pa, rows = pa[order], rows[order]
+    r = np.empty((ia.size, 3))
+    bounds = np.searchsorted(rows, np.arange(U + 1))
+    for u in np.flatnonzero(np.diff(bounds)):
+        a, b = bounds[u], bounds[u + 1]
+        r[a:b] = pa[a:b] @ pc.C_eL[u].T + pc.r0[u]
+    flat = lambda name: out[name].reshape((-1,) + out[name].shape[2:])  # noqa: E731
+    flat("C_eb")[ia] = Ca
+    flat("v_e")[ia] = Ca[:, :, 0] * k.v[:, None]
+    flat("r_e")[ia[order]] = r
+    flat("heading")[ia[k.i_h]] = _wrap(k.psi_h)
+    flat("pitch")[ia[k.i_v]] = k.gam_v
+
+
+@nb.njit(cache=True)
+def _boundary_means(u, k, t, dtk, left, mid, qi, last, bi, endB, o, FE, WE, fo, wo):
+    """Write the means of the intervals at segment boundaries (:func:`_split_means`) into ``fo``, ``wo`` (U, N, 3).
+
+    Intervals ``(t_k, t_k+1]`` of rows ``u`` (Q,) in global order; ``FE``, ``WE`` (M, 3): the IMU at the points
+    of :func:`_split_means`, in blocks ``o``: start nodes, end nodes, left values at boundary nodes (interval
+    ``left`` >= 0), right and left values at the boundaries inside intervals (``qi``, ``bi``, ``last``, ``endB``
+    of each, in interval order), midpoints of the first parts, of the other parts, of the intervals on one arc
+    (``mid`` >= 0). The same operations in the same order as the numpy rule they replace: trapezoid,
+    Simpson, or the split intervals' parts summed from 0.0 in order (first part, then the others).
+    """
+    nb_ = qi.shape[0]
+    ib = 0                                                          # next boundary inside an interval
+    nfirst = 0                                                      # split intervals done
+    for iq in range(u.shape[0]):
+        d = dtk[k[iq]]
+        q = qi[ib] if ib < nb_ else -1
+        split = q == u[iq] * dtk.shape[0] + k[iq]
+        for E, out in ((FE, fo), (WE, wo)):
+            for c in range(3):
+                Fa = E[o[0] + iq, c]
+                Fe = E[o[2] + left[iq], c] if left[iq] >= 0 else E[o[1] + iq, c]
+                if split:
+                    SA = (Fa + 4.0 * E[o[5] + nfirst, c] + E[o[4] + ib, c]) * ((bi[ib] - t[k[iq]]) / 6.0)
+                    SB = 0.0
+                    jb = ib
+                    while jb < nb_ and qi[jb] == q:
+                        endv = Fe if last[jb] else E[o[4] + jb + 1, c]
+                        SB += (E[o[3] + jb, c] + 4.0 * E[o[6] + jb, c] + endv) * ((endB[jb] - bi[jb]) / 6.0)
+                        jb += 1
+                    S = (0.0 + SA) + SB
+                elif mid[iq] >= 0:
+                    S = (Fa + Fe + 4.0 * E[o[7] + mid[iq], c]) * (d / 6.0)
+                else:
+                    S = (Fa + Fe) * (0.5 * d)
+                out[u[iq], k[iq] + 1, c] = S / d
+        if split:
+            while ib < nb_ and qi[ib] == q:
+                ib += 1
+            nfirst += 1
+
+
+def _split_means(pc: _Pieces, t, dtk, starts, pn, grav, linear_gravity: bool, out: dict) -> None:
+    """The IMU means of the intervals at segment boundaries, in ``out`` f_b, w_b (over the kernel's placeholder).
+
+    * an interval ending on a node where a piece starts: the end value is the left-hand one (of the piece
+      that ends there); trapezoid on a straight piece, Simpson with the midpoint value on an arc (or
+      everywhere when gravity has kinks inside intervals);
+    * an interval holding segment boundaries: split there, Simpson on each part with the one-sided end
+      values of the part's own piece.
+
+    Global indices: node ``g = u N + k``, interval ``q = u (N - 1) + k`` for ``(t_k, t_k+1]`` of row ``u``.
+    """
+    pl = pc.pl
+    n = t.shape[0]
+    U = pc.C_eL.shape[0]
+    m = n - 1
+    # segment boundaries inside the episode: on a node, or strictly inside an interval
+    jb = np.flatnonzero(~np.roll(pc.last, 1) & (pl.t0 <= t[-1]))   # pieces that start a row are not boundaries
+    tb = pl.t0[jb]
+    on = t[starts[jb]] == tb
+    jo, ko = jb[on], starts[jb[on]]                                # piece starting on node ko ...
+    qo = pc.row[jo] * m + ko - 1                                   # ... the end of interval qo
+    ji, bi = jb[~on], tb[~on]                                      # piece starting strictly inside ...
+    qi_k = starts[ji] - 1
+    qi = pc.row[ji] * m + qi_k                                     # ... interval qi
+    first = np.ones(ji.size, bool)
+    first[1:] = qi[1:] != qi[:-1]                                  # first boundary of its interval
+    last = np.ones(ji.size, bool)
+    last[:-1] = qi[:-1] != qi[1:]
+    special = np.zeros(U * m, bool)
+    special[qi] = True
+    redo = special.copy()                                          # every interval to redo
+    redo[qo] = True
+    Q = np.flatnonzero(redo)
+    # intervals ending on a boundary node that need a midpoint value: on an arc piece (or all when gravity has
+    # kinks inside intervals); the other intervals on one piece are the kernel's
+    qa = qo[~special[qo]]
+    if linear_gravity:
+        qa = qa[pl.kind[pn[qa + qa // m]] != _STRAIGHT]
+    gs = Q + Q // m                                                # its start node
+    kQ = Q % m
+    # sub-intervals of the split intervals: [t_q, b_first] (type A), [b_i, next] (type B)
+    qA_k, jA = qi_k[first], ji[first]
+    endB = np.where(last, t[np.minimum(qi_k + 1, m)], np.append(bi[1:], 0.0))
+    # one evaluation for all the points: the ends of the intervals redone, left values at boundary nodes,
+    # both sides of the boundaries inside intervals, midpoints
+    te = np.concatenate([t[kQ], t[kQ + 1], t[ko], bi, bi, 0.5 * (t[qA_k] + bi[first]), 0.5 * (bi + endB),
+                         0.5 * (t[qa % m] + t[qa % m + 1])])
+    pe = np.concatenate([pn[gs], pn[gs + 1], jo - 1, ji, ji - 1, jA - 1, ji, pn[qa + qa // m]])
+    o = np.cumsum([0, Q.size, Q.size, ko.size, ji.size, ji.size, jA.size, ji.size, qa.size])
+    on_arc = np.flatnonzero(pl.kind[pe] != _STRAIGHT)
+    _, arc_c, arc_s = _arc_kin(pl, te[on_arc], pe[on_arc])
+    FE, WE = np.empty((te.size, 3)), np.empty((te.size, 3))
+    _imu_points(te, pe, arc_c, arc_s, pc, *grav, FE, WE)
+    left = np.full(Q.size, -1)                                     # per interval redone: its left value ...
+    left[np.searchsorted(Q, qo)] = np.arange(qo.size)
+    mid = np.full(Q.size, -1)                                      # ... and its midpoint value, if any
+    mid[np.searchsorted(Q, qa)] = np.arange(qa.size)
+    _boundary_means(Q // m, kQ, t, dtk, left, mid, qi, last, bi, endB, o, FE, WE, out["f_b"], out["w_b"])
+
+
+def _grid_pieces(pc: _Pieces, t):
+    """The pieces on a time grid ``t`` (N,) shared by the U rows of ``pc``: the first grid index of each piece
+    in its row (P,), the number of grid points on it (P,), and the piece of each point (U N,) (right-continuous:
+    the last piece starting at or before the point)."""
+    n = t.shape[0]
+    starts = np.searchsorted(t, pc.pl.t0)
+    ends = np.append(starts[1:], n)
+    ends[pc.last] = n
+    cnt = ends - starts
+    return starts, cnt, np.repeat(np.arange(starts.shape[0]), cnt)
+
+
+def _evaluate(pc: _Pieces, t, grav, linear_gravity: bool, dtype) -> dict:
+    """All outputs of the U rows of ``pc`` on the grid ``t`` (N,): a dict of (U, N, ...) arrays of :class:`Truth`.
+
+    States and instantaneous IMU at the grid nodes; IMU means over the intervals ``(t_{k-1}, t_k]`` by
+    Simpson's rule on each smooth sub-interval:
+
+    * an interval on one straight piece: the integrand is linear in t there
+      (constant attitude, linear speed, gravity interpolated linearly between
+      anchors that are nodes), so Simpson equals the trapezoid of the end values;
+    * an interval on one arc: Simpson with the analytic midpoint value;
+    * an interval holding segment boundaries: split there, Simpson on each part
+      with the one-sided end values of the part's own piece.
+    """
+    n = t.shape[0]
+    U = pc.C_eL.shape[0]
+    pl = pc.pl
+    out = {
+        "r_e": np.empty((U, n, 3), dtype), "v_e": np.empty((U, n, 3), dtype),
+        "C_eb": np.empty((U, n, 3, 3), dtype), "f_b": np.empty((U, n, 3), dtype),
+        "w_b": np.empty((U, n, 3), dtype), "speed": np.empty((U, n), dtype),
+        "heading": np.empty((U, n), dtype), "pitch": np.empty((U, n), dtype),
+        "engine_on": np.empty((U, n), bool),
+    }
+    starts, cnt, pn = _grid_pieces(pc, t)
+    arcs = np.flatnonzero((pl.kind != _STRAIGHT) & (cnt > 0))
+    c = cnt[arcs]
+    ia = np.repeat(pc.row[arcs] * n + starts[arcs] - (np.cumsum(c) - c), c) + np.arange(c.sum())  # arc nodes
+    pa = pn[ia]
+    ka, arc_c, arc_s = _arc_kin(pl, t[ia % n], pa)
+    gm = ia[ia % n != n - 1]
+    gm = gm[pn[gm + 1] == pn[gm]]                                  # arc nodes starting an interval on one piece
+    km = gm % n
+    _, mid_c, mid_s = _arc_kin(pl, 0.5 * (t[km] + t[km + 1]), pn[gm])
+    dtk = np.diff(t)
+    _node_kernel(t, dtk, pn, arc_c, arc_s, mid_c, mid_s, not linear_gravity, pc, *grav, out["r_e"], out["v_e"],
+                 out["C_eb"], out["speed"], out["heading"], out["pitch"], out["engine_on"], out["f_b"], out["w_b"])
+    if ia.size:
+        _arc_node_states(pc, ia, pa, ka, out)
+    _split_means(pc, t, dtk, starts, pn, grav, linear_gravity, out)
+    return out
 
 
 def _check_dtype(dtype):
@@ -773,110 +1073,20 @@ def generate_truth(motions: Sequence[Motion], duration_s: float, imu_rate_hz: fl
     r0 = geodetic_to_ecef(lat0, lon0, h0)                          # (U, 3)
     wL = np.einsum("uji,j->ui", C_eL, OMEGA_IE_E)                  # C_Le omega_ie_e, (U, 3); east = 0
 
+    pc = _pieces([m._plan for m in ums], C_eL, r0, wL)
+
     # exact gravity on the anchor grid, one batched call
     ta, h, on_nodes = _anchor_grid(n, rate)
-    pa = np.stack([_positions(m._plan, ta, np.searchsorted(m._plan.t0, ta, "right") - 1) for m in ums])
+    pa = _positions(pc.pl, np.tile(ta, U), _grid_pieces(pc, ta)[2]).reshape(U, ta.shape[0], 3)
     ga_e = gravity_ecef(pa @ C_eL.mT + r0[:, None, :])            # r_e = r0 + C_eL p_L
     ga_L = (ga_e @ C_eL).mT.copy()                                 # (U, 3, A): C_Le g_e
     dga_L = np.diff(ga_L, axis=-1)
 
-    out = {
-        "r_e": np.empty((B, n, 3), dtype), "v_e": np.empty((B, n, 3), dtype),
-        "C_eb": np.empty((B, n, 3, 3), dtype), "f_b": np.empty((B, n, 3), dtype),
-        "w_b": np.empty((B, n, 3), dtype), "speed": np.empty((B, n), dtype),
-        "heading": np.empty((B, n), dtype), "pitch": np.empty((B, n), dtype),
-        "engine_on": np.empty((B, n), bool),
-    }
-    rows_for = [[] for _ in range(U)]
-    for b, u in enumerate(row_of):
-        rows_for[u].append(b)
-    dtk = np.diff(t)
-    for u, m in enumerate(ums):
-        b0 = rows_for[u][0]
-        fr = _frame(m._plan, C_eL[u], r0[u], wL[u])
-        _row(m._plan, fr, t, dtk, (ga_L[u], dga_L[u], 1.0 / h), on_nodes, {key: val[b0] for key, val in out.items()})
-        for b in rows_for[u][1:]:
-            for val in out.values():
-                val[b] = val[b0]
+    out = _evaluate(pc, t, (ga_L, dga_L, 1.0 / h), on_nodes, dtype)
     idx = np.array(row_of)
+    if not np.array_equal(idx, np.arange(B)):                     # copy the rows of equal motions
+        out = {key: val[idx] for key, val in out.items()}
     return Truth(t=t, lat0=lat0[idx], lon0=lon0[idx], h0=h0[idx], imu_rate_hz=rate, **out)
-
-
-def _row(pl: _Plan, fr: _Frame, t, dtk, grav, linear_gravity: bool, out: dict) -> None:
-    """Write all outputs of one row into ``out`` (views of shape (N, ...)).
-
-    States and instantaneous IMU at the grid nodes; IMU means over the intervals
-    ``(t_{k-1}, t_k]`` by Simpson's rule on each smooth sub-interval:
-
-    * an interval on one straight piece: the integrand is linear in t there
-      (constant attitude, linear speed, gravity interpolated linearly between
-      anchors that are nodes), so Simpson equals the trapezoid of the end values;
-    * an interval on one arc: Simpson with the analytic midpoint value;
-    * an interval holding segment boundaries: split there, Simpson on each part
-      with the one-sided end values of the part's own piece.
-    """
-    n = t.shape[0]
-    P = pl.t0.shape[0]
-    starts = np.searchsorted(t, pl.t0)                             # first node of each piece
-    cnt = np.diff(np.append(starts, n))
-    gat_n = lambda x: np.repeat(x, cnt, axis=0)  # noqa: E731
-    pn = gat_n(np.arange(P))                                       # piece of each node (right-continuous)
-    kn = _kin(pl, t, pn, gat_n)
-    FN, WN = _imu(pl, fr, t, pn, kn, gat_n, grav)
-    _node_states(pl, fr, pn, kn, gat_n, out)
-
-    # segment boundaries inside the episode: on a node, or strictly inside an interval
-    jb = np.arange(1, P)[pl.t0[1:] <= t[-1]]
-    tb = pl.t0[jb]
-    on = t[starts[jb]] == tb
-    jo, ko = jb[on], starts[jb[on]]                                # piece starting on node ko
-    ji, bi = jb[~on], tb[~on]                                      # piece starting strictly inside ...
-    qi = starts[ji] - 1                                            # ... interval qi = (t_qi, t_qi+1]
-    first = np.ones(ji.size, bool)
-    first[1:] = qi[1:] != qi[:-1]                                  # first boundary of its interval
-    last = np.ones(ji.size, bool)
-    last[:-1] = qi[:-1] != qi[1:]
-    special = np.zeros(n - 1, bool)
-    special[qi] = True
-    # intervals needing a midpoint value: on an arc piece (or all when gravity has kinks inside intervals)
-    if linear_gravity:
-        qa = np.flatnonzero((pl.kind[pn[:-1]] != _STRAIGHT) & ~special)
-    else:
-        qa = np.flatnonzero(~special)
-    # sub-intervals of the split intervals: [t_q, b_first] (type A), [b_i, next] (type B)
-    qA, jA = qi[first], ji[first]
-    endB = np.where(last, t[np.minimum(qi + 1, n - 1)], np.append(bi[1:], 0.0))
-    # one evaluation for all the off-node points
-    te = np.concatenate([t[ko], bi, bi, 0.5 * (t[qA] + bi[first]), 0.5 * (bi + endB), 0.5 * (t[qa] + t[qa + 1])])
-    pe = np.concatenate([jo - 1, ji, ji - 1, jA - 1, ji, pn[qa]])
-    ke = _kin(pl, te, pe, lambda x: x[pe])
-    FE, WE = _imu(pl, fr, te, pe, ke, lambda x: x[pe], grav)
-    o = np.cumsum([0, ko.size, ji.size, ji.size, qA.size, ji.size, qa.size])
-
-    for name, F, E in (("f_b", FN, FE), ("w_b", WN, WE)):
-        Fa = F[:, :-1]
-        Fe = F[:, 1:]
-        if ko.size:
-            Fe = Fe.copy()
-            Fe[:, ko - 1] = E[:, o[0]:o[1]]                         # left values at boundary nodes
-        S = Fa + Fe
-        S *= 0.5 * dtk                                             # trapezoid (= Simpson on straight pieces)
-        if qa.size:
-            S[:, qa] = (Fa[:, qa] + Fe[:, qa] + 4.0 * E[:, o[5]:o[6]]) * (dtk[qa] / 6.0)
-        if ji.size:
-            ER, EL = E[:, o[1]:o[2]], E[:, o[2]:o[3]]
-            SA = (Fa[:, qA] + 4.0 * E[:, o[3]:o[4]] + EL[:, first]) * ((bi[first] - t[qA]) / 6.0)
-            endv = np.where(last, Fe[:, np.minimum(qi, n - 2)], np.roll(EL, -1, axis=1))
-            SB = (ER + 4.0 * E[:, o[4]:o[5]] + endv) * ((endB - bi) / 6.0)
-            qs = np.flatnonzero(special)
-            pos = np.searchsorted(qs, qi)
-            for c in range(3):
-                S[c, qs] = (np.bincount(pos[first], SA[c], minlength=qs.size)
-                            + np.bincount(pos, SB[c], minlength=qs.size))
-        S /= dtk
-        o_ = out[name]
-        o_[0] = F[:, 0]
-        o_[1:] = S.T
 
 
 # --------------------------------------------------------------------------- random drives

@@ -11,7 +11,7 @@ from scipy import stats
 from earth.units import dph, mg
 from envs.sim import events as ev
 from envs.sim.gnss import (_N_SUB, _SUB_BURSTS, _SUB_MISMATCH, _SUB_REGIME, _SUB_ZONES, GnssData, GnssEvents,
-                           ReceiverConfig, UrbanCanyon, _row_children, simulate_gnss)
+                           ReceiverConfig, UrbanCanyon, _entropy_words, _row_children, simulate_gnss)
 from envs.sim.imu import IMU_GRADES, ImuEvents, simulate_imu
 from envs.sim.rng import row_generators
 from envs.sim.scenarios import SCENARIOS, Scenario, get_scenario
@@ -49,6 +49,27 @@ def test_more_children_leave_the_first_eight_streams_unchanged():
     ref = np.random.SeedSequence([int(x) for x in ent]).spawn(8)
     for a, s in zip(_row_children(g1)[:8], ref):
         np.testing.assert_array_equal(a.random(20), np.random.default_rng(s).random(20))
+
+
+def test_row_children_built_on_demand_equal_the_spawned_list():
+    """_row_children builds each child on first use (any order) from the entropy's uint32 words: the same
+    streams as ``SeedSequence(entropy).spawn(_N_SUB)``, also for entropy words of 0, 1, 2^32 - 1, 2^32, ..."""
+    for seed in (0, 3, 123456):
+        g1, g2 = row_generators([seed], "gnss")[0], row_generators([seed], "gnss")[0]
+        kids = _row_children(g1)
+        ent = [int(x) for x in g2.integers(0, 2**63, size=4, dtype=np.int64)]
+        ref = np.random.SeedSequence(ent).spawn(_N_SUB)
+        assert len(kids) == _N_SUB
+        for k in (11, 0, 15, 3, 11):                      # any order; a repeated index returns the same generator
+            assert kids[k] is kids[k]
+        for k in range(_N_SUB):
+            np.testing.assert_array_equal(kids[k].random(20), np.random.default_rng(ref[k]).random(20))
+        assert g1.random() == g2.random()                  # one draw of 4 integers from the row generator
+    for ent in ([0, 1, 2**32 - 1, 2**32], [2**63 - 1, 2**32 + 1, 5, 0], [2**40, 7, 2**33, 2**62]):
+        words = _entropy_words(ent)
+        for k in (0, 9, 15):
+            np.testing.assert_array_equal(np.random.SeedSequence(words, spawn_key=(k,)).generate_state(4),
+                                          np.random.SeedSequence(ent, spawn_key=(k,)).generate_state(4))
 
 
 # ----------------------------------------------------------------------------- event draws
@@ -141,6 +162,21 @@ def test_reacquisition_multiplier_rule():
     vis_out[30, :] = False    # a full outage: the rising satellite 1 re-acquires too
     m2 = ev.reacquisition_multiplier(t, vis_out, cfg)
     assert m2[31, 1] == 5.0 and m2[31, 0] == 5.0
+    batch = np.stack([vis, vis_out, ~vis])              # rows of a batch are independent
+    mb = ev.reacquisition_multiplier(t, batch, cfg)
+    for i in range(3):
+        np.testing.assert_array_equal(mb[i], ev.reacquisition_multiplier(t, batch[i], cfg))
+
+
+def test_renewal_segment_index_is_searchsorted_per_column():
+    t = np.concatenate([[0.0, 0.5], np.arange(1.0, 120.0, 1.0), [120.25]])
+    for length_s, n in (((2.0, 20.0), 7), ((20.0, 90.0), 1), ((1.0, 1.0), 3)):
+        idx, starts, K = ev._renewal(t, length_s, np.random.default_rng(4), n=n)
+        lengths = np.random.default_rng(4).uniform(length_s[0], length_s[1], size=(K, n))
+        ends = t[0] + np.cumsum(lengths, axis=0)
+        ref = np.stack([np.searchsorted(ends[:, j], t, side="right") for j in range(n)], axis=1)
+        np.testing.assert_array_equal(idx, np.minimum(ref, K - 1))
+        np.testing.assert_array_equal(starts, ends - lengths)
 
 
 # ----------------------------------------------------------------------------- oracle truth

@@ -356,3 +356,42 @@ def test_simulate_imu_bad_inputs_name_the_argument():
     bad[0, 3, 1] = np.nan
     with pytest.raises(ValueError, match="f_true"):
         simulate_imu(bad, w, RATE, "consumer", r)
+
+
+def test_all_pole_filter_is_lfilter_to_the_bit():
+    from scipy.signal import lfilter
+
+    from envs.sim.imu import _all_pole_filter
+    rng = np.random.default_rng(5)
+    for trial in range(40):
+        n, c = int(rng.integers(1, 3000)), int(rng.integers(1, 7))
+        x = rng.normal(size=(n, c)) * 10.0 ** rng.uniform(-6, 2)
+        if trial % 2:
+            a = np.array([1.0, -math.exp(-rng.uniform(1e-5, 1.0))])
+        else:  # a stable resonance
+            r, th = rng.uniform(0.05, 0.999), rng.uniform(0.0, math.pi)
+            a = np.array([1.0, -2.0 * r * math.cos(th), r * r])
+        zi = rng.normal(size=(a.size - 1, c))
+        y, _ = lfilter([1.0], a, x, axis=0, zi=zi)
+        np.testing.assert_array_equal(_all_pole_filter(a, x, zi), y)
+
+
+def test_apply_matrix_sums_in_order():
+    from envs.sim.imu import _apply_matrix
+    rng = np.random.default_rng(6)
+    a, x = rng.normal(size=(3, 3)), rng.normal(size=(50, 3))
+    out = np.empty((50, 3))
+    _apply_matrix(a, x, out)
+    ref = np.stack([x[:, 0] * a[j, 0] + x[:, 1] * a[j, 1] + x[:, 2] * a[j, 2] for j in range(3)], axis=1)
+    np.testing.assert_array_equal(out, ref)
+
+
+def test_sum_of_products_sums_in_order():
+    from envs.sim.imu import _sum_of_products
+    rng = np.random.default_rng(7)
+    basis, coef = rng.normal(size=(4, 40)), rng.normal(size=(4, 6))
+    ref = np.zeros((40, 6))
+    for c in range(6):
+        for bj, cj in zip(basis, coef):
+            ref[:, c] += bj * cj[c]
+    np.testing.assert_array_equal(_sum_of_products(basis, coef), ref)

@@ -1,0 +1,154 @@
+"""World generation time (:func:`envs.sim.world.generate_world`, what an env's reset pays) per row, by stage.
+
+For each scenario and batch size B the world is drawn ``--reps`` times (fresh seeds each time, after one
+untimed draw that loads the compiled kernels) and the median is printed per row: ``ms/row`` of the whole
+world and IMU samples per second (B x N / wall time), and the split into ``truth``
+(:func:`envs.sim.trajectory.generate_truth`: trajectory and ideal IMU), ``imu``
+(:func:`envs.sim.imu.simulate_imu`: sensor errors, vibration), ``gnss`` (:func:`envs.sim.gnss.simulate_gnss`:
+constellation, receiver, events) and ``rest`` (motions, epochs, initial estimate, odometer, event bits). The
+stages are timed by wrapping the names that :mod:`envs.sim.world` calls. Wall time: on a machine shared with
+other jobs run ``--compare`` (side by side) rather than trusting one figure, or ``--cpu``: the process CPU time
+(all threads) instead of the wall time, which swings much less with the other jobs' load (the IMU stage runs
+its rows on threads: with ``--cpu`` it counts their CPU time, not the wall time they overlap in).
+
+``--compare DIR`` runs every cell twice, in this tree and in the source tree ``DIR`` (e.g. ``git worktree add
+/tmp/before <commit>``), alternately in fresh processes (``--rounds`` times, median over the rounds), and
+prints both with the speed-up: before/after figures measured under the same machine load. ``DIR`` need not
+have this script: the cells run this file with ``NAVGYM_BENCH_ROOT=DIR``, which imports DIR's code.
+
+Usage::
+
+    python benchmarks/bench_worlds.py [--scenarios noise-burst urban] [--batches 1 64] [--duration-s 60]
+                                      [--reps 5] [--compare DIR] [--rounds 1] [--dtype float64] [--cpu]
+
+Defaults: noise-burst and urban, 60 s episodes, B = 1 and 64 (a minute or so; ``--compare`` twice that).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+
+ROOT = os.environ.get("NAVGYM_BENCH_ROOT") or os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, ROOT)
+
+import numpy as np  # noqa: E402
+
+STAGES = ("truth", "imu", "gnss", "rest")
+"""Columns of the split; ``rest`` is the world's time less the three timed stages."""
+
+_WRAPPED = {"truth": "generate_truth", "imu": "simulate_imu", "gnss": "simulate_gnss"}
+"""Stage -> the name :mod:`envs.sim.world` calls (wrapped to time it)."""
+
+
+def _make_world(scenario, seeds, duration_s, dtype):
+    from envs.sim.scenarios import get_scenario
+    from envs.sim.world import generate_world
+    return generate_world(get_scenario(scenario, duration_s=duration_s), seeds, dtype=dtype)
+
+
+def bench_cell(scenario, B, duration_s, reps, dtype="float64", cpu=False):
+    """Median wall time (``cpu``: process CPU time) per row [s] of the world and of each stage over ``reps`` draws
+    of B rows, and N.
+
+    Returns ``{"total": s, "truth": s, "imu": s, "gnss": s, "rest": s, "n": N}`` (per row; each stage the
+    median of its own times, ``rest`` the median of the per-draw remainders).
+    """
+    from envs.sim import world as wmod
+    acc = dict.fromkeys(_WRAPPED, 0.0)
+    clock = time.process_time if cpu else time.perf_counter
+
+    def timed(stage, fn):
+        def wrapper(*a, **k):
+            t0 = clock()
+            try:
+                return fn(*a, **k)
+            finally:
+                acc[stage] += clock() - t0
+        return wrapper
+
+    for stage, name in _WRAPPED.items():
+        setattr(wmod, name, timed(stage, getattr(wmod, name)))
+    w = _make_world(scenario, list(range(B)), duration_s, np.dtype(dtype))  # untimed: loads compiled kernels
+    n = w.truth.t.shape[0]
+    del w
+    rows = []
+    for r in range(reps):
+        for k in acc:
+            acc[k] = 0.0
+        seeds = list(range((r + 1) * B, (r + 2) * B))
+        t0 = clock()
+        _make_world(scenario, seeds, duration_s, np.dtype(dtype))
+        total = clock() - t0
+        rows.append((total, *(acc[k] for k in _WRAPPED), total - sum(acc.values())))
+    med = np.median(np.array(rows), axis=0) / B
+    return dict(zip(("total",) + STAGES, map(float, med)), n=n)
+
+
+def _run_cell(root, scenario, B, duration_s, reps, dtype, cpu):
+    """One cell in a fresh process on the source tree ``root``; returns its JSON result."""
+    env = dict(os.environ, NAVGYM_BENCH_ROOT=root)
+    cmd = [sys.executable, os.path.abspath(__file__), "--cell", scenario, str(B), str(duration_s), str(reps), dtype,
+           "cpu" if cpu else "wall"]
+    out = subprocess.run(cmd, env=env, cwd=root, capture_output=True, text=True, check=True).stdout
+    return json.loads(out.strip().splitlines()[-1])
+
+
+def _median_cells(cells):
+    return {k: float(np.median([c[k] for c in cells])) for k in cells[0]}
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--scenarios", nargs="+", default=["noise-burst", "urban"])
+    p.add_argument("--batches", nargs="+", type=int, default=[1, 64])
+    p.add_argument("--duration-s", type=float, default=60.0, help="episode length [s]")
+    p.add_argument("--reps", type=int, default=None, help="timed draws per cell (default 20 at B = 1, else 5)")
+    p.add_argument("--dtype", choices=("float64", "float32"), default="float64", help="IMU output dtype")
+    p.add_argument("--compare", metavar="DIR", default=None,
+                   help="also run every cell in the source tree DIR, alternately in fresh processes")
+    p.add_argument("--rounds", type=int, default=1, help="alternating rounds per cell with --compare (median)")
+    p.add_argument("--cpu", action="store_true", help="process CPU time (all threads) instead of wall time")
+    args = p.parse_args(argv)
+    reps = lambda B: args.reps or (20 if B == 1 else 5)  # noqa: E731
+    here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    print(f"world generation per row: {args.duration_s:g} s episodes, IMU dtype {args.dtype}, {os.cpu_count()} CPUs; "
+          f"median of the draws; {'CPU' if args.cpu else 'wall'} ms per row (share of the world's time)")
+    if args.compare:
+        other = os.path.abspath(args.compare)
+        print(f"before = {other}\nafter  = {here}")
+        hdr = (f"{'scenario':14s} {'B':>4s} {'stage':6s} {'ms/row before':>14s} {'after':>8s} {'speed-up':>9s}")
+        print("(row Msa/s: million IMU samples generated per second, whole world)")
+    else:
+        hdr = (f"{'scenario':14s} {'B':>4s} {'ms/row':>8s} {'samples/s':>11s} "
+               + " ".join(f"{s:>15s}" for s in STAGES))
+    print("\n" + hdr + "\n" + "-" * len(hdr))
+    for scen in args.scenarios:
+        for B in args.batches:
+            cell = (scen, B, args.duration_s, reps(B), args.dtype, args.cpu)
+            if args.compare:
+                before, after = [], []
+                for _ in range(args.rounds):
+                    before.append(_run_cell(other, *cell))
+                    after.append(_run_cell(here, *cell))
+                rb, ra = _median_cells(before), _median_cells(after)
+                for s in ("total",) + STAGES:
+                    print(f"{scen:14s} {B:4d} {s:6s} {1e3 * rb[s]:14.3f} {1e3 * ra[s]:8.3f} "
+                          f"{rb[s] / ra[s] if ra[s] > 0 else float('nan'):8.2f}x", flush=True)
+                print(f"{scen:14s} {B:4d} {'Msa/s':6s} {1e-6 * rb['n'] / rb['total']:14.3f} "
+                      f"{1e-6 * ra['n'] / ra['total']:8.3f} {rb['total'] / ra['total']:8.2f}x", flush=True)
+            else:
+                r = bench_cell(*cell)
+                parts = " ".join(f"{1e3 * r[s]:7.3f} ({100 * r[s] / r['total']:4.1f}%)" for s in STAGES)
+                print(f"{scen:14s} {B:4d} {1e3 * r['total']:8.3f} {r['n'] / r['total']:11.3g} {parts}", flush=True)
+
+
+if __name__ == "__main__":
+    if len(sys.argv) > 1 and sys.argv[1] == "--cell":
+        scenario, B, duration_s, reps, dtype, clock = sys.argv[2:8]
+        print(json.dumps(bench_cell(scenario, int(B), float(duration_s), int(reps), dtype, clock == "cpu")))
+    else:
+        main()
