@@ -20,7 +20,8 @@ without VecNormalize. Each cell first learns one rollout (JIT compilation, first
 ``--compare DIR`` measures instead the native vector env's PPO rate (and the env alone) in this tree and in the
 source tree ``DIR`` (e.g. a checkout of an earlier commit), each cell in a fresh process, alternately, and prints
 before, after and the speed-up side by side: before/after figures under the same machine load. A mode the
-earlier tree's env does not take falls back to its exact default (marked ``*``).
+earlier tree's env does not take falls back to that tree's default configuration (marked ``*``; before
+issue 11 the exact composition).
 
 Usage: ``python benchmarks/bench_training.py [--n-envs 16 64 256] [--transitions exact fused] [--no-dummy]
 [--compare DIR]``.
@@ -98,7 +99,7 @@ def env_rate(venv, n_envs: int, steps: int) -> tuple[float, float]:
 def native_cell(env_id, n, mode, rollouts, episode_length):
     """(PPO env-steps/s, env-only env-steps/s, reset share) of the native vector env in this process."""
     n_steps = DEFAULT_HYPERPARAMS["ppo"]["n_steps"]
-    native = make_sb3_vec_env(env_id, n, seed=0, episode_length_s=episode_length, **MODES[mode])
+    native = make_sb3_vec_env(env_id, n, seed=0, episode_length_s=episode_length, **MODES.get(mode, {}))
     r_native = learn_rate(native, n, rollouts)
     r_env, reset_share = env_rate(native, n, max(8, rollouts * n_steps // 4))
     native.close()
@@ -127,10 +128,8 @@ def compare(a, other):
             mark = ""
             try:
                 rb = _run_cell(other, *cell)
-            except subprocess.CalledProcessError:
-                if mode == "exact":
-                    raise
-                rb, mark = _run_cell(other, a.env, n, "exact", a.rollouts, a.episode_length), "*"
+            except subprocess.CalledProcessError:  # a tree before the transition modes: its own default
+                rb, mark = _run_cell(other, a.env, n, "default", a.rollouts, a.episode_length), "*"
             ra = _run_cell(here, *cell)
             print(f"{n:>6}  {mode + mark:<11} {rb[0]:10.0f} {ra[0]:8.0f} {ra[0] / rb[0]:8.2f}x {rb[1]:11.0f} "
                   f"{ra[1]:8.0f} {rb[2]:14.0%} {ra[2]:6.0%}", flush=True)
