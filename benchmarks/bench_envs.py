@@ -67,6 +67,7 @@ sys.path.insert(0, ROOT)
 
 import gymnasium as gym  # noqa: E402
 import numpy as np  # noqa: E402
+from stage_timing import timed  # noqa: E402  (this script's folder)
 
 import envs  # noqa: E402,F401  (registers the ids)
 import nav_filters.navigator as navmod  # noqa: E402
@@ -179,19 +180,8 @@ class StageTimer:
 
     def _wrap(self, obj, name, stage):
         had = name in vars(obj)
-        fn = getattr(obj, name)
-        acc = self.t
-        clock = self.clock
-
-        def timed(*a, **k):
-            t0 = clock()
-            try:
-                return fn(*a, **k)
-            finally:
-                acc[stage] += clock() - t0
-
         self._undo.append((obj, name, vars(obj).get(name), had))
-        setattr(obj, name, timed)
+        setattr(obj, name, timed(getattr(obj, name), self.t, stage, self.clock))
 
 
 def profile_env(method, B, steps, episode_s, scenario, transition="exact", warmup=WARMUP_STEPS, cpu=False):

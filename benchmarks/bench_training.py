@@ -40,6 +40,7 @@ sys.path.insert(0, ROOT)
 
 import gymnasium as gym  # noqa: E402
 import numpy as np  # noqa: E402
+from stage_timing import timed  # noqa: E402  (this script's folder)
 
 import envs  # noqa: E402,F401
 from agents.training import DEFAULT_HYPERPARAMS  # noqa: E402
@@ -76,16 +77,8 @@ def env_rate(venv, n_envs: int, steps: int) -> tuple[float, float]:
     venv.step(acts[0])
     core = venv.venv.core
     steps = max(steps, 2 * core.M)
-    reset_rows, spent = core.reset_rows, [0.0]
-
-    def timed_reset_rows(*args, **kwargs):
-        t0 = time.perf_counter()
-        try:
-            return reset_rows(*args, **kwargs)
-        finally:
-            spent[0] += time.perf_counter() - t0
-
-    core.reset_rows = timed_reset_rows
+    spent = [0.0]
+    core.reset_rows = timed(core.reset_rows, spent, 0)
     try:
         t = time.perf_counter()
         for i in range(steps):

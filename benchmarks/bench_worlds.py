@@ -36,6 +36,7 @@ ROOT = os.environ.get("NAVGYM_BENCH_ROOT") or os.path.dirname(os.path.dirname(os
 sys.path.insert(0, ROOT)
 
 import numpy as np  # noqa: E402
+from stage_timing import timed  # noqa: E402  (this script's folder)
 
 STAGES = ("truth", "imu", "gnss", "rest")
 """Columns of the split; ``rest`` is the world's time less the three timed stages."""
@@ -60,18 +61,8 @@ def bench_cell(scenario, B, duration_s, reps, dtype="float64", cpu=False):
     from envs.sim import world as wmod
     acc = dict.fromkeys(_WRAPPED, 0.0)
     clock = time.process_time if cpu else time.perf_counter
-
-    def timed(stage, fn):
-        def wrapper(*a, **k):
-            t0 = clock()
-            try:
-                return fn(*a, **k)
-            finally:
-                acc[stage] += clock() - t0
-        return wrapper
-
     for stage, name in _WRAPPED.items():
-        setattr(wmod, name, timed(stage, getattr(wmod, name)))
+        setattr(wmod, name, timed(getattr(wmod, name), acc, stage, clock))
     w = _make_world(scenario, list(range(B)), duration_s, np.dtype(dtype))  # untimed: loads compiled kernels
     n = w.truth.t.shape[0]
     del w
