@@ -65,10 +65,14 @@ class ParamSpec:
             raise ValueError(f"ParamSpec {self.name}: a log1m parameter needs high < 1, got {self.high}")
         if self.map == "log" and not (self.low > 0):
             raise ValueError(f"ParamSpec {self.name}: a log parameter needs low > 0, got {self.low}")
-        # the map's end points in its own coordinate (log(low), log(high); log(1 - low), log(1 - high)), once
-        ends = {"log": (np.log(self.low), np.log(self.high)) if self.map == "log" else None,
-                "log1m": (np.log(1.0 - self.low), np.log(1.0 - self.high)) if self.map == "log1m" else None}
-        object.__setattr__(self, "_ends", ends[self.map] if self.map != "linear" else None)
+        # the end points in the map's own coordinate, once (to_value / to_action interpolate between them)
+        if self.map == "log":
+            ends = (np.log(self.low), np.log(self.high))
+        elif self.map == "log1m":
+            ends = (np.log(1.0 - self.low), np.log(1.0 - self.high))
+        else:
+            ends = (self.low, self.high)
+        object.__setattr__(self, "_ends", ends)
 
     def to_value(self, a):
         """Physical value(s) for action component(s) ``a`` in [-1, 1] (clipped)."""
@@ -86,11 +90,9 @@ class ParamSpec:
         v = np.asarray(value, np.float64)
         if self.map == "linear":
             s = (v - self.low) / (self.high - self.low)
-        elif self.map == "log":
-            s = (np.log(v) - np.log(self.low)) / (np.log(self.high) - np.log(self.low))
         else:
-            lo, hi = np.log(1.0 - self.low), np.log(1.0 - self.high)
-            s = (np.log(1.0 - v) - lo) / (hi - lo)
+            lo, hi = self._ends
+            s = ((np.log(v) if self.map == "log" else np.log(1.0 - v)) - lo) / (hi - lo)
         return 2.0 * s - 1.0
 
 
