@@ -188,6 +188,25 @@ def _frame_kernel(action, dz, S, mask, groups, ema, gdop, P, tsu, zflag, v, rose
             out[b, i] = x
 
 
+@nb.njit(cache=True)
+def _clip_if_finite(a):
+    """Clip the (B, k) actions ``a`` to [-1, 1] in place and return True when every entry is finite (the values
+    of ``np.minimum(np.maximum(a, -1), 1)``); return False, ``a`` untouched, when one is NaN or inf."""
+    B, k = a.shape
+    for b in range(B):
+        for i in range(k):
+            if not np.isfinite(a[b, i]):
+                return False
+    for b in range(B):
+        for i in range(k):
+            x = a[b, i]
+            if x < -1.0:
+                a[b, i] = -1.0
+            elif x > 1.0:
+                a[b, i] = 1.0
+    return True
+
+
 @dataclass
 class StepResult:
     """Batched result of one core step (arrays of length B)."""
@@ -365,12 +384,12 @@ class TuningCore:
             a = a[None]
         if a.shape != (self.B, self.k):
             raise ValueError(f"action must have shape ({self.k},) per env (batch {self.B}), got {np.shape(actions)}")
-        if not np.isfinite(a).all():
+        if not _clip_if_finite(a):  # one compiled pass instead of isfinite / all / maximum / minimum
             bad = np.flatnonzero(~np.isfinite(a).all(1))
             first = ", ".join(str(int(r)) for r in bad[:5]) + (", ..." if bad.size > 5 else "")
             raise ValueError(f"action contains NaN or inf in {bad.size} of {self.B} rows (rows {first}; "
                              f"row {int(bad[0])}: {a[bad[0]].tolist()})")
-        return np.minimum(np.maximum(a, -1.0, out=a), 1.0, out=a)  # = np.clip(a, -1, 1) on finite values
+        return a
 
     def step(self, actions) -> StepResult:
         """Apply the actions, integrate to the next GNSS epoch, update, and score every row."""

@@ -1,9 +1,10 @@
-"""The env core's compiled observation frame agrees with its numpy reference (``TuningCore._frame_reference``)."""
+"""The env core's compiled kernels agree with their numpy references: the observation frame
+(``TuningCore._frame_reference``) and the action check (``_clip_if_finite``)."""
 import numpy as np
 import pytest
 
 from envs.config import EnvConfig
-from envs.core import TuningCore
+from envs.core import TuningCore, _clip_if_finite
 from envs.gnss_ins_env import SAGE_HUSA_PARAMS
 
 
@@ -44,3 +45,31 @@ def test_frame_kernel_matches_reference(zupt, monkeypatch):
     late = np.array(checked[12:])
     assert late[:, :, k + 17].max() > 0  # some satellite's R scale above its reported variance
     assert np.all(late[:, :, k + 13] >= late[:, :, k + 14])  # max >= 90th percentile
+
+
+def _bits(x):
+    return x.dtype, x.shape, x.tobytes()
+
+
+@pytest.mark.parametrize("layout", ["C", "F", "strided"])
+def test_clip_if_finite_matches_numpy(layout):
+    rng = np.random.default_rng(2)
+    a = rng.uniform(-3, 3, (64, 3))
+    a[::5] = rng.choice([-1.0, 1.0, -0.0, 0.0, 1e300, -1e300, 5e-324], size=a[::5].shape)
+
+    def laid_out(x):  # a new array of x's values in the layout under test
+        return {"C": np.ascontiguousarray, "F": np.asfortranarray, "strided": lambda y: np.repeat(y, 2, 1)[:, ::2]}[
+            layout](x.copy())
+
+    want = np.minimum(np.maximum(a, -1.0), 1.0)
+    got = laid_out(a)
+    assert _clip_if_finite(got)
+    got = np.ascontiguousarray(got)
+    assert _bits(got) == _bits(want)
+    for bad in (np.nan, np.inf, -np.inf):
+        b = a.copy()
+        b[7, 1] = bad
+        untouched = b.copy()
+        b = laid_out(b)
+        assert not _clip_if_finite(b)
+        np.testing.assert_array_equal(b, untouched)  # left as it was: the error message shows the raw values
