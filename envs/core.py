@@ -207,6 +207,58 @@ def _clip_if_finite(a):
     return True
 
 
+@nb.njit(cache=True)
+def _score_kernel(h, src, advantage, nav_diverged, bound, penalty, t, M, sq_err_sum, max_err, diverged, reward,
+                  truncated):
+    """Score one step of every row (compiled :func:`_score_reference`, same values bit for bit: agreement test
+    in ``tests/envs/test_core_compiled.py``).
+
+    A row diverged where its navigator did, or its horizontal error ``h`` [m] is not finite or above ``bound``;
+    it gets the reward ``penalty``, the others ``-src`` (``src``: the horizontal or 3D error or the log of the
+    error plus its offset) or, with ``advantage``, the reference's horizontal error ``src`` (``bound`` where not
+    finite, at most ``bound``) minus ``h``. The bounded error (``bound`` where not finite) goes into
+    ``sq_err_sum`` (squared) and ``max_err``; ``t`` counts the step; ``truncated`` rows reached epoch ``M``
+    without diverging. Writes ``diverged``, ``reward``, ``truncated`` (B,) and returns the number diverged.
+    """
+    n = 0
+    for b in range(h.shape[0]):
+        x = h[b]
+        finite = np.isfinite(x)
+        d = nav_diverged[b] or not finite or x > bound
+        if d:
+            reward[b] = penalty
+            n += 1
+        elif advantage:
+            s = src[b]
+            reward[b] = (min(s, bound) if np.isfinite(s) else bound) - x
+        else:
+            reward[b] = -src[b]
+        hf = min(x, bound) if finite else bound
+        sq_err_sum[b] += hf * hf
+        if hf > max_err[b]:
+            max_err[b] = hf
+        t[b] += 1
+        diverged[b] = d
+        truncated[b] = t[b] >= M and not d
+    return n
+
+
+def _score_reference(h, src, advantage, nav_diverged, bound, penalty, t, M, sq_err_sum, max_err):
+    """The numpy specification of :func:`_score_kernel`: returns (diverged, reward, truncated) and updates
+    ``t``, ``sq_err_sum`` and ``max_err`` in place."""
+    diverged = nav_diverged | ~np.isfinite(h) | (h > bound)
+    if advantage:
+        reward = np.where(np.isfinite(src), np.minimum(src, bound), bound) - h
+    else:
+        reward = -src
+    reward = np.where(diverged, penalty, reward)
+    hf = np.where(np.isfinite(h), np.minimum(h, bound), bound)
+    sq_err_sum += hf ** 2
+    max_err[:] = np.maximum(max_err, hf)
+    t += 1
+    return diverged, reward, (t >= M) & ~diverged
+
+
 @dataclass
 class StepResult:
     """Batched result of one core step (arrays of length B)."""
@@ -244,6 +296,9 @@ class TuningCore:
         self.obs_low = np.tile(self.frame_low, config.history)
         self.obs_high = np.tile(self.frame_high, config.history)
         self.default_action = np.array([s.to_action(s.default) for s in self.specs], np.float64)
+        bound = config.divergence_bound_m
+        self._bound = float(bound)
+        self._penalty = float(-math.log(bound + LOG_REWARD_OFFSET_M) if config.reward == "log" else -bound)
         self.nav = None
         self.ref = None
         self.seeds = [None] * self.B
@@ -396,7 +451,7 @@ class TuningCore:
         a = self.check_actions(actions)
         if self.nav is None:
             raise RuntimeError("reset() must be called before step()")
-        if (self.t >= self.M).any():
+        if self.t.max() >= self.M:
             raise RuntimeError("step() on a finished episode: reset those rows first")
         self.action[:] = a
         vals = self._set_params(self.nav, a)
@@ -409,31 +464,26 @@ class TuningCore:
             self.est_track[0, j[0]] = self.nav.r[0]
         else:
             self.est_track[np.arange(self.B), j] = self.nav.r
-        bound = self.config.divergence_bound_m
-        diverged = self.nav.diverged | ~np.isfinite(h_err) | (h_err > bound)
-        if diverged.any():
+        mode = self.config.reward
+        if mode == "horizontal":
+            src = h_err
+        elif mode == "3d":
+            src = e3
+        elif mode == "log":
+            src = np.log(h_err + LOG_REWARD_OFFSET_M)
+        else:
+            src = ref_h
+        diverged, reward, truncated = np.empty(self.B, bool), np.empty(self.B), np.empty(self.B, bool)
+        n_diverged = _score_kernel(h_err, src, mode == "advantage", self.nav.diverged, self._bound, self._penalty,
+                                   self.t, self.M, self.sq_err_sum, self.max_err, diverged, reward, truncated)
+        if n_diverged:
+            bound = self.config.divergence_bound_m
             reason = np.where(self.nav.diverged, self.nav.divergence_reasons(),
                               np.where(~np.isfinite(h_err), "horizontal error not finite",
                                        np.where(h_err > bound,
                                                 f"horizontal error above divergence_bound_m ({bound:g} m)", "")))
         else:  # the common case: no strings to form
             reason = np.zeros(self.B, "<U1")  # = np.full(B, ""), cheaper
-        cfg = self.config
-        if cfg.reward == "horizontal":
-            reward = -h_err
-        elif cfg.reward == "3d":
-            reward = -e3
-        elif cfg.reward == "log":
-            reward = -np.log(h_err + LOG_REWARD_OFFSET_M)
-        else:
-            reward = np.where(np.isfinite(ref_h), np.minimum(ref_h, bound), bound) - h_err
-        penalty = -math.log(bound + LOG_REWARD_OFFSET_M) if cfg.reward == "log" else -bound
-        reward = np.where(diverged, penalty, reward)
-        hf = np.where(np.isfinite(h_err), np.minimum(h_err, bound), bound)
-        self.sq_err_sum += hf ** 2
-        self.max_err = np.maximum(self.max_err, hf)
-        self.t += 1
-        truncated = (self.t >= self.M) & ~diverged
         terminated = diverged
         frame = self._frame(res, zflag)
         self.frames[:, :-1] = self.frames[:, 1:]

@@ -1,10 +1,13 @@
 """The env core's compiled kernels agree with their numpy references: the observation frame
-(``TuningCore._frame_reference``) and the action check (``_clip_if_finite``)."""
+(``TuningCore._frame_reference``), the action check (``_clip_if_finite``) and the step's scoring
+(``_score_reference``)."""
+import math
+
 import numpy as np
 import pytest
 
 from envs.config import EnvConfig
-from envs.core import TuningCore, _clip_if_finite
+from envs.core import LOG_REWARD_OFFSET_M, TuningCore, _clip_if_finite, _score_kernel, _score_reference
 from envs.gnss_ins_env import SAGE_HUSA_PARAMS
 
 
@@ -73,3 +76,37 @@ def test_clip_if_finite_matches_numpy(layout):
         b = laid_out(b)
         assert not _clip_if_finite(b)
         np.testing.assert_array_equal(b, untouched)  # left as it was: the error message shows the raw values
+
+
+@pytest.mark.parametrize("mode", ["horizontal", "3d", "log", "advantage"])
+@pytest.mark.parametrize("B", [1, 3, 200])
+def test_score_kernel_matches_reference(mode, B):
+    """Bit for bit, on rows that diverge every way (navigator, NaN/inf error, above the bound, at the bound)."""
+    rng = np.random.default_rng(B)
+    bound = 50.0
+    penalty = -math.log(bound + LOG_REWARD_OFFSET_M) if mode == "log" else -bound
+    M = 7
+    t0 = rng.integers(0, M, B)
+    sq0, mx0 = rng.uniform(0, 1e3, B), rng.uniform(0, 60, B)
+    for trial in range(20):
+        h = rng.exponential(20.0, B)
+        e3 = h * rng.uniform(1.0, 1.5, B)
+        ref = rng.exponential(20.0, B)
+        pick = rng.random(B)
+        h[pick < 0.05] = np.nan
+        h[(pick > 0.05) & (pick < 0.1)] = np.inf
+        h[(pick > 0.1) & (pick < 0.15)] = bound
+        ref[rng.random(B) < 0.1] = np.nan
+        ref[rng.random(B) < 0.1] = np.inf
+        nav_div = rng.random(B) < 0.1
+        src = {"horizontal": h, "3d": e3, "log": np.log(h + LOG_REWARD_OFFSET_M), "advantage": ref}[mode]
+        args = (h, src, mode == "advantage", nav_div, bound, penalty)
+        t1, sq1, mx1 = t0.copy(), sq0.copy(), mx0.copy()
+        div, rew, trunc = np.empty(B, bool), np.empty(B), np.empty(B, bool)
+        n = _score_kernel(*args, t1, M, sq1, mx1, div, rew, trunc)
+        t2, sq2, mx2 = t0.copy(), sq0.copy(), mx0.copy()
+        with np.errstate(all="ignore"):
+            want = _score_reference(*args, t2, M, sq2, mx2)
+        for got_x, want_x in zip((div, rew, trunc, t1, sq1, mx1), (*want, t2, sq2, mx2)):
+            assert _bits(got_x) == _bits(want_x)
+        assert n == int(want[0].sum())
