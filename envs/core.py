@@ -108,7 +108,8 @@ LOG_REWARD_OFFSET_M = 0.1
 def _frame_kernel(action, dz, S, mask, groups, ema, gdop, P, tsu, zflag, v, rose, smax, prev_n, lo, hi, out):
     """Observation frames (B, k + len(OBS_FEATURES)) float32, same quantities as ``TuningCore._frame_reference``.
 
-    Updates the NIS moving averages ``ema`` (B, 2) in place on rows with satellites; non-finite values map
+    Updates the NIS moving averages ``ema`` (B, 2) in place on rows with satellites and ``prev_n`` (B,) to the
+    satellite counts of ``mask``; non-finite values map
     as ``np.nan_to_num`` (NaN -> 0, +-inf -> +-1e30) and every component is clipped to [lo, hi].
     """
     B, k = action.shape
@@ -176,6 +177,7 @@ def _frame_kernel(action, dz, S, mask, groups, ema, gdop, P, tsu, zflag, v, rose
         f[k + 16] = rose[b] / C
         f[k + 17] = np.log10(max(smax[b], 1e-12))
         f[k + 18] = (n - prev_n[b]) / C if prev_n[b] >= 0 else 0.0
+        prev_n[b] = n
         for i in range(f.shape[0]):
             x = f[i]
             if np.isnan(x):
@@ -485,13 +487,13 @@ class TuningCore:
         else:  # the common case: no strings to form
             reason = np.zeros(self.B, "<U1")  # = np.full(B, ""), cheaper
         terminated = diverged
-        frame = self._frame(res, zflag)
-        self.frames[:, :-1] = self.frames[:, 1:]
-        self.frames[:, -1] = frame
+        if self.config.history > 1:
+            self.frames[:, :-1] = self.frames[:, 1:]
+        frame = self._frame(res, zflag)  # written into self.frames[:, -1]
         info = {
             "horizontal_error_m": h_err, "error_3d_m": e3, "diverged": diverged, "diverged_reason": reason,
             "nis_pr": frame[:, self.k + 0].astype(np.float64), "nis_prr": frame[:, self.k + 1].astype(np.float64),
-            "n_sats": self._last_nsat.copy(), "zupt": zflag,
+            "n_sats": self.prev_nsat.copy(), "zupt": zflag,  # _frame set prev_nsat to this epoch's counts
         }
         for s in self.specs:
             info[s.name] = vals[s.name].copy()
@@ -549,20 +551,19 @@ class TuningCore:
         e3 = np.sqrt(np.add.reduce(ned * ned, axis=1))  # = np.linalg.norm(ned, axis=1), without its overhead
         if nav is self.nav:
             self._last_res, self._last_gdop, self._last_mask = res, gdop, g[6] & ~nav.diverged[:, None]
-            self._last_nsat = self._last_mask.sum(1)
         return h, e3, res, zflag
 
     def _frame(self, res, zflag):
-        """The observation frame of this epoch (compiled: :func:`_frame_kernel`; :meth:`_frame_reference`
-        is the numpy specification, agreement test in ``tests/envs/test_core_compiled.py``)."""
+        """The observation frame of this epoch, written into ``self.frames[:, -1]`` and returned (compiled:
+        :func:`_frame_kernel`; :meth:`_frame_reference` is the numpy specification, agreement test in
+        ``tests/envs/test_core_compiled.py``)."""
         groups = 2 if (self.nav.config.use_pseudorange_rate and self.has_rate) else 1
-        out = np.empty((self.B, self.frame_dim), np.float32)
+        out = self.frames[:, -1]  # the newest frame, in place
         rose, smax = self._satellite_health()
         _frame_kernel(self.action, np.ascontiguousarray(res.innovation), np.ascontiguousarray(res.innovation_var),
                       self._last_mask, groups, self.ema, self._last_gdop, self.nav.covariance,
                       self.nav.time_since_update, zflag, self.nav.v, rose, smax, self.prev_nsat, self.frame_low,
                       self.frame_high, out)
-        self.prev_nsat = self._last_mask.sum(1).astype(np.int64)
         return out
 
     def _satellite_health(self):

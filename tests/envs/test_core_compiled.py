@@ -8,7 +8,7 @@ import pytest
 
 from envs.config import EnvConfig
 from envs.core import LOG_REWARD_OFFSET_M, TuningCore, _clip_if_finite, _score_kernel, _score_reference
-from envs.gnss_ins_env import SAGE_HUSA_PARAMS
+from envs.gnss_ins_env import MASTKF_PARAMS, SAGE_HUSA_PARAMS
 
 
 @pytest.mark.parametrize("zupt", ["none", "truth"])
@@ -20,10 +20,13 @@ def test_frame_kernel_matches_reference(zupt, monkeypatch):
     def compare(res, zflag):
         ema, prev = core.ema.copy(), core.prev_nsat.copy()
         out = TuningCore._frame(core, res, zflag)
+        assert out.base is not None and np.shares_memory(out, core.frames[:, -1])  # written in place
+        out = out.copy()
         ema_new, core.ema[:] = core.ema.copy(), ema
-        prev_new, core.prev_nsat = core.prev_nsat, prev
+        prev_new, core.prev_nsat = core.prev_nsat.copy(), prev
         ref = core._frame_reference(res, zflag)
         np.testing.assert_array_equal(prev_new, core.prev_nsat)
+        np.testing.assert_array_equal(prev_new, core._last_mask.sum(1))  # the kernel's satellite counts
         assert out.dtype == ref.dtype == np.float32 and out.shape == ref.shape
         # float32 frames: log10/sqrt and the reduction order differ by a last bit at most
         np.testing.assert_allclose(out, ref, rtol=2e-7, atol=1e-7)
@@ -31,13 +34,17 @@ def test_frame_kernel_matches_reference(zupt, monkeypatch):
         return out
 
     def both(res, zflag):
+        state = core.ema.copy(), core.prev_nsat.copy()
         out = compare(res, zflag)
         saved = core._last_mask.copy()
         core._last_mask[0] = False  # an outage row: no NIS, outage flag, EMA kept
         compare(res, zflag)
         core._last_mask[:] = saved
+        core.ema[:], core.prev_nsat = state  # the step goes on from the real epoch's frame
+        new = TuningCore._frame(core, res, zflag)
+        np.testing.assert_array_equal(new, out)
         checked.append(out)
-        return out
+        return new
 
     monkeypatch.setattr(core, "_frame", both)
     rng = np.random.default_rng(0)
@@ -48,6 +55,23 @@ def test_frame_kernel_matches_reference(zupt, monkeypatch):
     late = np.array(checked[12:])
     assert late[:, :, k + 17].max() > 0  # some satellite's R scale above its reported variance
     assert np.all(late[:, :, k + 13] >= late[:, :, k + 14])  # max >= 90th percentile
+
+
+def test_frame_is_written_into_the_history_and_stacks(monkeypatch):
+    """``history > 1``: the kernel writes the newest frame into a strided view; the older frames shift."""
+    core = TuningCore(EnvConfig(scenario="noise-burst", episode_length_s=10.0, history=3, method="ma-stkf"),
+                       MASTKF_PARAMS, 2)
+    core.reset_rows(np.arange(2), [5, 6])
+    rng = np.random.default_rng(1)
+    prev = core.frames.copy()
+    for _ in range(4):
+        res = core.step(rng.uniform(-1, 1, (2, 2)))
+        np.testing.assert_array_equal(core.frames[:, :-1], prev[:, 1:])
+        np.testing.assert_array_equal(res.obs, core.frames.reshape(2, -1))
+        np.testing.assert_array_equal(res.obs[:, -core.frame_dim:][:, :2], core.action.astype(np.float32))
+        np.testing.assert_array_equal(res.info["n_sats"], core._last_mask.sum(1))
+        assert res.info["n_sats"].dtype == np.int64 and not np.shares_memory(res.info["n_sats"], core.prev_nsat)
+        prev = core.frames.copy()
 
 
 def _bits(x):
