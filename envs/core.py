@@ -298,6 +298,9 @@ class TuningCore:
         self.obs_low = np.tile(self.frame_low, config.history)
         self.obs_high = np.tile(self.frame_high, config.history)
         self.default_action = np.array([s.to_action(s.default) for s in self.specs], np.float64)
+        # the default parameter values of every row (the values of to_value on the default actions)
+        self._default_values = {s.name: s.to_value(np.full(self.B, self.default_action[i]))
+                                for i, s in enumerate(self.specs)}
         bound = config.divergence_bound_m
         self._bound = float(bound)
         self._penalty = float(-math.log(bound + LOG_REWARD_OFFSET_M) if config.reward == "log" else -bound)
@@ -317,9 +320,13 @@ class TuningCore:
                              f"({', '.join(s.name for s in self.specs)}); choose an adaptive method")
         return nav
 
-    def _set_params(self, nav, action):
-        """Set the filter parameters of every row of ``nav`` from the (B, k) actions."""
-        vals = {s.name: s.to_value(action[:, i]) for i, s in enumerate(self.specs)}
+    def _set_params(self, nav, action=None):
+        """Set the filter parameters of every row of ``nav`` from the (B, k) actions (None: the defaults, the
+        reference navigator's parameters at every step of ``reward='advantage'``); returns them."""
+        if action is None:  # copies: a form may keep (and a row reset write into) the arrays it is given
+            vals = {name: v.copy() for name, v in self._default_values.items()}
+        else:
+            vals = {s.name: s.to_value(action[:, i]) for i, s in enumerate(self.specs)}
         nav.form.set_params(**vals)
         return vals
 
@@ -460,7 +467,7 @@ class TuningCore:
         j = self.t  # per-row epoch index (rows may be at different epochs after partial resets)
         h_err, e3, res, zflag = self._advance(self.nav, j)
         if self.ref is not None:
-            self._set_params(self.ref, np.broadcast_to(self.default_action, a.shape))
+            self._set_params(self.ref)
             ref_h, ref_3d, _, _ = self._advance(self.ref, j)
         if self.B == 1:
             self.est_track[0, j[0]] = self.nav.r[0]
@@ -618,8 +625,9 @@ class TuningCore:
     WORLD_ARRAYS = ("f", "w", "sat_pos", "sat_vel", "pr", "prr", "pr_sigma", "prr_sigma", "gmask", "truth_r",
                     "truth_Cne", "truth_still", "truth_still_n", "origin", "origin_Cne", "sat_keys", "odo")
     """Per-row world arrays (a function of the row's world seed: rows with equal seeds hold equal worlds)."""
-    SHARED_ATTRS = frozenset({"config", "specs", "scenario", "epoch_idx", "default_action", "frame_low",
-                              "frame_high", "obs_low", "obs_high", "nav", "ref", "seeds", "_zupt", "_last_res"})
+    SHARED_ATTRS = frozenset({"config", "specs", "scenario", "epoch_idx", "default_action", "_default_values",
+                              "frame_low", "frame_high", "obs_low", "obs_high", "nav", "ref", "seeds", "_zupt",
+                              "_last_res"})
     """Attributes :meth:`copy_rows` does not copy generically: shared by all rows (their length may equal B by
     chance) or copied by their own rule. Every other ndarray with leading axis B is per-row state."""
 
@@ -672,8 +680,8 @@ class TuningCore:
         the world arrays and the other shared read-only attributes are shared with this core (nothing
         writes them in place; :meth:`copy_rows` replaces an array instead of writing into it)."""
         memo = {id(getattr(self, n)): getattr(self, n) for n in self.WORLD_ARRAYS if hasattr(self, n)}
-        for n in ("config", "specs", "scenario", "epoch_idx", "default_action", "frame_low", "frame_high",
-                  "obs_low", "obs_high"):
+        for n in ("config", "specs", "scenario", "epoch_idx", "default_action", "_default_values", "frame_low",
+                  "frame_high", "obs_low", "obs_high"):
             if hasattr(self, n):
                 memo[id(getattr(self, n))] = getattr(self, n)
         return copy.deepcopy(self, memo)

@@ -134,3 +134,17 @@ def test_score_kernel_matches_reference(mode, B):
         for got_x, want_x in zip((div, rew, trunc, t1, sq1, mx1), (*want, t2, sq2, mx2)):
             assert _bits(got_x) == _bits(want_x)
         assert n == int(want[0].sum())
+
+
+def test_default_parameters_are_to_value_of_the_default_actions():
+    """The reference navigator's parameters (``_set_params(nav)``): fresh copies equal to ``to_value`` of the
+    default actions, as passing those actions gives."""
+    core = TuningCore(EnvConfig(scenario="noise-burst", episode_length_s=5.0, reward="advantage", method="ma-stkf"),
+                       MASTKF_PARAMS, 3)
+    core.reset_rows(np.arange(3), [1, 2, 3])
+    got = core._set_params(core.ref)
+    want = core._set_params(core.ref, np.broadcast_to(core.default_action, (3, core.k)))
+    assert list(got) == list(want)
+    for name in got:
+        assert _bits(got[name]) == _bits(want[name])
+        assert not np.shares_memory(got[name], core._default_values[name])
