@@ -41,11 +41,40 @@ DEFAULT_SETTINGS = dict(n_timesteps=100_000, n_envs=16, normalize=True, env_kwar
 """Run settings of ``train.py rl`` without ``--quick`` or a config file (``hyperparams/*.yml`` repeat them for
 RL Zoo). ``torch_threads``: the policies are small (64-unit layers, a 32-unit LSTM), where torch's
 intra-op threads cost more than they give: on 2 busy cores RecurrentPPO's quick preset ran at 48 env-steps/s
-with torch's default 2 threads and 282 with 1 (``benchmarks/bench_recurrent.py``)."""
+with torch's default 2 threads and 282 with 1 (``benchmarks/bench_recurrent.py``); applied with
+:func:`set_torch_threads`, which keeps numba's kernels from resetting it."""
 QUICK = dict(n_timesteps=24_576, n_envs=8, env_kwargs=dict(episode_length_s=60.0), eval_freq=1536, eval_episodes=8,
              hyper=dict(ppo=dict(n_steps=64, batch_size=256, n_epochs=5),
                         recurrentppo=dict(n_steps=128, batch_size=512, n_epochs=5),
                         sac=dict(learning_starts=512), td3=dict(learning_starts=512)))
+
+
+def set_torch_threads(n: int) -> None:
+    """Run torch's intra-op work on ``n`` threads from now on, leaving numba's kernels their own threads.
+
+    Numba's ``omp`` threading layer and torch share one OpenMP runtime (libgomp). When numba starts that
+    layer, at the first parallel kernel a process runs (the envs' kernels are parallel from
+    ``PARALLEL_MIN_BATCH`` = 64 rows), it calls ``omp_set_num_threads(NUMBA_NUM_THREADS)`` once, which is
+    also torch's intra-op thread count: a ``torch.set_num_threads(n)`` made before then is silently undone for
+    the rest of the run (the policy's forward passes and ``train()`` ran on 2 threads with ``n = 1``). This
+    starts numba's threading layer first (``numba.get_num_threads`` does; nothing when it is running already)
+    and then sets torch's count, which holds: numba's later launches pass their own thread count to each
+    parallel region (``num_threads`` clause) and change neither torch's count nor take it.
+
+    Measured (PPO at n_envs 64 with :data:`DEFAULT_HYPERPARAMS`, one process, the three states interleaved,
+    2 cores shared with other work): 1 torch thread 1278 env-steps/s (median of 4 rollouts, ``train()`` 0.8-1.2
+    s per rollout), the silently overridden state 534 (``train()`` 5-10 s), torch on 2 threads 308 (``train()``
+    11-37 s); in rounds with the cores less busy all three ran at 3850-4520.
+
+    Parameters
+    ----------
+    n : torch's intra-op threads (``torch.set_num_threads``), >= 1.
+    """
+    import numba
+    import torch
+
+    numba.get_num_threads()  # starts numba's threading layer (its one-time omp_set_num_threads) before ours
+    torch.set_num_threads(int(n))
 
 
 def load_zoo_config(path, env_id: str) -> dict:
@@ -172,8 +201,7 @@ def train_rl(env_id: str, algo: str, out, timesteps: int | None = None, seed: in
     if settings["normalize"]:
         venv = VecNormalize(venv, norm_obs=True, norm_reward=True, gamma=hyper.get("gamma", 0.99))
         eval_env = VecNormalize(eval_env, norm_obs=True, norm_reward=False, training=False)
-    import torch
-    torch.set_num_threads(int(settings["torch_threads"]))
+    set_torch_threads(settings["torch_threads"])
     cls = algo_class(algo)
     policy = hyper.pop("policy")
     model = cls(policy, venv, seed=seed, device="cpu", verbose=0, **hyper)

@@ -13,7 +13,8 @@ For every ``n_envs`` of ``--n-envs`` (default 16, 64, 256) and every mode of ``-
 
 and the share of the learning time spent outside the env (PPO's rollout glue, the policy forward passes and
 the gradient epochs). PPO runs with the hyperparameters of ``train.py rl`` (``agents.training.DEFAULT_HYPERPARAMS
-['ppo']``: n_steps 128, batch 256, 10 epochs, [64, 64] MLP; torch on one thread as ``train.py`` sets it),
+['ppo']``: n_steps 128, batch 256, 10 epochs, [64, 64] MLP; torch on one thread as ``train.py`` sets it,
+:func:`agents.training.set_torch_threads`),
 without VecNormalize. Each cell first learns one rollout (JIT compilation, first resets), then times
 ``--rollouts`` rollouts (``n_steps x n_envs`` env steps each).
 
@@ -46,6 +47,16 @@ import envs  # noqa: E402,F401
 from agents.training import DEFAULT_HYPERPARAMS  # noqa: E402
 from envs.sb3 import make_sb3_vec_env  # noqa: E402
 
+try:
+    from agents.training import set_torch_threads  # noqa: E402  (torch's thread count as train.py rl sets it)
+except ImportError:  # a source tree before it (--compare): the same two steps
+    def set_torch_threads(n: int) -> None:
+        """Numba's threading layer started first (its one-time ``omp_set_num_threads``), then torch's threads."""
+        import numba
+        import torch
+        numba.get_num_threads()
+        torch.set_num_threads(n)
+
 MODES = {"exact": dict(exact_transition=True, fused_update=False),
          "averaged": dict(exact_transition=False, fused_update=False),
          "fused": dict(exact_transition=False, fused_update=True)}
@@ -54,9 +65,8 @@ MODES = {"exact": dict(exact_transition=True, fused_update=False),
 
 def learn_rate(venv, n_envs: int, rollouts: int) -> float:
     """Env-steps/s of ``PPO.learn`` over ``rollouts`` rollouts after one warm-up rollout."""
-    import torch
     from stable_baselines3 import PPO
-    torch.set_num_threads(1)
+    set_torch_threads(1)  # as train.py rl sets it: after numba's threading layer starts, so that it holds
     hp = dict(DEFAULT_HYPERPARAMS["ppo"])
     policy = hp.pop("policy")
     model = PPO(policy, venv, seed=0, device="cpu", verbose=0, **hp)

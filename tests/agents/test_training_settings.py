@@ -1,7 +1,18 @@
-"""train.py rl settings: torch_threads from a config file is validated before any work."""
+"""train.py rl settings: torch_threads from a config file is validated before any work, and holds for torch's
+work during training even after the env's parallel numba kernels have started numba's threading layer."""
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
 import pytest
 
 from agents.training import train_rl
+from nav_filters.kernels import PARALLEL_MIN_BATCH
+
+ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.mark.parametrize("value", ["0", "2.5", "many"])
@@ -12,3 +23,48 @@ def test_torch_threads_must_be_a_positive_int(tmp_path, value):
         train_rl("GnssIns/SageHusa-v0", "ppo", tmp_path / "out", config_file=cfg, progress=False)
     assert not (tmp_path / "out").exists()
 
+
+CHILD = textwrap.dedent("""
+    import json, sys
+    import numba, torch
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.policies import ActorCriticPolicy
+    from agents.training import train_rl
+
+    seen = {"forward": set(), "train": set()}
+    forward, train = ActorCriticPolicy.forward, PPO.train
+
+    def counted_forward(self, *a, **k):
+        seen["forward"].add(torch.get_num_threads())
+        return forward(self, *a, **k)
+
+    def counted_train(self):
+        seen["train"].add(torch.get_num_threads())
+        return train(self)
+
+    ActorCriticPolicy.forward, PPO.train = counted_forward, counted_train
+    train_rl("GnssIns/SageHusa-v0", "ppo", sys.argv[1], config_file=sys.argv[2], progress=False)
+    print(json.dumps({"numba": numba.get_num_threads(), **{k: sorted(v) for k, v in seen.items()}}))
+""")
+
+
+def test_torch_threads_hold_after_numba_parallel_kernels(tmp_path):
+    """In a fresh process (numba's threading layer not yet started; in this one earlier tests may have started
+    it), a PPO run at n_envs >= PARALLEL_MIN_BATCH (the env's kernels run parallel, on numba's 2 threads) sees
+    torch at the configured 1 thread in every policy forward pass and in ``train()``. Before the fix numba's
+    start (its one-time ``omp_set_num_threads(2)`` in the OpenMP runtime torch shares) set torch to 2 from the
+    first env step on: forward passes [1, 2], train [2]."""
+    n_envs = 64
+    assert n_envs >= PARALLEL_MIN_BATCH
+    cfg = tmp_path / "c.yml"
+    cfg.write_text("GnssIns/SageHusa-v0:\n"
+                   f"  n_envs: {n_envs}\n  n_timesteps: {2 * n_envs}\n  n_steps: 2\n  batch_size: {n_envs}\n"
+                   "  n_epochs: 1\n  normalize: false\n  eval_episodes: 1\n  torch_threads: 1\n"
+                   "  env_kwargs: {episode_length_s: 5.0}\n")
+    env = dict(os.environ, NUMBA_NUM_THREADS="2", PYTHONPATH=os.pathsep.join(
+        [str(ROOT)] + [p for p in [os.environ.get("PYTHONPATH")] if p]))
+    p = subprocess.run([sys.executable, "-c", CHILD, str(tmp_path / "out"), str(cfg)], cwd=ROOT, env=env,
+                       capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr[-2000:]
+    seen = json.loads(p.stdout.strip().splitlines()[-1])
+    assert seen == {"numba": 2, "forward": [1], "train": [1]}
