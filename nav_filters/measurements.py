@@ -226,7 +226,8 @@ def _innovations_kernel(r, v, clk, drift, sat_pos, sat_vel, pr, prr, pr_var, prr
 
 
 def _f64(a):
-    return np.ascontiguousarray(a, dtype=np.float64)
+    """``a`` as float64, strided views read in place (an epoch's slice of a world's (B, epochs, ...) arrays)."""
+    return np.asarray(a, dtype=np.float64)
 
 
 def gnss_innovations(r_e, v_e, clk_m, drift_mps, sat_pos, sat_vel, pr, prr, pr_var, prr_var, mask,

@@ -213,8 +213,9 @@ class Navigator:
             each sample interval (raw: the navigator subtracts its bias estimates).
         dt : sample interval [s] (> 0).
         """
-        f = np.ascontiguousarray(f_raw, dtype=np.float64)
-        w = np.ascontiguousarray(w_raw, dtype=np.float64)
+        # a strided view (an epoch's slice of a (B, samples, 3) recording) is read in place, not copied
+        f = np.asarray(f_raw, dtype=np.float64)
+        w = np.asarray(w_raw, dtype=np.float64)
         B = self.batch_size
         if f.ndim != 3 or f.shape[0] != B or f.shape[2] != 3 or w.shape != f.shape:
             raise ValueError(f"f_raw and w_raw must both have shape ({B}, n, 3), got {f.shape} and {w.shape}")
