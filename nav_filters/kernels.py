@@ -372,6 +372,15 @@ PARALLEL_MIN_BATCH = 64
 2 cores its worker threads compete with BLAS threads still spinning after the caller's last matmul."""
 
 
+def row_kernel(serial, parallel, B: int):
+    """``(kernel, nchunk)`` for a row kernel of :func:`serial_and_parallel` over ``B`` rows: the serial variant
+    in one chunk below :data:`PARALLEL_MIN_BATCH` rows, else the parallel one over ``4 x threads`` chunks (each
+    chunk allocates its scratch once; a row's arithmetic does not depend on the chunking)."""
+    if B >= PARALLEL_MIN_BATCH:
+        return parallel, min(B, 4 * nb.get_num_threads())
+    return serial, 1
+
+
 def propagate_epoch(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, Cz, qg, qa, qdiag, kg, ka,
                     Phi_acc, Q_acc, exact, orthonormalize, nz, integrate=False):
     """Compiled epoch propagation (see :func:`_propagate_epoch`); parallel over rows for B >= 64."""
