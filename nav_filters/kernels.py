@@ -372,6 +372,15 @@ PARALLEL_MIN_BATCH = 64
 2 cores its worker threads compete with BLAS threads still spinning after the caller's last matmul."""
 
 
+def row_kernel(serial, parallel, B: int):
+    """``(kernel, nchunk)`` for a row kernel of :func:`serial_and_parallel` over ``B`` rows: the serial variant
+    in one chunk below :data:`PARALLEL_MIN_BATCH` rows, else the parallel one over ``4 x threads`` chunks (each
+    chunk allocates its scratch once; a row's arithmetic does not depend on the chunking)."""
+    if B >= PARALLEL_MIN_BATCH:
+        return parallel, min(B, 4 * nb.get_num_threads())
+    return serial, 1
+
+
 def propagate_epoch(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, Cz, qg, qa, qdiag, kg, ka,
                     Phi_acc, Q_acc, exact, orthonormalize, nz, integrate=False):
     """Compiled epoch propagation (see :func:`_propagate_epoch`); parallel over rows for B >= 64."""
@@ -383,6 +392,54 @@ def propagate_epoch(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, Cz
 
 
 # ----------------------------------------------------------------------------- small dense helpers
+def scale_symmetric(R, s, keep=None):
+    """``D R D`` with ``D = diag(s)`` per row, compiled (:func:`scale_symmetric_reference` is the numpy
+    specification; same products in the same order, so the same bits, float32 and float64).
+
+    Parameters
+    ----------
+    R : (B, m, m) covariance (a measurement noise R); s : (B, m) scales (the square roots of variance
+        factors); keep : optional (B, m) bool: where False the row's diagonal entry is set to 1 (the
+        documented neutral value of a masked measurement row).
+
+    Returns
+    -------
+    (B, m, m) new array of dtype ``result_type(R, s)``, parallel over rows for B >= 64.
+    """
+    R = np.ascontiguousarray(R)
+    s = np.ascontiguousarray(s)
+    B, m = s.shape
+    out = np.empty(R.shape, np.result_type(R.dtype, s.dtype))
+    k = np.ones((B, m), np.bool_) if keep is None else np.ascontiguousarray(keep, np.bool_)
+    kern = _scale_parallel if B >= PARALLEL_MIN_BATCH else _scale_serial
+    kern(R, s, k, out)
+    return out
+
+
+def scale_symmetric_reference(R, s, keep=None):
+    """Numpy specification of :func:`scale_symmetric`: ``R * s[:, :, None] * s[:, None, :]``, then 1 on the
+    diagonal entries of the rows where ``keep`` is False."""
+    out = R * s[:, :, None] * s[:, None, :]
+    if keep is not None:
+        idx = np.arange(out.shape[1])
+        out[:, idx, idx] = np.where(keep, out[:, idx, idx], 1)
+    return out
+
+
+def _scale_rows(R, s, keep, out):
+    B, m = s.shape
+    for b in nb.prange(B):
+        for i in range(m):
+            si = s[b, i]
+            for j in range(m):
+                out[b, i, j] = R[b, i, j] * si * s[b, j]
+            if not keep[b, i]:
+                out[b, i, i] = 1
+
+
+_scale_serial, _scale_parallel = serial_and_parallel(_scale_rows)
+
+
 @nb.njit(cache=True)
 def cholesky_inplace(A, rel_tol):
     """``A = L L^T`` in place (lower triangle of the square A); False when a pivot is not above

@@ -36,6 +36,7 @@ import numpy as np
 from earth.ranging import range_and_rate, range_rate_pair
 
 from .error_model import CLK, DRIFT, N_STATES, POS, VEL
+from .kernels import row_kernel, serial_and_parallel
 
 # ----------------------------------------------------------------------------- satellite identity
 SYSTEMS = ("G", "R", "E", "C", "J", "S")
@@ -196,37 +197,42 @@ def dop_reference(u, mask):
 _POS0, _VEL0, _CLK0, _DRIFT0 = POS.start, VEL.start, CLK.start, DRIFT.start
 
 
-@nb.njit(cache=True)
-def _innovations_kernel(r, v, clk, drift, sat_pos, sat_vel, pr, prr, pr_var, prr_var, mask, with_rate,
-                        dz, H, R, row_mask, u):
-    """Fill dz, H (zeroed by the caller), R, row_mask, u for every row and channel (see the reference)."""
+def _innovations_rows(r, v, clk, drift, sat_pos, sat_vel, pr, prr, pr_var, prr_var, mask, with_rate,
+                      dz, H, R, row_mask, u, nchunk):
+    """Fill dz, H (zeroed by the caller), R, row_mask, u for every row and channel (see the reference);
+    rows in ``nchunk`` chunks (parallel in the parallel variant), each row's arithmetic the same."""
     B, C = mask.shape
-    uu = np.empty(3)
-    for b in range(B):
-        for j in range(C):
-            rho, rho_dot = range_rate_pair(sat_pos[b, j, 0], sat_pos[b, j, 1], sat_pos[b, j, 2],
-                                           sat_vel[b, j, 0], sat_vel[b, j, 1], sat_vel[b, j, 2],
-                                           r[b, 0], r[b, 1], r[b, 2], v[b, 0], v[b, 1], v[b, 2], 3, uu)
-            m = mask[b, j]
-            for i in range(3):
-                u[b, j, i] = uu[i]
-                H[b, j, _POS0 + i] = -uu[i]
-            H[b, j, _CLK0] = 1.0
-            dz[b, j] = pr[b, j] - (rho + clk[b]) if m else 0.0
-            R[b, j] = pr_var[b, j] if m else 1.0
-            row_mask[b, j] = m
-            if with_rate:
-                k = C + j
+    for c in nb.prange(nchunk):
+        uu = np.empty(3)
+        for b in range(c * B // nchunk, (c + 1) * B // nchunk):
+            for j in range(C):
+                rho, rho_dot = range_rate_pair(sat_pos[b, j, 0], sat_pos[b, j, 1], sat_pos[b, j, 2],
+                                               sat_vel[b, j, 0], sat_vel[b, j, 1], sat_vel[b, j, 2],
+                                               r[b, 0], r[b, 1], r[b, 2], v[b, 0], v[b, 1], v[b, 2], 3, uu)
+                m = mask[b, j]
                 for i in range(3):
-                    H[b, k, _VEL0 + i] = -uu[i]
-                H[b, k, _DRIFT0] = 1.0
-                dz[b, k] = prr[b, j] - (rho_dot + drift[b]) if m else 0.0
-                R[b, k] = prr_var[b, j] if m else 1.0
-                row_mask[b, k] = m
+                    u[b, j, i] = uu[i]
+                    H[b, j, _POS0 + i] = -uu[i]
+                H[b, j, _CLK0] = 1.0
+                dz[b, j] = pr[b, j] - (rho + clk[b]) if m else 0.0
+                R[b, j] = pr_var[b, j] if m else 1.0
+                row_mask[b, j] = m
+                if with_rate:
+                    k = C + j
+                    for i in range(3):
+                        H[b, k, _VEL0 + i] = -uu[i]
+                    H[b, k, _DRIFT0] = 1.0
+                    dz[b, k] = prr[b, j] - (rho_dot + drift[b]) if m else 0.0
+                    R[b, k] = prr_var[b, j] if m else 1.0
+                    row_mask[b, k] = m
+
+
+_innovations_serial, _innovations_parallel = serial_and_parallel(_innovations_rows)
 
 
 def _f64(a):
-    return np.ascontiguousarray(a, dtype=np.float64)
+    """``a`` as float64, strided views read in place (an epoch's slice of a world's (B, epochs, ...) arrays)."""
+    return np.asarray(a, dtype=np.float64)
 
 
 def gnss_innovations(r_e, v_e, clk_m, drift_mps, sat_pos, sat_vel, pr, prr, pr_var, prr_var, mask,
@@ -252,8 +258,9 @@ def gnss_innovations(r_e, v_e, clk_m, drift_mps, sat_pos, sat_vel, pr, prr, pr_v
         prr64, prr_var64 = _f64(prr), _f64(prr_var)
     else:
         prr64 = prr_var64 = pr64
-    _innovations_kernel(_f64(r_e), _f64(v_e), _f64(clk_m), _f64(drift_mps), _f64(sat_pos), _f64(sat_vel),
-                        pr64, prr64, _f64(pr_var), prr_var64, mask, with_rate, dz, H, R, row_mask, u)
+    kern, nchunk = row_kernel(_innovations_serial, _innovations_parallel, B)
+    kern(_f64(r_e), _f64(v_e), _f64(clk_m), _f64(drift_mps), _f64(sat_pos), _f64(sat_vel),
+         pr64, prr64, _f64(pr_var), prr_var64, mask, with_rate, dz, H, R, row_mask, u, nchunk)
     return dz, H, R, row_mask, u
 
 

@@ -62,7 +62,7 @@ from .registry import make_form, parse_method
 from .forms.base import check_dtype
 from .ins import _earth_rate_matrices_np, apply_correction
 from .averaged_transition import averaged_transition_into
-from .kernels import F_NONZERO, cholesky_inplace, propagate_epoch
+from .kernels import F_NONZERO, cholesky_inplace, propagate_epoch, row_kernel, serial_and_parallel
 from .measurements import dop, gnss_innovations, measurement_keys
 from .rows import check_row_pairs, copy_rows_generic
 
@@ -213,8 +213,9 @@ class Navigator:
             each sample interval (raw: the navigator subtracts its bias estimates).
         dt : sample interval [s] (> 0).
         """
-        f = np.ascontiguousarray(f_raw, dtype=np.float64)
-        w = np.ascontiguousarray(w_raw, dtype=np.float64)
+        # a strided view (an epoch's slice of a (B, samples, 3) recording) is read in place, not copied
+        f = np.asarray(f_raw, dtype=np.float64)
+        w = np.asarray(w_raw, dtype=np.float64)
         B = self.batch_size
         if f.ndim != 3 or f.shape[0] != B or f.shape[2] != 3 or w.shape != f.shape:
             raise ValueError(f"f_raw and w_raw must both have shape ({B}, n, 3), got {f.shape} and {w.shape}")
@@ -409,7 +410,7 @@ class Navigator:
     def _feedback(self, dx):
         """Closed-loop correction: add the error-state estimate to the nominal state (B, 17).
 
-        Compiled (:func:`_feedback_kernel`); :meth:`_feedback_reference` is the numpy specification
+        Compiled (:func:`_feedback_rows`); :meth:`_feedback_reference` is the numpy specification
         (agreement test in ``tests/nav_filters/test_kernels.py``)."""
         dx = np.ascontiguousarray(dx, np.float64)
         P = self.form.covariance
@@ -418,8 +419,9 @@ class Navigator:
         C = np.empty((B, 3, 3))
         clk, drift = np.empty(B), np.empty(B)
         code = np.empty(B, np.int8)
-        _feedback_kernel(self.r, self.v, self.C, self.bg, self.ba, self.clk, self.drift, dx, self.diverged,
-                         P, r, v, C, bg, ba, clk, drift, code)
+        kern, nchunk = row_kernel(_feedback_serial, _feedback_parallel, B)
+        kern(self.r, self.v, self.C, self.bg, self.ba, self.clk, self.drift, dx, self.diverged,
+             P, r, v, C, bg, ba, clk, drift, code, nchunk)
         self.r, self.v, self.C, self.bg, self.ba, self.clk, self.drift = r, v, C, bg, ba, clk, drift
         if code.any():
             for c in (REASON_STATE, REASON_COVARIANCE):
@@ -532,8 +534,7 @@ def _nonfinite_rows(r, v, C, clk, drift, diverged, bad):
         bad[b] = not ok and not diverged[b]
 
 
-@nb.njit(cache=True)
-def _feedback_kernel(r, v, C, bg, ba, clk, drift, dx, diverged, P, r2, v2, C2, bg2, ba2, clk2, drift2, code):
+def _feedback_rows(r, v, C, bg, ba, clk, drift, dx, diverged, P, r2, v2, C2, bg2, ba2, clk2, drift2, code, nchunk):
     """Compiled closed-loop feedback (same operations, in the same order, as :meth:`Navigator._feedback_reference`).
 
     ``C2 = exp([phi x]) C`` (Rodrigues, :func:`earth.rotations.exp_so3`, Taylor series below 1e-4 rad),
@@ -545,66 +546,70 @@ def _feedback_kernel(r, v, C, bg, ba, clk, drift, dx, diverged, P, r2, v2, C2, b
     """
     B = r.shape[0]
     n = P.shape[1]
-    L = np.empty((n, n))
-    idx = np.empty(n, np.int64)
-    S = np.empty((3, 3))
-    E = np.empty((3, 3))
-    for b in range(B):
-        if diverged[b]:
-            for i in range(3):
-                r2[b, i] = r[b, i]
-                v2[b, i] = v[b, i]
-                bg2[b, i] = bg[b, i]
-                ba2[b, i] = ba[b, i]
-                for j in range(3):
-                    C2[b, i, j] = C[b, i, j]
-            clk2[b] = clk[b]
-            drift2[b] = drift[b]
-        else:
-            p0 = dx[b, _ATT0]
-            p1 = dx[b, _ATT0 + 1]
-            p2 = dx[b, _ATT0 + 2]
-            th2 = p0 * p0 + p1 * p1 + p2 * p2
-            th = np.sqrt(th2)
-            if th < 1e-4:
-                a = 1.0 - th2 / 6.0 + th2 * th2 / 120.0
-                c = 0.5 - th2 / 24.0 + th2 * th2 / 720.0
+    for ch in nb.prange(nchunk):  # rows in chunks (parallel in the parallel variant), scratch per chunk
+        L = np.empty((n, n))
+        idx = np.empty(n, np.int64)
+        S = np.empty((3, 3))
+        E = np.empty((3, 3))
+        for b in range(ch * B // nchunk, (ch + 1) * B // nchunk):
+            if diverged[b]:
+                for i in range(3):
+                    r2[b, i] = r[b, i]
+                    v2[b, i] = v[b, i]
+                    bg2[b, i] = bg[b, i]
+                    ba2[b, i] = ba[b, i]
+                    for j in range(3):
+                        C2[b, i, j] = C[b, i, j]
+                clk2[b] = clk[b]
+                drift2[b] = drift[b]
             else:
-                a = np.sin(th) / th
-                c = (1.0 - np.cos(th)) / (th * th)
-            S[0, 0] = 0.0
-            S[0, 1] = -p2
-            S[0, 2] = p1
-            S[1, 0] = p2
-            S[1, 1] = 0.0
-            S[1, 2] = -p0
-            S[2, 0] = -p1
-            S[2, 1] = p0
-            S[2, 2] = 0.0
+                p0 = dx[b, _ATT0]
+                p1 = dx[b, _ATT0 + 1]
+                p2 = dx[b, _ATT0 + 2]
+                th2 = p0 * p0 + p1 * p1 + p2 * p2
+                th = np.sqrt(th2)
+                if th < 1e-4:
+                    a = 1.0 - th2 / 6.0 + th2 * th2 / 120.0
+                    c = 0.5 - th2 / 24.0 + th2 * th2 / 720.0
+                else:
+                    a = np.sin(th) / th
+                    c = (1.0 - np.cos(th)) / (th * th)
+                S[0, 0] = 0.0
+                S[0, 1] = -p2
+                S[0, 2] = p1
+                S[1, 0] = p2
+                S[1, 1] = 0.0
+                S[1, 2] = -p0
+                S[2, 0] = -p1
+                S[2, 1] = p0
+                S[2, 2] = 0.0
+                for i in range(3):
+                    for j in range(3):
+                        ss = S[i, 0] * S[0, j] + S[i, 1] * S[1, j] + S[i, 2] * S[2, j]
+                        E[i, j] = ((1.0 if i == j else 0.0) + a * S[i, j]) + c * ss
+                for i in range(3):
+                    for j in range(3):
+                        C2[b, i, j] = E[i, 0] * C[b, 0, j] + E[i, 1] * C[b, 1, j] + E[i, 2] * C[b, 2, j]
+                    r2[b, i] = r[b, i] + dx[b, _POS0 + i]
+                    v2[b, i] = v[b, i] + dx[b, _VEL0 + i]
+                    bg2[b, i] = bg[b, i] + dx[b, _BG0 + i]
+                    ba2[b, i] = ba[b, i] + dx[b, _BA0 + i]
+                clk2[b] = clk[b] + dx[b, _CLK0]
+                drift2[b] = drift[b] + dx[b, _DRIFT0]
+            ok = True
             for i in range(3):
+                ok = ok and np.isfinite(r2[b, i]) and np.isfinite(v2[b, i])
                 for j in range(3):
-                    ss = S[i, 0] * S[0, j] + S[i, 1] * S[1, j] + S[i, 2] * S[2, j]
-                    E[i, j] = ((1.0 if i == j else 0.0) + a * S[i, j]) + c * ss
-            for i in range(3):
-                for j in range(3):
-                    C2[b, i, j] = E[i, 0] * C[b, 0, j] + E[i, 1] * C[b, 1, j] + E[i, 2] * C[b, 2, j]
-                r2[b, i] = r[b, i] + dx[b, _POS0 + i]
-                v2[b, i] = v[b, i] + dx[b, _VEL0 + i]
-                bg2[b, i] = bg[b, i] + dx[b, _BG0 + i]
-                ba2[b, i] = ba[b, i] + dx[b, _BA0 + i]
-            clk2[b] = clk[b] + dx[b, _CLK0]
-            drift2[b] = drift[b] + dx[b, _DRIFT0]
-        ok = True
-        for i in range(3):
-            ok = ok and np.isfinite(r2[b, i]) and np.isfinite(v2[b, i])
-            for j in range(3):
-                ok = ok and np.isfinite(C2[b, i, j])
-        if not ok:
-            code[b] = REASON_STATE
-        elif not diverged[b] and not _row_is_pd(P, b, L, idx):
-            code[b] = REASON_COVARIANCE
-        else:
-            code[b] = 0
+                    ok = ok and np.isfinite(C2[b, i, j])
+            if not ok:
+                code[b] = REASON_STATE
+            elif not diverged[b] and not _row_is_pd(P, b, L, idx):
+                code[b] = REASON_COVARIANCE
+            else:
+                code[b] = 0
+
+
+_feedback_serial, _feedback_parallel = serial_and_parallel(_feedback_rows)
 
 
 @nb.njit(cache=True)

@@ -27,7 +27,7 @@ import numpy as np
 
 from ..error_model import CLK, DRIFT, N_STATES
 from ..kernels import (cholesky_inplace as _cholesky_inplace, cholesky_solve as _cholesky_solve,
-                       row_nonzeros as _row_nonzeros)
+                       row_kernel, row_nonzeros as _row_nonzeros, serial_and_parallel)
 
 _CLK0, _DRIFT0 = CLK.start, DRIFT.start
 
@@ -106,52 +106,56 @@ class InnovationTraces:
 def innovation_traces(dz, H, prior, Q, R, mask) -> InnovationTraces:
     """Innovation energy and the traces of the predicted innovation covariance (seed 003 eqs 12, 21).
 
-    Compiled (:func:`_traces_kernel`, structural zeros of H skipped); the parameters, returns and
+    Compiled (:func:`_traces_rows`, structural zeros of H skipped); the parameters, returns and
     equations are documented on its numpy specification :func:`innovation_traces_reference` (agreement
     test in tests/nav_filters/test_compiled_update.py).
     """
     B = dz.shape[0]
     c = np.ascontiguousarray
     out = np.empty((4, B))
-    _traces_kernel(c(dz), c(H), c(prior), c(prior if Q is None else Q), Q is not None, c(R), c(mask, bool), out)
+    kern, nchunk = row_kernel(_traces_serial, _traces_parallel, B)
+    kern(c(dz), c(H), c(prior), c(prior if Q is None else Q), Q is not None, c(R), c(mask, bool), out, nchunk)
     dt = np.result_type(dz.dtype, H.dtype, prior.dtype)
     tr_m, tr_q, tr_r, energy = (a.astype(dt) for a in out)
     return InnovationTraces(energy=energy, tr_m=tr_m, tr_q=tr_q, tr_r=tr_r, n_used=mask.sum(-1))
 
 
-@nb.njit(cache=True)
-def _traces_kernel(dz, H, prior, Q, with_q, R, mask, out):
+def _traces_rows(dz, H, prior, Q, with_q, R, mask, out, nchunk):
     """Rows of ``out`` (4, B): tr(H prior H^T), tr(H Q H^T), tr(R), ||dz||^2 over the used rows."""
     B, m, n = H.shape
-    nzc = np.empty(n, np.int64)
-    nzv = np.empty(n, H.dtype)
-    for b in range(B):
-        tm = 0.0
-        tq = 0.0
-        tr = 0.0
-        en = 0.0
-        for i in range(m):
-            if not mask[b, i]:
-                continue
-            cnt = _row_nonzeros(H[b, i], nzc, nzv)  # the sums below over these, in column order
-            for p in range(cnt):
-                k = nzc[p]
-                sm = 0.0
-                sq = 0.0
-                for t in range(cnt):
-                    h = nzv[t]
-                    sm += h * prior[b, nzc[t], k]
-                    if with_q:
-                        sq += h * Q[b, nzc[t], k]
-                hk = nzv[p]
-                tm += sm * hk
-                tq += sq * hk
-            tr += R[b, i, i]
-            en += dz[b, i] * dz[b, i]
-        out[0, b] = tm
-        out[1, b] = tq
-        out[2, b] = tr
-        out[3, b] = en
+    for c in nb.prange(nchunk):  # rows in chunks (parallel in the parallel variant), scratch per chunk
+        nzc = np.empty(n, np.int64)
+        nzv = np.empty(n, H.dtype)
+        for b in range(c * B // nchunk, (c + 1) * B // nchunk):
+            tm = 0.0
+            tq = 0.0
+            tr = 0.0
+            en = 0.0
+            for i in range(m):
+                if not mask[b, i]:
+                    continue
+                cnt = _row_nonzeros(H[b, i], nzc, nzv)  # the sums below over these, in column order
+                for p in range(cnt):
+                    k = nzc[p]
+                    sm = 0.0
+                    sq = 0.0
+                    for t in range(cnt):
+                        h = nzv[t]
+                        sm += h * prior[b, nzc[t], k]
+                        if with_q:
+                            sq += h * Q[b, nzc[t], k]
+                    hk = nzv[p]
+                    tm += sm * hk
+                    tq += sq * hk
+                tr += R[b, i, i]
+                en += dz[b, i] * dz[b, i]
+            out[0, b] = tm
+            out[1, b] = tq
+            out[2, b] = tr
+            out[3, b] = en
+
+
+_traces_serial, _traces_parallel = serial_and_parallel(_traces_rows)
 
 
 def innovation_traces_reference(dz, H, prior, Q, R, mask) -> InnovationTraces:
@@ -606,7 +610,7 @@ def fit_split(dz, H, R, mask, prior, Q, n_types: int = 2, fast: bool = False) ->
     dz : (B, m) innovations; H : (B, m, n); R : (B, m, m) measurement covariances (diagonals used);
     mask : (B, m) bool used rows; prior : (B, n, n) ``M = Phi P Phi^T``; Q : (B, n, n) or None;
     n_types : number of types fitted (rows of group >= n_types are left out).
-    fast : the fused path: one compiled pass (:func:`_fit_split_kernel`; the same quantities to round-off).
+    fast : the fused path: one compiled pass (:func:`_fit_split_rows`; the same quantities to round-off).
 
     Returns
     -------
@@ -640,8 +644,7 @@ def fit_split(dz, H, R, mask, prior, Q, n_types: int = 2, fast: bool = False) ->
                     n_other=n_other)
 
 
-@nb.njit(cache=True)
-def _fit_split_kernel(dz, H, var, mask, prior, Q, has_q, n_types, model17, out, n_other):
+def _fit_split_rows(dz, H, var, mask, prior, Q, has_q, n_types, model17, out, n_other, nchunk):
     """Compiled :func:`fit_split` (the fused path): per batch row, the groups of :func:`measurement_groups`,
     the per-type fits of :func:`_geometry_residual_row` and the weighted sums over H's non-zeros.
 
@@ -650,74 +653,78 @@ def _fit_split_kernel(dz, H, var, mask, prior, Q, has_q, n_types, model17, out, 
     dof, p, tr_m, tr_q, n (0 where a type has no split, as :class:`FitSplit` says) and ``n_other`` (B,)."""
     B, m, n = H.shape
     T = n_types
-    types = np.empty(m, np.int64)
-    use = np.zeros(m, np.bool_)
-    typed = np.zeros(m, np.bool_)
-    v = np.zeros(m)
-    red = np.zeros(m)
-    nzc, nzv, cnt = _nonzeros_work(m, n, H.dtype)
-    work = _geometry_work(n)
-    e_tot = np.empty(T)
-    e_res = np.empty(T)
-    dof = np.empty(T)
-    trm = np.empty(T)
-    trq = np.empty(T)
-    nt = np.empty(T)
-    for b in range(B):
-        other = 0
-        for i in range(m):
-            g = -1
-            if mask[b, i]:
-                g = 2
-                if model17:
-                    if H[b, i, _CLK0] != 0:
-                        g = 0
-                    elif H[b, i, _DRIFT0] != 0:
-                        g = 1
-                if g >= T:
-                    other += 1
-            types[i] = g if g < T else -1
-            typed[i] = types[i] >= 0
-            v[i] = 0.0
-            red[i] = 0.0
-        n_other[b] = other if model17 else 0
-        _rows_nonzeros(H[b], typed, nzc, nzv, cnt)
-        for t in range(T):
+    for c in nb.prange(nchunk):  # rows in chunks (parallel in the parallel variant), scratch per chunk
+        types = np.empty(m, np.int64)
+        use = np.zeros(m, np.bool_)
+        typed = np.zeros(m, np.bool_)
+        v = np.zeros(m)
+        red = np.zeros(m)
+        nzc, nzv, cnt = _nonzeros_work(m, n, H.dtype)
+        work = _geometry_work(n)
+        e_tot = np.empty(T)
+        e_res = np.empty(T)
+        dof = np.empty(T)
+        trm = np.empty(T)
+        trq = np.empty(T)
+        nt = np.empty(T)
+        for b in range(c * B // nchunk, (c + 1) * B // nchunk):
+            other = 0
             for i in range(m):
-                use[i] = types[i] == t
-            _geometry_residual_row(dz[b], H[b], nzc, cnt, var[b], use, v, red, work)
-            e_tot[t] = 0.0
-            e_res[t] = 0.0
-            dof[t] = 0.0
-            trm[t] = 0.0
-            trq[t] = 0.0
-            nt[t] = 0.0
-        for i in range(m):
-            t = types[i]
-            if t < 0:
-                continue
-            w = 1.0 / var[b, i]
-            d = np.float64(dz[b, i])
-            e_tot[t] += w * d * d
-            e_res[t] += w * v[i] * v[i]
-            dof[t] += red[i]
-            nt[t] += 1.0
-            trm[t] += w * _quad_nz(nzc, nzv, cnt, i, prior, prior, False, b)
-            if has_q:
-                trq[t] += w * _quad_nz(nzc, nzv, cnt, i, Q, Q, False, b)
-        for t in range(T):
-            ok = dof[t] > 1e-9
-            out[0, b, t] = e_tot[t] - e_res[t] if ok else 0.0
-            out[1, b, t] = e_res[t] if ok else 0.0
-            out[2, b, t] = dof[t] if ok else 0.0
-            out[3, b, t] = nt[t] - dof[t] if ok else 0.0
-            out[4, b, t] = trm[t] if ok else 0.0
-            out[5, b, t] = trq[t] if ok else 0.0
-            out[6, b, t] = nt[t]
+                g = -1
+                if mask[b, i]:
+                    g = 2
+                    if model17:
+                        if H[b, i, _CLK0] != 0:
+                            g = 0
+                        elif H[b, i, _DRIFT0] != 0:
+                            g = 1
+                    if g >= T:
+                        other += 1
+                types[i] = g if g < T else -1
+                typed[i] = types[i] >= 0
+                v[i] = 0.0
+                red[i] = 0.0
+            n_other[b] = other if model17 else 0
+            _rows_nonzeros(H[b], typed, nzc, nzv, cnt)
+            for t in range(T):
+                for i in range(m):
+                    use[i] = types[i] == t
+                _geometry_residual_row(dz[b], H[b], nzc, cnt, var[b], use, v, red, work)
+                e_tot[t] = 0.0
+                e_res[t] = 0.0
+                dof[t] = 0.0
+                trm[t] = 0.0
+                trq[t] = 0.0
+                nt[t] = 0.0
+            for i in range(m):
+                t = types[i]
+                if t < 0:
+                    continue
+                w = 1.0 / var[b, i]
+                d = np.float64(dz[b, i])
+                e_tot[t] += w * d * d
+                e_res[t] += w * v[i] * v[i]
+                dof[t] += red[i]
+                nt[t] += 1.0
+                trm[t] += w * _quad_nz(nzc, nzv, cnt, i, prior, prior, False, b)
+                if has_q:
+                    trq[t] += w * _quad_nz(nzc, nzv, cnt, i, Q, Q, False, b)
+            for t in range(T):
+                ok = dof[t] > 1e-9
+                out[0, b, t] = e_tot[t] - e_res[t] if ok else 0.0
+                out[1, b, t] = e_res[t] if ok else 0.0
+                out[2, b, t] = dof[t] if ok else 0.0
+                out[3, b, t] = nt[t] - dof[t] if ok else 0.0
+                out[4, b, t] = trm[t] if ok else 0.0
+                out[5, b, t] = trq[t] if ok else 0.0
+                out[6, b, t] = nt[t]
+
+
+_fit_split_serial, _fit_split_parallel = serial_and_parallel(_fit_split_rows)
 
 
 def _fit_split_fast(dz, H, R, mask, prior, Q, n_types):
-    """:func:`fit_split` through :func:`_fit_split_kernel` (float64 inputs, one compiled pass)."""
+    """:func:`fit_split` through :func:`_fit_split_rows` (float64 inputs, one compiled pass)."""
     c = np.ascontiguousarray
     B, m, n = np.shape(H)
     var = c(np.where(mask, np.diagonal(R, axis1=1, axis2=2), 1.0), np.float64)
@@ -725,7 +732,8 @@ def _fit_split_fast(dz, H, R, mask, prior, Q, n_types):
     n_other = np.empty(B, np.int64)
     has_q = Q is not None
     P = c(prior, np.float64)
-    _fit_split_kernel(c(dz, np.float64), c(H, np.float64), var, c(mask, np.bool_), P,
-                      c(Q, np.float64) if has_q else P, has_q, int(n_types), n == N_STATES, out, n_other)
+    kern, nchunk = row_kernel(_fit_split_serial, _fit_split_parallel, B)
+    kern(c(dz, np.float64), c(H, np.float64), var, c(mask, np.bool_), P,
+         c(Q, np.float64) if has_q else P, has_q, int(n_types), n == N_STATES, out, n_other, nchunk)
     return FitSplit(e_fit=out[0], e_res=out[1], dof=out[2], p=out[3], tr_m=out[4], tr_q=out[5], n=out[6],
                     n_other=n_other)

@@ -86,6 +86,7 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
+from ..kernels import scale_symmetric, scale_symmetric_reference
 from .base import AdaptiveLaw, EpochContext, UpdatePlan
 from .innovation import fit_split, innovation_traces, measurement_groups
 from .params import ParamSpec, check_option
@@ -578,6 +579,7 @@ class MeasurementAdaptiveSTKF(SatelliteNoise, AdaptiveLaw):
     def _plan(self, r, H, R, mask, ctx: EpochContext) -> UpdatePlan:
         cfg = self.config
         geo = cfg.fading_noise == "geometry"
+        scale = scale_symmetric if self.fused else scale_symmetric_reference  # D R D: the same bits
         has = mask.any(-1)
         tr = innovation_traces(r, H, ctx.prior, ctx.Q, R, mask)
         tr_m, tr_q, tr_r = (a.astype(np.float64) for a in (tr.tr_m, tr.tr_q, tr.tr_r))
@@ -598,8 +600,7 @@ class MeasurementAdaptiveSTKF(SatelliteNoise, AdaptiveLaw):
             # the snapshot split with the reported R (a common factor per type leaves the fit unchanged)
             split = fit_split(r, H, R, mask, ctx.prior, ctx.Q if ctx.pending else None, fast=self.fused)
             if self._sat_enabled():  # the split against the current per-satellite noise model
-                sq = np.sqrt(a_model)
-                model = fit_split(r, H, R * sq[:, :, None] * sq[:, None, :], mask, ctx.prior,
+                model = fit_split(r, H, scale(R, np.sqrt(a_model)), mask, ctx.prior,
                                   ctx.Q if ctx.pending else None, fast=self.fused)
             else:  # the same split against alpha_(k-1) R
                 model = split.scaled(self._alpha_t)
@@ -629,15 +630,14 @@ class MeasurementAdaptiveSTKF(SatelliteNoise, AdaptiveLaw):
         lam = np.where(accept & acting & ctx.pending, lam, 1.0)
         pending = {"c": np.where(accept, c, self._c), "beta": np.where(accept, beta, self._beta),
                    "alpha": alpha, "accept": accept, "fault": fault, "lambda": lam, "alpha_t": alpha_t, "fs": fs}
+        # masked rows keep unit variance (they change nothing, but stay the documented neutral rows)
         if self._sat_enabled():  # per satellite and type (seed 000's law with this law's b and eq 11 weights)
             R_used = self._plan_satellite(r, H, R, mask, ctx, beta, accept & acting, pending).R.copy()
+            idx = np.arange(R.shape[1])
+            R_used[:, idx, idx] = np.where(mask, R_used[:, idx, idx], 1)
         else:
             a = np.where(accept[:, None], self._row_factors(alpha, alpha_t, types), 1.0).astype(R.dtype)
-            sq = np.sqrt(a)
-            R_used = R * sq[:, :, None] * sq[:, None, :]
-        # keep unit variance on masked rows (they change nothing, but stay the documented neutral rows)
-        idx = np.arange(R.shape[1])
-        R_used[:, idx, idx] = np.where(mask, R_used[:, idx, idx], 1)
+            R_used = scale(R, np.sqrt(a), keep=mask)
         fade = self.capped_fading(lam, ctx.prior, cfg.fading_cap)
         return UpdatePlan(fade=fade, R=R_used, mask=mask & ~fault[:, None], pending=pending)
 

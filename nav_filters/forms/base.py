@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
+from ..kernels import row_kernel, serial_and_parallel
 from ..rows import check_row_pairs, copy_rows_generic
 
 SUPPORTED_DTYPES = (np.float32, np.float64)
@@ -63,7 +64,7 @@ def check_dtype(dtype) -> np.dtype:
 def prepare_measurement(dz, H, R, mask, dtype):
     """Validate a batched measurement and neutralize its masked rows.
 
-    Compiled in one pass (:func:`_prepare_kernel`) for float inputs; any problem found there (or a
+    Compiled in one pass (:func:`_prepare_rows`) for float inputs; any problem found there (or a
     non-float input) falls back to :func:`prepare_measurement_reference`, which raises the error (or
     returns the same arrays). Same parameters, returns and errors as the reference.
     """
@@ -82,18 +83,33 @@ def prepare_measurement(dz, H, R, mask, dtype):
     H_o = np.empty(H.shape, dtype)
     R_o = np.empty((B, m, m), dtype)
     R3 = R if R.ndim == 3 else R[:, :, None]
-    if not _prepare_kernel(dz, H, R3, R.ndim == 3, mask, dz_o, H_o, R_o):
+    kern, nchunk = row_kernel(_prepare_serial, _prepare_parallel, B)
+    ok = np.empty(nchunk, np.bool_)
+    kern(dz, H, R3, R.ndim == 3, mask, dz_o, H_o, R_o, ok)
+    if not ok.all():
         return prepare_measurement_reference(dz, H, R, mask, dtype)
     return dz_o, H_o, R_o, mask
 
 
-@nb.njit(cache=True)
-def _prepare_kernel(dz, H, R3, full, mask, dz_o, H_o, R_o):
+def _prepare_rows(dz, H, R3, full, mask, dz_o, H_o, R_o, ok):
     """One pass of :func:`prepare_measurement_reference` on valid input: masked rows to ``dz = 0``,
-    ``H = 0``, unit variance (and zero covariances); returns False (outputs undefined) where the reference
-    would raise (non-finite dz / H row / variance, or a non-positive variance, on a valid row)."""
+    ``H = 0``, unit variance (and zero covariances). The rows are taken in ``ok.size`` chunks (parallel in
+    the parallel variant); ``ok[c]`` False (outputs undefined) where the reference would raise on a row of
+    chunk c (non-finite dz / H row / variance, or a non-positive variance, on a valid row)."""
     B, m, n = H.shape
-    for b in range(B):
+    nchunk = ok.size
+    for c in nb.prange(nchunk):
+        ok[c] = _prepare_chunk(dz, H, R3, full, mask, dz_o, H_o, R_o, c * B // nchunk, (c + 1) * B // nchunk)
+
+
+_prepare_serial, _prepare_parallel = serial_and_parallel(_prepare_rows)
+
+
+@nb.njit(cache=True)
+def _prepare_chunk(dz, H, R3, full, mask, dz_o, H_o, R_o, lo, hi):
+    """Rows ``lo:hi`` of :func:`_prepare_rows`; False at the first invalid value of a valid row."""
+    m, n = H.shape[1], H.shape[2]
+    for b in range(lo, hi):
         for i in range(m):
             v = mask[b, i]
             d = dz[b, i]
