@@ -9,6 +9,7 @@ parameter.
 from __future__ import annotations
 
 import math
+import operator
 from dataclasses import dataclass
 
 import numpy as np
@@ -32,6 +33,18 @@ class ParamSpec:
     low_closed: bool = False
     high_closed: bool = True
     doc: str = ""
+
+    def __post_init__(self):
+        # the two bound tests, chosen once (check runs at every env step): float bounds so that a Python float
+        # and a float64 array compare alike (numpy converts the bounds to float64 as well)
+        object.__setattr__(self, "_above_low", operator.ge if self.low_closed else operator.gt)
+        object.__setattr__(self, "_below_high", operator.le if self.high_closed else operator.lt)
+        object.__setattr__(self, "_bounds", (float(self.low), float(self.high)))
+
+    def inside(self, x):
+        """Whether ``x`` lies in the range: a bool for a Python float, a bool array for an array (NaN: False)."""
+        low, high = self._bounds
+        return self._above_low(x, low) & self._below_high(x, high)
 
     def describe(self) -> str:
         """The interval as text, e.g. ``(0, 1]``."""
@@ -70,9 +83,9 @@ class ParamSpec:
                 arr = np.full(batch_size, float(arr))
             elif arr.shape != (batch_size,):
                 raise ValueError(f"{label} must be a scalar or have shape ({batch_size},), got shape {arr.shape}")
-        lo_ok = arr >= self.low if self.low_closed else arr > self.low
-        hi_ok = arr <= self.high if self.high_closed else arr < self.high
-        if bool((lo_ok & hi_ok).all()):  # the common case, all valid (NaN fails both tests): one check
+        # the common case, all valid (NaN fails both tests): one test; a single value (B = 1) as a Python float,
+        # two comparisons instead of four numpy calls
+        if self.inside(arr.item()) if arr.size == 1 else bool(self.inside(arr).all()):
             return arr
         if np.isnan(arr).any():
             raise ValueError(f"{label} must not be NaN ({self.doc or 'adaptive parameter'})")
