@@ -351,13 +351,16 @@ class AdaptiveLaw(FilterForm):
             unknown name, wrong shape, NaN or out-of-range value (names the parameter). Nothing is
             changed if any value is invalid.
         """
-        specs = {p.name: p for p in self.PARAMS}
-        checked = {}
+        checked = []
         for k, v in values.items():
-            if k not in specs:
-                raise ValueError(f"unknown adaptive parameter {k!r} for {type(self).__name__}; known: {sorted(specs)}")
-            checked[k] = specs[k].check(v, self.batch_size)
-        for k, v in checked.items():
+            for spec in self.PARAMS:  # a scan of one to four specs: cheaper than a name -> spec dict per call
+                if spec.name == k:
+                    break
+            else:
+                known = sorted(p.name for p in self.PARAMS)
+                raise ValueError(f"unknown adaptive parameter {k!r} for {type(self).__name__}; known: {known}")
+            checked.append((k, spec.check(v, self.batch_size)))
+        for k, v in checked:
             changed = v != self._params[k]
             self._params[k] = v
             self._on_param_change(k, changed)
