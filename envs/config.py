@@ -65,35 +65,47 @@ class ParamSpec:
             raise ValueError(f"ParamSpec {self.name}: a log1m parameter needs high < 1, got {self.high}")
         if self.map == "log" and not (self.low > 0):
             raise ValueError(f"ParamSpec {self.name}: a log parameter needs low > 0, got {self.low}")
-        # the end points in the map's own coordinate, once (to_value / to_action interpolate between them)
+        # the map's own coordinate u (linear in the action) at a = -1 and its width, once: to_value and
+        # to_action interpolate between the end points (Python floats: exact conversions of the same numbers)
         if self.map == "log":
             ends = (np.log(self.low), np.log(self.high))
         elif self.map == "log1m":
             ends = (np.log(1.0 - self.low), np.log(1.0 - self.high))
         else:
             ends = (self.low, self.high)
-        object.__setattr__(self, "_ends", ends)
+        object.__setattr__(self, "_origin", float(ends[0]))
+        object.__setattr__(self, "_span", float(ends[1] - ends[0]))
 
     def to_value(self, a):
-        """Physical value(s) for action component(s) ``a`` in [-1, 1] (clipped)."""
-        a = np.minimum(np.maximum(np.asarray(a, np.float64), -1.0), 1.0)  # np.clip's values, less overhead
-        s = 0.5 * (a + 1.0)
-        if self.map == "linear":
-            return self.low + s * (self.high - self.low)
-        lo, hi = self._ends
-        if self.map == "log":
-            return np.exp(lo + s * (hi - lo))
-        return 1.0 - np.exp(lo + s * (hi - lo))
+        """Physical value(s) for action component(s) ``a`` in [-1, 1] (clipped).
+
+        Parameters
+        ----------
+        a : scalar or array of actions (NaN stays NaN, +-inf clip to +-1).
+
+        Returns
+        -------
+        float64 array of ``a``'s shape (a ``np.float64`` for a scalar).
+        """
+        a = np.asarray(a, np.float64)
+        one = a.size == 1
+        if one:  # a single env: the same IEEE operations on a Python float, bit for bit, without 7 array calls
+            x = min(max(a.item(), -1.0), 1.0)  # NaN propagates as in np.maximum / np.minimum
+        else:
+            x = np.minimum(np.maximum(a, -1.0), 1.0)  # np.clip's values, less overhead
+        u = self._origin + 0.5 * (x + 1.0) * self._span
+        if self.map != "linear":  # numpy's exp on a float is its array loop's (libm's may differ in the last bit)
+            u = np.exp(u) if self.map == "log" else 1.0 - np.exp(u)
+        if not one:
+            return u
+        return np.float64(u) if a.ndim == 0 else np.array(u, np.float64, ndmin=a.ndim)  # every dim is 1
 
     def to_action(self, value):
         """Inverse of :meth:`to_value`: the action component that gives ``value``."""
         v = np.asarray(value, np.float64)
-        if self.map == "linear":
-            s = (v - self.low) / (self.high - self.low)
-        else:
-            lo, hi = self._ends
-            s = ((np.log(v) if self.map == "log" else np.log(1.0 - v)) - lo) / (hi - lo)
-        return 2.0 * s - 1.0
+        if self.map != "linear":
+            v = np.log(v) if self.map == "log" else np.log(1.0 - v)
+        return 2.0 * ((v - self._origin) / self._span) - 1.0
 
 
 @dataclass(frozen=True)
