@@ -13,7 +13,7 @@ For every ``n_envs`` of ``--n-envs`` (default 16, 64, 256) and every mode of ``-
 
 and the share of the learning time spent outside the env (PPO's rollout glue, the policy forward passes and
 the gradient epochs). PPO runs with the hyperparameters of ``train.py rl`` (``agents.training.DEFAULT_HYPERPARAMS
-['ppo']``: n_steps 128, batch 256, 10 epochs, [64, 64] MLP; torch on one thread as ``train.py`` sets it,
+['ppo']``: n_steps 128, batch 256, 10 epochs, [64, 64] MLP, torch's fused Adam; torch on one thread as ``train.py`` sets it,
 :func:`agents.training.set_torch_threads`),
 without VecNormalize. Each cell first learns one rollout (JIT compilation, first resets), then times
 ``--rollouts`` rollouts (``n_steps x n_envs`` env steps each).

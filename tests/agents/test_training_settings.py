@@ -68,3 +68,19 @@ def test_torch_threads_hold_after_numba_parallel_kernels(tmp_path):
     assert p.returncode == 0, p.stderr[-2000:]
     seen = json.loads(p.stdout.strip().splitlines()[-1])
     assert seen == {"numba": 2, "forward": [1], "train": [1]}
+
+
+def test_ppo_default_uses_torchs_fused_adam():
+    """The PPO defaults (and hyperparams/ppo.yml, tests/scripts/test_zoo.py) reach torch: SB3 builds the policy's
+    Adam with ``fused=True`` (one kernel per step for all parameters), with the default learning rate."""
+    from stable_baselines3 import PPO
+
+    from agents.training import DEFAULT_HYPERPARAMS
+    from envs.sb3 import make_sb3_vec_env
+
+    hp = dict(DEFAULT_HYPERPARAMS["ppo"])
+    model = PPO(hp.pop("policy"), make_sb3_vec_env("GnssIns/SageHusa-v0", 2, seed=0, episode_length_s=10.0),
+                device="cpu", **hp)
+    opt = model.policy.optimizer
+    assert type(opt).__name__ == "Adam" and opt.defaults["fused"] is True
+    assert opt.param_groups[0]["lr"] == hp["learning_rate"]
