@@ -580,8 +580,8 @@ class SageHusa(SatelliteNoise, AdaptiveLaw):
         specification is :meth:`_adapt_q_reference`, agreement test)."""
         cfg = self.config
         dt = self.dtype
-        self._b_used, self._e_prev, self._q_init = self._b_used.copy(), self._e_prev.copy(), self._q_init.copy()
-        self._q_ref, self._Q_raw, self._Q = self._q_ref.copy(), self._Q_raw.copy(), self._Q.copy()
+        # the kernel updates the law's own arrays in place: none is handed out (ctx.Q is a new array from
+        # _epoch_q, adaptive_state copies, a clone deep-copies)
         c = np.ascontiguousarray
         kern = _adapt_q_parallel if self.batch_size >= PARALLEL_MIN_BATCH else _adapt_q_serial
         kern(rows, np.asarray(d, np.float64), c(dx, dt), c(self.inner.covariance, dt), c(ctx.prior, dt),
