@@ -57,13 +57,10 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from .kernels import F_NONZERO, N, serial_and_parallel
+from .kernels import F_NONZERO, N, PARALLEL_MIN_BATCH, serial_and_parallel
 
 SERIES_ORDER = 8
 """Highest power ``K`` of the series for ``exp(A)`` and the Van Loan integral (see the module docstring)."""
-
-PARALLEL_MIN_BATCH = 64
-"""Below this batch size the serial kernel is used (a parallel launch costs more than it saves)."""
 
 
 def averaged_transition(F_int, Qc_int, order: int = SERIES_ORDER):

@@ -368,8 +368,10 @@ def _add_integrals(A, S, b, nh, h, sC, sa, sG, sk, sCC, qg, qa, qdiag, kg, ka):
 _serial, _parallel = serial_and_parallel(_propagate_epoch)
 
 PARALLEL_MIN_BATCH = 64
-"""Below this batch size the serial kernel is used: a parallel launch costs more than it saves, and on
-2 cores its worker threads compete with BLAS threads still spinning after the caller's last matmul."""
+"""Below this batch size every row kernel of the package runs its serial variant (this module's, the forms'
+and the adaptive laws'): a parallel launch costs more than it saves, and on 2 cores its worker threads compete
+with BLAS threads still spinning after the caller's last matmul. The parallel variants need free cores: on a
+busy machine ``NUMBA_NUM_THREADS=1`` is faster (README)."""
 
 
 def row_kernel(serial, parallel, B: int):

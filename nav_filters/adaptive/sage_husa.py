@@ -154,7 +154,7 @@ import numba as nb
 import numpy as np
 
 from ..forms.base import symmetrize
-from ..kernels import serial_and_parallel, sym_eig_inplace
+from ..kernels import PARALLEL_MIN_BATCH, serial_and_parallel, sym_eig_inplace
 from .base import AdaptiveLaw, EpochContext, UpdatePlan
 from .innovation import GROUP_NAMES, _nonzeros_work, _quad_nz, _rows_nonzeros, measurement_groups, quadratic_diag
 from .params import ParamSpec, check_option
@@ -314,8 +314,6 @@ def clip_relative_eigenvalues(Q, ref_diag, floor, ceiling):
     return symmetrize(Qw / w[:, :, None] / w[:, None, :])
 
 
-
-
 @nb.njit(cache=True)
 def _r_scale_kernel(r, H, prior, Q, add_q, R, mask, groups, infer, d, active, r_scale, smin, smax, s_new, R_out):
     """The Sage-Husa measurement-noise law as per-group variance scales (see :class:`SageHusa`), per row b::
@@ -462,8 +460,6 @@ def _adapt_q_rows(rows, d, dx, P_post, prior, Q_nom, b, step, e_prev, b_used, q_
 
 
 _adapt_q_serial, _adapt_q_parallel = serial_and_parallel(_adapt_q_rows)
-PARALLEL_MIN_BATCH = 64
-"""Below this batch size the serial kernel runs (a parallel launch costs more than it saves)."""
 
 
 class SageHusa(SatelliteNoise, AdaptiveLaw):

@@ -22,6 +22,7 @@ import numba as nb
 import numpy as np
 
 from ..error_model import CLK, DRIFT, N_STATES
+from ..kernels import PARALLEL_MIN_BATCH
 from ..measurements import N_SAT_KEYS
 from .base import EpochContext, UpdatePlan
 from .innovation import (GROUP_NAMES, _geometry_residual_row, _geometry_work, _nonzeros_work, _posterior_residual_row,
@@ -256,10 +257,6 @@ def _r_sat_parallel(nchunk, r, H, prior, Q, add_q, R, mask, keys, bf, jcap, d_ro
                       r_scale[lo:hi], s_rows[lo:hi], n_rows[lo:hi], s_prev[lo:hi], s_group[lo:hi], R_out[lo:hi])
 
 
-PARALLEL_MIN_BATCH = 64
-"""Fused fast path: below this batch size the serial kernel runs (a parallel launch costs more than it saves)."""
-
-
 @nb.njit(cache=True)
 def _summary_kernel(pr, s_rows, s_prev, rose_factor, out):
     """The per-row summary of :meth:`SatelliteNoise._commit_satellites` (fused path): over the used pseudorange
@@ -335,8 +332,6 @@ def sage_husa_weight(b, j):
     bb = np.where(one, 0.5, b)
     d = (1.0 - bb) / (1.0 - bb ** (j + 1.0))
     return np.where(one, 1.0 / (j + 1.0), d)
-
-
 
 
 class SatelliteNoise:

@@ -22,7 +22,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from ..kernels import row_nonzeros as _row_nonzeros, serial_and_parallel
+from ..kernels import PARALLEL_MIN_BATCH, row_nonzeros as _row_nonzeros, serial_and_parallel
 from .base import FilterForm, UpdateResult, symmetrize
 
 
@@ -211,9 +211,6 @@ def _joseph_rows(P, x, H, R, dz, Pn, xn, r, Sd, nis, ok):
 
 
 _joseph_serial, _joseph_parallel = serial_and_parallel(_joseph_rows)
-
-PARALLEL_MIN_BATCH = 64
-"""Below this batch size the serial kernel runs (a parallel launch costs more than it saves)."""
 
 
 def joseph_update(P, x, H, R, dz):
