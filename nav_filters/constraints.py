@@ -69,6 +69,7 @@ from earth.wgs84 import OMEGA_IE
 
 from .error_model import ATT, BG, N_STATES, VEL
 from .forms.base import check_dtype, check_measurement_shapes
+from .kernels import unit_diagonal
 
 __all__ = [
     "zupt",
@@ -519,6 +520,4 @@ def stack_measurements(*blocks, dtype=None):
         j += mi
     with np.errstate(invalid="ignore"):
         R = np.where(mask[:, :, None] & mask[:, None, :], R, 0.0).astype(dtype)
-    idx = np.arange(m)
-    R[:, idx, idx] = np.where(mask, R[:, idx, idx], 1.0)
-    return dz, H, R, mask
+    return dz, H, unit_diagonal(R, mask), mask

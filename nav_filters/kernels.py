@@ -422,10 +422,15 @@ def scale_symmetric_reference(R, s, keep=None):
     """Numpy specification of :func:`scale_symmetric`: ``R * s[:, :, None] * s[:, None, :]``, then 1 on the
     diagonal entries of the rows where ``keep`` is False."""
     out = R * s[:, :, None] * s[:, None, :]
-    if keep is not None:
-        idx = np.arange(out.shape[1])
-        out[:, idx, idx] = np.where(keep, out[:, idx, idx], 1)
-    return out
+    return out if keep is None else unit_diagonal(out, keep)
+
+
+def unit_diagonal(R, keep):
+    """``R[b, i, i] = 1`` where ``keep[b, i]`` is False, in place (the documented neutral variance of a masked
+    measurement row; its other entries are left as they are); returns ``R`` (B, m, m)."""
+    idx = np.arange(R.shape[1])
+    R[:, idx, idx] = np.where(keep, R[:, idx, idx], 1)
+    return R
 
 
 def _scale_rows(R, s, keep, out):

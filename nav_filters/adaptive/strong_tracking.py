@@ -86,7 +86,7 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
-from ..kernels import scale_symmetric, scale_symmetric_reference
+from ..kernels import scale_symmetric, scale_symmetric_reference, unit_diagonal
 from .base import AdaptiveLaw, EpochContext, UpdatePlan
 from .innovation import fit_split, innovation_traces, measurement_groups
 from .params import ParamSpec, check_option
@@ -632,9 +632,8 @@ class MeasurementAdaptiveSTKF(SatelliteNoise, AdaptiveLaw):
                    "alpha": alpha, "accept": accept, "fault": fault, "lambda": lam, "alpha_t": alpha_t, "fs": fs}
         # masked rows keep unit variance (they change nothing, but stay the documented neutral rows)
         if self._sat_enabled():  # per satellite and type (seed 000's law with this law's b and eq 11 weights)
-            R_used = self._plan_satellite(r, H, R, mask, ctx, beta, accept & acting, pending).R.copy()
-            idx = np.arange(R.shape[1])
-            R_used[:, idx, idx] = np.where(mask, R_used[:, idx, idx], 1)
+            R_used = unit_diagonal(self._plan_satellite(r, H, R, mask, ctx, beta, accept & acting, pending).R.copy(),
+                                   mask)
         else:
             a = np.where(accept[:, None], self._row_factors(alpha, alpha_t, types), 1.0).astype(R.dtype)
             R_used = scale(R, np.sqrt(a), keep=mask)
