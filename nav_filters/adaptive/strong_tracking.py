@@ -81,16 +81,18 @@ r_mode='satellite')``).
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
-import numba as nb
 import numpy as np
 
-from ..kernels import scale_symmetric, scale_symmetric_reference, unit_diagonal
+from ..kernels import row_kernel, scale_symmetric, scale_symmetric_reference, unit_diagonal
 from .base import AdaptiveLaw, EpochContext, UpdatePlan
 from .innovation import fit_split, innovation_traces, measurement_groups
 from .params import ParamSpec, check_option
 from .satellite_r import SatelliteNoise, check_satellite_options
+from .strong_tracking_rows import (SPLIT_STATS, _ma_plan_parallel, _ma_plan_serial, _st_plan_parallel,
+                                   _st_plan_serial, split_fading_kernel)
 
 SOFTENING_SPEC = ParamSpec("softening", 0.0, 1e6, low_closed=False, high_closed=True,
                            doc="softening factor beta of N_k = C_k - H Q H^T - beta R")
@@ -112,10 +114,6 @@ def check_fading_noise(owner, value):
     """Raise a ValueError naming ``owner.fading_noise`` unless ``value`` is one of :data:`FADING_NOISE`."""
     if value not in FADING_NOISE:
         raise ValueError(f"{owner}.fading_noise must be one of {FADING_NOISE}, got {value!r}")
-
-
-SPLIT_STATS = 5
-"""Columns of the smoothed statistics of :func:`split_fading`: ``n``, ``d``, ``s``, ``e_res``, ``dof``."""
 
 
 def split_fading(split, stats_prev, weight, softening, confidence, lambda_max, noise_gate, printed, scale=1.0,
@@ -151,7 +149,7 @@ def split_fading(split, stats_prev, weight, softening, confidence, lambda_max, n
     at the start); weight : (B,) smoothing weight in (0, 1]; softening : (B,) beta; confidence : kappa
     (>= 0); lambda_max : float; noise_gate : float (>= 1, inf: no gate); printed : (B,) the printed law's
     lambda; scale : (B,) or scalar multiplier of the ratio; fast : the compiled form
-    (:func:`_split_fading_kernel`, the fused path's: the same values bit for bit for the laws' 2 types, tested
+    (:func:`~.strong_tracking_rows.split_fading_kernel`, the fused path's: the same values bit for bit for the laws' 2 types, tested
     with 1-3 in ``tests/nav_filters/test_fused_update.py``; the numpy lines here are its specification).
 
     Returns
@@ -166,7 +164,7 @@ def split_fading(split, stats_prev, weight, softening, confidence, lambda_max, n
             a = np.asarray(a, np.float64)
             return np.ascontiguousarray(a) if a.shape == (B,) else np.full(B, a)
         lam, stats = np.empty(B), np.empty((B, SPLIT_STATS))
-        _split_fading_kernel(*(np.ascontiguousarray(a, np.float64) for a in (
+        split_fading_kernel(*(np.ascontiguousarray(a, np.float64) for a in (
             split.e_fit, split.e_res, split.dof, split.p, split.tr_m, split.tr_q, split.n)),
             np.ascontiguousarray(split.n_other, np.float64), np.ascontiguousarray(stats_prev, np.float64),
             f64(weight), f64(softening), float(confidence), float(lambda_max), float(noise_gate), f64(printed),
@@ -198,74 +196,15 @@ def split_fading(split, stats_prev, weight, softening, confidence, lambda_max, n
     return np.where(has, lam, np.where(typed, 1.0, printed)), stats
 
 
-@nb.njit(cache=True)
-def _row_sum(a, b):
-    """``a[b].sum()`` of a (B, T) array with few columns, in numpy's order there (from the first column on,
-    one column at a time)."""
-    s = a[b, 0]
-    for t in range(1, a.shape[1]):
-        s += a[b, t]
-    return s
-
-
-@nb.njit(cache=True)
-def _split_fading_kernel(e_fit, e_res, dof, p, tr_m, tr_q, n_typed, n_other, stats_prev, weight, softening,
-                         confidence, lambda_max, noise_gate, printed, scale, lam, stats):
-    """Compiled :func:`split_fading` (its numpy lines are the specification): per row, the epoch statistics
-    ``x_k``, their smoothing into ``stats`` (B, SPLIT_STATS) and the fading factor into ``lam`` (B,)."""
-    B, T = e_fit.shape
-    x = np.empty((1, T))
-    xk = np.empty(SPLIT_STATS)
-    for b in range(B):
-        has = False
-        typed = n_other[b] > 0
-        for t in range(T):
-            has = has or dof[b, t] > 0
-            typed = typed or n_typed[b, t] > 0
-        beta = softening[b]
-        for t in range(T):  # n_k terms
-            if dof[b, t] > 0:
-                g = e_res[b, t] / dof[b, t]
-                x[0, t] = e_fit[b, t] - beta * g * p[b, t] - tr_q[b, t]
-            else:
-                x[0, t] = 0.0
-        xk[0] = _row_sum(x, 0)
-        xk[1] = _row_sum(tr_m, b)
-        for t in range(T):  # s_k terms
-            if dof[b, t] > 0:
-                g = e_res[b, t] / dof[b, t]
-                pp = p[b, t]
-                u = g * pp + tr_m[b, t] + tr_q[b, t]
-                x[0, t] = 2.0 * (u * u) / (pp if pp > 0 else 1.0) + 2.0 * (g * g) * (pp * pp) / dof[b, t]
-            else:
-                x[0, t] = 0.0
-        xk[2] = _row_sum(x, 0)
-        xk[3] = _row_sum(e_res, b)
-        xk[4] = _row_sum(dof, b)
-        w = weight[b]
-        keep = 1.0 - w
-        for c in range(SPLIT_STATS):
-            if not has:
-                stats[b, c] = stats_prev[b, c]
-            elif c == 2:  # the variance of a weighted sum
-                stats[b, c] = (keep * keep) * stats_prev[b, c] + (w * w) * xk[c]
-            else:
-                stats[b, c] = keep * stats_prev[b, c] + w * xk[c]
-        n, d, var, er, ds = stats[b, 0], stats[b, 1], stats[b, 2], stats[b, 3], stats[b, 4]
-        if d > 0:
-            if var < 0.0:  # np.maximum(var, 0): NaN stays NaN
-                var = 0.0
-            v = scale[b] * (n - confidence * np.sqrt(var)) / d
-        else:
-            v = 1.0
-        if not (v >= 1.0 or v != v):  # np.clip(v, 1, lambda_max): NaN stays NaN
-            v = 1.0
-        if not (v <= lambda_max or v != v):
-            v = lambda_max
-        noise = er / ds if ds > 0 else 1.0
-        if noise > noise_gate:
-            v = 1.0
-        lam[b] = v if has else (1.0 if typed else printed[b])
+def _split_arrays(split, B):
+    """The fields of a :class:`~.innovation.FitSplit` as the compiled plans read them, ``(e_fit, e_res, dof, p,
+    tr_m, tr_q, n, n_other)``; (B, 0) arrays without a split (``fading_noise='reported'``)."""
+    if split is None:
+        z = np.empty((B, 0))
+        return z, z, z, z, z, z, z, np.zeros(B, np.int64)
+    c = np.ascontiguousarray
+    return (c(split.e_fit), c(split.e_res), c(split.dof), c(split.p), c(split.tr_m), c(split.tr_q), c(split.n),
+            c(split.n_other))
 
 
 def fading_factor(tr_c, traces, softening, lambda_max, scale=1.0):
@@ -360,6 +299,31 @@ class StrongTracking(AdaptiveLaw):
         self._fs = np.zeros((B, SPLIT_STATS))
 
     def _plan(self, r, H, R, mask, ctx: EpochContext) -> UpdatePlan:
+        if not self.fused:
+            return self._plan_reference(r, H, R, mask, ctx)
+        # the fused path: the row arithmetic of _plan_reference in one compiled pass (the same bits)
+        cfg = self.config
+        geo = cfg.fading_noise == "geometry"
+        B = self.batch_size
+        tr = innovation_traces(r, H, ctx.prior, ctx.Q, R, mask)
+        split = fit_split(r, H, R, mask, ctx.prior, ctx.Q if ctx.pending else None, fast=True) if geo else None
+        sp = _split_arrays(split, B)
+        v, has, lam = np.empty(B), np.empty(B, bool), np.empty(B)
+        fs = np.empty((B, SPLIT_STATS))
+        capped = not math.isinf(cfg.fading_cap)
+        fade = np.empty((B, self.n if capped else 0))  # (B, 0): the one factor per row is lam
+        kern, nchunk = row_kernel(_st_plan_serial, _st_plan_parallel, B)
+        kern(tr.energy, tr.tr_m, tr.tr_q, tr.tr_r, np.ascontiguousarray(mask, bool), np.ascontiguousarray(ctx.prior),
+             bool(ctx.pending), *sp, self._count, self._v,
+             self._fs, self._params["rho"], self._params["softening"], self._p0_diag, float(cfg.lambda_max),
+             float(cfg.fading_cap), geo, float(cfg.fading_confidence), float(cfg.noise_gate), v, has, lam, fs, fade,
+             nchunk)
+        return UpdatePlan(fade=fade if capped else lam, R=R, mask=mask,
+                          pending={"v": v, "has": has, "lambda": lam, "fs": fs})
+
+    def _plan_reference(self, r, H, R, mask, ctx: EpochContext) -> UpdatePlan:
+        """Numpy specification of :meth:`_plan` (the compiled :func:`~.strong_tracking_rows._st_plan_rows` on
+        the fused path; agreement test in tests/nav_filters/test_strong_tracking_rows.py)."""
         has = mask.any(-1)
         tr = innovation_traces(r, H, ctx.prior, ctx.Q, R, mask)
         tr_r = tr.tr_r.astype(np.float64)
@@ -577,6 +541,39 @@ class MeasurementAdaptiveSTKF(SatelliteNoise, AdaptiveLaw):
         return np.where(types == 0, alpha_t[:, :1], np.where(types == 1, alpha_t[:, 1:2], alpha[:, None]))
 
     def _plan(self, r, H, R, mask, ctx: EpochContext) -> UpdatePlan:
+        cfg = self.config
+        if not (self.fused and cfg.fading_noise == "geometry" and not self._sat_enabled()):
+            return self._plan_reference(r, H, R, mask, ctx)
+        # the fused path of the default configuration: the row arithmetic of _plan_reference in one compiled
+        # pass (the same bits)
+        B, m = mask.shape
+        tr = innovation_traces(r, H, ctx.prior, ctx.Q, R, mask)
+        split = fit_split(r, H, R, mask, ctx.prior, ctx.Q if ctx.pending else None, fast=True)
+        c, beta, alpha, lam = np.empty(B), np.empty(B), np.empty(B), np.empty(B)
+        accept, fault = np.empty(B, bool), np.empty(B, bool)
+        alpha_t, fs = np.empty((B, 2)), np.empty((B, SPLIT_STATS))
+        capped = not math.isinf(cfg.fading_cap)
+        fade = np.empty((B, self.n if capped else 0))  # (B, 0): the one factor per row is lam
+        R = np.ascontiguousarray(R)
+        R_used, mask_used = np.empty(R.shape, R.dtype), np.empty((B, m), bool)
+        p = self._params
+        kern, nchunk = row_kernel(_ma_plan_serial, _ma_plan_parallel, B)
+        kern(tr.energy, tr.tr_m, tr.tr_q, tr.tr_r, np.ascontiguousarray(H), R, np.ascontiguousarray(mask, bool),
+             np.ascontiguousarray(ctx.prior), bool(ctx.pending),
+             *_split_arrays(split, B), self._count, self._c, self._beta, self._alpha, self._alpha_t, self._fs,
+             self._streak, p["b"], p["softening"], p["fading_scale"], p["fault_threshold"], self._p0_diag,
+             int(cfg.warmup_epochs), int(cfg.max_consecutive_rejections), float(cfg.alpha_min),
+             float(cfg.alpha_max), float(cfg.lambda_max), float(cfg.fading_cap), bool(cfg.fading_uses_alpha),
+             float(cfg.fading_confidence), float(cfg.noise_gate), c, beta, alpha, accept, fault, lam, alpha_t, fs,
+             fade, R_used, mask_used, nchunk)
+        pending = {"c": c, "beta": beta, "alpha": alpha, "accept": accept, "fault": fault, "lambda": lam,
+                   "alpha_t": alpha_t, "fs": fs}
+        return UpdatePlan(fade=fade if capped else lam, R=R_used, mask=mask_used, pending=pending)
+
+    def _plan_reference(self, r, H, R, mask, ctx: EpochContext) -> UpdatePlan:
+        """Numpy specification of :meth:`_plan` (every configuration; the compiled
+        :func:`~.strong_tracking_rows._ma_plan_rows` on the fused path of the default one, agreement test in
+        tests/nav_filters/test_strong_tracking_rows.py)."""
         cfg = self.config
         geo = cfg.fading_noise == "geometry"
         scale = scale_symmetric if self.fused else scale_symmetric_reference  # D R D: the same bits
