@@ -462,6 +462,38 @@ def _adapt_q_rows(rows, d, dx, P_post, prior, Q_nom, b, step, e_prev, b_used, q_
 _adapt_q_serial, _adapt_q_parallel = serial_and_parallel(_adapt_q_rows)
 
 
+@nb.njit(cache=True)
+def _epoch_rows(mask, seen, warmup, step, jcap, b, d_prev, has, active, d):
+    """The row flags and weights :meth:`SageHusa._plan` starts from (the fused path; numpy specification
+    :meth:`SageHusa._epoch_rows_reference`): ``has`` (any used row), ``active`` (``has`` and past the warm-up)
+    and ``d``, the weight of seed 000 eqs 21-23 at the count ``min(step + 1, jcap)`` on active rows (the last
+    one elsewhere), into the (B,) outputs."""
+    B, m = mask.shape
+    for r in range(B):
+        h = False
+        for i in range(m):
+            h = h or mask[r, i]
+        a = h and seen[r] >= warmup
+        has[r] = h
+        active[r] = a
+        d[r] = _weight_one(b[r], np.float64(min(step[r] + 1, jcap[r]))) if a else d_prev[r]
+
+
+@nb.njit(cache=True)
+def _count_rows(active, has, pending, adapt_q, b, b_used_prev, step_prev, seen_prev, rows, b_used, step, seen):
+    """The bookkeeping of :meth:`SageHusa._commit` (the fused path; numpy specification in ``_commit``): the rows
+    whose Q adapts (``active`` with a pending transition, if ``adapt_q``), ``b_used`` (b on active rows),
+    the adaptation and epoch counts, into new (B,) arrays. Returns whether any row adapts Q."""
+    any_rows = False
+    for r in range(active.shape[0]):
+        rows[r] = active[r] and pending and adapt_q
+        any_rows = any_rows or rows[r]
+        b_used[r] = b[r] if active[r] else b_used_prev[r]
+        step[r] = step_prev[r] + active[r]
+        seen[r] = seen_prev[r] + has[r]
+    return any_rows
+
+
 class SageHusa(SatelliteNoise, AdaptiveLaw):
     """Sage-Husa adaptive Q and R estimation around an inner form (see the module docstring).
 
@@ -508,10 +540,26 @@ class SageHusa(SatelliteNoise, AdaptiveLaw):
         d = sage_husa_weight(self._params["b"], j)
         return np.where(active, d, self._d)
 
-    def _plan(self, r, H, R, mask, ctx: EpochContext) -> UpdatePlan:
+    def _epoch_rows(self, mask):
+        """(has, active, d) of this update: rows with a used measurement, rows adapting (past the warm-up), and
+        their weights (compiled on the fused path: :func:`_epoch_rows`; the same bits as
+        :meth:`_epoch_rows_reference`, agreement test)."""
+        if not self.fused:
+            return self._epoch_rows_reference(mask)
+        B = self.batch_size
+        has, active, d = np.empty(B, bool), np.empty(B, bool), np.empty(B)
+        _epoch_rows(np.ascontiguousarray(mask, bool), self._seen, int(self.config.warmup_epochs), self._step,
+                    self._jcap, self._params["b"], self._d, has, active, d)
+        return has, active, d
+
+    def _epoch_rows_reference(self, mask):
+        """Numpy specification of :meth:`_epoch_rows`."""
         has = mask.any(-1)
         active = has & (self._seen >= self.config.warmup_epochs)
-        d = self._weights(active)
+        return has, active, self._weights(active)
+
+    def _plan(self, r, H, R, mask, ctx: EpochContext) -> UpdatePlan:
+        has, active, d = self._epoch_rows(mask)
         pending = {"d": d, "has": has, "active": active}
         if self.config.r_mode == "satellite" and self.config.adapt_r:
             return self._plan_satellite(r, H, R, mask, ctx, d, active, pending)
@@ -563,6 +611,17 @@ class SageHusa(SatelliteNoise, AdaptiveLaw):
             self._commit_satellites(mask, *pend["sat"], pend["epoch"])
         elif ctx.pending:
             self._epoch = self._epoch + 1
+        if self.fused:  # compiled bookkeeping (_count_rows), the same values as the numpy lines below
+            B = self.batch_size
+            rows, b_used = np.empty(B, bool), np.empty(B)
+            step, seen = np.empty(B, np.int64), np.empty(B, np.int64)
+            adapt = _count_rows(active, pend["has"], bool(ctx.pending), bool(self.config.adapt_q), self._params["b"],
+                                self._b_used, self._step, self._seen, rows, b_used, step, seen)
+            self._b_used = b_used
+            if adapt:
+                self._adapt_q(rows, d, ctx, dx)  # reads the step count before this epoch's
+            self._d, self._step, self._seen = d, step, seen
+            return
         rows = active & ctx.pending if self.config.adapt_q else np.zeros_like(active)
         self._b_used = np.where(active, self._params["b"], self._b_used)
         if rows.any():

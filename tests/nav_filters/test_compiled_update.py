@@ -16,7 +16,7 @@ import pytest
 import nav_filters.forms  # noqa: F401  (registers the adaptive laws before they are imported below)
 from earth import geodetic_to_ecef
 from earth.ranging import range_and_rate, range_rate_pair
-from nav_filters.adaptive.base import EpochContext
+from nav_filters.adaptive.base import EpochContext, UpdatePlan
 from nav_filters.adaptive.innovation import innovation_traces, innovation_traces_reference
 from nav_filters.adaptive.sage_husa import SageHusa, SageHusaConfig
 from nav_filters.forms import KalmanFilter
@@ -260,3 +260,45 @@ def test_sage_husa_q_law_compiled_matches_reference(dtype, diagonal, B, fused):
             assert rel(getattr(law, k), getattr(ref, k)) < tol, k
         np.testing.assert_array_equal(law._q_init, ref._q_init)
     assert jumps > 0  # the eq 24 branch was exercised
+
+
+@pytest.mark.parametrize("warmup", [0, 3])
+def test_sage_husa_epoch_rows_and_bookkeeping_compiled_are_the_numpy_bits(monkeypatch, warmup):
+    """The fused path's row flags and weights (``_epoch_rows``: rows with a measurement, past the warm-up, the
+    eq 21-23 weight at the frozen count, b = 1's limit) and its commit bookkeeping (``_count_rows``: the rows
+    adapting Q, b_used, the counts) are the numpy lines' bits, with and without a pending transition."""
+    B, m = 40, 6
+    rng = np.random.default_rng(4)
+    laws = {}
+    for fused in (False, True):
+        law = SageHusa(spd(rng, B, N), config=SageHusaConfig(warmup_epochs=warmup, d_freeze_tol=1e-3))
+        law.set_fused(fused)
+        laws[fused] = law
+    b = np.concatenate([[1.0, 1.0, 0.5], 1.0 - 10.0 ** rng.uniform(-6, -0.5, B - 3)])
+    for law in laws.values():
+        law.set_params(b=b)
+    calls = {False: [], True: []}
+    for fused, law in laws.items():
+        monkeypatch.setattr(law, "_adapt_q", lambda rows, d, ctx, dx, f=fused: calls[f].append((rows.copy(), d)))
+    for it in range(6):
+        mask = rng.random((B, m)) < 0.6
+        mask[it] = False  # a row without measurements
+        seen, step = rng.integers(0, 6, B), rng.integers(0, 5000, B)
+        d_prev, b_used = rng.uniform(0, 1, B), rng.uniform(0.5, 1, B)
+        for law in laws.values():
+            law._seen, law._step, law._d, law._b_used = seen.copy(), step.copy(), d_prev.copy(), b_used.copy()
+        got, ref = laws[True]._epoch_rows(mask), laws[False]._epoch_rows(mask)
+        for a, r in zip(got, ref):
+            assert a.dtype == r.dtype and a.tobytes() == r.tobytes()
+        has, active, d = ref
+        assert (laws[True]._jcap < step + 1).any() and (~active).any() and active.any()  # frozen, idle, active
+        pending = it % 2 == 0
+        plan = UpdatePlan(fade=np.ones(B), R=None, mask=mask, pending={"d": d, "has": has, "active": active})
+        ctx = EpochContext(pending=pending, Phi=None, Q=None, prior=None)
+        for law in laws.values():
+            law._commit(plan, ctx, None, None, mask, None)
+        for k in ("_b_used", "_step", "_seen", "_d", "_epoch"):
+            a, r = getattr(laws[True], k), getattr(laws[False], k)
+            assert a.dtype == r.dtype and a.tobytes() == r.tobytes(), k
+        assert [c[0].tobytes() for c in calls[True]] == [c[0].tobytes() for c in calls[False]]
+    assert len(calls[False]) == 3  # Q adapts on the epochs with a pending transition only
