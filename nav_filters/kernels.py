@@ -510,15 +510,22 @@ def unit_diagonal(R, keep):
     return R
 
 
+@nb.njit(cache=True)
+def scale_symmetric_row(R, s, keep, out):
+    """One row of :func:`scale_symmetric`: ``out = D R D`` (m, m), ``D = diag(s)``, 1 on the diagonal entries
+    of the rows where ``keep`` (m,) is False (also called by kernels that form their scales per row)."""
+    m = s.shape[0]
+    for i in range(m):
+        si = s[i]
+        for j in range(m):
+            out[i, j] = R[i, j] * si * s[j]
+        if not keep[i]:
+            out[i, i] = 1
+
+
 def _scale_rows(R, s, keep, out):
-    B, m = s.shape
-    for b in nb.prange(B):
-        for i in range(m):
-            si = s[b, i]
-            for j in range(m):
-                out[b, i, j] = R[b, i, j] * si * s[b, j]
-            if not keep[b, i]:
-                out[b, i, i] = 1
+    for b in nb.prange(s.shape[0]):
+        scale_symmetric_row(R[b], s[b], keep[b], out[b])
 
 
 _scale_serial, _scale_parallel = serial_and_parallel(_scale_rows)

@@ -196,15 +196,21 @@ def split_fading(split, stats_prev, weight, softening, confidence, lambda_max, n
     return np.where(has, lam, np.where(typed, 1.0, printed)), stats
 
 
-def _split_arrays(split, B):
-    """The fields of a :class:`~.innovation.FitSplit` as the compiled plans read them, ``(e_fit, e_res, dof, p,
-    tr_m, tr_q, n, n_other)``; (B, 0) arrays without a split (``fading_noise='reported'``)."""
-    if split is None:
+def _fused_plan_inputs(law, r, H, R, mask, ctx, geometry):
+    """What the compiled plans of the fused path read besides the law's state: the epoch's
+    :class:`~.innovation.InnovationTraces`, the :class:`~.innovation.FitSplit`'s fields ``(e_fit, e_res, dof, p,
+    tr_m, tr_q, n, n_other)`` ((B, 0) arrays without ``geometry``) and the output array of the per-state fading
+    factors, (B, n), or (B, 0) where ``fading_cap`` is inf (the one factor per row is lambda itself)."""
+    B = law.batch_size
+    tr = innovation_traces(r, H, ctx.prior, ctx.Q, R, mask)
+    if geometry:
+        s = fit_split(r, H, R, mask, ctx.prior, ctx.Q if ctx.pending else None, fast=True)
+        c = np.ascontiguousarray
+        sp = (c(s.e_fit), c(s.e_res), c(s.dof), c(s.p), c(s.tr_m), c(s.tr_q), c(s.n), c(s.n_other))
+    else:
         z = np.empty((B, 0))
-        return z, z, z, z, z, z, z, np.zeros(B, np.int64)
-    c = np.ascontiguousarray
-    return (c(split.e_fit), c(split.e_res), c(split.dof), c(split.p), c(split.tr_m), c(split.tr_q), c(split.n),
-            c(split.n_other))
+        sp = (z, z, z, z, z, z, z, np.zeros(B, np.int64))
+    return tr, sp, np.empty((B, 0 if math.isinf(law.config.fading_cap) else law.n))
 
 
 def fading_factor(tr_c, traces, softening, lambda_max, scale=1.0):
@@ -305,20 +311,16 @@ class StrongTracking(AdaptiveLaw):
         cfg = self.config
         geo = cfg.fading_noise == "geometry"
         B = self.batch_size
-        tr = innovation_traces(r, H, ctx.prior, ctx.Q, R, mask)
-        split = fit_split(r, H, R, mask, ctx.prior, ctx.Q if ctx.pending else None, fast=True) if geo else None
-        sp = _split_arrays(split, B)
+        tr, sp, fade = _fused_plan_inputs(self, r, H, R, mask, ctx, geo)
         v, has, lam = np.empty(B), np.empty(B, bool), np.empty(B)
         fs = np.empty((B, SPLIT_STATS))
-        capped = not math.isinf(cfg.fading_cap)
-        fade = np.empty((B, self.n if capped else 0))  # (B, 0): the one factor per row is lam
         kern, nchunk = row_kernel(_st_plan_serial, _st_plan_parallel, B)
         kern(tr.energy, tr.tr_m, tr.tr_q, tr.tr_r, np.ascontiguousarray(mask, bool), np.ascontiguousarray(ctx.prior),
              bool(ctx.pending), *sp, self._count, self._v,
              self._fs, self._params["rho"], self._params["softening"], self._p0_diag, float(cfg.lambda_max),
              float(cfg.fading_cap), geo, float(cfg.fading_confidence), float(cfg.noise_gate), v, has, lam, fs, fade,
              nchunk)
-        return UpdatePlan(fade=fade if capped else lam, R=R, mask=mask,
+        return UpdatePlan(fade=fade if fade.shape[1] else lam, R=R, mask=mask,
                           pending={"v": v, "has": has, "lambda": lam, "fs": fs})
 
     def _plan_reference(self, r, H, R, mask, ctx: EpochContext) -> UpdatePlan:
@@ -547,20 +549,16 @@ class MeasurementAdaptiveSTKF(SatelliteNoise, AdaptiveLaw):
         # the fused path of the default configuration: the row arithmetic of _plan_reference in one compiled
         # pass (the same bits)
         B, m = mask.shape
-        tr = innovation_traces(r, H, ctx.prior, ctx.Q, R, mask)
-        split = fit_split(r, H, R, mask, ctx.prior, ctx.Q if ctx.pending else None, fast=True)
+        tr, sp, fade = _fused_plan_inputs(self, r, H, R, mask, ctx, True)
         c, beta, alpha, lam = np.empty(B), np.empty(B), np.empty(B), np.empty(B)
         accept, fault = np.empty(B, bool), np.empty(B, bool)
         alpha_t, fs = np.empty((B, 2)), np.empty((B, SPLIT_STATS))
-        capped = not math.isinf(cfg.fading_cap)
-        fade = np.empty((B, self.n if capped else 0))  # (B, 0): the one factor per row is lam
         R = np.ascontiguousarray(R)
         R_used, mask_used = np.empty(R.shape, R.dtype), np.empty((B, m), bool)
         p = self._params
         kern, nchunk = row_kernel(_ma_plan_serial, _ma_plan_parallel, B)
         kern(tr.energy, tr.tr_m, tr.tr_q, tr.tr_r, np.ascontiguousarray(H), R, np.ascontiguousarray(mask, bool),
-             np.ascontiguousarray(ctx.prior), bool(ctx.pending),
-             *_split_arrays(split, B), self._count, self._c, self._beta, self._alpha, self._alpha_t, self._fs,
+             np.ascontiguousarray(ctx.prior), bool(ctx.pending), *sp, self._count, self._c, self._beta, self._alpha, self._alpha_t, self._fs,
              self._streak, p["b"], p["softening"], p["fading_scale"], p["fault_threshold"], self._p0_diag,
              int(cfg.warmup_epochs), int(cfg.max_consecutive_rejections), float(cfg.alpha_min),
              float(cfg.alpha_max), float(cfg.lambda_max), float(cfg.fading_cap), bool(cfg.fading_uses_alpha),
@@ -568,7 +566,7 @@ class MeasurementAdaptiveSTKF(SatelliteNoise, AdaptiveLaw):
              fade, R_used, mask_used, nchunk)
         pending = {"c": c, "beta": beta, "alpha": alpha, "accept": accept, "fault": fault, "lambda": lam,
                    "alpha_t": alpha_t, "fs": fs}
-        return UpdatePlan(fade=fade if capped else lam, R=R_used, mask=mask_used, pending=pending)
+        return UpdatePlan(fade=fade if fade.shape[1] else lam, R=R_used, mask=mask_used, pending=pending)
 
     def _plan_reference(self, r, H, R, mask, ctx: EpochContext) -> UpdatePlan:
         """Numpy specification of :meth:`_plan` (every configuration; the compiled

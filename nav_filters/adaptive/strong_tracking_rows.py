@@ -21,7 +21,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from ..kernels import pairwise_sum, serial_and_parallel
+from ..kernels import pairwise_sum, scale_symmetric_row, serial_and_parallel
 from .satellite_r import _row_group
 
 SPLIT_STATS = 5
@@ -314,12 +314,8 @@ def _ma_plan_rows(energy, tr_m, tr_q, tr_r, H, R, mask, prior, pending, s_fit, s
                 else:
                     sq[i] = 1.0
                 sq[i] = np.sqrt(sq[i])
+            scale_symmetric_row(R[b], sq, mask[b], R_out[b])
             for i in range(m):
-                si = sq[i]
-                for j in range(m):
-                    R_out[b, i, j] = R[b, i, j] * si * sq[j]
-                if not mask[b, i]:
-                    R_out[b, i, i] = 1
                 mask_out[b, i] = mask[b, i] and not fault
             if capped:
                 _capped_fading(lam, prior, b, p0_diag, fading_cap, fade[b])
