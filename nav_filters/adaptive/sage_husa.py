@@ -463,7 +463,7 @@ _adapt_q_serial, _adapt_q_parallel = serial_and_parallel(_adapt_q_rows)
 
 
 @nb.njit(cache=True)
-def _epoch_rows(mask, seen, warmup, step, jcap, b, d_prev, has, active, d):
+def _epoch_rows_kernel(mask, seen, warmup, step, jcap, b, d_prev, has, active, d):
     """The row flags and weights :meth:`SageHusa._plan` starts from (the fused path; numpy specification
     :meth:`SageHusa._epoch_rows_reference`): ``has`` (any used row), ``active`` (``has`` and past the warm-up)
     and ``d``, the weight of seed 000 eqs 21-23 at the count ``min(step + 1, jcap)`` on active rows (the last
@@ -480,7 +480,7 @@ def _epoch_rows(mask, seen, warmup, step, jcap, b, d_prev, has, active, d):
 
 
 @nb.njit(cache=True)
-def _count_rows(active, has, pending, adapt_q, b, b_used_prev, step_prev, seen_prev, rows, b_used, step, seen):
+def _count_rows_kernel(active, has, pending, adapt_q, b, b_used_prev, step_prev, seen_prev, rows, b_used, step, seen):
     """The bookkeeping of :meth:`SageHusa._commit` (the fused path; numpy specification in ``_commit``): the rows
     whose Q adapts (``active`` with a pending transition, if ``adapt_q``), ``b_used`` (b on active rows),
     the adaptation and epoch counts, into new (B,) arrays. Returns whether any row adapts Q."""
@@ -542,14 +542,14 @@ class SageHusa(SatelliteNoise, AdaptiveLaw):
 
     def _epoch_rows(self, mask):
         """(has, active, d) of this update: rows with a used measurement, rows adapting (past the warm-up), and
-        their weights (compiled on the fused path: :func:`_epoch_rows`; the same bits as
+        their weights (compiled on the fused path: :func:`_epoch_rows_kernel`; the same bits as
         :meth:`_epoch_rows_reference`, agreement test)."""
         if not self.fused:
             return self._epoch_rows_reference(mask)
         B = self.batch_size
         has, active, d = np.empty(B, bool), np.empty(B, bool), np.empty(B)
-        _epoch_rows(np.ascontiguousarray(mask, bool), self._seen, int(self.config.warmup_epochs), self._step,
-                    self._jcap, self._params["b"], self._d, has, active, d)
+        _epoch_rows_kernel(np.ascontiguousarray(mask, bool), self._seen, int(self.config.warmup_epochs), self._step,
+                           self._jcap, self._params["b"], self._d, has, active, d)
         return has, active, d
 
     def _epoch_rows_reference(self, mask):
@@ -611,12 +611,13 @@ class SageHusa(SatelliteNoise, AdaptiveLaw):
             self._commit_satellites(mask, *pend["sat"], pend["epoch"])
         elif ctx.pending:
             self._epoch = self._epoch + 1
-        if self.fused:  # compiled bookkeeping (_count_rows), the same values as the numpy lines below
+        if self.fused:  # compiled bookkeeping (_count_rows_kernel), the same values as the numpy lines below
             B = self.batch_size
             rows, b_used = np.empty(B, bool), np.empty(B)
             step, seen = np.empty(B, np.int64), np.empty(B, np.int64)
-            adapt = _count_rows(active, pend["has"], bool(ctx.pending), bool(self.config.adapt_q), self._params["b"],
-                                self._b_used, self._step, self._seen, rows, b_used, step, seen)
+            adapt = _count_rows_kernel(active, pend["has"], bool(ctx.pending), bool(self.config.adapt_q),
+                                       self._params["b"], self._b_used, self._step, self._seen, rows, b_used, step,
+                                       seen)
             self._b_used = b_used
             if adapt:
                 self._adapt_q(rows, d, ctx, dx)  # reads the step count before this epoch's

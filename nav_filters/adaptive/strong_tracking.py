@@ -149,8 +149,9 @@ def split_fading(split, stats_prev, weight, softening, confidence, lambda_max, n
     at the start); weight : (B,) smoothing weight in (0, 1]; softening : (B,) beta; confidence : kappa
     (>= 0); lambda_max : float; noise_gate : float (>= 1, inf: no gate); printed : (B,) the printed law's
     lambda; scale : (B,) or scalar multiplier of the ratio; fast : the compiled form
-    (:func:`~.strong_tracking_rows.split_fading_kernel`, the fused path's: the same values bit for bit for the laws' 2 types, tested
-    with 1-3 in ``tests/nav_filters/test_fused_update.py``; the numpy lines here are its specification).
+    (:func:`~.strong_tracking_rows.split_fading_kernel`, the fused path's: the same values bit for bit for the
+    laws' 2 types, tested with 1-3 in ``tests/nav_filters/test_fused_update.py``; the numpy lines here are its
+    specification).
 
     Returns
     -------
@@ -558,9 +559,9 @@ class MeasurementAdaptiveSTKF(SatelliteNoise, AdaptiveLaw):
         p = self._params
         kern, nchunk = row_kernel(_ma_plan_serial, _ma_plan_parallel, B)
         kern(tr.energy, tr.tr_m, tr.tr_q, tr.tr_r, np.ascontiguousarray(H), R, np.ascontiguousarray(mask, bool),
-             np.ascontiguousarray(ctx.prior), bool(ctx.pending), *sp, self._count, self._c, self._beta, self._alpha, self._alpha_t, self._fs,
-             self._streak, p["b"], p["softening"], p["fading_scale"], p["fault_threshold"], self._p0_diag,
-             int(cfg.warmup_epochs), int(cfg.max_consecutive_rejections), float(cfg.alpha_min),
+             np.ascontiguousarray(ctx.prior), bool(ctx.pending), *sp, self._count, self._c, self._beta, self._alpha,
+             self._alpha_t, self._fs, self._streak, p["b"], p["softening"], p["fading_scale"], p["fault_threshold"],
+             self._p0_diag, int(cfg.warmup_epochs), int(cfg.max_consecutive_rejections), float(cfg.alpha_min),
              float(cfg.alpha_max), float(cfg.lambda_max), float(cfg.fading_cap), bool(cfg.fading_uses_alpha),
              float(cfg.fading_confidence), float(cfg.noise_gate), c, beta, alpha, accept, fault, lam, alpha_t, fs,
              fade, R_used, mask_used, nchunk)
