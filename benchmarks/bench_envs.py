@@ -35,6 +35,9 @@ figures measured side by side under the same machine load. The *before* cell run
 as the *after* cell; where the earlier tree does not have that mode (its env rejects the argument) it falls
 back to the exact transition, and the row is marked ``*`` ("before: the exact default of DIR, after: the
 mode of this tree"). The stage profile's *before* column is the first mode of ``--transitions`` alike.
+``--rounds N`` runs each throughput cell N times in each tree, alternately, and prints the medians and the range
+of the N per-round speed-ups: on a shared machine whose speed swings between runs a minute apart, one pair of
+cells can show 0.7x or 1.1x for unchanged code.
 
 ``--accuracy`` prints instead the accuracy table of the fast modes (averaged, fused) against the exact one on
 every built-in scenario, paired episodes (:mod:`transition_accuracy`, a few minutes); ``--filterpy`` the
@@ -45,7 +48,7 @@ Usage::
 
     python benchmarks/bench_envs.py [--quick] [--methods sage-husa stkf] [--batches 1 16 256 1024]
                                     [--steps N] [--episode-s 60] [--no-profile] [--profile-only]
-                                    [--transitions exact averaged] [--compare DIR]
+                                    [--transitions exact averaged] [--compare DIR [--rounds N]]
     python benchmarks/bench_envs.py --accuracy [--accuracy-episodes 24] [--accuracy-max-s 700]
                                     [--accuracy-scenarios urban ...] [--accuracy-nees-runs 20]
     python benchmarks/bench_envs.py --filterpy [--batches 1 1024]
@@ -374,6 +377,10 @@ def main(argv=None):
                    help="only time each compiled kernel of the step against its numpy reference (B = 1, 1024)")
     p.add_argument("--compare", metavar="DIR", default=None,
                    help="also run every cell in the source tree DIR, alternately in fresh processes")
+    p.add_argument("--rounds", type=int, default=1,
+                   help="--compare: run each throughput cell this many times in each tree, alternately, and print "
+                        "the medians with the range of the per-round speed-ups (for a machine whose speed swings "
+                        "between runs)")
     p.add_argument("--transitions", nargs="+", default=list(TRANSITIONS), choices=TRANSITIONS,
                    help="transition modes to run (exact: the reference; averaged: exact_transition=False; fused: "
                         "also fused_update=True, the env default)")
@@ -386,6 +393,8 @@ def main(argv=None):
     p.add_argument("--filterpy", action="store_true",
                    help="only the side-by-side figure against filterpy's KalmanFilter loop (default B = 1, 1024)")
     args = p.parse_args(argv)
+    if args.rounds < 1:
+        p.error(f"--rounds must be at least 1, got {args.rounds}")
     if args.accuracy:
         from transition_accuracy import print_accuracy
         print_accuracy(episodes=args.accuracy_episodes, max_duration_s=args.accuracy_max_s,
@@ -418,7 +427,10 @@ def main(argv=None):
         other = os.path.abspath(args.compare)
         print(f"before = {other}\nafter  = {here}")
         hdr = (f"{'method':16s} {'B':>5s} {'steps/s before':>15s} {'after':>10s} {'speed-up':>9s} "
-               f"{'cpu ms before':>14s} {'after':>9s} {'reset s before':>15s} {'after':>7s}")
+               f"{'cpu ms before':>14s} {'after':>9s} {'reset s before':>15s} {'after':>7s}"
+               + (f" {'rounds: speed-ups':>18s}" if args.rounds > 1 else ""))
+        if args.rounds > 1:
+            print(f"each figure the median of {args.rounds} alternating runs per tree")
     else:
         hdr = f"{'method':16s} {'B':>5s} {'reset [s]':>10s} {'steps/s':>12s} {'ms/step':>9s} {'cpu ms/step':>12s}"
     print("\n" + hdr + "\n" + "-" * len(hdr))
@@ -428,11 +440,17 @@ def main(argv=None):
             for tr in args.transitions:
                 lab = _label(m, tr)
                 if args.compare:
-                    rb, fell_back = _run_before(other, *cell, tr)  # the before tree, same mode if it has it
+                    before, after = [], []
+                    for _ in range(args.rounds):
+                        rb, fell_back = _run_before(other, *cell, tr)  # the before tree, same mode if it has it
+                        before.append(rb)
+                        after.append(_run_cell(here, *cell, tr))
                     lab += "*" if fell_back else ""
-                    ra = _run_cell(here, *cell, tr)
+                    rb, ra = np.median(before, axis=0), np.median(after, axis=0)
+                    ups = [a[1] / b[1] for a, b in zip(after, before)]
+                    spread = f" {min(ups):12.2f}-{max(ups):.2f}x" if args.rounds > 1 else ""
                     print(f"{lab:16s} {B:5d} {rb[1]:15.0f} {ra[1]:10.0f} {ra[1] / rb[1]:8.2f}x {rb[2]:14.2f} "
-                          f"{ra[2]:9.2f} {rb[0]:15.2f} {ra[0]:7.2f}", flush=True)
+                          f"{ra[2]:9.2f} {rb[0]:15.2f} {ra[0]:7.2f}{spread}", flush=True)
                 else:
                     t_reset, rate, cpu = bench_env(m, B, n_steps(B), args.episode_s, args.scenario, tr,
                                                    stat=args.stat)
