@@ -13,7 +13,8 @@ operations in the same order on the same types, so the results are the same bits
 
 * numpy's ``np.clip``, ``np.maximum`` and ``np.minimum`` propagate NaN (:func:`_clip`, :func:`_max_nan`,
   :func:`_min_nan` do too);
-* a row sum over the measurement rows is numpy's pairwise summation (:func:`~nav_filters.kernels.pairwise_sum`);
+* a row sum (over the measurement rows, or the types) is numpy's pairwise summation
+  (:func:`~nav_filters.kernels.pairwise_sum`);
 * the measurement factors reach R in R's dtype, rounded as ``astype`` rounds them.
 """
 from __future__ import annotations
@@ -58,16 +59,6 @@ def _min_nan(a, b):
 
 
 @nb.njit(cache=True)
-def _row_sum(a):
-    """``a.sum()`` of a row of few columns (the T measurement types), in numpy's order there: from the first
-    column on, one column at a time."""
-    s = a[0]
-    for t in range(1, a.shape[0]):
-        s += a[t]
-    return s
-
-
-@nb.njit(cache=True)
 def split_fading_row(e_fit, e_res, dof, p, tr_m, tr_q, n_typed, n_other, stats_prev, weight, softening,
                      confidence, lambda_max, noise_gate, printed, scale, stats, x, xk):
     """One row of :func:`~.strong_tracking.split_fading` (its numpy lines are the specification).
@@ -95,8 +86,8 @@ def split_fading_row(e_fit, e_res, dof, p, tr_m, tr_q, n_typed, n_other, stats_p
             x[t] = e_fit[t] - softening * g * p[t] - tr_q[t]
         else:
             x[t] = 0.0
-    xk[0] = _row_sum(x)
-    xk[1] = _row_sum(tr_m)
+    xk[0] = pairwise_sum(x, 0, T)
+    xk[1] = pairwise_sum(tr_m, 0, T)
     for t in range(T):  # s_k terms
         if dof[t] > 0:
             g = e_res[t] / dof[t]
@@ -105,9 +96,9 @@ def split_fading_row(e_fit, e_res, dof, p, tr_m, tr_q, n_typed, n_other, stats_p
             x[t] = 2.0 * (u * u) / (pp if pp > 0 else 1.0) + 2.0 * (g * g) * (pp * pp) / dof[t]
         else:
             x[t] = 0.0
-    xk[2] = _row_sum(x)
-    xk[3] = _row_sum(e_res)
-    xk[4] = _row_sum(dof)
+    xk[2] = pairwise_sum(x, 0, T)
+    xk[3] = pairwise_sum(e_res, 0, T)
+    xk[4] = pairwise_sum(dof, 0, T)
     w = weight
     keep = 1.0 - w
     for c in range(SPLIT_STATS):
@@ -142,6 +133,13 @@ def split_fading_kernel(e_fit, e_res, dof, p, tr_m, tr_q, n_typed, n_other, stat
         lam[b] = split_fading_row(e_fit[b], e_res[b], dof[b], p[b], tr_m[b], tr_q[b], n_typed[b], n_other[b],
                                   stats_prev[b], weight[b], softening[b], confidence, lambda_max, noise_gate,
                                   printed[b], scale[b], stats[b], x, xk)
+
+
+@nb.njit(cache=True)
+def _type_factor(t, alpha_t, alpha):
+    """The measurement factor of a row of type ``t``: ``alpha_t[0]`` (pseudoranges), ``alpha_t[1]`` (rates),
+    else the scalar ``alpha`` (one row of :meth:`~.strong_tracking.MeasurementAdaptiveSTKF._row_factors`)."""
+    return alpha_t[0] if t == 0 else (alpha_t[1] if t == 1 else alpha)
 
 
 @nb.njit(cache=True)
@@ -264,8 +262,7 @@ def _ma_plan_rows(energy, tr_m, tr_q, tr_r, H, R, mask, prior, pending, s_fit, s
             for i in range(m):
                 t = _row_group(H, b, i, n) if mask[b, i] else -1
                 types[i] = t
-                a = alpha_t_prev[b, 0] if t == 0 else (alpha_t_prev[b, 1] if t == 1 else a_prev)
-                work[i] = a * (np.float64(R[b, i, i]) if mask[b, i] else 0.0)
+                work[i] = _type_factor(t, alpha_t_prev[b], a_prev) * (np.float64(R[b, i, i]) if mask[b, i] else 0.0)
             predicted = trm + trq + pairwise_sum(work, 0, m)
             thr = fault_threshold[b]
             fault = acting and tr_c > thr * predicted
@@ -308,11 +305,7 @@ def _ma_plan_rows(energy, tr_m, tr_q, tr_r, H, R, mask, prior, pending, s_fit, s
             lam_out[b] = lam
             # eq 24: alpha R, as D R D in R's dtype (masked rows keep unit variance)
             for i in range(m):
-                t = types[i]
-                if accept:
-                    sq[i] = alpha_t_out[b, 0] if t == 0 else (alpha_t_out[b, 1] if t == 1 else alpha)
-                else:
-                    sq[i] = 1.0
+                sq[i] = _type_factor(types[i], alpha_t_out[b], alpha) if accept else 1.0  # rounded to R's dtype
                 sq[i] = np.sqrt(sq[i])
             scale_symmetric_row(R[b], sq, mask[b], R_out[b])
             for i in range(m):
