@@ -21,13 +21,13 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
-from earth import C_en, ecef_to_geodetic
 from nav_filters.registry import parse_method
 from nav_filters.rows import check_row_pairs, copied_array, copy_dataclass_rows, copy_rows_generic
 
 from .config import EnvConfig, ParamSpec
-from .episodes import navigator_for, satellite_keys
+from .episodes import navigator_for
 from .aiding import odometer_rows, with_rows
+from .prepared import WORLD_ARRAY_NAMES, PreparedWorld, prepare_world
 from .zupt_source import STILL_SPEED_MPS, ZuptSource  # noqa: F401  (STILL_SPEED_MPS re-exported)
 
 #: World seeds the environments draw at reset, ``[low, high)``: kept apart from the small seeds that
@@ -330,11 +330,20 @@ class TuningCore:
         nav.form.set_params(**vals)
         return vals
 
-    def reset_rows(self, rows, seeds) -> np.ndarray:
-        """Start new episodes on ``rows`` with world ``seeds``; returns their observations (len(rows), obs_dim)."""
+    def reset_rows(self, rows, seeds, prepared: PreparedWorld | None = None) -> np.ndarray:
+        """Start new episodes on ``rows`` with world ``seeds``; returns their observations (len(rows), obs_dim).
+
+        ``prepared``: the rows' world drawn ahead (:func:`envs.prepared.prepare_world` of this core's config and
+        these seeds, e.g. by :class:`envs.prefetch.WorldPrefetcher`); None draws it here. Either way the same
+        bits: the world is a function of the config and the seeds."""
         rows = np.asarray(rows, np.intp)
         seeds = [int(s) for s in seeds]
-        world = self.config.make_world(seeds)
+        if prepared is None:
+            prepared = prepare_world(self.config, seeds)
+        elif list(prepared.seeds) != seeds:
+            raise ValueError(f"reset_rows: the prepared world holds seeds {list(prepared.seeds)[:4]}..., not the "
+                             f"rows' seeds {seeds[:4]}...")
+        world = prepared.world
         nav = self._make_nav(world, self.config.method)
         act = np.broadcast_to(self.default_action, (rows.size, self.k)).copy()
         self._set_params(nav, act)
@@ -345,13 +354,14 @@ class TuningCore:
         if self.nav is None:
             if rows.size != self.B or not np.array_equal(rows, np.arange(self.B)):
                 raise ValueError("the first reset must cover every row")
-            self._alloc(world)
+            self._alloc(prepared)
             self.nav, self.ref = nav, ref
         else:
             self.nav.replace_rows(rows, nav)
             if ref is not None:
                 self.ref.replace_rows(rows, ref)
-        self._store_world(rows, world)
+        for name in WORLD_ARRAY_NAMES:
+            getattr(self, name)[rows] = prepared.arrays[name]
         self._zupt.reset(None if rows.size == self.B else rows)  # new streams on the reset rows
         for i, s in zip(rows, seeds):
             self.seeds[i] = s
@@ -366,13 +376,13 @@ class TuningCore:
         self.frames[rows] = frame[:, None, :]
         return self.frames[rows].reshape(rows.size, -1).copy()
 
-    def _alloc(self, world):
+    def _alloc(self, prepared: PreparedWorld):
         B = self.B
-        g = world.gnss
-        N = world.imu.f_b.shape[1]
-        M, C = g.pr.shape[1], g.pr.shape[2]
-        self.epoch_idx = world.epoch_idx
-        self.has_rate = g.prr is not None  # recorded data sets may have no Doppler
+        a = prepared.arrays
+        N = a["f"].shape[1]
+        M, C = a["pr"].shape[1], a["pr"].shape[2]
+        self.epoch_idx = prepared.world.epoch_idx
+        self.has_rate = prepared.has_rate  # recorded data sets may have no Doppler
         self.M, self.C = M, C
         self.dt = 1.0 / self.scenario.imu_rate_hz
         self.f = np.zeros((B, N, 3))
@@ -397,28 +407,6 @@ class TuningCore:
         self.max_err = np.zeros(B)
         self.frames = np.zeros((B, self.config.history, self.frame_dim), np.float32)
         self.est_track = np.full((B, M, 3), np.nan)
-
-    def _store_world(self, rows, world):
-        g, tr = world.gnss, world.truth
-        self.f[rows] = world.imu.f_b
-        self.w[rows] = world.imu.w_b
-        self.sat_pos[rows], self.sat_vel[rows] = g.sat_pos, g.sat_vel
-        self.pr[rows], self.pr_sigma[rows] = g.pr, g.pr_sigma
-        if g.prr is not None:
-            self.prr[rows], self.prr_sigma[rows] = g.prr, g.prr_sigma
-        self.gmask[rows] = g.mask
-        if world.odometer is not None:
-            self.odo[rows] = world.odometer
-        self.sat_keys[rows] = satellite_keys(g)
-        ep = world.epoch_idx
-        self.truth_r[rows] = tr.r_e[:, ep]
-        lat, lon, _ = ecef_to_geodetic(tr.r_e[:, ep])
-        self.truth_Cne[rows] = np.swapaxes(C_en(lat, lon), -1, -2)
-        self.truth_still[rows] = tr.stationary(STILL_SPEED_MPS)[:, ep]
-        self.truth_still_n[rows] = tr.stationary(STILL_SPEED_MPS)
-        self.origin[rows] = tr.r_e[:, 0]
-        lat0, lon0, _ = ecef_to_geodetic(tr.r_e[:, 0])
-        self.origin_Cne[rows] = np.swapaxes(C_en(lat0, lon0), -1, -2)
 
     def _initial_frame(self, rows):
         n = rows.size
@@ -622,8 +610,7 @@ class TuningCore:
         return self._clip_frame(np.concatenate([self.action, feat], 1))
 
     # -------------------------------------------------------------- branching
-    WORLD_ARRAYS = ("f", "w", "sat_pos", "sat_vel", "pr", "prr", "pr_sigma", "prr_sigma", "gmask", "truth_r",
-                    "truth_Cne", "truth_still", "truth_still_n", "origin", "origin_Cne", "sat_keys", "odo")
+    WORLD_ARRAYS = WORLD_ARRAY_NAMES
     """Per-row world arrays (a function of the row's world seed: rows with equal seeds hold equal worlds)."""
     SHARED_ATTRS = frozenset({"config", "specs", "scenario", "epoch_idx", "default_action", "_default_values",
                               "frame_low", "frame_high", "obs_low", "obs_high", "nav", "ref", "seeds", "_zupt",

@@ -1,0 +1,96 @@
+"""What an env core's reset needs of a world, drawn and reduced in one pure function.
+
+:func:`prepare_world` draws the world of an :class:`~envs.config.EnvConfig` for B seeds and keeps only what
+:meth:`envs.core.TuningCore.reset_rows` uses: the per-row arrays the core stores
+(:data:`WORLD_ARRAY_NAMES`: IMU samples, GNSS epochs, truth at the epochs) and the world without its bulky
+parts (truth at the IMU rate, IMU error records, GNSS data), which is all the navigator's construction
+reads (initial estimate, IMU grade, clock model). It is a function of the config and the seeds only, so it
+can run ahead in another process (:mod:`envs.prefetch`) and give the same bits as at the reset itself;
+the reduced form is about a quarter of the world's size (what crosses the process boundary).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from earth import C_en, ecef_to_geodetic
+
+from .episodes import satellite_keys
+from .sim.world import World
+from .zupt_source import STILL_SPEED_MPS
+
+WORLD_ARRAY_NAMES = ("f", "w", "sat_pos", "sat_vel", "pr", "prr", "pr_sigma", "prr_sigma", "gmask", "truth_r",
+                     "truth_Cne", "truth_still", "truth_still_n", "origin", "origin_Cne", "sat_keys", "odo")
+"""The per-row world arrays of an env core (all with leading axis B), in :class:`PreparedWorld.arrays`:
+
+``f``, ``w`` (B, N, 3) IMU specific force [m/s^2] and angular rate [rad/s] interval means; ``sat_pos``,
+``sat_vel`` (B, M, C, 3) [m, m/s]; ``pr``, ``prr``, ``pr_sigma``, ``prr_sigma`` (B, M, C) [m, m/s] (``prr``
+and its sigma zeros when the world has no Doppler); ``gmask`` (B, M, C) bool; ``truth_r`` (B, M, 3) true ECEF
+position at the epochs [m]; ``truth_Cne`` (B, M, 3, 3) ECEF-to-NED rotation there; ``truth_still`` (B, M) and
+``truth_still_n`` (B, N) bool stationary truth; ``origin`` (B, 3) start position [m], ``origin_Cne`` (B, 3, 3);
+``sat_keys`` (B, M, C) int64 (-1 on empty channels); ``odo`` (B, M) odometer readings [m/s] (NaN without one).
+"""
+
+
+@dataclass(frozen=True)
+class PreparedWorld:
+    """The part of a world an env core's reset uses (:func:`prepare_world`).
+
+    Attributes
+    ----------
+    seeds : the B world seeds.
+    world : the :class:`~envs.sim.world.World` with ``truth``, ``imu`` and ``gnss`` set to None (scenario,
+        seeds, epoch indices, initial estimate: what :func:`envs.episodes.navigator_for` reads).
+    arrays : ``{name: array}`` for every name of :data:`WORLD_ARRAY_NAMES`.
+    has_rate : whether the world has pseudorange rates (a recording may have no Doppler).
+    """
+
+    seeds: tuple
+    world: World
+    arrays: dict
+    has_rate: bool
+
+    @property
+    def batch_size(self) -> int:
+        return len(self.seeds)
+
+
+def world_arrays(world: World) -> dict:
+    """The per-row arrays of :data:`WORLD_ARRAY_NAMES` from a whole world (float64 but the IMU samples, which
+    keep the world's IMU dtype until the core stores them)."""
+    g, tr = world.gnss, world.truth
+    B, M = g.pr.shape[:2]
+    ep = world.epoch_idx
+    still = tr.stationary(STILL_SPEED_MPS)
+    lat, lon, _ = ecef_to_geodetic(tr.r_e[:, ep])
+    lat0, lon0, _ = ecef_to_geodetic(tr.r_e[:, 0])
+    has_rate = g.prr is not None
+    return {
+        "f": world.imu.f_b, "w": world.imu.w_b,
+        "sat_pos": g.sat_pos, "sat_vel": g.sat_vel,
+        "pr": g.pr, "pr_sigma": g.pr_sigma,
+        "prr": g.prr if has_rate else np.zeros(g.pr.shape),
+        "prr_sigma": g.prr_sigma if has_rate else np.zeros(g.pr.shape),
+        "gmask": g.mask,
+        "truth_r": tr.r_e[:, ep],
+        "truth_Cne": np.swapaxes(C_en(lat, lon), -1, -2),
+        "truth_still": still[:, ep],
+        "truth_still_n": still,
+        "origin": tr.r_e[:, 0],
+        "origin_Cne": np.swapaxes(C_en(lat0, lon0), -1, -2),
+        "sat_keys": satellite_keys(g),
+        "odo": np.full((B, M), np.nan) if world.odometer is None else world.odometer,
+    }
+
+
+def prepare_world(config, seeds) -> PreparedWorld:
+    """Draw the world of ``config`` (an :class:`~envs.config.EnvConfig`) for ``seeds`` (B ints) and reduce it
+    to what a reset uses (:class:`PreparedWorld`). A pure function of its arguments."""
+    world = config.make_world([int(s) for s in seeds])
+    arrays = world_arrays(world)
+    return PreparedWorld(seeds=tuple(world.seeds), world=replace(world, truth=None, imu=None, gnss=None),
+                         arrays=arrays, has_rate=world.gnss.prr is not None)
+
+
+__all__ = ["WORLD_ARRAY_NAMES", "PreparedWorld", "prepare_world", "world_arrays"]
