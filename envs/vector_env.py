@@ -7,8 +7,16 @@ episode* in ``obs`` and the last one in ``info["final_obs"]`` (masked by
 episode's metrics. Seeding: ``reset(seed=s)`` seeds row i with ``s + i`` (an
 int list seeds rows individually), so row i equals the single env reset with
 ``seed=s + i``, also across automatic resets.
+
+``prefetch_worlds=depth`` (default 0: off) draws the worlds of up to ``depth`` coming automatic resets ahead
+in a background process at the lowest CPU priority (:class:`envs.prefetch.WorldPrefetcher`), so that a reset
+whose world is ready only copies it in: the same bits, less time where a core is idle (PPO's gradient
+epochs). It pays when the rows finish together (episodes of one length, the default time limit); a reset of
+another grouping of rows draws its world itself. ``train.py rl`` turns it on.
 """
 from __future__ import annotations
+
+from collections import deque
 
 import numpy as np
 from gymnasium import spaces
@@ -27,11 +35,20 @@ class GnssInsTuningVectorEnv(VectorEnv):
     PARAMS = SAGE_HUSA_PARAMS
     DEFAULTS = {"method": "sage-husa"}
 
-    def __init__(self, num_envs: int = 1, **kwargs):
+    def __init__(self, num_envs: int = 1, prefetch_worlds: int = 0, **kwargs):
         kwargs.pop("render_mode", None)
         self.num_envs = check_batch_size(num_envs, "num_envs")
+        if isinstance(prefetch_worlds, bool) or not isinstance(prefetch_worlds, (int, np.integer)) \
+                or prefetch_worlds < 0:
+            raise ValueError(f"prefetch_worlds must be an int >= 0 (worlds drawn ahead; 0: off), got "
+                             f"{prefetch_worlds!r}")
         self.config = make_config(self.DEFAULTS, kwargs)
         self.core = TuningCore(self.config, self.PARAMS, self.num_envs)
+        self._ahead = [deque() for _ in range(self.num_envs)]  # each row's next world seeds, drawn early
+        self._prefetch = None
+        if prefetch_worlds:
+            from .prefetch import WorldPrefetcher
+            self._prefetch = WorldPrefetcher(self.config, int(prefetch_worlds))
         k = self.core.k
         self.single_action_space = spaces.Box(-1.0, 1.0, shape=(k,), dtype=np.float32)
         self.single_observation_space = spaces.Box(self.core.obs_low, self.core.obs_high, dtype=np.float32)
@@ -40,7 +57,30 @@ class GnssInsTuningVectorEnv(VectorEnv):
         self._rngs = [None] * self.num_envs
 
     def _next_seeds(self, rows):
-        return [draw_world_seed(self._rngs[i]) for i in rows]
+        return [self._ahead[i].popleft() if self._ahead[i] else draw_world_seed(self._rngs[i]) for i in rows]
+
+    def _coming_seeds(self, rows, k: int):
+        """The world seeds of the ``k``-th coming reset of each of ``rows`` (k >= 1), drawn ahead from the rows'
+        generators in their order (so the seeds, and the worlds, are those of drawing them at the resets)."""
+        out = []
+        for i in rows:
+            q = self._ahead[i]
+            while len(q) < k:
+                q.append(draw_world_seed(self._rngs[i]))
+            out.append(q[k - 1])
+        return out
+
+    def _reset_rows(self, rows):
+        """Reset ``rows`` with their next seeds (their prefetched world when it is ready), then ask the prefetch
+        for their coming worlds; returns the observations."""
+        seeds = self._next_seeds(rows)
+        pf = self._prefetch
+        prepared = None if pf is None else pf.take(seeds)
+        obs = self.core.reset_rows(rows, seeds, prepared=prepared)
+        if pf is not None:
+            while pf.request(self._coming_seeds(rows, pf.in_flight + 1)):
+                pass
+        return obs
 
     def reset(self, *, seed=None, options=None):
         if seed is None:
@@ -52,9 +92,13 @@ class GnssInsTuningVectorEnv(VectorEnv):
             if len(seeds) != self.num_envs:
                 raise ValueError(f"seed list must have {self.num_envs} entries, got {len(seeds)}")
         self._rngs = [seeding.np_random(s)[0] for s in seeds]
+        for q in self._ahead:
+            q.clear()
+        if self._prefetch is not None:
+            self._prefetch.cancel()
         rows = np.arange(self.num_envs)
-        world_seeds = self._next_seeds(rows)
-        obs = self.core.reset_rows(rows, world_seeds)
+        world_seeds = self._coming_seeds(rows, 1)
+        obs = self._reset_rows(rows)
         return obs, {"seed": np.array(world_seeds), "_seed": np.ones(self.num_envs, bool)}
 
     def step(self, actions):
@@ -75,8 +119,14 @@ class GnssInsTuningVectorEnv(VectorEnv):
             infos["final_obs"], infos["_final_obs"] = final_obs, done.copy()
             infos["final_info"], infos["_final_info"] = final_info, done.copy()
             obs = obs.copy()
-            obs[rows] = self.core.reset_rows(rows, self._next_seeds(rows))
+            obs[rows] = self._reset_rows(rows)
         return obs, res.reward.astype(np.float64), res.terminated.copy(), res.truncated.copy(), infos
+
+    def close_extras(self, **kwargs):
+        """Stop the world prefetch process, if any."""
+        if self._prefetch is not None:
+            self._prefetch.close()
+            self._prefetch = None
 
 
 class SageHusaVectorEnv(GnssInsTuningVectorEnv):

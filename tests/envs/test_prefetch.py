@@ -1,0 +1,117 @@
+"""Worlds drawn ahead in a background process (envs.prefetch) change no result: a vector env with
+``prefetch_worlds`` equals one drawing every world at its reset, bit for bit, across automatic resets, a new
+``reset(seed=...)``, cancelled requests and a dead worker."""
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import envs  # noqa: F401
+from envs.gnss_ins_env import make_config
+from envs.prefetch import WorldPrefetcher
+from envs.prepared import WORLD_ARRAY_NAMES, prepare_world
+
+EPISODE_S = 4.0  # 4 steps per episode: automatic resets every 4 steps
+
+
+def _env(prefetch, B=3):
+    env = gym.make_vec("GnssIns/SageHusa-v0", num_envs=B, vectorization_mode="vector_entry_point",
+                       episode_length_s=EPISODE_S, prefetch_worlds=prefetch)
+    if prefetch:
+        assert env.unwrapped._prefetch.wait_ready(120)
+    return env
+
+
+def _run(env, seed, steps, B=3):
+    rng = np.random.default_rng(seed)
+    obs, info = env.reset(seed=seed)
+    out = {"obs": [obs], "rew": [], "seed": [info["seed"]], "final": []}
+    for _ in range(steps):
+        obs, rew, term, trunc, info = env.step(rng.uniform(-1, 1, (B, 1)).astype(np.float32))
+        out["obs"].append(obs)
+        out["rew"].append(rew)
+        if "final_obs" in info:
+            done = info["_final_obs"]
+            out["final"].append(np.stack(info["final_obs"][done]))
+            out["final"].append(np.array([info["final_info"][i]["episode_metrics"]["rmse_h_m"]
+                                          for i in np.flatnonzero(done)]))
+    return out
+
+
+def _same(a, b):
+    for k in a:
+        assert len(a[k]) == len(b[k]), k
+        for x, y in zip(a[k], b[k]):
+            np.testing.assert_array_equal(x, y, err_msg=k)
+
+
+def test_prefetched_worlds_give_the_same_episodes():
+    plain = _env(0)
+    ahead = _env(2)
+    try:
+        _same(_run(plain, 11, 17), _run(ahead, 11, 17))   # 4 automatic resets
+        pf = ahead.unwrapped._prefetch
+        assert pf.hits >= 3, (pf.hits, pf.misses)
+        # a new reset(seed=...) drops what was drawn ahead for the old seeds
+        _same(_run(plain, 5, 9), _run(ahead, 5, 9))
+        assert pf.hits >= 5
+    finally:
+        plain.close()
+        ahead.close()
+    assert ahead.unwrapped._prefetch is None  # close() stopped the worker
+
+
+def test_a_dead_worker_falls_back_to_drawing_at_reset():
+    plain = _env(0)
+    ahead = _env(2)
+    try:
+        pf = ahead.unwrapped._prefetch
+        pf._proc.kill()
+        pf._proc.join()
+        with pytest.warns(RuntimeWarning, match="prefetch process exited"):
+            got = _run(ahead, 3, 9)
+        _same(_run(plain, 3, 9), got)
+        assert pf.hits == 0
+    finally:
+        plain.close()
+        ahead.close()
+
+
+def test_take_serves_requests_in_order_and_cancels_on_another_grouping():
+    config = make_config({"method": "sage-husa"}, {"episode_length_s": EPISODE_S})
+    pf = WorldPrefetcher(config, depth=2)
+    try:
+        assert pf.wait_ready(120)
+        assert pf.request([1, 2]) and pf.request([3, 4])
+        assert not pf.request([5, 6])  # depth 2 in flight
+        assert pf.take([9, 9]) is None and pf.in_flight == 0  # another grouping: both cancelled
+        assert pf.request([5, 6]) and pf.request([7])
+        got = pf.take([5, 6])
+        ref = prepare_world(config, [5, 6])
+        assert got.seeds == (5, 6) and got.has_rate == ref.has_rate
+        for name in WORLD_ARRAY_NAMES:
+            np.testing.assert_array_equal(got.arrays[name], ref.arrays[name], err_msg=name)
+        np.testing.assert_array_equal(got.world.init.r_e, ref.world.init.r_e)
+        assert pf.take([7]).seeds == (7,)
+        assert (pf.hits, pf.misses) == (2, 1)
+    finally:
+        pf.close()
+
+
+@pytest.mark.parametrize("value", [-1, 1.5, True, "2"])
+def test_prefetch_worlds_must_be_a_non_negative_int(value):
+    with pytest.raises(ValueError, match="prefetch_worlds must be an int >= 0"):
+        gym.make_vec("GnssIns/SageHusa-v0", num_envs=2, vectorization_mode="vector_entry_point",
+                     prefetch_worlds=value)
+
+
+def test_depth_must_be_positive():
+    with pytest.raises(ValueError, match="depth must be an int >= 1"):
+        WorldPrefetcher(make_config({"method": "sage-husa"}, {}), depth=0)
+
+
+def test_reset_rows_rejects_a_prepared_world_of_other_seeds():
+    env = gym.make_vec("GnssIns/SageHusa-v0", num_envs=2, vectorization_mode="vector_entry_point",
+                       episode_length_s=EPISODE_S)
+    core = env.unwrapped.core
+    with pytest.raises(ValueError, match="prepared world holds seeds"):
+        core.reset_rows(np.arange(2), [1, 2], prepared=prepare_world(core.config, [1, 3]))
