@@ -41,12 +41,15 @@ torch's fused implementation (``optimizer_kwargs=dict(fused=True)``): the same u
 rate, betas and epsilon, one kernel for all parameters instead of ~10 small tensor operations per parameter; it
 rounds differently, so a run is not bit for bit the one with the default per-tensor loop."""
 DEFAULT_SETTINGS = dict(n_timesteps=100_000, n_envs=16, normalize=True, env_kwargs={}, eval_freq=10_000,
-                        eval_episodes=16, torch_threads=1)
+                        eval_episodes=16, torch_threads=1, prefetch_worlds=2)
 """Run settings of ``train.py rl`` without ``--quick`` or a config file (``hyperparams/*.yml`` repeat them for
 RL Zoo). ``torch_threads``: the policies are small (64-unit layers, a 32-unit LSTM), where torch's
 intra-op threads cost more than they give: on 2 busy cores RecurrentPPO's quick preset ran at 48 env-steps/s
 with torch's default 2 threads and 282 with 1 (``benchmarks/bench_recurrent.py``); applied with
-:func:`set_torch_threads`, which keeps numba's kernels from resetting it."""
+:func:`set_torch_threads`, which keeps numba's kernels from resetting it. ``prefetch_worlds``: the training env draws
+the worlds of its next two automatic resets ahead in a background process at the lowest CPU priority
+(:class:`envs.prefetch.WorldPrefetcher`; the same episodes, drawn while the single-threaded gradient epochs leave
+a core idle); 0 turns it off."""
 QUICK = dict(n_timesteps=24_576, n_envs=8, env_kwargs=dict(episode_length_s=60.0), eval_freq=1536, eval_episodes=8,
              hyper=dict(ppo=dict(n_steps=64, batch_size=256, n_epochs=5),
                         recurrentppo=dict(n_steps=128, batch_size=512, n_epochs=5),
@@ -106,7 +109,7 @@ def check_hyperparameters(algo: str, hyper: dict, settings: dict, config_file=No
     if bad:
         raise ValueError(f"{src}unknown hyperparameter(s) {', '.join(map(repr, bad))} for {algo}; known: "
                          f"{', '.join(sorted(known))} and the run settings n_timesteps, n_envs, normalize, "
-                         "eval_freq, eval_episodes, env_kwargs")
+                         "eval_freq, eval_episodes, env_kwargs, torch_threads, prefetch_worlds")
     for k in ("n_timesteps", "n_envs", "eval_freq", "eval_episodes"):
         v = settings[k]
         try:
@@ -168,7 +171,8 @@ def train_rl(env_id: str, algo: str, out, timesteps: int | None = None, seed: in
         hyper.update(QUICK["hyper"].get(algo, {}))
     if config_file is not None:
         zoo = load_zoo_config(config_file, env_id)
-        for k in ("n_timesteps", "n_envs", "normalize", "eval_freq", "eval_episodes", "torch_threads"):
+        for k in ("n_timesteps", "n_envs", "normalize", "eval_freq", "eval_episodes", "torch_threads",
+                  "prefetch_worlds"):
             if k in zoo:
                 settings[k] = zoo.pop(k)
         zkw = zoo.pop("env_kwargs", {}) or {}
@@ -195,11 +199,16 @@ def train_rl(env_id: str, algo: str, out, timesteps: int | None = None, seed: in
         raise ValueError("--timesteps and --n-envs must be positive")
     if not isinstance(settings["torch_threads"], int) or settings["torch_threads"] < 1:
         raise ValueError(f"torch_threads must be an int >= 1, got {settings['torch_threads']!r}")
+    pf = settings["prefetch_worlds"]
+    if isinstance(pf, bool) or not isinstance(pf, int) or pf < 0:
+        raise ValueError(f"{config_file or 'settings'}: prefetch_worlds must be an int >= 0 (worlds drawn ahead; "
+                         f"0: off), got {pf!r}")
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     ekw = settings["env_kwargs"]
-    venv = VecMonitor(make_sb3_vec_env(env_id, settings["n_envs"], seed=seed * 10_007, **ekw))
+    venv = VecMonitor(make_sb3_vec_env(env_id, settings["n_envs"], seed=seed * 10_007,
+                                       prefetch_worlds=settings["prefetch_worlds"], **ekw))
     n_eval = max(1, min(settings["eval_episodes"], 16))
     eval_env = VecMonitor(make_sb3_vec_env(env_id, n_eval, seed=EVAL_SEED_OFFSET + 1000 * seed, **ekw))
     if settings["normalize"]:
@@ -234,8 +243,12 @@ def train_rl(env_id: str, algo: str, out, timesteps: int | None = None, seed: in
               "train_seed_base": seed * 10_007, "eval_seed_base": EVAL_SEED_OFFSET + 1000 * seed}
     (out / "config.json").write_text(dumps(config, indent=2, default=str))
     t0 = time.perf_counter()
-    model.learn(total_timesteps=settings["n_timesteps"], callback=CallbackList(callbacks))
-    wall = time.perf_counter() - t0
+    try:
+        model.learn(total_timesteps=settings["n_timesteps"], callback=CallbackList(callbacks))
+    finally:
+        wall = time.perf_counter() - t0
+        venv.close()  # stops the world prefetch process (a sweep runs many of these in one process)
+        eval_env.close()
     model.save(str(out / "model.zip"))
     if settings["normalize"]:
         venv.save(str(out / "vecnormalize.pkl"))

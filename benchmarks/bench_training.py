@@ -6,6 +6,8 @@ For every ``n_envs`` of ``--n-envs`` (default 16, 64, 256) and every mode of ``-
 ``exact_transition=False``; ``fused``: also ``fused_update=True``, the envs' default) it prints the env-steps per second of ``PPO.learn`` on
 
 * the native vector env behind the SB3 adapter (:func:`envs.sb3.make_sb3_vec_env`, what ``train.py rl`` uses),
+  with the worlds of its next resets drawn ahead as ``train.py rl`` draws them (``--prefetch-worlds``, default
+  its setting ``prefetch_worlds``: :class:`envs.prefetch.WorldPrefetcher`), and without (``no prefetch``),
 * a DummyVecEnv of ``n_envs`` single envs (what RL Zoo builds from ``gym.make``), unless ``--no-dummy``,
 * the same native vector env stepped alone with random actions (``env only``): the ceiling the env sets,
   and the share of that time spent in automatic resets (``resets``: world generation and filter construction
@@ -16,7 +18,9 @@ the gradient epochs). PPO runs with the hyperparameters of ``train.py rl`` (``ag
 ['ppo']``: n_steps 128, batch 256, 10 epochs, [64, 64] MLP, torch's fused Adam; torch on one thread as ``train.py`` sets it,
 :func:`agents.training.set_torch_threads`),
 without VecNormalize. Each cell first learns one rollout (JIT compilation, first resets), then times
-``--rollouts`` rollouts (``n_steps x n_envs`` env steps each).
+``--rollouts`` rollouts (``n_steps x n_envs`` env steps each) continuing that run as a long training run goes
+on (``reset_num_timesteps=False``: no extra reset of every row at the start of the timed part; until
+this was noticed that reset, a whole world batch drawn at once, was timed too).
 
 ``--compare DIR`` measures instead the native vector env's PPO rate (and the env alone) in this tree and in the
 source tree ``DIR`` (e.g. a checkout of an earlier commit), each cell in a fresh process, alternately, and prints
@@ -45,6 +49,12 @@ from stage_timing import timed  # noqa: E402  (this script's folder)
 
 import envs  # noqa: E402,F401
 from agents.training import DEFAULT_HYPERPARAMS  # noqa: E402
+
+try:
+    from agents.training import DEFAULT_SETTINGS  # noqa: E402
+    PREFETCH_DEFAULT = int(DEFAULT_SETTINGS.get("prefetch_worlds", 0))
+except ImportError:  # pragma: no cover - a source tree before it (--compare)
+    PREFETCH_DEFAULT = 0
 from envs.sb3 import make_sb3_vec_env  # noqa: E402
 
 try:
@@ -73,7 +83,7 @@ def learn_rate(venv, n_envs: int, rollouts: int) -> float:
     steps = hp["n_steps"] * n_envs
     model.learn(total_timesteps=steps)
     t = time.perf_counter()
-    model.learn(total_timesteps=rollouts * steps, reset_num_timesteps=True)
+    model.learn(total_timesteps=rollouts * steps, reset_num_timesteps=False)
     return rollouts * steps / (time.perf_counter() - t)
 
 
@@ -99,20 +109,37 @@ def env_rate(venv, n_envs: int, steps: int) -> tuple[float, float]:
     return steps * n_envs / wall, spent[0] / wall
 
 
-def native_cell(env_id, n, mode, rollouts, episode_length):
-    """(PPO env-steps/s, env-only env-steps/s, reset share) of the native vector env in this process."""
+def _native_env(env_id, n, mode, episode_length, prefetch):
+    """(the SB3 native vector env, whether it draws worlds ahead): ``prefetch_worlds=prefetch`` where the tree's
+    env takes it (a tree before :mod:`envs.prefetch` does not: then without)."""
+    kw = dict(seed=0, episode_length_s=episode_length, **MODES.get(mode, {}))
+    if prefetch:
+        try:
+            venv = make_sb3_vec_env(env_id, n, prefetch_worlds=prefetch, **kw)
+        except (TypeError, ValueError) as exc:
+            if "prefetch_worlds" not in str(exc):
+                raise
+        else:
+            venv.venv._prefetch.wait_ready()  # its start-up (navgym's import) is not PPO's rate
+            return venv, True
+    return make_sb3_vec_env(env_id, n, **kw), False
+
+
+def native_cell(env_id, n, mode, rollouts, episode_length, prefetch=0):
+    """(PPO env-steps/s, env-only env-steps/s, reset share, drew ahead) of the native vector env in this
+    process (``prefetch``: its ``prefetch_worlds``, where the tree has it)."""
     n_steps = DEFAULT_HYPERPARAMS["ppo"]["n_steps"]
-    native = make_sb3_vec_env(env_id, n, seed=0, episode_length_s=episode_length, **MODES.get(mode, {}))
+    native, ahead = _native_env(env_id, n, mode, episode_length, prefetch)
     r_native = learn_rate(native, n, rollouts)
     r_env, reset_share = env_rate(native, n, max(8, rollouts * n_steps // 4))
     native.close()
-    return r_native, r_env, reset_share
+    return r_native, r_env, reset_share, ahead
 
 
-def _run_cell(root, env_id, n, mode, rollouts, episode_length):
+def _run_cell(root, env_id, n, mode, rollouts, episode_length, prefetch=0):
     """:func:`native_cell` in a fresh process on the source tree ``root`` (its JSON result)."""
     cmd = [sys.executable, os.path.abspath(__file__), "--cell", env_id, str(n), mode, str(rollouts),
-           str(episode_length)]
+           str(episode_length), str(prefetch)]
     out = subprocess.run(cmd, env=dict(os.environ, NAVGYM_BENCH_ROOT=root), cwd=root, capture_output=True,
                          text=True, check=True).stdout
     return json.loads(out.strip().splitlines()[-1])
@@ -122,26 +149,29 @@ def compare(a, other):
     """The ``--compare`` table: every cell before (tree ``other``) and after (this tree), alternately."""
     here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     print(f"before = {other}\nafter  = {here}\n")
+    print(f"worlds drawn ahead: prefetch_worlds={a.prefetch_worlds} where a tree's env takes it (+: only after)\n")
     head = (f"{'n_envs':>6}  {'transition':<11} {'PPO before':>10} {'after':>8} {'speed-up':>9} "
             f"{'env before':>11} {'after':>8} {'resets before':>14} {'after':>6}")
     print(head + "\n" + "-" * len(head))
     for n in a.n_envs:
         for mode in a.transitions:
-            cell = (a.env, n, mode, a.rollouts, a.episode_length)
+            cell = (a.env, n, mode, a.rollouts, a.episode_length, a.prefetch_worlds)
             mark = ""
             try:
                 rb = _run_cell(other, *cell)
             except subprocess.CalledProcessError:  # a tree before the transition modes: its own default
-                rb, mark = _run_cell(other, a.env, n, "default", a.rollouts, a.episode_length), "*"
+                rb, mark = _run_cell(other, a.env, n, "default", a.rollouts, a.episode_length,
+                                     a.prefetch_worlds), "*"
             ra = _run_cell(here, *cell)
+            mark += "" if rb[3] == ra[3] else "+"
             print(f"{n:>6}  {mode + mark:<11} {rb[0]:10.0f} {ra[0]:8.0f} {ra[0] / rb[0]:8.2f}x {rb[1]:11.0f} "
                   f"{ra[1]:8.0f} {rb[2]:14.0%} {ra[2]:6.0%}", flush=True)
 
 
 def main():
     if len(sys.argv) > 1 and sys.argv[1] == "--cell":  # one cell of --compare, in a fresh process
-        env_id, n, mode, rollouts, episode_length = sys.argv[2:7]
-        print(json.dumps(native_cell(env_id, int(n), mode, int(rollouts), float(episode_length))))
+        env_id, n, mode, rollouts, episode_length, prefetch = sys.argv[2:8]
+        print(json.dumps(native_cell(env_id, int(n), mode, int(rollouts), float(episode_length), int(prefetch))))
         return
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--env", default="GnssIns/SageHusa-v0")
@@ -150,11 +180,14 @@ def main():
     ap.add_argument("--rollouts", type=int, default=2, help="timed rollouts per cell (n_steps x n_envs steps each)")
     ap.add_argument("--episode-length", type=float, default=60.0, help="episode length [s]")
     ap.add_argument("--no-dummy", action="store_true", help="skip the DummyVecEnv of single envs")
+    ap.add_argument("--prefetch-worlds", type=int, default=PREFETCH_DEFAULT,
+                    help="the native env's prefetch_worlds (default: train.py rl's setting; 0: off, and no "
+                         "'no prefetch' column)")
     ap.add_argument("--compare", metavar="DIR", default=None,
                     help="native vector env before (source tree DIR) / after (this tree), side by side")
     a = ap.parse_args()
-    if min(a.n_envs) < 1 or a.rollouts < 1 or not a.episode_length > 0:
-        ap.error("--n-envs and --rollouts must be >= 1 and --episode-length > 0")
+    if min(a.n_envs) < 1 or a.rollouts < 1 or not a.episode_length > 0 or a.prefetch_worlds < 0:
+        ap.error("--n-envs and --rollouts must be >= 1, --episode-length > 0 and --prefetch-worlds >= 0")
     if a.compare is not None and not os.path.isdir(os.path.join(a.compare, "envs")):
         ap.error(f"--compare: {a.compare} is not a navgym source tree (no envs/ in it)")
     from stable_baselines3.common.env_util import make_vec_env
@@ -164,23 +197,29 @@ def main():
           f"{a.episode_length:.0f} s, {a.rollouts} timed rollouts per cell, {os.cpu_count()} CPUs; env-steps/s\n")
     if a.compare is not None:
         return compare(a, os.path.abspath(a.compare))
-    head = f"{'n_envs':>6}  {'transition':<10} {'native':>9} {'dummy':>9} {'native/dummy':>13} {'env only':>9} " \
-           f"{'resets':>7} {'not env':>8}"
+    pf = a.prefetch_worlds
+    if pf:
+        print(f"native: prefetch_worlds={pf} (train.py rl's setting); no prefetch: the same env drawing every world "
+              f"at its reset; env only, resets, not env: without prefetch\n")
+    head = f"{'n_envs':>6}  {'transition':<10} {'native':>9} {'no prefetch':>12} {'dummy':>9} {'native/dummy':>13} " \
+           f"{'env only':>9} {'resets':>7} {'not env':>8}"
     print(head)
     print("-" * len(head))
     best = {}
     for n in a.n_envs:
         for mode in a.transitions:
             kw = dict(episode_length_s=a.episode_length, **MODES[mode])
-            r_native, r_env, reset_share = native_cell(a.env, n, mode, a.rollouts, a.episode_length)
+            r_plain, r_env, reset_share, _ = native_cell(a.env, n, mode, a.rollouts, a.episode_length)
+            r_native = native_cell(a.env, n, mode, a.rollouts, a.episode_length, pf)[0] if pf else r_plain
             r_dummy = float("nan")
             if not a.no_dummy:
                 dummy = make_vec_env(lambda kw=kw: gym.make(a.env, **kw), n_envs=n, seed=0)
                 r_dummy = learn_rate(dummy, n, a.rollouts)
                 dummy.close()
-            not_env = 1.0 - r_native / r_env  # share of PPO.learn's time outside env.step
-            print(f"{n:>6}  {mode:<10} {r_native:9.0f} {r_dummy:9.0f} {r_native / r_dummy:13.2f} {r_env:9.0f} "
-                  f"{reset_share:7.0%} {not_env:8.0%}", flush=True)
+            not_env = 1.0 - r_plain / r_env  # share of PPO.learn's time outside env.step
+            plain = f"{r_plain:12.0f}" if pf else f"{'':>12}"
+            print(f"{n:>6}  {mode:<10} {r_native:9.0f} {plain} {r_dummy:9.0f} {r_native / r_dummy:13.2f} "
+                  f"{r_env:9.0f} {reset_share:7.0%} {not_env:8.0%}", flush=True)
             if r_native > best.get(mode, (0, 0))[1]:
                 best[mode] = (n, r_native)
     print()

@@ -1,5 +1,6 @@
-"""train.py rl settings: torch_threads from a config file is validated before any work, and holds for torch's
-work during training even after the env's parallel numba kernels have started numba's threading layer."""
+"""train.py rl settings: torch_threads and prefetch_worlds from a config file are validated before any work;
+torch_threads holds for torch's work during training even after the env's parallel numba kernels have started
+numba's threading layer."""
 import json
 import os
 import subprocess
@@ -84,3 +85,12 @@ def test_ppo_default_uses_torchs_fused_adam():
     opt = model.policy.optimizer
     assert type(opt).__name__ == "Adam" and opt.defaults["fused"] is True
     assert opt.param_groups[0]["lr"] == hp["learning_rate"]
+
+
+@pytest.mark.parametrize("value", ["-1", "2.5", "true"])
+def test_prefetch_worlds_must_be_a_non_negative_int(tmp_path, value):
+    cfg = tmp_path / "c.yml"
+    cfg.write_text(f"GnssIns/SageHusa-v0:\n  prefetch_worlds: {value}\n")
+    with pytest.raises(ValueError, match="prefetch_worlds must be an int >= 0"):
+        train_rl("GnssIns/SageHusa-v0", "ppo", tmp_path / "out", config_file=cfg, progress=False)
+    assert not (tmp_path / "out").exists()
