@@ -88,11 +88,13 @@ error dynamics, several times faster; ``True``: composed per IMU sample, the ref
 ``fused_update`` (default ``True``: the fused compiled predict + Joseph update of ``kf`` and the adaptive laws'
 fast kernels, same equations with a different rounding; ``False``: the navigator's default computation),
 ``divergence_bound_m``; plus
-``render_mode`` (``'ansi'``, ``'rgb_array'``).
+``render_mode`` (``'ansi'``, ``'rgb_array'``). The vector env (``gym.make_vec(..., vectorization_mode=
+"vector_entry_point")``) also takes ``prefetch_worlds`` (default 0): draw the worlds of that many coming automatic
+resets ahead in a background process at the lowest CPU priority (the same episodes; :mod:`envs.vector_env`).
 Limits (a ``ValueError`` naming the argument at construction): ``episode_length_s`` at most
 :data:`envs.config.MAX_EPISODE_S` (3600 s: the world is generated whole at reset), ``history`` at most
 :data:`envs.config.MAX_HISTORY` (64), the vector env's ``num_envs`` an int in [1, :data:`envs.core.MAX_BATCH`]
-(16384); numbers must not be bools; ``method`` must take this env's parameters. Actions must be real numbers
+(16384), ``prefetch_worlds`` an int >= 0; numbers must not be bools; ``method`` must take this env's parameters. Actions must be real numbers
 (complex, string, bool or object arrays are refused); a NaN or inf action names the first rows and the count.
 
 ## Version History

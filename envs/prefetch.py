@@ -8,10 +8,14 @@ another process while the env steps and PPO's gradient epochs run; a reset whose
 (the same bits as drawing it then).
 
 The worker runs at ``nice`` 19: it takes the CPU the training leaves idle (during PPO's single-threaded
-gradient epochs one of two cores is) and yields it to everything else. It is started with the ``spawn``
-method (a fork of a process whose numba/OpenMP threads run is unsafe) and loads navgym's compiled kernels
-from numba's cache; it holds up to ``depth`` prepared worlds, about a quarter of a world each
-(:class:`~envs.prepared.PreparedWorld`; ~0.5 MB per row of a 60 s episode at 100 Hz).
+gradient epochs one of two cores is) and yields it to everything else. It is a fresh interpreter
+(``python -c``, not :mod:`multiprocessing`: that would re-import the user's main script, which then needs an
+``if __name__ == "__main__"`` guard, and a fork of a process whose numba/OpenMP threads run is unsafe) that
+imports only navgym's envs and loads the compiled kernels from numba's cache, a few seconds during which the
+resets draw their own worlds. It talks pickles over its stdin / stdout, and exits when its stdin closes
+(this process closing it or ending). It holds up to ``depth`` prepared worlds, about a quarter of a world
+each (:class:`~envs.prepared.PreparedWorld`; ~0.5 MB per row of a 60 s episode at 100 Hz). POSIX only (it
+polls the pipe with ``select``).
 
 A request no longer wanted (the rows reset in another grouping than the one prefetched, e.g. after an
 early termination; or a new ``reset(seed=...)``) is dropped: the worker skips it if it has not started it,
@@ -20,39 +24,72 @@ the world itself (and a dead worker is reported once with a warning).
 """
 from __future__ import annotations
 
-import multiprocessing as mp
 import os
+import pickle
 import queue
+import select
+import subprocess
+import sys
+import threading
 import warnings
 from collections import deque
+from pathlib import Path
 
 __all__ = ["WorldPrefetcher"]
 
-_POLL_S = 1.0
-"""Seconds between liveness checks of the worker while a reset waits for its world."""
+_ROOT = str(Path(__file__).resolve().parents[1])
+"""The folder holding navgym's top-level packages (the worker imports ``envs`` from there)."""
 
 
-def _serve(config, requests, results, generation) -> None:
-    """The worker's loop: ``(gen, seeds)`` from ``requests`` -> ``(gen, seeds, PreparedWorld or error text)`` on
-    ``results``; a request whose ``gen`` is older than ``generation.value`` (cancelled) is skipped."""
+def _worker() -> None:  # pragma: no cover - runs in the worker process (covered by tests/envs/test_prefetch.py)
+    """The worker process: the config, then ``("req", gen, seeds)`` / ``("cancel", gen)`` on stdin; on stdout
+    ``("ready",)`` once loaded, then ``("done", gen, seeds, PreparedWorld or error text)`` per request not
+    cancelled before it started. Ends at end of stdin."""
     try:
         os.nice(19)
-    except OSError:  # pragma: no cover - a platform without nice
+    except OSError:
         pass
+    fin, fout = sys.stdin.buffer, sys.stdout.buffer
+    sys.stdout = sys.stderr  # nothing else may write into the result stream
+    config = pickle.load(fin)
     from .prepared import prepare_world
-    results.put(("ready", (), None))
+    todo: queue.Queue = queue.Queue()
+    latest = [0]
+
+    def read():  # requests and cancellations as they come, while a world is being drawn
+        try:
+            while True:
+                msg = pickle.load(fin)
+                if msg[0] == "cancel":
+                    latest[0] = msg[1]
+                else:
+                    todo.put(msg)
+        except (EOFError, OSError, pickle.UnpicklingError):
+            todo.put(None)
+
+    threading.Thread(target=read, daemon=True).start()
+    out: queue.Queue = queue.Queue()
+
+    def write():  # results leave while the next world is drawn (the main process reads at its resets)
+        while True:
+            item = out.get()
+            pickle.dump(item, fout, protocol=pickle.HIGHEST_PROTOCOL)
+            fout.flush()
+
+    threading.Thread(target=write, daemon=True).start()
+    out.put(("ready",))
     while True:
-        msg = requests.get()
+        msg = todo.get()
         if msg is None:
-            return
-        gen, seeds = msg
-        if gen < generation.value:
+            os._exit(0)
+        _, gen, seeds = msg
+        if gen < latest[0]:
             continue
         try:
-            out = prepare_world(config, seeds)
+            res = prepare_world(config, seeds)
         except Exception as exc:  # the reset draws this world itself and raises the error there
-            out = f"{type(exc).__name__}: {exc}"
-        results.put((gen, tuple(seeds), out))
+            res = f"{type(exc).__name__}: {exc}"
+        out.put(("done", gen, tuple(seeds), res))
 
 
 class WorldPrefetcher:
@@ -65,6 +102,12 @@ class WorldPrefetcher:
     depth : int
         Most requests in flight (each a batch of rows' next worlds); >= 1.
 
+    Attributes
+    ----------
+    hits : resets that took a prefetched world.
+    misses : resets that drew their world themselves (nothing or something else prefetched, the worker not
+        yet started or gone).
+
     Usage (what :class:`envs.vector_env.GnssInsTuningVectorEnv` does with ``prefetch_worlds=depth``)::
 
         pf = WorldPrefetcher(config, depth=2)
@@ -76,23 +119,55 @@ class WorldPrefetcher:
     def __init__(self, config, depth: int):
         if isinstance(depth, bool) or not isinstance(depth, int) or depth < 1:
             raise ValueError(f"depth must be an int >= 1, got {depth!r}")
+        if os.name != "posix":
+            raise ValueError("prefetch_worlds needs a POSIX system (the worker's pipe is polled with select)")
         self.depth = depth
-        ctx = mp.get_context("spawn")
-        self._requests = ctx.Queue()
-        self._results = ctx.Queue()
-        self._generation = ctx.Value("l", 0)
+        try:
+            blob = pickle.dumps(config, protocol=pickle.HIGHEST_PROTOCOL)
+        except Exception as exc:
+            raise ValueError(f"prefetch_worlds: the env's config cannot be sent to the worker process ({exc}); "
+                             f"use prefetch_worlds=0 with this scenario") from exc
+        env = dict(os.environ, PYTHONPATH=os.pathsep.join([_ROOT] + [p for p in [os.environ.get("PYTHONPATH")] if p]))
+        self._proc = subprocess.Popen([sys.executable, "-c", "from envs.prefetch import _worker; _worker()"],
+                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env, cwd=_ROOT)
         self._gen = 0
         self._pending: deque[tuple] = deque()  # seeds of the live requests, in request order
-        self._proc = ctx.Process(target=_serve, args=(config, self._requests, self._results, self._generation),
-                                 daemon=True, name="navgym-world-prefetch")
-        self._proc.start()
-        self._dead = False
         self._ready = False  # the worker has loaded navgym (until then a reset draws its world itself)
+        self._dead = False
         self.hits = 0
-        """Resets that took a prefetched world."""
         self.misses = 0
-        """Resets that drew their world themselves (nothing or something else prefetched, worker not ready)."""
+        self._send_bytes(blob)
 
+    # ------------------------------------------------------------------ pipe
+    def _send(self, msg) -> bool:
+        return self._send_bytes(pickle.dumps(msg, protocol=pickle.HIGHEST_PROTOCOL))
+
+    def _send_bytes(self, blob: bytes) -> bool:
+        try:
+            self._proc.stdin.write(blob)
+            self._proc.stdin.flush()
+            return True
+        except (BrokenPipeError, OSError, ValueError):
+            self._gone()
+            return False
+
+    def _recv(self):
+        """The worker's next message (blocking); None when it is gone."""
+        try:
+            return pickle.load(self._proc.stdout)
+        except (EOFError, OSError, ValueError, pickle.UnpicklingError):
+            self._gone()
+            return None
+
+    def _poll_ready(self, timeout_s: float) -> bool:
+        if not self._ready and not self._dead:
+            readable, _, _ = select.select([self._proc.stdout], [], [], timeout_s)
+            if readable:
+                msg = self._recv()
+                self._ready = msg is not None and msg[0] == "ready"
+        return self._ready
+
+    # ------------------------------------------------------------------ API
     @property
     def in_flight(self) -> int:
         """Live requests (not yet taken or cancelled)."""
@@ -100,12 +175,7 @@ class WorldPrefetcher:
 
     def wait_ready(self, timeout_s: float = 60.0) -> bool:
         """Wait up to ``timeout_s`` for the worker to finish starting; whether it has."""
-        if not self._ready and self._proc is not None and not self._dead:
-            try:
-                self._ready = self._results.get(timeout=timeout_s)[0] == "ready"
-            except queue.Empty:
-                pass
-        return self._ready
+        return self._poll_ready(timeout_s)
 
     def request(self, seeds) -> bool:
         """Ask for the prepared world of ``seeds`` (B ints); False (nothing asked) when ``depth`` requests are in
@@ -113,7 +183,8 @@ class WorldPrefetcher:
         if self._dead or len(self._pending) >= self.depth:
             return False
         key = tuple(int(s) for s in seeds)
-        self._requests.put((self._gen, key))
+        if not self._send(("req", self._gen, key)):
+            return False
         self._pending.append(key)
         return True
 
@@ -122,8 +193,8 @@ class WorldPrefetcher:
         if self._pending:
             self._pending.clear()
             self._gen += 1
-            with self._generation.get_lock():
-                self._generation.value = self._gen
+            if not self._dead:
+                self._send(("cancel", self._gen))
 
     def take(self, seeds):
         """The :class:`~envs.prepared.PreparedWorld` of ``seeds`` if it is the oldest live request (waiting for
@@ -131,57 +202,52 @@ class WorldPrefetcher:
         resets to come). None too when the worker has not finished starting (navgym's import, a few seconds),
         failed on this world or is gone."""
         key = tuple(int(s) for s in seeds)
-        if not self._ready and self._pending and self._proc is not None:
-            try:  # the worker's first message; until it comes, waiting would cost its start-up time
-                self._ready = self._results.get_nowait()[0] == "ready"
-            except queue.Empty:
-                pass
-        if not self._ready or not self._pending or self._pending[0] != key:
+        if not self._dead and self._pending:
+            self._poll_ready(0.0)  # until the worker is up, waiting would cost its start-up time
+        if self._dead or not self._ready or not self._pending or self._pending[0] != key:
             self.misses += 1
             self.cancel()
             return None
         self._pending.popleft()
         while True:
-            try:
-                gen, got, out = self._results.get(timeout=_POLL_S)
-            except queue.Empty:
-                if not self._proc.is_alive():
-                    self._gone()
-                    return None
-                continue
-            if gen == self._gen and got == key:
+            msg = self._recv()
+            if msg is None:
+                self.misses += 1
+                return None
+            if msg[0] == "done" and msg[1] == self._gen and msg[2] == key:
                 break  # older results are of cancelled requests: dropped
-        if isinstance(out, str):  # the worker's error: the caller draws the world and raises it there
+        if isinstance(msg[3], str):  # the worker's error: the caller draws the world and raises it there
             self.misses += 1
             return None
         self.hits += 1
-        return out
+        return msg[3]
 
     def _gone(self) -> None:
+        if self._dead:
+            return
         self._dead = True
         self._pending.clear()
-        warnings.warn(f"envs.prefetch: the world prefetch process exited (code {self._proc.exitcode}); the env "
-                      f"draws its worlds at reset from now on (same results, no prefetch)", RuntimeWarning,
-                      stacklevel=3)
+        if self._proc is not None:
+            code = self._proc.poll()
+            warnings.warn(f"envs.prefetch: the world prefetch process exited (code {code}); the env draws its "
+                          f"worlds at reset from now on (same results, no prefetch)", RuntimeWarning, stacklevel=4)
 
     def close(self) -> None:
         """Stop the worker (idempotent)."""
-        if self._proc is None:
-            return
-        self.cancel()
-        try:
-            self._requests.put(None)
-        except (OSError, ValueError):  # pragma: no cover - queue already closed
-            pass
-        self._proc.join(timeout=0.2)  # idle: it has exited; busy: nothing it holds is wanted any more
-        if self._proc.is_alive():
-            self._proc.terminate()
-            self._proc.join(timeout=2.0)
-        for q in (self._requests, self._results):
-            q.close()
-            q.cancel_join_thread()
-        self._proc = None
+        proc, self._proc = self._proc, None
         self._dead = True
+        if proc is None:
+            return
+        try:
+            proc.stdin.close()  # the worker exits at end of its input
+        except OSError:  # pragma: no cover - already broken
+            pass
+        try:
+            proc.wait(timeout=0.2)  # idle: it has exited; busy: nothing it holds is wanted any more
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(timeout=5.0)
+        proc.stdout.close()
 
     def __del__(self):
         try:

@@ -66,7 +66,7 @@ def test_a_dead_worker_falls_back_to_drawing_at_reset():
     try:
         pf = ahead.unwrapped._prefetch
         pf._proc.kill()
-        pf._proc.join()
+        pf._proc.wait()
         with pytest.warns(RuntimeWarning, match="prefetch process exited"):
             got = _run(ahead, 3, 9)
         _same(_run(plain, 3, 9), got)
@@ -115,3 +115,34 @@ def test_reset_rows_rejects_a_prepared_world_of_other_seeds():
     core = env.unwrapped.core
     with pytest.raises(ValueError, match="prepared world holds seeds"):
         core.reset_rows(np.arange(2), [1, 2], prepared=prepare_world(core.config, [1, 3]))
+
+
+def test_a_main_script_without_a_main_guard_can_prefetch(tmp_path):
+    """The worker is a fresh interpreter that imports navgym only: the user's script is not re-imported in it
+    (as multiprocessing's spawn would), so a script without ``if __name__ == "__main__"`` works."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+    root = Path(__file__).resolve().parents[2]
+    script = tmp_path / "plain.py"
+    script.write_text(
+        "import gymnasium as gym, numpy as np, envs\n"
+        "env = gym.make_vec('GnssIns/SageHusa-v0', num_envs=2, vectorization_mode='vector_entry_point',\n"
+        f"                   episode_length_s={EPISODE_S}, prefetch_worlds=1)\n"
+        "assert env.unwrapped._prefetch.wait_ready(120)\n"
+        "env.reset(seed=1)\n"
+        "for _ in range(9):\n"
+        "    env.step(np.zeros((2, 1), np.float32))\n"
+        "print('hits', env.unwrapped._prefetch.hits)\n"
+        "env.close()\n")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(root)] + [p for p in [os.environ.get("PYTHONPATH")] if p]))
+    p = subprocess.run([sys.executable, str(script)], cwd=tmp_path, env=env, capture_output=True, text=True,
+                       timeout=300)
+    assert p.returncode == 0, p.stderr[-2000:]
+    assert p.stdout.split()[-1] == "2"  # both automatic resets took their prefetched world
+
+
+def test_a_config_that_cannot_be_pickled_is_refused():
+    with pytest.raises(ValueError, match="cannot be sent to the worker process"):
+        WorldPrefetcher(lambda: None, depth=1)
