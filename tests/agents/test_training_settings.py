@@ -16,11 +16,13 @@ from nav_filters.kernels import PARALLEL_MIN_BATCH
 ROOT = Path(__file__).resolve().parents[2]
 
 
-@pytest.mark.parametrize("value", ["0", "2.5", "many"])
-def test_torch_threads_must_be_a_positive_int(tmp_path, value):
+@pytest.mark.parametrize("key, value, message", [
+    *[("torch_threads", v, "torch_threads must be an int >= 1") for v in ("0", "2.5", "many")],
+    *[("prefetch_worlds", v, "prefetch_worlds must be an int >= 0") for v in ("-1", "2.5", "true")]])
+def test_run_settings_are_checked_before_any_work(tmp_path, key, value, message):
     cfg = tmp_path / "c.yml"
-    cfg.write_text(f"GnssIns/SageHusa-v0:\n  torch_threads: {value}\n")
-    with pytest.raises(ValueError, match="torch_threads must be an int >= 1"):
+    cfg.write_text(f"GnssIns/SageHusa-v0:\n  {key}: {value}\n")
+    with pytest.raises(ValueError, match=message):
         train_rl("GnssIns/SageHusa-v0", "ppo", tmp_path / "out", config_file=cfg, progress=False)
     assert not (tmp_path / "out").exists()
 
@@ -86,11 +88,3 @@ def test_ppo_default_uses_torchs_fused_adam():
     assert type(opt).__name__ == "Adam" and opt.defaults["fused"] is True
     assert opt.param_groups[0]["lr"] == hp["learning_rate"]
 
-
-@pytest.mark.parametrize("value", ["-1", "2.5", "true"])
-def test_prefetch_worlds_must_be_a_non_negative_int(tmp_path, value):
-    cfg = tmp_path / "c.yml"
-    cfg.write_text(f"GnssIns/SageHusa-v0:\n  prefetch_worlds: {value}\n")
-    with pytest.raises(ValueError, match="prefetch_worlds must be an int >= 0"):
-        train_rl("GnssIns/SageHusa-v0", "ppo", tmp_path / "out", config_file=cfg, progress=False)
-    assert not (tmp_path / "out").exists()
