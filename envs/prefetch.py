@@ -103,6 +103,7 @@ def _worker() -> None:  # pragma: no cover - runs in the worker process (covered
     sys.stdout = sys.stderr  # nothing else may write into the result stream
     config = pickle.load(fin)
     from .prepared import prepare_world
+    os.chdir(sys.argv[1])  # the caller's folder (navgym was imported from its own): relative dataset spec paths
     todo: queue.Queue = queue.Queue()
     latest = [0]
 
@@ -180,8 +181,8 @@ class WorldPrefetcher:
             raise ValueError(f"prefetch_worlds: the env's config cannot be sent to the worker process ({exc}); "
                              f"use prefetch_worlds=0 with this scenario") from exc
         env = dict(os.environ, PYTHONPATH=os.pathsep.join([_ROOT] + [p for p in [os.environ.get("PYTHONPATH")] if p]))
-        self._proc = subprocess.Popen([sys.executable, "-c", "from envs.prefetch import _worker; _worker()"],
-                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env, cwd=_ROOT, bufsize=0)
+        cmd = [sys.executable, "-c", "from envs.prefetch import _worker; _worker()", os.getcwd()]
+        self._proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env, cwd=_ROOT, bufsize=0)
         try:  # Linux: a 1 MB pipe instead of 64 KB, fewer wake-ups of the (nice 19) writer per world
             import fcntl
             fcntl.fcntl(self._proc.stdout.fileno(), getattr(fcntl, "F_SETPIPE_SZ", 1031), 1 << 20)
@@ -191,6 +192,7 @@ class WorldPrefetcher:
         self._pending: deque[tuple] = deque()  # seeds of the live requests, in request order
         self._ready = False  # the worker has loaded navgym (until then a reset draws its world itself)
         self._dead = False
+        self._warned_error = False
         self.hits = 0
         self.misses = 0
         self._pool: list = []  # receive buffers of the world arrays, reused (see _read_frame)
@@ -282,6 +284,11 @@ class WorldPrefetcher:
                 break  # older results are of cancelled requests: dropped
         if isinstance(msg[3], str):  # the worker's error: the caller draws the world and raises it there
             self.misses += 1
+            if not self._warned_error:
+                self._warned_error = True
+                warnings.warn(f"envs.prefetch: the world prefetch process failed to draw the world of seeds "
+                              f"{list(key)[:4]}... ({msg[3]}); the resets draw such worlds themselves", RuntimeWarning,
+                              stacklevel=3)
             return None
         self.hits += 1
         return msg[3]

@@ -1,6 +1,9 @@
 """Worlds drawn ahead in a background process (envs.prefetch) change no result: a vector env with
 ``prefetch_worlds`` equals one drawing every world at its reset, bit for bit, across automatic resets, a new
 ``reset(seed=...)``, cancelled requests and a dead worker."""
+import os
+from pathlib import Path
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -120,10 +123,8 @@ def test_reset_rows_rejects_a_prepared_world_of_other_seeds():
 def test_a_main_script_without_a_main_guard_can_prefetch(tmp_path):
     """The worker is a fresh interpreter that imports navgym only: the user's script is not re-imported in it
     (as multiprocessing's spawn would), so a script without ``if __name__ == "__main__"`` works."""
-    import os
     import subprocess
     import sys
-    from pathlib import Path
     root = Path(__file__).resolve().parents[2]
     script = tmp_path / "plain.py"
     script.write_text(
@@ -146,3 +147,34 @@ def test_a_main_script_without_a_main_guard_can_prefetch(tmp_path):
 def test_a_config_that_cannot_be_pickled_is_refused():
     with pytest.raises(ValueError, match="cannot be sent to the worker process"):
         WorldPrefetcher(lambda: None, depth=1)
+
+
+class _FailingConfig:
+    """A config whose world cannot be drawn, naming the content of ``marker.txt`` in the folder the worker runs
+    in (pickled by reference: the worker imports this module)."""
+
+    def make_world(self, seeds):
+        raise ValueError(f"no world for {seeds} (marker: {Path('marker.txt').read_text()})")
+
+
+@pytest.fixture
+def failing_prefetch(tmp_path, monkeypatch):
+    """A prefetcher of :class:`_FailingConfig` started from ``tmp_path``, which holds ``marker.txt``."""
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(Path(__file__).parent)]
+                                                     + [p for p in [os.environ.get("PYTHONPATH")] if p]))
+    (tmp_path / "marker.txt").write_text("here")
+    monkeypatch.chdir(tmp_path)
+    pf = WorldPrefetcher(_FailingConfig(), depth=1)
+    yield pf
+    pf.close()
+
+
+def test_a_world_the_worker_cannot_draw_is_drawn_at_reset_with_a_warning(failing_prefetch):
+    """The worker's error comes back as a warning (and the reset draws the world itself, raising it there); the
+    worker ran in the caller's folder (a relative path in a config, a dataset spec say, is the same file)."""
+    pf = failing_prefetch
+    assert pf.wait_ready(120)
+    assert pf.request([4, 5])
+    with pytest.warns(RuntimeWarning, match=r"failed to draw the world of seeds \[4, 5\].*no world for .*marker: here"):
+        assert pf.take([4, 5]) is None
+    assert (pf.hits, pf.misses, pf.in_flight) == (0, 1, 0)
