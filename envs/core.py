@@ -27,7 +27,7 @@ from nav_filters.rows import check_row_pairs, copied_array, copy_dataclass_rows,
 from .config import EnvConfig, ParamSpec
 from .episodes import navigator_for
 from .aiding import odometer_rows, with_rows
-from .prepared import WORLD_ARRAY_NAMES, PreparedWorld, prepare_world
+from .prepared import WORLD_ARRAY_NAMES, PreparedWorld, prepared_from
 from .zupt_source import STILL_SPEED_MPS, ZuptSource  # noqa: F401  (STILL_SPEED_MPS re-exported)
 
 #: World seeds the environments draw at reset, ``[low, high)``: kept apart from the small seeds that
@@ -338,8 +338,14 @@ class TuningCore:
         bits: the world is a function of the config and the seeds."""
         rows = np.asarray(rows, np.intp)
         seeds = [int(s) for s in seeds]
+        whole = None
         if prepared is None:
-            prepared = prepare_world(self.config, seeds)
+            # the whole world stays referenced until its arrays are copied, as before envs.prepared: freeing its
+            # bulk (truth at the IMU rate, IMU error records) earlier made the reset of 1024 rows ~1 s shorter
+            # but gave 2-3 of the 15 steps after it +30 ms of wall time (no minor page faults, no GC run; cause
+            # not pinned down), 0.74-0.82x in bench_envs' 8 timed steps at B = 1024
+            whole = self.config.make_world(seeds)
+            prepared = prepared_from(whole)
         elif list(prepared.seeds) != seeds:
             raise ValueError(f"reset_rows: the prepared world holds seeds {list(prepared.seeds)[:4]}..., not the "
                              f"rows' seeds {seeds[:4]}...")
@@ -362,6 +368,7 @@ class TuningCore:
                 self.ref.replace_rows(rows, ref)
         for name in WORLD_ARRAY_NAMES:
             getattr(self, name)[rows] = prepared.arrays[name]
+        del whole  # the world drawn here is freed after the copies (see above)
         self._zupt.reset(None if rows.size == self.B else rows)  # new streams on the reset rows
         for i, s in zip(rows, seeds):
             self.seeds[i] = s

@@ -84,13 +84,16 @@ def world_arrays(world: World) -> dict:
     }
 
 
+def prepared_from(world: World) -> PreparedWorld:
+    """The part of a whole ``world`` a reset uses (:class:`PreparedWorld`)."""
+    return PreparedWorld(seeds=tuple(world.seeds), world=replace(world, truth=None, imu=None, gnss=None),
+                         arrays=world_arrays(world), has_rate=world.gnss.prr is not None)
+
+
 def prepare_world(config, seeds) -> PreparedWorld:
     """Draw the world of ``config`` (an :class:`~envs.config.EnvConfig`) for ``seeds`` (B ints) and reduce it
     to what a reset uses (:class:`PreparedWorld`). A pure function of its arguments."""
-    world = config.make_world([int(s) for s in seeds])
-    arrays = world_arrays(world)
-    return PreparedWorld(seeds=tuple(world.seeds), world=replace(world, truth=None, imu=None, gnss=None),
-                         arrays=arrays, has_rate=world.gnss.prr is not None)
+    return prepared_from(config.make_world([int(s) for s in seeds]))
 
 
-__all__ = ["WORLD_ARRAY_NAMES", "PreparedWorld", "prepare_world", "world_arrays"]
+__all__ = ["WORLD_ARRAY_NAMES", "PreparedWorld", "prepare_world", "prepared_from", "world_arrays"]
