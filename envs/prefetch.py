@@ -13,11 +13,11 @@ gradient epochs one of two cores is) and yields it to everything else. It is a f
 ``if __name__ == "__main__"`` guard, and a fork of a process whose numba/OpenMP threads run is unsafe) that
 imports only navgym's envs and loads the compiled kernels from numba's cache, a few seconds during which the
 resets draw their own worlds. It talks pickles over its stdin / stdout (the results as pickle protocol 5 with
-out-of-band buffers: the arrays' bytes go through the pipe once, read straight into the arrays that keep
-them), and exits when its stdin closes
-(this process closing it or ending). It holds up to ``depth`` prepared worlds, about a quarter of a world
-each (:class:`~envs.prepared.PreparedWorld`; ~0.5 MB per row of a 60 s episode at 100 Hz). POSIX only (it
-polls the pipe with ``select``).
+out-of-band buffers: the arrays' bytes go through the pipe once, into receive buffers reused from one reset
+to the next, which the reset copies out), and exits when its stdin closes (this process closing it or
+ending). It holds up to ``depth`` prepared worlds, about a fifth of a world each
+(:class:`~envs.prepared.PreparedWorld`; ~0.4 MB per row of a 60 s episode at 100 Hz). POSIX only (it polls
+the pipe with ``select``).
 
 A request no longer wanted (the rows reset in another grouping than the one prefetched, e.g. after an
 early termination; or a new ``reset(seed=...)``) is dropped: the worker skips it if it has not started it,

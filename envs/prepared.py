@@ -6,7 +6,8 @@
 parts (truth at the IMU rate, IMU error records, GNSS data), which is all the navigator's construction
 reads (initial estimate, IMU grade, clock model). It is a function of the config and the seeds only, so it
 can run ahead in another process (:mod:`envs.prefetch`) and give the same bits as at the reset itself;
-the reduced form is about a quarter of the world's size (what crosses the process boundary).
+the reduced form is about a fifth of the world's size (what crosses the process boundary: 0.39 of
+1.9 MB per row of a 60 s episode at 100 Hz).
 """
 from __future__ import annotations
 
