@@ -28,8 +28,11 @@ before, after and the speed-up side by side: before/after figures under the same
 earlier tree's env does not take falls back to that tree's default configuration (marked ``*``; before
 issue 11 the exact composition).
 
+``--rounds N`` (with ``--compare``) runs each cell N times in each tree, alternately, and prints the medians
+and the range of the per-round PPO speed-ups: here consecutive runs of one cell differed by up to 20%.
+
 Usage: ``python benchmarks/bench_training.py [--n-envs 16 64 256] [--transitions exact fused] [--no-dummy]
-[--compare DIR]``.
+[--compare DIR [--rounds N]]``.
 """
 from __future__ import annotations
 
@@ -145,27 +148,39 @@ def _run_cell(root, env_id, n, mode, rollouts, episode_length, prefetch=0):
     return json.loads(out.strip().splitlines()[-1])
 
 
+def _before_cell(other, a, n, mode):
+    """(the before tree's cell result, mark): ``mode`` there, or its own default where it has no such mode."""
+    try:
+        return _run_cell(other, a.env, n, mode, a.rollouts, a.episode_length, a.prefetch_worlds), ""
+    except subprocess.CalledProcessError:  # a tree before the transition modes: its own default
+        return _run_cell(other, a.env, n, "default", a.rollouts, a.episode_length, a.prefetch_worlds), "*"
+
+
 def compare(a, other):
-    """The ``--compare`` table: every cell before (tree ``other``) and after (this tree), alternately."""
+    """The ``--compare`` table: every cell before (tree ``other``) and after (this tree), alternately, ``a.rounds``
+    times each (then the medians, and the range of the per-round PPO speed-ups)."""
     here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     print(f"before = {other}\nafter  = {here}\n")
-    print(f"worlds drawn ahead: prefetch_worlds={a.prefetch_worlds} where a tree's env takes it (+: only after)\n")
-    head = (f"{'n_envs':>6}  {'transition':<11} {'PPO before':>10} {'after':>8} {'speed-up':>9} "
-            f"{'env before':>11} {'after':>8} {'resets before':>14} {'after':>6}")
-    print(head + "\n" + "-" * len(head))
+    print(f"worlds drawn ahead: prefetch_worlds={a.prefetch_worlds} where a tree's env takes it (+: only after)")
+    if a.rounds > 1:
+        print(f"each figure the median of {a.rounds} alternating runs per tree")
+    head = (f"\n{'n_envs':>6}  {'transition':<11} {'PPO before':>10} {'after':>8} {'speed-up':>9} "
+            f"{'env before':>11} {'after':>8} {'resets before':>14} {'after':>6}"
+            + (f" {'rounds: speed-ups':>18}" if a.rounds > 1 else ""))
+    print(head + "\n" + "-" * (len(head) - 1))
     for n in a.n_envs:
         for mode in a.transitions:
-            cell = (a.env, n, mode, a.rollouts, a.episode_length, a.prefetch_worlds)
-            mark = ""
-            try:
-                rb = _run_cell(other, *cell)
-            except subprocess.CalledProcessError:  # a tree before the transition modes: its own default
-                rb, mark = _run_cell(other, a.env, n, "default", a.rollouts, a.episode_length,
-                                     a.prefetch_worlds), "*"
-            ra = _run_cell(here, *cell)
-            mark += "" if rb[3] == ra[3] else "+"
+            before, after = [], []
+            for _ in range(a.rounds):
+                rb, mark = _before_cell(other, a, n, mode)
+                before.append(rb)
+                after.append(_run_cell(here, a.env, n, mode, a.rollouts, a.episode_length, a.prefetch_worlds))
+            mark += "" if before[0][3] == after[0][3] else "+"
+            ups = [ra[0] / rb[0] for ra, rb in zip(after, before)]
+            rb, ra = np.median(np.array(before, float), axis=0), np.median(np.array(after, float), axis=0)
+            spread = f" {min(ups):12.2f}-{max(ups):.2f}x" if a.rounds > 1 else ""
             print(f"{n:>6}  {mode + mark:<11} {rb[0]:10.0f} {ra[0]:8.0f} {ra[0] / rb[0]:8.2f}x {rb[1]:11.0f} "
-                  f"{ra[1]:8.0f} {rb[2]:14.0%} {ra[2]:6.0%}", flush=True)
+                  f"{ra[1]:8.0f} {rb[2]:14.0%} {ra[2]:6.0%}{spread}", flush=True)
 
 
 def main():
@@ -185,9 +200,12 @@ def main():
                          "'no prefetch' column)")
     ap.add_argument("--compare", metavar="DIR", default=None,
                     help="native vector env before (source tree DIR) / after (this tree), side by side")
+    ap.add_argument("--rounds", type=int, default=1,
+                    help="--compare: run each cell this many times in each tree, alternately, and print the medians "
+                         "with the range of the per-round speed-ups (for a machine whose speed swings)")
     a = ap.parse_args()
-    if min(a.n_envs) < 1 or a.rollouts < 1 or not a.episode_length > 0 or a.prefetch_worlds < 0:
-        ap.error("--n-envs and --rollouts must be >= 1, --episode-length > 0 and --prefetch-worlds >= 0")
+    if min(a.n_envs) < 1 or a.rollouts < 1 or a.rounds < 1 or not a.episode_length > 0 or a.prefetch_worlds < 0:
+        ap.error("--n-envs, --rollouts and --rounds must be >= 1, --episode-length > 0 and --prefetch-worlds >= 0")
     if a.compare is not None and not os.path.isdir(os.path.join(a.compare, "envs")):
         ap.error(f"--compare: {a.compare} is not a navgym source tree (no envs/ in it)")
     from stable_baselines3.common.env_util import make_vec_env
