@@ -455,7 +455,7 @@ class TuningCore:
         a = self.check_actions(actions)
         if self.nav is None:
             raise RuntimeError("reset() must be called before step()")
-        if self.t.max() >= self.M:
+        if (self.t[0] if self.B == 1 else self.t.max()) >= self.M:  # (a single row: no reduction call)
             raise RuntimeError("step() on a finished episode: reset those rows first")
         self.action[:] = a
         vals = self._set_params(self.nav, a)

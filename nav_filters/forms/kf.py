@@ -241,7 +241,7 @@ def joseph_update(P, x, H, R, dz):
     ok = np.empty(B, bool)
     kern = _joseph_parallel if B >= PARALLEL_MIN_BATCH else _joseph_serial
     kern(*args, Pn, xn, r, Sd, nis, ok)
-    if not ok.all():
+    if np.count_nonzero(ok) != B:  # = not ok.all(), cheaper
         raise np.linalg.LinAlgError("Matrix is not positive definite")
     return Pn, xn, r, Sd, nis
 
@@ -541,6 +541,6 @@ def fused_update(P, x, H, R, dz, mask, Phi=None, Q=None, fade=None, prior=None):
         kern, nchunk = _fused_serial, 1
     kern(c(P, dt), c(x, dt), Phi_, s, Q_, pri, mode, c(H, dt), c(R, dt), c(dz, dt), c(mask, bool),
          Pn, xn, r, Sd, nis, ok, nchunk)
-    if not ok.all():
+    if np.count_nonzero(ok) != B:  # = not ok.all(), cheaper
         raise np.linalg.LinAlgError("Matrix is not positive definite")
     return Pn, xn, r, Sd, nis
