@@ -153,13 +153,17 @@ from typing import Callable, Optional
 import numba as nb
 import numpy as np
 
-from ..forms.base import symmetrize
-from ..kernels import PARALLEL_MIN_BATCH, serial_and_parallel, sym_eig_inplace
+from ..forms.base import UpdateResult, symmetrize
+from ..forms.kf import KalmanFilter
+from ..kernels import row_kernel
+from ..measurements import N_SAT_KEYS
 from .base import AdaptiveLaw, EpochContext, UpdatePlan
 from .innovation import GROUP_NAMES, _nonzeros_work, _quad_nz, _rows_nonzeros, measurement_groups, quadratic_diag
 from .params import ParamSpec, check_option
-from .satellite_r import (R_SAMPLES, ROSE_FACTOR, SatelliteNoise, _group_step,  # noqa: F401
-                          _row_group, _weight_one, check_satellite_options, sage_husa_weight)
+from .sage_husa_rows import (_adapt_q_parallel, _adapt_q_serial, _count_rows_kernel,  # noqa: F401
+                             _epoch_rows_kernel, satellite_epoch)
+from .satellite_r import (_SAMPLE_CODE, R_SAMPLES, ROSE_FACTOR, SatelliteNoise, _group_step,  # noqa: F401
+                          _row_group, check_satellite_options, sage_husa_weight)
 
 B_SPEC = ParamSpec("b", 0.0, 1.0, low_closed=False, high_closed=True, doc="Sage-Husa forgetting factor")
 R_MODES = ("group", "satellite")
@@ -363,137 +367,6 @@ def _r_scale_kernel(r, H, prior, Q, add_q, R, mask, groups, infer, d, active, r_
                 R_out[b, i, j] = R[b, i, j] * sq[i] * sq[j]
 
 
-def _adapt_q_rows(rows, d, dx, P_post, prior, Q_nom, b, step, e_prev, b_used, q_init, q_ref, Q_raw, Q,
-                  jump_ratio, b_min, b_jump_factor, diagonal, floor, ceiling, own_eig=False):
-    """Seed 000 eqs 18-22 and 24 (with the choices of :class:`SageHusa`) on the rows flagged in ``rows``.
-
-    ``own_eig`` (the fused fast path): the projection's eigen-decomposition by
-    :func:`~nav_filters.kernels.sym_eig_inplace` (no LAPACK call per row, about twice as fast; equal to
-    ``np.linalg.eigh``'s result to round-off, which it falls back to if the QR iteration does not converge)
-    instead of ``np.linalg.eigh``. The projection binds on every adapted row of the built-in scenarios (an
-    eigenvalue below ``floor`` and one above ``ceiling``: measured), so no cheaper test can skip it.
-
-    Per row: ``Q_hat = sym(dx dx^T + P_post - prior)`` (eq 18, sign of eq 20); ``e = sum Q_hat^2`` and the
-    eq 24 jump test lowering b for this correction; on the first adaptation ``q_ref`` and ``Q_raw`` from
-    the nominal epoch Q; ``Q_raw <- (1 - d) Q_raw + d Q_hat`` (eq 22; eq 21 with ``diagonal``); ``Q`` the
-    projection of ``Q_raw`` onto ``floor <= eig(W Q W) <= ceiling`` (:func:`clip_relative_eigenvalues`).
-    Updates ``e_prev``, ``b_used``, ``q_init``, ``q_ref``, ``Q_raw``, ``Q`` in place.
-    """
-    B, n = dx.shape
-    for r in nb.prange(B):
-        if not rows[r]:
-            continue
-        X = np.empty((n, n), Q_raw.dtype)
-        for i in range(n):
-            for j in range(n):
-                X[i, j] = (dx[r, i] * dx[r, j] + P_post[r, i, j]) - prior[r, i, j]
-        Qh = np.empty((n, n), Q_raw.dtype)
-        e = 0.0
-        for i in range(n):
-            for j in range(n):
-                Qh[i, j] = 0.5 * (X[i, j] + X[j, i])
-                e += np.float64(Qh[i, j]) ** 2
-        dr = d[r]
-        if e_prev[r] > 0 and e > jump_ratio * e_prev[r]:
-            bb = b[r]
-            b_low = min(bb, max(b_min, 1.0 - b_jump_factor * (1.0 - bb)))
-            dr = max(dr, _weight_one(b_low, step[r] + 1.0))
-            b_used[r] = b_low
-        e_prev[r] = e
-        if not q_init[r]:
-            top = -np.inf
-            for i in range(n):
-                top = max(top, np.float64(Q_nom[r, i, i]))
-            for i in range(n):
-                q_ref[r, i] = max(np.float64(Q_nom[r, i, i]), 1e-12 * top) if top > 0 else 1.0
-                for j in range(n):
-                    Q_raw[r, i, j] = Q_nom[r, i, j]
-        w = np.empty(n)
-        for i in range(n):
-            w[i] = 1.0 / np.sqrt(q_ref[r, i])
-        dd = Q_raw.dtype.type(dr)
-        for i in range(n):
-            for j in range(n):
-                c = Qh[i, j] if (not diagonal or i == j) else 0.0
-                X[i, j] = (1 - dd) * Q_raw[r, i, j] + dd * c
-                Q_raw[r, i, j] = X[i, j]
-        Qw = np.empty((n, n))
-        for i in range(n):
-            for j in range(n):
-                Qw[i, j] = 0.5 * (np.float64(X[i, j]) * w[i] * w[j] + np.float64(X[j, i]) * w[j] * w[i])
-        done = False
-        if own_eig:
-            A = Qw.copy()
-            vals = np.empty(n)
-            Vt = np.empty((n, n))
-            sc = np.empty((3, n))
-            if sym_eig_inplace(A, vals, Vt, sc[0], sc[1], sc[2]):
-                for k in range(n):
-                    vals[k] = min(max(vals[k], floor), ceiling)
-                for k in range(n):       # A = diag(vals) Vt
-                    for j in range(n):
-                        A[k, j] = vals[k] * Vt[k, j]
-                for i in range(n):       # Qw = Vt^T diag(vals) Vt, upper triangle, mirrored
-                    for j in range(i, n):
-                        Qw[i, j] = 0.0
-                    for k in range(n):
-                        a = Vt[k, i]
-                        for j in range(i, n):
-                            Qw[i, j] += a * A[k, j]
-                    for j in range(i + 1, n):
-                        Qw[j, i] = Qw[i, j]
-                done = True
-        if not done:
-            vals, vecs = np.linalg.eigh(Qw)
-            for k in range(n):
-                vals[k] = min(max(vals[k], floor), ceiling)
-            for i in range(n):
-                for j in range(n):
-                    s = 0.0
-                    for k in range(n):
-                        s += vecs[i, k] * vals[k] * vecs[j, k]
-                    Qw[i, j] = s
-        for i in range(n):
-            for j in range(n):
-                Q[r, i, j] = 0.5 * (Qw[i, j] / w[i] / w[j] + Qw[j, i] / w[j] / w[i])
-        q_init[r] = True
-
-
-_adapt_q_serial, _adapt_q_parallel = serial_and_parallel(_adapt_q_rows)
-
-
-@nb.njit(cache=True)
-def _epoch_rows_kernel(mask, seen, warmup, step, jcap, b, d_prev, has, active, d):
-    """The row flags and weights :meth:`SageHusa._plan` starts from (the fused path; numpy specification
-    :meth:`SageHusa._epoch_rows_reference`): ``has`` (any used row), ``active`` (``has`` and past the warm-up)
-    and ``d``, the weight of seed 000 eqs 21-23 at the count ``min(step + 1, jcap)`` on active rows (the last
-    one elsewhere), into the (B,) outputs."""
-    B, m = mask.shape
-    for r in range(B):
-        h = False
-        for i in range(m):
-            h = h or mask[r, i]
-        a = h and seen[r] >= warmup
-        has[r] = h
-        active[r] = a
-        d[r] = _weight_one(b[r], np.float64(min(step[r] + 1, jcap[r]))) if a else d_prev[r]
-
-
-@nb.njit(cache=True)
-def _count_rows_kernel(active, has, pending, adapt_q, b, b_used_prev, step_prev, seen_prev, rows, b_used, step, seen):
-    """The bookkeeping of :meth:`SageHusa._commit` (the fused path; numpy specification in ``_commit``): the rows
-    whose Q adapts (``active`` with a pending transition, if ``adapt_q``), ``b_used`` (b on active rows),
-    the adaptation and epoch counts, into new (B,) arrays. Returns whether any row adapts Q."""
-    any_rows = False
-    for r in range(active.shape[0]):
-        rows[r] = active[r] and pending and adapt_q
-        any_rows = any_rows or rows[r]
-        b_used[r] = b[r] if active[r] else b_used_prev[r]
-        step[r] = step_prev[r] + active[r]
-        seen[r] = seen_prev[r] + has[r]
-    return any_rows
-
-
 class SageHusa(SatelliteNoise, AdaptiveLaw):
     """Sage-Husa adaptive Q and R estimation around an inner form (see the module docstring).
 
@@ -528,9 +401,60 @@ class SageHusa(SatelliteNoise, AdaptiveLaw):
         self._Q_raw = np.zeros((B, n, n), self.dtype)
         self._q_ref = np.ones((B, n))
         self._init_satellite_tables()
+        self._epoch_scratch = None  # (key, arrays): scratch of the compiled epoch (_update), not row state
+
+    def _update(self, dz, H, R, mask) -> UpdateResult:
+        """:meth:`AdaptiveLaw._update`; on the fused path with per-satellite R and a pending transition, the
+        plan, the inner update and the commit run as one compiled call (:func:`.sage_husa_rows.satellite_epoch`:
+        the same kernels in the same order, the same bits)."""
+        cfg = self.config
+        if not (self.fused and cfg.r_mode == "satellite" and cfg.adapt_r and type(self.inner) is KalmanFilter):
+            return super()._update(dz, H, R, mask)
+        if self._ctx is None:
+            self._ctx = self._open_epoch()
+        ctx = self._ctx
+        if not ctx.pending or ctx.applied:
+            return super()._update(dz, H, R, mask)
+        r = dz - (H @ self.x[..., None])[..., 0]
+        B, m = mask.shape
+        n, dt, inner = self.n, self.dtype, self.inner
+        c = np.ascontiguousarray
+        keys = self._keys if self._keys is not None else np.full((B, m), -1, np.int64)
+        epoch = self._epoch + 1
+        smin, smax = self._sat_bounds()
+        nchunk = row_kernel(None, None, B)[1]
+        e = np.empty
+        scratch = self._epoch_scratch  # the arrays that do not outlive the call, kept from call to call
+        if scratch is None or scratch[0] != (B, m, dt):
+            scratch = self._epoch_scratch = ((B, m, dt), (
+                e(B, bool), e(B, bool), e((B, m)), e((B, m), np.int64), e((B, m)), e((B, m, m), dt), e((B, n), dt),
+                e(B, bool), e(B, bool), np.ones((B, n), dt)))
+        has, active, s_rows, n_rows, s_prev, R_used, xn, ok, rows, ones = scratch[1]
+        d, s_group, Pn, r_out, Sd = e(B), e((B, len(GROUP_NAMES))), e((B, n, n), dt), e((B, m), dt), e((B, m), dt)
+        nis, n_used, summary = np.zeros(B, dt), e(B, np.int64), e((B, 4))
+        b_used, step, seen, x_new = e(B), e(B, np.int64), e(B, np.int64), e((B, n), dt)
+        b = self._params["b"]
+        if not satellite_epoch(
+                c(r), c(H), c(R), c(mask, bool), c(keys, np.int64), c(ctx.prior, dt), c(ctx.Q, dt), c(ctx.Phi, dt),
+                c(inner.P, dt), c(inner.x, dt), self.x, self._seen, self._step, self._jcap, b, self._d,
+                int(cfg.warmup_epochs), epoch, self._sat_scale, self._sat_count, self._sat_last,
+                int(cfg.forget_after_epochs), float(smin), float(smax), float(cfg.sat_scale_min),
+                _SAMPLE_CODE[cfg.r_sample], float(cfg.min_redundancy), float(cfg.prior_inflation),
+                int(cfg.sample_iterations), bool(cfg.common_scale), self._r_scale, bool(cfg.adapt_q), self._b_used,
+                self._e_prev, self._q_init, self._q_ref, self._Q_raw, self._Q, float(cfg.jump_ratio),
+                float(cfg.b_min), float(cfg.b_jump_factor), bool(cfg.diagonal_q), float(cfg.q_floor),
+                float(cfg.q_ceiling), N_SAT_KEYS, float(ROSE_FACTOR), nchunk, has, active, d, s_rows, n_rows,
+                s_prev, s_group, R_used, ones, Pn, xn, r_out, Sd, nis, ok, n_used, summary, rows,
+                b_used, step, seen, x_new):
+            raise np.linalg.LinAlgError("Matrix is not positive definite")  # nothing committed: ctx kept
+        inner.P, inner.x = Pn, np.zeros((B, n), dt)
+        self.x, self._ctx = x_new, None
+        self._r_scale, self._epoch, self._sat_summary = s_group, epoch, summary
+        self._b_used, self._d, self._step, self._seen = b_used, d, step, seen
+        return UpdateResult(nis=nis, n_used=n_used, innovation=r_out, innovation_var=Sd, applied=n_used > 0)
 
     def _epoch_q(self, Q_acc):
-        if not self.config.adapt_q or not self._q_init.any():
+        if not self.config.adapt_q or not np.count_nonzero(self._q_init):
             return Q_acc
         return np.where(self._q_init[:, None, None], self._Q, Q_acc)
 
@@ -639,12 +563,12 @@ class SageHusa(SatelliteNoise, AdaptiveLaw):
         # the kernel updates the law's own arrays in place: none is handed out (ctx.Q is a new array from
         # _epoch_q, adaptive_state copies, a clone deep-copies)
         c = np.ascontiguousarray
-        kern = _adapt_q_parallel if self.batch_size >= PARALLEL_MIN_BATCH else _adapt_q_serial
+        kern, nchunk = row_kernel(_adapt_q_serial, _adapt_q_parallel, self.batch_size)
         kern(rows, np.asarray(d, np.float64), c(dx, dt), c(self.inner.covariance, dt), c(ctx.prior, dt),
                         c(ctx.Q, dt), self._params["b"], self._step, self._e_prev, self._b_used, self._q_init,
                         self._q_ref, self._Q_raw, self._Q, float(cfg.jump_ratio), float(cfg.b_min),
                         float(cfg.b_jump_factor), bool(cfg.diagonal_q), float(cfg.q_floor), float(cfg.q_ceiling),
-                        bool(self.fused))
+                        bool(self.fused), nchunk)
 
     def _adapt_q_reference(self, rows, d, ctx: EpochContext, dx):
         """Numpy specification of :meth:`_adapt_q` (seed 000 eqs 18-22 and 24 on ``rows`` (B,) bool)."""
