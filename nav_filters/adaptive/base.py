@@ -56,6 +56,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..forms.base import FilterForm, UpdateResult, check_keys, symmetrize
+from ..forms.kf import KalmanFilter
 from ..rows import check_row_pairs, copy_dataclass_rows
 from .params import ParamSpec
 
@@ -292,6 +293,41 @@ class AdaptiveLaw(FilterForm):
         self._commit(plan, ctx, r, H, mask, dx)
         return res
 
+    # --------------------------------------------------------- compiled epochs
+    # A law may run a fused update (plan, inner update, commit) as one compiled call that calls the same kernels
+    # as _update's Python sequence in the same order (the same bits): SageHusa, StrongTracking, MA-STKF.
+    def _compiled_epoch_start(self, dz, H):
+        """``(r, ctx)`` for a compiled epoch: ``r = dz - H x`` of the law's state (as :meth:`_update` forms it)
+        and the epoch context; None where :meth:`_update`'s sequence must run instead: no fused ``kf`` inside,
+        no pending transition, or one already applied (a retried update)."""
+        if not (self.fused and type(self.inner) is KalmanFilter):
+            return None
+        if self._ctx is None:
+            self._ctx = self._open_epoch()
+        ctx = self._ctx
+        if not ctx.pending or ctx.applied:
+            return None
+        return dz - (H @ self.x[..., None])[..., 0], ctx
+
+    def _compiled_epoch_end(self, ok, P, x, nis, n_used, r, Sd) -> UpdateResult:
+        """Commit a compiled epoch's update: the inner form's posterior ``P`` (its state reset to zero, the
+        correction taken), the law's state ``x`` (B, n); or, where ``ok`` is False (some row's ``S`` not positive
+        definite), raise ``LinAlgError`` as the fused update does, committing nothing (the context kept for the
+        retry). Returns the :class:`UpdateResult` of the update (``r`` the innovations, ``Sd`` diag S)."""
+        if not ok:
+            raise np.linalg.LinAlgError("Matrix is not positive definite")
+        self.inner.P, self.inner.x = P, np.zeros(x.shape, x.dtype)
+        self.x, self._ctx = x, None
+        return UpdateResult(nis=nis, n_used=n_used, innovation=r, innovation_var=Sd, applied=n_used > 0)
+
+    def _compiled_epoch_scratch(self, key, make):
+        """Arrays a compiled epoch uses within one call, kept from call to call while ``key`` (the shapes and
+        dtype) is unchanged: ``make()`` builds them. Held in a tuple, which the row copies leave alone."""
+        scratch = self.__dict__.get("_scratch")
+        if scratch is None or scratch[0] != key:
+            scratch = self._scratch = (key, make())
+        return scratch[1]
+
     # ------------------------------------------------------------- row reset
     def replace_rows(self, rows, other: "AdaptiveLaw") -> None:
         """Overwrite batch rows ``rows`` with the rows of ``other`` (same law, ``len(rows)`` rows).
@@ -374,6 +410,11 @@ class AdaptiveLaw(FilterForm):
         ``sat_scale_median``, ``sats_rose``, ``sats_used``: (B,) float64 copies; ``{}`` for a law without
         per-satellite R): what an env's observation reads every epoch, without forming the rest of the state."""
         return {k: np.array(v, np.float64) for k, v in self._satellite_state().items()}
+
+    def satellite_health(self):
+        """``(sats_rose, sat_scale_max)`` of :meth:`satellite_summary`, (B,) float64 copies, or None for a law
+        without per-satellite R: the two entries an env's observation frame reads, without the dict."""
+        return None
 
     # -------------------------------------------------------------- hooks
     def _init_state(self):

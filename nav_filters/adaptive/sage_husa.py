@@ -154,7 +154,6 @@ import numba as nb
 import numpy as np
 
 from ..forms.base import UpdateResult, symmetrize
-from ..forms.kf import KalmanFilter
 from ..kernels import row_kernel
 from ..measurements import N_SAT_KEYS
 from .base import AdaptiveLaw, EpochContext, UpdatePlan
@@ -401,57 +400,44 @@ class SageHusa(SatelliteNoise, AdaptiveLaw):
         self._Q_raw = np.zeros((B, n, n), self.dtype)
         self._q_ref = np.ones((B, n))
         self._init_satellite_tables()
-        self._epoch_scratch = None  # (key, arrays): scratch of the compiled epoch (_update), not row state
 
     def _update(self, dz, H, R, mask) -> UpdateResult:
         """:meth:`AdaptiveLaw._update`; on the fused path with per-satellite R and a pending transition, the
         plan, the inner update and the commit run as one compiled call (:func:`.sage_husa_rows.satellite_epoch`:
         the same kernels in the same order, the same bits)."""
         cfg = self.config
-        if not (self.fused and cfg.r_mode == "satellite" and cfg.adapt_r and type(self.inner) is KalmanFilter):
+        start = self._compiled_epoch_start(dz, H) if cfg.r_mode == "satellite" and cfg.adapt_r else None
+        if start is None:
             return super()._update(dz, H, R, mask)
-        if self._ctx is None:
-            self._ctx = self._open_epoch()
-        ctx = self._ctx
-        if not ctx.pending or ctx.applied:
-            return super()._update(dz, H, R, mask)
-        r = dz - (H @ self.x[..., None])[..., 0]
+        r, ctx = start
         B, m = mask.shape
-        n, dt, inner = self.n, self.dtype, self.inner
-        c = np.ascontiguousarray
+        n, dt = self.n, self.dtype
+        c, e = np.ascontiguousarray, np.empty
         keys = self._keys if self._keys is not None else np.full((B, m), -1, np.int64)
         epoch = self._epoch + 1
         smin, smax = self._sat_bounds()
         nchunk = row_kernel(None, None, B)[1]
-        e = np.empty
-        scratch = self._epoch_scratch  # the arrays that do not outlive the call, kept from call to call
-        if scratch is None or scratch[0] != (B, m, dt):
-            scratch = self._epoch_scratch = ((B, m, dt), (
-                e(B, bool), e(B, bool), e((B, m)), e((B, m), np.int64), e((B, m)), e((B, m, m), dt), e((B, n), dt),
-                e(B, bool), e(B, bool), np.ones((B, n), dt)))
-        has, active, s_rows, n_rows, s_prev, R_used, xn, ok, rows, ones = scratch[1]
+        has, active, s_rows, n_rows, s_prev, R_used, xn, rows, ones = self._compiled_epoch_scratch(
+            (B, m, dt), lambda: (e(B, bool), e(B, bool), e((B, m)), e((B, m), np.int64), e((B, m)),
+                                 e((B, m, m), dt), e((B, n), dt), e(B, bool), np.ones((B, n), dt)))
         d, s_group, Pn, r_out, Sd = e(B), e((B, len(GROUP_NAMES))), e((B, n, n), dt), e((B, m), dt), e((B, m), dt)
         nis, n_used, summary = np.zeros(B, dt), e(B, np.int64), e((B, 4))
         b_used, step, seen, x_new = e(B), e(B, np.int64), e(B, np.int64), e((B, n), dt)
-        b = self._params["b"]
-        if not satellite_epoch(
-                c(r), c(H), c(R), c(mask, bool), c(keys, np.int64), c(ctx.prior, dt), c(ctx.Q, dt), c(ctx.Phi, dt),
-                c(inner.P, dt), c(inner.x, dt), self.x, self._seen, self._step, self._jcap, b, self._d,
-                int(cfg.warmup_epochs), epoch, self._sat_scale, self._sat_count, self._sat_last,
-                int(cfg.forget_after_epochs), float(smin), float(smax), float(cfg.sat_scale_min),
-                _SAMPLE_CODE[cfg.r_sample], float(cfg.min_redundancy), float(cfg.prior_inflation),
-                int(cfg.sample_iterations), bool(cfg.common_scale), self._r_scale, bool(cfg.adapt_q), self._b_used,
-                self._e_prev, self._q_init, self._q_ref, self._Q_raw, self._Q, float(cfg.jump_ratio),
-                float(cfg.b_min), float(cfg.b_jump_factor), bool(cfg.diagonal_q), float(cfg.q_floor),
-                float(cfg.q_ceiling), N_SAT_KEYS, float(ROSE_FACTOR), nchunk, has, active, d, s_rows, n_rows,
-                s_prev, s_group, R_used, ones, Pn, xn, r_out, Sd, nis, ok, n_used, summary, rows,
-                b_used, step, seen, x_new):
-            raise np.linalg.LinAlgError("Matrix is not positive definite")  # nothing committed: ctx kept
-        inner.P, inner.x = Pn, np.zeros((B, n), dt)
-        self.x, self._ctx = x_new, None
+        ok = satellite_epoch(
+            c(r), c(H), c(R), c(mask, bool), c(keys, np.int64), c(ctx.prior, dt), c(ctx.Q, dt), c(ctx.Phi, dt),
+            c(self.inner.P, dt), c(self.inner.x, dt), self.x, self._seen, self._step, self._jcap, self._params["b"],
+            self._d, int(cfg.warmup_epochs), epoch, self._sat_scale, self._sat_count, self._sat_last,
+            int(cfg.forget_after_epochs), float(smin), float(smax), float(cfg.sat_scale_min),
+            _SAMPLE_CODE[cfg.r_sample], float(cfg.min_redundancy), float(cfg.prior_inflation),
+            int(cfg.sample_iterations), bool(cfg.common_scale), self._r_scale, bool(cfg.adapt_q), self._b_used,
+            self._e_prev, self._q_init, self._q_ref, self._Q_raw, self._Q, float(cfg.jump_ratio), float(cfg.b_min),
+            float(cfg.b_jump_factor), bool(cfg.diagonal_q), float(cfg.q_floor), float(cfg.q_ceiling), N_SAT_KEYS,
+            float(ROSE_FACTOR), nchunk, has, active, d, s_rows, n_rows, s_prev, s_group, R_used, ones, Pn, xn,
+            r_out, Sd, nis, np.empty(B, bool), n_used, summary, rows, b_used, step, seen, x_new)
+        res = self._compiled_epoch_end(ok, Pn, x_new, nis, n_used, r_out, Sd)
         self._r_scale, self._epoch, self._sat_summary = s_group, epoch, summary
         self._b_used, self._d, self._step, self._seen = b_used, d, step, seen
-        return UpdateResult(nis=nis, n_used=n_used, innovation=r_out, innovation_var=Sd, applied=n_used > 0)
+        return res
 
     def _epoch_q(self, Q_acc):
         if not self.config.adapt_q or not np.count_nonzero(self._q_init):

@@ -8,7 +8,7 @@ types (agreement tests in ``tests/nav_filters/test_compiled_update.py`` and
 :func:`satellite_epoch` runs a whole fused update of the law in its default mode (per-satellite R) as one
 compiled call: the row flags, the R law, the fused time and measurement update and the commit, each the
 kernel that the Python sequence (``AdaptiveLaw._update`` with ``SageHusa._plan`` and ``_commit``) calls, in
-that order on the same arrays, so the same bits (test: ``tests/nav_filters/test_sage_husa_epoch.py``). At B = 1 the Python between those kernels
+that order on the same arrays, so the same bits (test: ``tests/nav_filters/test_compiled_epochs.py``). At B = 1 the Python between those kernels
 (argument tuples, plan and result objects, some twenty small allocations) took longer than their
 arithmetic.
 """

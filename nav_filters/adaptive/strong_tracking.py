@@ -86,13 +86,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..error_model import N_STATES
 from ..kernels import row_kernel, scale_symmetric, scale_symmetric_reference, unit_diagonal
 from .base import AdaptiveLaw, EpochContext, UpdatePlan
 from .innovation import fit_split, innovation_traces, measurement_groups
 from .params import ParamSpec, check_option
 from .satellite_r import SatelliteNoise, check_satellite_options
 from .strong_tracking_rows import (SPLIT_STATS, _ma_plan_parallel, _ma_plan_serial, _st_plan_parallel,
-                                   _st_plan_serial, split_fading_kernel)
+                                   _st_plan_serial, ma_epoch, split_fading_kernel, st_epoch)
 
 SOFTENING_SPEC = ParamSpec("softening", 0.0, 1e6, low_closed=False, high_closed=True,
                            doc="softening factor beta of N_k = C_k - H Q H^T - beta R")
@@ -214,6 +215,30 @@ def _fused_plan_inputs(law, r, H, R, mask, ctx, geometry):
     return tr, sp, np.empty((B, 0 if math.isinf(law.config.fading_cap) else law.n))
 
 
+def _compiled_epoch_io(law, r, H, R, mask, ctx, geometry):
+    """The arrays of a compiled strong-tracking epoch (:func:`~.strong_tracking_rows.st_epoch`,
+    :func:`~.strong_tracking_rows.ma_epoch`) that both laws share: the inputs, in the types the Python sequence
+    hands its kernels (float64 copies for the fit split); the traces' and fit split's arrays (kept from call to
+    call); the update's outputs, with ``fade`` (B, n) or (B, 0) as :func:`_fused_plan_inputs` makes it, and
+    ``nchunk``."""
+    B, m = mask.shape
+    n, dt = law.n, law.dtype
+    c, e = np.ascontiguousarray, np.empty
+    inner = law.inner
+    prior, Q = c(ctx.prior, dt), c(ctx.Q, dt)
+    f64 = np.float64
+    inputs = (c(r), c(H), c(R), c(mask, bool), prior, Q, c(ctx.Phi, dt), c(inner.P, dt), c(inner.x, dt), law.x,
+              c(r, f64), c(H, f64), c(prior, f64), c(Q, f64), n == N_STATES)
+    split = law._compiled_epoch_scratch((B, m, dt), lambda: (
+        e((4, B)), e(B, dt), e(B, dt), e(B, dt), e(B, dt), e((B, m)), e((7, B, 2 if geometry else 0)),
+        np.zeros(B, np.int64), e((B, n), dt), e((B, n), dt), e(B, bool)))
+    s, xn, ok = split[8:]
+    outputs = (s, e((B, n, n), dt), xn, e((B, m), dt), e((B, m), dt), np.zeros(B, dt), ok, e((B, n), dt),
+               e(B, np.int64))
+    fade = e((B, 0 if math.isinf(law.config.fading_cap) else n))
+    return inputs, split[:8], outputs, fade, row_kernel(None, None, B)[1]
+
+
 def fading_factor(tr_c, traces, softening, lambda_max, scale=1.0):
     """Suboptimal fading factor (seed 003 eqs 19-21; Zhou's STF).
 
@@ -304,6 +329,27 @@ class StrongTracking(AdaptiveLaw):
         self._count = np.zeros(B, np.int64)
         self._lambda = np.ones(B)
         self._fs = np.zeros((B, SPLIT_STATS))
+
+    def _update(self, dz, H, R, mask):
+        """:meth:`AdaptiveLaw._update`; on the fused path with a pending transition, the plan, the inner update
+        and the commit as one compiled call (:func:`~.strong_tracking_rows.st_epoch`: the same kernels in the
+        same order, the same bits)."""
+        start = self._compiled_epoch_start(dz, H)
+        if start is None:
+            return super()._update(dz, H, R, mask)
+        cfg = self.config
+        geo = cfg.fading_noise == "geometry"
+        inputs, split, out, fade, nchunk = _compiled_epoch_io(self, start[0], H, R, mask, start[1], geo)
+        B = self.batch_size
+        v, has, lam, fs, count = np.empty(B), np.empty(B, bool), np.empty(B), np.empty((B, SPLIT_STATS)), np.empty(
+            B, np.int64)
+        ok = st_epoch(*inputs, self._count, self._v, self._fs, self._params["rho"], self._params["softening"],
+                      self._p0_diag, float(cfg.lambda_max), float(cfg.fading_cap), geo, float(cfg.fading_confidence),
+                      float(cfg.noise_gate), nchunk, *split, v, has, lam, fs, fade, *out, count)
+        s, Pn, xn, r_out, Sd, nis, _, x_new, n_used = out
+        res = self._compiled_epoch_end(ok, Pn, x_new, nis, n_used, r_out, Sd)
+        self._v, self._count, self._lambda, self._fs = v, count, lam, fs
+        return res
 
     def _plan(self, r, H, R, mask, ctx: EpochContext) -> UpdatePlan:
         if not self.fused:
@@ -542,6 +588,34 @@ class MeasurementAdaptiveSTKF(SatelliteNoise, AdaptiveLaw):
         if self.config.fading_noise != "geometry":
             return np.broadcast_to(alpha[:, None], types.shape)
         return np.where(types == 0, alpha_t[:, :1], np.where(types == 1, alpha_t[:, 1:2], alpha[:, None]))
+
+    def _update(self, dz, H, R, mask):
+        """:meth:`AdaptiveLaw._update`; on the fused path of the default configuration with a pending transition,
+        the plan, the inner update and the commit as one compiled call (:func:`~.strong_tracking_rows.ma_epoch`:
+        the same kernels in the same order, the same bits)."""
+        cfg = self.config
+        default = cfg.fading_noise == "geometry" and not self._sat_enabled()
+        start = self._compiled_epoch_start(dz, H) if default else None
+        if start is None:
+            return super()._update(dz, H, R, mask)
+        inputs, split, out, fade, nchunk = _compiled_epoch_io(self, start[0], H, R, mask, start[1], True)
+        B, m = mask.shape
+        e = np.empty
+        c_new, beta, alpha, lam = e(B), e(B), e(B), e(B)
+        accept, fault, alpha_t, fs = e(B, bool), e(B, bool), e((B, 2)), e((B, SPLIT_STATS))
+        R_used, mask_used, count, streak = e((B, m, m), self.dtype), e((B, m), bool), e(B, np.int64), e(B, np.int64)
+        p = self._params
+        ok = ma_epoch(*inputs, self._count, self._c, self._beta, self._alpha, self._alpha_t, self._fs, self._streak,
+                      p["b"], p["softening"], p["fading_scale"], p["fault_threshold"], self._p0_diag,
+                      int(cfg.warmup_epochs), int(cfg.max_consecutive_rejections), float(cfg.alpha_min),
+                      float(cfg.alpha_max), float(cfg.lambda_max), float(cfg.fading_cap), bool(cfg.fading_uses_alpha),
+                      float(cfg.fading_confidence), float(cfg.noise_gate), nchunk, *split, c_new, beta, alpha, accept,
+                      fault, lam, alpha_t, fs, fade, R_used, mask_used, *out, count, streak)
+        s, Pn, xn, r_out, Sd, nis, _, x_new, n_used = out
+        res = self._compiled_epoch_end(ok, Pn, x_new, nis, n_used, r_out, Sd)
+        self._c, self._beta, self._alpha, self._alpha_t, self._fs = c_new, beta, alpha, alpha_t, fs
+        self._count, self._streak, self._rejected, self._lambda = count, streak, fault, lam
+        return res
 
     def _plan(self, r, H, R, mask, ctx: EpochContext) -> UpdatePlan:
         cfg = self.config

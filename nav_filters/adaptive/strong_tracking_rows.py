@@ -16,13 +16,22 @@ operations in the same order on the same types, so the results are the same bits
 * a row sum (over the measurement rows, or the types) is numpy's pairwise summation
   (:func:`~nav_filters.kernels.pairwise_sum`);
 * the measurement factors reach R in R's dtype, rounded as ``astype`` rounds them.
+
+:func:`st_epoch` and :func:`ma_epoch` run a whole fused update of each law as one compiled call: the
+innovation traces and the fit split (:mod:`.innovation`'s kernels), the plan kernel here, the fused time and
+measurement update (:func:`~nav_filters.forms.kf._fused_rows`) and the commit arithmetic, in the order of the
+Python sequence (``AdaptiveLaw._update``) and on the same arrays, so the same bits
+(``tests/nav_filters/test_compiled_epochs.py``). At B = 1 the Python between those kernels took longer than
+their arithmetic.
 """
 from __future__ import annotations
 
 import numba as nb
 import numpy as np
 
+from ..forms.kf import _fused_parallel, _fused_serial
 from ..kernels import pairwise_sum, scale_symmetric_row, serial_and_parallel
+from .innovation import _fit_split_parallel, _fit_split_serial, _traces_parallel, _traces_serial
 from .satellite_r import _row_group
 
 SPLIT_STATS = 5
@@ -315,3 +324,124 @@ def _ma_plan_rows(energy, tr_m, tr_q, tr_r, H, R, mask, prior, pending, s_fit, s
 
 
 _ma_plan_serial, _ma_plan_parallel = serial_and_parallel(_ma_plan_rows)
+
+
+@nb.njit(cache=True)
+def _traces_and_split(r, H, R, mask, prior, Q, dz64, H64, prior64, Q64, geometry, model17, nchunk, tr_out, energy,
+                      tr_m, tr_q, tr_r, var, split_out, n_other):
+    """What ``strong_tracking._fused_plan_inputs`` forms: the innovation traces (``_traces_rows`` into ``tr_out``
+    (4, B) float64, then cast to the law's dtype as ``astype``: ``energy``, ``tr_m``, ``tr_q``, ``tr_r``) and,
+    with ``geometry``, the fit split of two types (``_fit_split_rows`` on the float64 copies ``dz64`` ...
+    ``Q64``, the variances ``var`` (B, m) = diag R, 1 on masked rows; into ``split_out`` (7, B, 2),
+    ``n_other`` (B,))."""
+    if nchunk > 1:
+        _traces_parallel(r, H, prior, Q, True, R, mask, tr_out, nchunk)
+    else:
+        _traces_serial(r, H, prior, Q, True, R, mask, tr_out, 1)
+    B, m = mask.shape
+    for b in range(B):
+        tr_m[b] = tr_out[0, b]
+        tr_q[b] = tr_out[1, b]
+        tr_r[b] = tr_out[2, b]
+        energy[b] = tr_out[3, b]
+    if geometry:
+        for b in range(B):
+            for i in range(m):
+                var[b, i] = np.float64(R[b, i, i]) if mask[b, i] else 1.0
+        if nchunk > 1:
+            _fit_split_parallel(dz64, H64, var, mask, prior64, Q64, True, 2, model17, split_out, n_other, nchunk)
+        else:
+            _fit_split_serial(dz64, H64, var, mask, prior64, Q64, True, 2, model17, split_out, n_other, 1)
+
+
+@nb.njit(cache=True)
+def _faded_update(P, x_inner, Phi, Q, prior, H, R, r, mask, fade, lam, s, Pn, xn, r_out, Sd, nis, ok, x_law, x_new,
+                  n_used, nchunk):
+    """The fused update of a strong-tracking plan (``KalmanFilter._predicted_update`` in mode 2): ``s`` (B, n)
+    the square roots of the fading factors ``fade`` (B, n), or of ``lam`` (B,) where ``fade`` has no columns,
+    in the filter dtype; then, if every row's ``S`` is positive definite, ``x_new = x_law + xn`` and ``n_used``
+    the rows of ``mask`` per batch row. Returns whether every ``S`` was positive definite."""
+    B, n = s.shape
+    per_state = fade.shape[1] > 0
+    for b in range(B):
+        for i in range(n):
+            s[b, i] = np.sqrt(fade[b, i]) if per_state else np.sqrt(lam[b])
+    if nchunk > 1:
+        _fused_parallel(P, x_inner, Phi, s, Q, prior, 2, H, R, r, mask, Pn, xn, r_out, Sd, nis, ok, nchunk)
+    else:
+        _fused_serial(P, x_inner, Phi, s, Q, prior, 2, H, R, r, mask, Pn, xn, r_out, Sd, nis, ok, 1)
+    for b in range(B):
+        if not ok[b]:
+            return False
+    m = mask.shape[1]
+    for b in range(B):
+        c = 0
+        for i in range(m):
+            c += mask[b, i]
+        n_used[b] = c
+        for k in range(n):
+            x_new[b, k] = x_law[b, k] + xn[b, k]
+    return True
+
+
+@nb.njit(cache=True)
+def st_epoch(r, H, R, mask, prior, Q, Phi, P, x_inner, x_law, dz64, H64, prior64, Q64, model17, count, v_prev,
+             fs_prev, rho, softening, p0_diag, lambda_max, fading_cap, geometry, confidence, noise_gate, nchunk,
+             tr_out, energy, tr_m, tr_q, tr_r, var, split_out, n_other, v, has, lam, fs, fade, s, Pn, xn, r_out, Sd,
+             nis, ok, x_new, n_used, count_new):
+    """One fused update of :class:`~.strong_tracking.StrongTracking` on an epoch with a pending transition (the
+    inner form a fused ``kf``): :func:`_traces_and_split`, :func:`_st_plan_rows`, :func:`_faded_update`, then the
+    commit's count ``count_new = count + has`` (``v``, ``lam``, ``fs`` are the law's new state). Returns False,
+    committing nothing, where some row's ``S`` is not positive definite."""
+    _traces_and_split(r, H, R, mask, prior, Q, dz64, H64, prior64, Q64, geometry, model17, nchunk, tr_out, energy,
+                      tr_m, tr_q, tr_r, var, split_out, n_other)
+    plan = (energy, tr_m, tr_q, tr_r, mask, prior, True, split_out[0], split_out[1], split_out[2], split_out[3],
+            split_out[4], split_out[5], split_out[6], n_other, count, v_prev, fs_prev, rho, softening, p0_diag,
+            lambda_max, fading_cap, geometry, confidence, noise_gate, v, has, lam, fs, fade)
+    if nchunk > 1:
+        _st_plan_parallel(*plan, nchunk)
+    else:
+        _st_plan_serial(*plan, 1)
+    if not _faded_update(P, x_inner, Phi, Q, prior, H, R, r, mask, fade, lam, s, Pn, xn, r_out, Sd, nis, ok, x_law,
+                         x_new, n_used, nchunk):
+        return False
+    for b in range(count.shape[0]):
+        count_new[b] = count[b] + has[b]
+    return True
+
+
+@nb.njit(cache=True)
+def ma_epoch(r, H, R, mask, prior, Q, Phi, P, x_inner, x_law, dz64, H64, prior64, Q64, model17, count, c_prev,
+             beta_prev, alpha_prev, alpha_t_prev, fs_prev, streak, b_par, softening, fading_scale, fault_threshold,
+             p0_diag, warmup, max_rejections, alpha_min, alpha_max, lambda_max, fading_cap, uses_alpha, confidence,
+             noise_gate, nchunk, tr_out, energy, tr_m, tr_q, tr_r, var, split_out, n_other, c_out, beta_out,
+             alpha_out, accept, fault, lam, alpha_t, fs, fade, R_used, mask_used, s, Pn, xn, r_out, Sd, nis, ok,
+             x_new, n_used, count_new, streak_new):
+    """One fused update of :class:`~.strong_tracking.MeasurementAdaptiveSTKF` in its default configuration on an
+    epoch with a pending transition (the inner form a fused ``kf``): :func:`_traces_and_split`,
+    :func:`_ma_plan_rows`, :func:`_faded_update` with the planned ``R_used`` and ``mask_used``, then the commit's
+    counts: ``count_new = count + accept`` and the rejection streak (one more on a fault, 0 on a row with a
+    measurement, else kept). Returns False, committing nothing, where some row's ``S`` is not positive
+    definite."""
+    _traces_and_split(r, H, R, mask, prior, Q, dz64, H64, prior64, Q64, True, model17, nchunk, tr_out, energy,
+                      tr_m, tr_q, tr_r, var, split_out, n_other)
+    plan = (energy, tr_m, tr_q, tr_r, H, R, mask, prior, True, split_out[0], split_out[1], split_out[2],
+            split_out[3], split_out[4], split_out[5], split_out[6], n_other, count, c_prev, beta_prev, alpha_prev,
+            alpha_t_prev, fs_prev, streak, b_par, softening, fading_scale, fault_threshold, p0_diag, warmup,
+            max_rejections, alpha_min, alpha_max, lambda_max, fading_cap, uses_alpha, confidence, noise_gate, c_out,
+            beta_out, alpha_out, accept, fault, lam, alpha_t, fs, fade, R_used, mask_used)
+    if nchunk > 1:
+        _ma_plan_parallel(*plan, nchunk)
+    else:
+        _ma_plan_serial(*plan, 1)
+    if not _faded_update(P, x_inner, Phi, Q, prior, H, R_used, r, mask_used, fade, lam, s, Pn, xn, r_out, Sd, nis,
+                         ok, x_law, x_new, n_used, nchunk):
+        return False
+    B, m = mask.shape
+    for b in range(B):
+        count_new[b] = count[b] + accept[b]
+        has = False
+        for i in range(m):
+            has = has or mask[b, i]
+        streak_new[b] = streak[b] + 1 if fault[b] else (0 if has else streak[b])
+    return True

@@ -1,6 +1,6 @@
-"""The compiled epoch of the Sage-Husa law (``nav_filters.adaptive.sage_husa_rows.satellite_epoch``) is the
-Python sequence of ``AdaptiveLaw._update`` (plan, fused update, commit) bit for bit, and commits nothing when
-an innovation covariance is not positive definite."""
+"""The compiled epochs of the adaptive laws (``sage_husa_rows.satellite_epoch``, ``strong_tracking_rows.st_epoch``
+and ``ma_epoch``) are the Python sequence of ``AdaptiveLaw._update`` (plan, fused update, commit) bit for bit,
+and commit nothing when an innovation covariance is not positive definite."""
 import copy
 import types
 
@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 import nav_filters.adaptive.sage_husa as sage_husa
+import nav_filters.adaptive.strong_tracking as strong_tracking
 from nav_filters.adaptive.base import AdaptiveLaw
 from nav_filters.measurements import N_SAT_KEYS
 from nav_filters.registry import make_form
@@ -57,21 +58,33 @@ def _python_path(law):
     return law
 
 
-@pytest.mark.parametrize("method", ["sage-husa", "sage-husa-r"])
+PARAMS = {"sage-husa": {"b": (0.9, 0.999)}, "sage-husa-r": {"b": (0.9, 0.999)},
+          "stkf": {"rho": (0.5, 0.99), "softening": (0.5, 2.0)},
+          "ma-stkf": {"b": (0.9, 0.99), "softening": (0.5, 2.0), "fading_scale": (0.5, 2.0),
+                      "fault_threshold": (3.0, 20.0)}}
+EPOCHS = {"sage-husa": (sage_husa, "satellite_epoch"), "sage-husa-r": (sage_husa, "satellite_epoch"),
+          "stkf": (strong_tracking, "st_epoch"), "ma-stkf": (strong_tracking, "ma_epoch")}
+
+
+@pytest.mark.parametrize("method", list(EPOCHS))
 @pytest.mark.parametrize("dtype,B", [(np.float64, 5), (np.float32, 5), (np.float64, 70)])  # 70: parallel
 def test_compiled_epoch_is_the_python_sequence_bit_for_bit(monkeypatch, method, dtype, B):
     rng = np.random.default_rng(3)
     law = make_form(method, _spd(rng, B, 10.0), dtype=dtype)
-    assert law.set_fused(True) and law.config.r_mode == "satellite"
-    law.set_params(b=rng.uniform(0.9, 0.999, B))
+    assert law.set_fused(True)
+    law.set_params(**{k: rng.uniform(lo, hi, B) for k, (lo, hi) in PARAMS[method].items()})  # per row
     ref = _python_path(copy.deepcopy(law))
     calls = []
-    monkeypatch.setattr(sage_husa, "satellite_epoch",
-                        lambda *a, f=sage_husa.satellite_epoch: calls.append(1) or f(*a))
+    module, name = EPOCHS[method]
+    monkeypatch.setattr(module, name, lambda *a, f=getattr(module, name): calls.append(1) or f(*a))
+    faded = rejected = False
     for it in range(14):  # past the warm-up (10 epochs): the Q law and the satellite tables at work
         Phi, Q, dz, H, R, mask, keys = _epoch(rng, B, 8, dtype)
         if it == 5:
             mask[0] = False  # a row without measurements
+        if it >= 11:  # no outliers, and a state error the filter has not predicted: strong tracking fades
+            dz = (rng.normal(size=dz.shape) * np.sqrt(R) + (H @ (30.0 * rng.normal(size=(B, N, 1))))[..., 0])
+            dz = dz.astype(dtype)
         results = []
         for f in (law, ref):
             f.predict(Phi, Q)
@@ -79,18 +92,26 @@ def test_compiled_epoch_is_the_python_sequence_bit_for_bit(monkeypatch, method, 
         for name in ("nis", "n_used", "innovation", "innovation_var", "applied"):
             a, b = getattr(results[0], name), getattr(results[1], name)
             assert a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes(), (it, name)
+        faded = faded or bool((getattr(law, "_lambda", np.ones(1)) > 1).any())
+        rejected = rejected or bool(getattr(law, "_rejected", np.zeros(1, bool)).any())
         got, want = _state(law), _state(ref)
         assert got.keys() == want.keys()
         for k in want:
             assert got[k].dtype == want[k].dtype and got[k].tobytes() == want[k].tobytes(), (it, k)
     assert len(calls) == 14
-    assert law._q_init.all() == (method == "sage-husa") and (law._sat_count > 0).any()
+    if method.startswith("sage-husa"):  # the Q law and the satellite tables were at work
+        assert law._q_init.all() == (method == "sage-husa") and (law._sat_count > 0).any()
+    elif method == "stkf":  # the fading factor was at work
+        assert faded
+    else:  # the fault test and the measurement factors were at work
+        assert rejected and (law._alpha > 2).all()
 
 
-def test_compiled_epoch_commits_nothing_when_S_is_not_positive_definite():
+@pytest.mark.parametrize("method", ["sage-husa", "stkf", "ma-stkf"])
+def test_compiled_epoch_commits_nothing_when_S_is_not_positive_definite(method):
     rng = np.random.default_rng(8)
     B = 4
-    law = make_form("sage-husa", _spd(rng, B, 10.0))
+    law = make_form(method, _spd(rng, B, 10.0))
     law.set_fused(True)
     for _ in range(3):
         Phi, Q, dz, H, R, mask, keys = _epoch(rng, B, 6, np.float64)
