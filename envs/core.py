@@ -571,11 +571,9 @@ class TuningCore:
     def _satellite_health(self):
         """(B,) satellites whose R scale rose this epoch and (B,) the largest per-satellite R scale, from a
         per-satellite law's adaptive state (zeros and ones for other methods)."""
-        summary = getattr(self.nav.form, "satellite_summary", None)
-        st = summary() if summary is not None else {}
-        rose = np.asarray(st["sats_rose"], np.float64) if "sats_rose" in st else np.zeros(self.B)
-        smax = np.asarray(st["sat_scale_max"], np.float64) if "sat_scale_max" in st else np.ones(self.B)
-        return np.ascontiguousarray(rose), np.ascontiguousarray(smax)
+        health = getattr(self.nav.form, "satellite_health", None)
+        h = health() if health is not None else None
+        return (np.zeros(self.B), np.ones(self.B)) if h is None else h
 
     def _frame_reference(self, res, zflag):
         C = self.C

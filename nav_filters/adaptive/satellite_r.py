@@ -38,6 +38,7 @@ ROSE_FACTOR = 2.0
 SUMMARY_NAMES = ("sat_scale_max", "sat_scale_median", "sats_rose", "sats_used")
 """Adaptive-state entries summarizing the pseudorange scales of the last epoch (:meth:`SatelliteNoise._satellite_state`)."""
 
+_MAX_COL, _ROSE_COL = SUMMARY_NAMES.index("sat_scale_max"), SUMMARY_NAMES.index("sats_rose")
 _CLK0, _DRIFT0 = CLK.start, DRIFT.start
 _NK = N_SAT_KEYS
 
@@ -371,6 +372,14 @@ class SatelliteNoise:
         if not self._sat_enabled():
             return {}
         return {name: self._sat_summary[:, i] for i, name in enumerate(SUMMARY_NAMES)}
+
+    def satellite_health(self):
+        """:meth:`~.base.AdaptiveLaw.satellite_health` from the summary table (None when the law does not adapt
+        per satellite)."""
+        if not self._sat_enabled():
+            return None
+        s = self._sat_summary
+        return s[:, _ROSE_COL].copy(), s[:, _MAX_COL].copy()
 
     def _plan_satellite(self, r, H, R, mask, ctx: EpochContext, d, active, pending) -> UpdatePlan:
         """The R law of ``r_mode='satellite'`` (compiled :func:`_r_sat_kernel`; numpy specification

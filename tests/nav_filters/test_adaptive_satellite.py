@@ -250,10 +250,15 @@ def test_satellite_summary_is_the_summary_part_of_the_adaptive_state():
     for name in SUMMARY_NAMES:
         np.testing.assert_array_equal(summary[name], state[name])
     assert summary["sat_scale_max"].min() > 4.0  # the NLOS satellite's scale, on every row
-    summary["sats_used"][:] = -1.0  # a copy: the law's own summary is untouched
-    assert law.satellite_summary()["sats_used"].min() >= 0
+    rose, smax = law.satellite_health()  # the two entries an env's frame reads
+    np.testing.assert_array_equal(rose, summary["sats_rose"])
+    np.testing.assert_array_equal(smax, summary["sat_scale_max"])
+    summary["sats_used"][:] = -1.0  # copies: the law's own summary is untouched
+    rose[:] = -1.0
+    assert law.satellite_summary()["sats_used"].min() >= 0 and law.satellite_health()[0].min() >= 0
     P0 = np.broadcast_to(np.eye(17), (B, 17, 17)).copy()
     assert SageHusa(P0, config=SageHusaConfig()).satellite_summary() == {}
+    assert SageHusa(P0, config=SageHusaConfig()).satellite_health() is None
 
 
 @pytest.mark.parametrize("sample,iters", [("geometry", 1), ("geometry", 3), ("residual", 1), ("residual", 2),
