@@ -417,9 +417,9 @@ class SageHusa(SatelliteNoise, AdaptiveLaw):
         epoch = self._epoch + 1
         smin, smax = self._sat_bounds()
         nchunk = row_kernel(None, None, B)[1]
-        has, active, s_rows, n_rows, s_prev, R_used, xn, rows, ones = self._compiled_epoch_scratch(
+        has, active, s_rows, n_rows, s_prev, R_used, xn, rows, no_fade, unit, s = self._compiled_epoch_scratch(
             (B, m, dt), lambda: (e(B, bool), e(B, bool), e((B, m)), e((B, m), np.int64), e((B, m)),
-                                 e((B, m, m), dt), e((B, n), dt), e(B, bool), np.ones((B, n), dt)))
+                                 e((B, m, m), dt), e((B, n), dt), e(B, bool), e((B, 0)), np.ones(B), e((B, n), dt)))
         d, s_group, Pn, r_out, Sd = e(B), e((B, len(GROUP_NAMES))), e((B, n, n), dt), e((B, m), dt), e((B, m), dt)
         nis, n_used, summary = np.zeros(B, dt), e(B, np.int64), e((B, 4))
         b_used, step, seen, x_new = e(B), e(B, np.int64), e(B, np.int64), e((B, n), dt)
@@ -432,8 +432,8 @@ class SageHusa(SatelliteNoise, AdaptiveLaw):
             int(cfg.sample_iterations), bool(cfg.common_scale), self._r_scale, bool(cfg.adapt_q), self._b_used,
             self._e_prev, self._q_init, self._q_ref, self._Q_raw, self._Q, float(cfg.jump_ratio), float(cfg.b_min),
             float(cfg.b_jump_factor), bool(cfg.diagonal_q), float(cfg.q_floor), float(cfg.q_ceiling), N_SAT_KEYS,
-            float(ROSE_FACTOR), nchunk, has, active, d, s_rows, n_rows, s_prev, s_group, R_used, ones, Pn, xn,
-            r_out, Sd, nis, np.empty(B, bool), n_used, summary, rows, b_used, step, seen, x_new)
+            float(ROSE_FACTOR), nchunk, has, active, d, s_rows, n_rows, s_prev, s_group, R_used, no_fade, unit, s,
+            Pn, xn, r_out, Sd, nis, np.empty(B, bool), n_used, summary, rows, b_used, step, seen, x_new)
         res = self._compiled_epoch_end(ok, Pn, x_new, nis, n_used, r_out, Sd)
         self._r_scale, self._epoch, self._sat_summary = s_group, epoch, summary
         self._b_used, self._d, self._step, self._seen = b_used, d, step, seen

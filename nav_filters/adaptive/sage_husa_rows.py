@@ -5,20 +5,19 @@ The law's numpy lines (``SageHusa._adapt_q_reference``, ``_epoch_rows_reference`
 types (agreement tests in ``tests/nav_filters/test_compiled_update.py`` and
 ``tests/nav_filters/test_fused_update.py``).
 
-:func:`satellite_epoch` runs a whole fused update of the law in its default mode (per-satellite R) as one
-compiled call: the row flags, the R law, the fused time and measurement update and the commit, each the
-kernel that the Python sequence (``AdaptiveLaw._update`` with ``SageHusa._plan`` and ``_commit``) calls, in
-that order on the same arrays, so the same bits (test: ``tests/nav_filters/test_compiled_epochs.py``). At B = 1 the Python between those kernels
-(argument tuples, plan and result objects, some twenty small allocations) took longer than their
-arithmetic.
+:func:`satellite_epoch` runs a whole fused update of the law in its default mode (per-satellite R) as one compiled
+call: the row flags, the R law, the fused time and measurement update and the commit, each the kernel that the
+Python sequence (``AdaptiveLaw._update`` with ``SageHusa._plan`` and ``_commit``) calls, in that order on the same
+arrays, so the same bits (test: ``tests/nav_filters/test_compiled_epochs.py``). At B = 1 the Python between those
+kernels (argument tuples, plan and result objects, some twenty small allocations) took longer than their arithmetic.
 """
 from __future__ import annotations
 
 import numba as nb
 import numpy as np
 
-from ..forms.kf import _fused_parallel, _fused_serial
 from ..kernels import serial_and_parallel, sym_eig_inplace
+from .compiled_epoch import fused_law_update
 from .satellite_r import _commit_kernel, _r_sat_kernel, _r_sat_parallel, _weight_one
 
 
@@ -173,15 +172,15 @@ def satellite_epoch(r, H, R, mask, keys, prior, Q, Phi, P, x_inner, x_law, seen,
                     epoch, s_tab, n_tab, last_tab, forget, smin, smax, sat_min, sample, min_red, k_prior, n_iter,
                     common, r_scale, adapt_q, b_used_prev, e_prev, q_init, q_ref, Q_raw, Q_law, jump_ratio, b_min,
                     b_jump_factor, diagonal, floor, ceiling, n_pr_keys, rose_factor, nchunk,
-                    has, active, d, s_rows, n_rows, s_prev, s_group, R_used, ones, Pn, xn, r_out, Sd, nis, ok,
-                    n_used, summary, rows, b_used, step_new, seen_new, x_new):
+                    has, active, d, s_rows, n_rows, s_prev, s_group, R_used, no_fade, unit, s, Pn, xn, r_out, Sd,
+                    nis, ok, n_used, summary, rows, b_used, step_new, seen_new, x_new):
     """One fused update of :class:`~.sage_husa.SageHusa` with ``r_mode='satellite'`` on an epoch with a
     pending transition (the inner form a fused :class:`~nav_filters.forms.kf.KalmanFilter`).
 
     The kernels of the Python path, in its order: :func:`_epoch_rows_kernel` (``SageHusa._epoch_rows``), the
     per-satellite R law (:func:`~.satellite_r._r_sat_kernel`, ``_plan_satellite``), the fused time + Joseph
-    update in mode 2 (:func:`~nav_filters.forms.kf._fused_rows` with the prior given and no fading), then, if
-    every row's ``S`` was positive definite, the commit: ``x_new = x_law + xn``, the per-satellite tables
+    update without fading (:func:`.compiled_epoch.fused_law_update`), then, if every row's ``S`` was positive
+    definite, the commit: ``x_new = x_law + xn``, the per-satellite tables
     (:func:`~.satellite_r._commit_kernel`), the counts (:func:`_count_rows_kernel`) and the Q law
     (:func:`_adapt_q_rows`, own eigen-decomposition) on the adapting rows. Row kernels run their parallel
     variant over ``nchunk`` chunks when ``nchunk > 1``.
@@ -195,37 +194,26 @@ def satellite_epoch(r, H, R, mask, keys, prior, Q, Phi, P, x_inner, x_law, seen,
     satellite tables (``epoch`` the epoch counter after this one; ``s_tab``, ``n_tab``, ``last_tab`` updated in
     place on success) and settings (``forget`` ... ``r_scale``), and its Q-law state (``b_used_prev``,
     ``e_prev``, ``q_init``, ``q_ref``, ``Q_raw``, ``Q_law`` updated in place on success) and settings.
-    The rest are outputs (new arrays of the shapes of the Python path's); ``ones`` (B, n) of the filter dtype
-    holds the square roots of the (unit) fading factors.
+    The rest are outputs (new arrays of the shapes of the Python path's); ``no_fade`` (B, 0) and ``unit`` (B,)
+    ones are the plan's fading (none: ``lambda = 1``), ``s`` (B, n) scratch of the filter dtype.
 
     Returns
     -------
     bool, False where some row's ``S`` is not positive definite: then nothing was committed (the law's state
     and tables are as they were; the caller raises ``LinAlgError``).
     """
-    B = r.shape[0]
     _epoch_rows_kernel(mask, seen, warmup, step, jcap, b, d_prev, has, active, d)
     if nchunk > 1:
         _r_sat_parallel(nchunk, r, H, prior, Q, True, R, mask, keys, b, jcap, d, active, epoch, s_tab, n_tab,
                         last_tab, forget, smin, smax, sat_min, sample, min_red, k_prior, n_iter, common, r_scale,
                         s_rows, n_rows, s_prev, s_group, R_used)
-        _fused_parallel(P, x_inner, Phi, ones, Q, prior, 2, H, R_used, r, mask, Pn, xn, r_out, Sd, nis, ok, nchunk)
     else:
         _r_sat_kernel(r, H, prior, Q, True, R, mask, keys, b, jcap, d, active, epoch, s_tab, n_tab, last_tab,
                       forget, smin, smax, sat_min, sample, min_red, k_prior, n_iter, common, r_scale, s_rows, n_rows,
                       s_prev, s_group, R_used)
-        _fused_serial(P, x_inner, Phi, ones, Q, prior, 2, H, R_used, r, mask, Pn, xn, r_out, Sd, nis, ok, 1)
-    for i in range(B):
-        if not ok[i]:
-            return False
-    m = mask.shape[1]
-    for i in range(B):
-        c = 0
-        for k in range(m):
-            c += mask[i, k]
-        n_used[i] = c
-        for k in range(x_law.shape[1]):
-            x_new[i, k] = x_law[i, k] + xn[i, k]
+    if not fused_law_update(P, x_inner, Phi, Q, prior, H, R_used, r, mask, no_fade, unit, s, Pn, xn, r_out, Sd, nis,
+                            ok, x_law, x_new, n_used, nchunk):
+        return False
     _commit_kernel(mask, keys, s_rows, n_rows, s_prev, epoch, n_pr_keys, rose_factor, s_tab, n_tab, last_tab,
                    summary)
     if _count_rows_kernel(active, has, True, adapt_q, b, b_used_prev, step, seen, rows, b_used, step_new,

@@ -340,13 +340,12 @@ class StrongTracking(AdaptiveLaw):
         cfg = self.config
         geo = cfg.fading_noise == "geometry"
         inputs, split, out, fade, nchunk = _compiled_epoch_io(self, start[0], H, R, mask, start[1], geo)
-        B = self.batch_size
-        v, has, lam, fs, count = np.empty(B), np.empty(B, bool), np.empty(B), np.empty((B, SPLIT_STATS)), np.empty(
-            B, np.int64)
+        B, e = self.batch_size, np.empty
+        v, has, lam, fs, count = e(B), e(B, bool), e(B), e((B, SPLIT_STATS)), e(B, np.int64)
         ok = st_epoch(*inputs, self._count, self._v, self._fs, self._params["rho"], self._params["softening"],
                       self._p0_diag, float(cfg.lambda_max), float(cfg.fading_cap), geo, float(cfg.fading_confidence),
                       float(cfg.noise_gate), nchunk, *split, v, has, lam, fs, fade, *out, count)
-        s, Pn, xn, r_out, Sd, nis, _, x_new, n_used = out
+        _, Pn, _, r_out, Sd, nis, _, x_new, n_used = out
         res = self._compiled_epoch_end(ok, Pn, x_new, nis, n_used, r_out, Sd)
         self._v, self._count, self._lambda, self._fs = v, count, lam, fs
         return res
@@ -611,7 +610,7 @@ class MeasurementAdaptiveSTKF(SatelliteNoise, AdaptiveLaw):
                       float(cfg.alpha_max), float(cfg.lambda_max), float(cfg.fading_cap), bool(cfg.fading_uses_alpha),
                       float(cfg.fading_confidence), float(cfg.noise_gate), nchunk, *split, c_new, beta, alpha, accept,
                       fault, lam, alpha_t, fs, fade, R_used, mask_used, *out, count, streak)
-        s, Pn, xn, r_out, Sd, nis, _, x_new, n_used = out
+        _, Pn, _, r_out, Sd, nis, _, x_new, n_used = out
         res = self._compiled_epoch_end(ok, Pn, x_new, nis, n_used, r_out, Sd)
         self._c, self._beta, self._alpha, self._alpha_t, self._fs = c_new, beta, alpha, alpha_t, fs
         self._count, self._streak, self._rejected, self._lambda = count, streak, fault, lam

@@ -29,8 +29,8 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from ..forms.kf import _fused_parallel, _fused_serial
 from ..kernels import pairwise_sum, scale_symmetric_row, serial_and_parallel
+from .compiled_epoch import fused_law_update
 from .innovation import _fit_split_parallel, _fit_split_serial, _traces_parallel, _traces_serial
 from .satellite_r import _row_group
 
@@ -355,44 +355,15 @@ def _traces_and_split(r, H, R, mask, prior, Q, dz64, H64, prior64, Q64, geometry
 
 
 @nb.njit(cache=True)
-def _faded_update(P, x_inner, Phi, Q, prior, H, R, r, mask, fade, lam, s, Pn, xn, r_out, Sd, nis, ok, x_law, x_new,
-                  n_used, nchunk):
-    """The fused update of a strong-tracking plan (``KalmanFilter._predicted_update`` in mode 2): ``s`` (B, n)
-    the square roots of the fading factors ``fade`` (B, n), or of ``lam`` (B,) where ``fade`` has no columns,
-    in the filter dtype; then, if every row's ``S`` is positive definite, ``x_new = x_law + xn`` and ``n_used``
-    the rows of ``mask`` per batch row. Returns whether every ``S`` was positive definite."""
-    B, n = s.shape
-    per_state = fade.shape[1] > 0
-    for b in range(B):
-        for i in range(n):
-            s[b, i] = np.sqrt(fade[b, i]) if per_state else np.sqrt(lam[b])
-    if nchunk > 1:
-        _fused_parallel(P, x_inner, Phi, s, Q, prior, 2, H, R, r, mask, Pn, xn, r_out, Sd, nis, ok, nchunk)
-    else:
-        _fused_serial(P, x_inner, Phi, s, Q, prior, 2, H, R, r, mask, Pn, xn, r_out, Sd, nis, ok, 1)
-    for b in range(B):
-        if not ok[b]:
-            return False
-    m = mask.shape[1]
-    for b in range(B):
-        c = 0
-        for i in range(m):
-            c += mask[b, i]
-        n_used[b] = c
-        for k in range(n):
-            x_new[b, k] = x_law[b, k] + xn[b, k]
-    return True
-
-
-@nb.njit(cache=True)
 def st_epoch(r, H, R, mask, prior, Q, Phi, P, x_inner, x_law, dz64, H64, prior64, Q64, model17, count, v_prev,
              fs_prev, rho, softening, p0_diag, lambda_max, fading_cap, geometry, confidence, noise_gate, nchunk,
              tr_out, energy, tr_m, tr_q, tr_r, var, split_out, n_other, v, has, lam, fs, fade, s, Pn, xn, r_out, Sd,
              nis, ok, x_new, n_used, count_new):
     """One fused update of :class:`~.strong_tracking.StrongTracking` on an epoch with a pending transition (the
-    inner form a fused ``kf``): :func:`_traces_and_split`, :func:`_st_plan_rows`, :func:`_faded_update`, then the
-    commit's count ``count_new = count + has`` (``v``, ``lam``, ``fs`` are the law's new state). Returns False,
-    committing nothing, where some row's ``S`` is not positive definite."""
+    inner form a fused ``kf``): :func:`_traces_and_split`, :func:`_st_plan_rows`,
+    :func:`.compiled_epoch.fused_law_update`, then the commit's count ``count_new = count + has`` (``v``, ``lam``,
+    ``fs`` are the law's new state). Returns False, committing nothing, where some row's ``S`` is not positive
+    definite."""
     _traces_and_split(r, H, R, mask, prior, Q, dz64, H64, prior64, Q64, geometry, model17, nchunk, tr_out, energy,
                       tr_m, tr_q, tr_r, var, split_out, n_other)
     plan = (energy, tr_m, tr_q, tr_r, mask, prior, True, split_out[0], split_out[1], split_out[2], split_out[3],
@@ -402,7 +373,7 @@ def st_epoch(r, H, R, mask, prior, Q, Phi, P, x_inner, x_law, dz64, H64, prior64
         _st_plan_parallel(*plan, nchunk)
     else:
         _st_plan_serial(*plan, 1)
-    if not _faded_update(P, x_inner, Phi, Q, prior, H, R, r, mask, fade, lam, s, Pn, xn, r_out, Sd, nis, ok, x_law,
+    if not fused_law_update(P, x_inner, Phi, Q, prior, H, R, r, mask, fade, lam, s, Pn, xn, r_out, Sd, nis, ok, x_law,
                          x_new, n_used, nchunk):
         return False
     for b in range(count.shape[0]):
@@ -419,9 +390,9 @@ def ma_epoch(r, H, R, mask, prior, Q, Phi, P, x_inner, x_law, dz64, H64, prior64
              x_new, n_used, count_new, streak_new):
     """One fused update of :class:`~.strong_tracking.MeasurementAdaptiveSTKF` in its default configuration on an
     epoch with a pending transition (the inner form a fused ``kf``): :func:`_traces_and_split`,
-    :func:`_ma_plan_rows`, :func:`_faded_update` with the planned ``R_used`` and ``mask_used``, then the commit's
-    counts: ``count_new = count + accept`` and the rejection streak (one more on a fault, 0 on a row with a
-    measurement, else kept). Returns False, committing nothing, where some row's ``S`` is not positive
+    :func:`_ma_plan_rows`, :func:`.compiled_epoch.fused_law_update` with the planned ``R_used`` and ``mask_used``,
+    then the commit's counts: ``count_new = count + accept`` and the rejection streak (one more on a fault, 0 on a
+    row with a measurement, else kept). Returns False, committing nothing, where some row's ``S`` is not positive
     definite."""
     _traces_and_split(r, H, R, mask, prior, Q, dz64, H64, prior64, Q64, True, model17, nchunk, tr_out, energy,
                       tr_m, tr_q, tr_r, var, split_out, n_other)
@@ -434,7 +405,7 @@ def ma_epoch(r, H, R, mask, prior, Q, Phi, P, x_inner, x_law, dz64, H64, prior64
         _ma_plan_parallel(*plan, nchunk)
     else:
         _ma_plan_serial(*plan, 1)
-    if not _faded_update(P, x_inner, Phi, Q, prior, H, R_used, r, mask_used, fade, lam, s, Pn, xn, r_out, Sd, nis,
+    if not fused_law_update(P, x_inner, Phi, Q, prior, H, R_used, r, mask_used, fade, lam, s, Pn, xn, r_out, Sd, nis,
                          ok, x_law, x_new, n_used, nchunk):
         return False
     B, m = mask.shape
