@@ -107,16 +107,20 @@ def _averaged_transition_into(A, S, Phi, Q, order, nz):
     """Compiled :func:`averaged_transition` for every row: writes ``Phi`` and ``Q`` (B, 17, 17), float64.
 
     ``A`` must be zero outside the pattern ``nz`` (:data:`~nav_filters.kernels.F_NONZERO`): the products
-    ``A X`` use only those entries (what the propagation kernel integrates has that pattern)."""
-    B = A.shape[0]
+    ``A X`` use only those entries (what the propagation kernel integrates has that pattern).
+
+    The size ``n`` (= 17) is read from the shape: loops of the constant 17 are fully unrolled by LLVM and left
+    scalar (numba runs no SLP vectorizer), loops of a run-time length vectorize. The same operations in the
+    same order, so the same bits."""
+    B, n = A.shape[0], A.shape[1]
     for b in nb.prange(B):
-        term = np.zeros((N, N))
-        nxt = np.zeros((N, N))
-        M = np.empty((N, N))
-        X = np.zeros((N, N))
-        for i in range(N):
+        term = np.zeros((n, n))
+        nxt = np.zeros((n, n))
+        M = np.empty((n, n))
+        X = np.zeros((n, n))
+        for i in range(n):
             term[i, i] = 1.0
-            for j in range(N):
+            for j in range(n):
                 Phi[b, i, j] = term[i, j]
                 m = 0.5 * (S[b, i, j] + S[b, j, i])
                 M[i, j] = m
@@ -128,15 +132,15 @@ def _averaged_transition_into(A, S, Phi, Q, order, nz):
                 i = nz[p, 0]
                 j = nz[p, 1]
                 a = A[b, i, j]
-                for c in range(N):
+                for c in range(n):
                     nxt[i, c] += a * term[j, c]
                     X[i, c] += a * M[j, c]
-            for i in range(N):
-                for c in range(N):
+            for i in range(n):
+                for c in range(n):
                     term[i, c] = nxt[i, c] / k
                     Phi[b, i, c] += term[i, c]
-            for i in range(N):
-                for c in range(i, N):
+            for i in range(n):
+                for c in range(i, n):
                     m = (X[i, c] + X[c, i]) / (k + 1)
                     M[i, c] = m
                     M[c, i] = m
