@@ -374,13 +374,18 @@ with BLAS threads still spinning after the caller's last matmul. The parallel va
 busy machine ``NUMBA_NUM_THREADS=1`` is faster (README)."""
 
 
+def row_chunks(B: int) -> int:
+    """The number of row chunks a row kernel over ``B`` rows runs in: 1 (its serial variant) below
+    :data:`PARALLEL_MIN_BATCH` rows, else ``4 x threads`` chunks of its parallel variant (each chunk allocates its
+    scratch once; a row's arithmetic does not depend on the chunking)."""
+    return min(B, 4 * nb.get_num_threads()) if B >= PARALLEL_MIN_BATCH else 1
+
+
 def row_kernel(serial, parallel, B: int):
-    """``(kernel, nchunk)`` for a row kernel of :func:`serial_and_parallel` over ``B`` rows: the serial variant
-    in one chunk below :data:`PARALLEL_MIN_BATCH` rows, else the parallel one over ``4 x threads`` chunks (each
-    chunk allocates its scratch once; a row's arithmetic does not depend on the chunking)."""
-    if B >= PARALLEL_MIN_BATCH:
-        return parallel, min(B, 4 * nb.get_num_threads())
-    return serial, 1
+    """``(kernel, nchunk)`` for a row kernel of :func:`serial_and_parallel` over ``B`` rows (:func:`row_chunks`):
+    the serial variant in one chunk, or the parallel one."""
+    nchunk = row_chunks(B)
+    return (parallel if nchunk > 1 else serial), nchunk
 
 
 def propagate_epoch(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, Cz, qg, qa, qdiag, kg, ka,

@@ -154,14 +154,14 @@ import numba as nb
 import numpy as np
 
 from ..forms.base import UpdateResult, symmetrize
-from ..kernels import row_kernel
+from ..kernels import row_chunks, row_kernel
 from ..measurements import N_SAT_KEYS
 from .base import AdaptiveLaw, EpochContext, UpdatePlan
 from .innovation import GROUP_NAMES, _nonzeros_work, _quad_nz, _rows_nonzeros, measurement_groups, quadratic_diag
 from .params import ParamSpec, check_option
 from .sage_husa_rows import (_adapt_q_parallel, _adapt_q_serial, _count_rows_kernel,  # noqa: F401
                              _epoch_rows_kernel, satellite_epoch)
-from .satellite_r import (_SAMPLE_CODE, R_SAMPLES, ROSE_FACTOR, SatelliteNoise, _group_step,  # noqa: F401
+from .satellite_r import (R_SAMPLES, ROSE_FACTOR, SatelliteNoise, _group_step,  # noqa: F401
                           _row_group, check_satellite_options, sage_husa_weight)
 
 B_SPEC = ParamSpec("b", 0.0, 1.0, low_closed=False, high_closed=True, doc="Sage-Husa forgetting factor")
@@ -415,8 +415,7 @@ class SageHusa(SatelliteNoise, AdaptiveLaw):
         c, e = np.ascontiguousarray, np.empty
         keys = self._keys if self._keys is not None else np.full((B, m), -1, np.int64)
         epoch = self._epoch + 1
-        smin, smax = self._sat_bounds()
-        nchunk = row_kernel(None, None, B)[1]
+        nchunk = row_chunks(B)
         has, active, s_rows, n_rows, s_prev, R_used, xn, rows, no_fade, unit, s = self._compiled_epoch_scratch(
             (B, m, dt), lambda: (e(B, bool), e(B, bool), e((B, m)), e((B, m), np.int64), e((B, m)),
                                  e((B, m, m), dt), e((B, n), dt), e(B, bool), e((B, 0)), np.ones(B), e((B, n), dt)))
@@ -427,12 +426,8 @@ class SageHusa(SatelliteNoise, AdaptiveLaw):
             c(r), c(H), c(R), c(mask, bool), c(keys, np.int64), c(ctx.prior, dt), c(ctx.Q, dt), c(ctx.Phi, dt),
             c(self.inner.P, dt), c(self.inner.x, dt), self.x, self._seen, self._step, self._jcap, self._params["b"],
             self._d, int(cfg.warmup_epochs), epoch, self._sat_scale, self._sat_count, self._sat_last,
-            int(cfg.forget_after_epochs), float(smin), float(smax), float(cfg.sat_scale_min),
-            _SAMPLE_CODE[cfg.r_sample], float(cfg.min_redundancy), float(cfg.prior_inflation),
-            int(cfg.sample_iterations), bool(cfg.common_scale), self._r_scale, bool(cfg.adapt_q), self._b_used,
-            self._e_prev, self._q_init, self._q_ref, self._Q_raw, self._Q, float(cfg.jump_ratio), float(cfg.b_min),
-            float(cfg.b_jump_factor), bool(cfg.diagonal_q), float(cfg.q_floor), float(cfg.q_ceiling), N_SAT_KEYS,
-            float(ROSE_FACTOR), nchunk, has, active, d, s_rows, n_rows, s_prev, s_group, R_used, no_fade, unit, s,
+            *self._sat_settings(), self._r_scale, bool(cfg.adapt_q), self._b_used, self._e_prev, self._q_init,
+            self._q_ref, self._Q_raw, self._Q, *self._q_settings(), N_SAT_KEYS, float(ROSE_FACTOR), nchunk, has, active, d, s_rows, n_rows, s_prev, s_group, R_used, no_fade, unit, s,
             Pn, xn, r_out, Sd, nis, np.empty(B, bool), n_used, summary, rows, b_used, step, seen, x_new)
         res = self._compiled_epoch_end(ok, Pn, x_new, nis, n_used, r_out, Sd)
         self._r_scale, self._epoch, self._sat_summary = s_group, epoch, summary
@@ -544,17 +539,21 @@ class SageHusa(SatelliteNoise, AdaptiveLaw):
     def _adapt_q(self, rows, d, ctx: EpochContext, dx):
         """Seed 000 eqs 18-22 and 24 on ``rows`` (B,) bool (compiled: :func:`_adapt_q_rows`; the numpy
         specification is :meth:`_adapt_q_reference`, agreement test)."""
-        cfg = self.config
         dt = self.dtype
         # the kernel updates the law's own arrays in place: none is handed out (ctx.Q is a new array from
         # _epoch_q, adaptive_state copies, a clone deep-copies)
         c = np.ascontiguousarray
         kern, nchunk = row_kernel(_adapt_q_serial, _adapt_q_parallel, self.batch_size)
         kern(rows, np.asarray(d, np.float64), c(dx, dt), c(self.inner.covariance, dt), c(ctx.prior, dt),
-                        c(ctx.Q, dt), self._params["b"], self._step, self._e_prev, self._b_used, self._q_init,
-                        self._q_ref, self._Q_raw, self._Q, float(cfg.jump_ratio), float(cfg.b_min),
-                        float(cfg.b_jump_factor), bool(cfg.diagonal_q), float(cfg.q_floor), float(cfg.q_ceiling),
-                        bool(self.fused), nchunk)
+             c(ctx.Q, dt), self._params["b"], self._step, self._e_prev, self._b_used, self._q_init, self._q_ref,
+             self._Q_raw, self._Q, *self._q_settings(), bool(self.fused), nchunk)
+
+    def _q_settings(self) -> tuple:
+        """The Q law's settings in the order :func:`.sage_husa_rows._adapt_q_rows` takes them (``jump_ratio`` ...
+        ``ceiling``)."""
+        cfg = self.config
+        return (float(cfg.jump_ratio), float(cfg.b_min), float(cfg.b_jump_factor), bool(cfg.diagonal_q),
+                float(cfg.q_floor), float(cfg.q_ceiling))
 
     def _adapt_q_reference(self, rows, d, ctx: EpochContext, dx):
         """Numpy specification of :meth:`_adapt_q` (seed 000 eqs 18-22 and 24 on ``rows`` (B,) bool)."""

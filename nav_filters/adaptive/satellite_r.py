@@ -22,7 +22,7 @@ import numba as nb
 import numpy as np
 
 from ..error_model import CLK, DRIFT, N_STATES
-from ..kernels import PARALLEL_MIN_BATCH
+from ..kernels import row_chunks
 from ..measurements import N_SAT_KEYS
 from .base import EpochContext, UpdatePlan
 from .innovation import (GROUP_NAMES, _geometry_residual_row, _geometry_work, _nonzeros_work, _posterior_residual_row,
@@ -356,6 +356,14 @@ class SatelliteNoise:
         """(low, high) bounds of the scales (the per-satellite floor is ``config.sat_scale_min``)."""
         return self.config.r_scale_min, self.config.r_scale_max
 
+    def _sat_settings(self) -> tuple:
+        """The R law's settings in the order :func:`_r_sat_kernel` takes them (``forget`` ... ``common``)."""
+        cfg = self.config
+        smin, smax = self._sat_bounds()
+        return (int(cfg.forget_after_epochs), float(smin), float(smax), float(cfg.sat_scale_min),
+                _SAMPLE_CODE[cfg.r_sample], float(cfg.min_redundancy), float(cfg.prior_inflation),
+                int(cfg.sample_iterations), bool(cfg.common_scale))
+
     def _init_satellite_tables(self):
         """Per (satellite key, type) scale, adaptation count and last epoch used (-1 never); the epoch
         counter; the summary of the last epoch (:data:`SUMMARY_NAMES`)."""
@@ -384,8 +392,6 @@ class SatelliteNoise:
     def _plan_satellite(self, r, H, R, mask, ctx: EpochContext, d, active, pending) -> UpdatePlan:
         """The R law of ``r_mode='satellite'`` (compiled :func:`_r_sat_kernel`; numpy specification
         :meth:`_r_sat_reference`, agreement test)."""
-        cfg = self.config
-        smin, smax = self._sat_bounds()
         B, m = mask.shape
         keys = self._keys if self._keys is not None else np.full((B, m), -1, np.int64)
         epoch = self._epoch + bool(ctx.pending)
@@ -396,13 +402,11 @@ class SatelliteNoise:
         R_used = np.empty(R.shape, R.dtype)
         args = (c(r), c(H), c(ctx.prior), c(ctx.Q if ctx.pending else ctx.prior), bool(ctx.pending), c(R),
                 mask, c(keys, np.int64), self._sat_b(), self._sat_jcap(), d, active, epoch, self._sat_scale,
-                self._sat_count, self._sat_last, int(cfg.forget_after_epochs), float(smin),
-                float(smax), float(cfg.sat_scale_min), _SAMPLE_CODE[cfg.r_sample],
-                float(cfg.min_redundancy), float(cfg.prior_inflation), int(cfg.sample_iterations),
-                bool(cfg.common_scale), self._r_scale,
+                self._sat_count, self._sat_last, *self._sat_settings(), self._r_scale,
                 s_rows, n_rows, s_prev, s_group, R_used)
-        if self.fused and B >= PARALLEL_MIN_BATCH:  # same bits per row, rows in parallel chunks
-            _r_sat_parallel(min(B, 4 * nb.get_num_threads()), *args)
+        nchunk = row_chunks(B)
+        if self.fused and nchunk > 1:  # same bits per row, rows in parallel chunks
+            _r_sat_parallel(nchunk, *args)
         else:
             _r_sat_kernel(*args)
         pending.update(r_scale=s_group, sat=(keys, s_rows, n_rows, s_prev), epoch=epoch)

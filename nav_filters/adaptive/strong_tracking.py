@@ -87,7 +87,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..error_model import N_STATES
-from ..kernels import row_kernel, scale_symmetric, scale_symmetric_reference, unit_diagonal
+from ..kernels import row_chunks, row_kernel, scale_symmetric, scale_symmetric_reference, unit_diagonal
 from .base import AdaptiveLaw, EpochContext, UpdatePlan
 from .innovation import fit_split, innovation_traces, measurement_groups
 from .params import ParamSpec, check_option
@@ -212,15 +212,19 @@ def _fused_plan_inputs(law, r, H, R, mask, ctx, geometry):
     else:
         z = np.empty((B, 0))
         sp = (z, z, z, z, z, z, z, np.zeros(B, np.int64))
-    return tr, sp, np.empty((B, 0 if math.isinf(law.config.fading_cap) else law.n))
+    return tr, sp, _fade_out(law)
+
+
+def _fade_out(law):
+    """The plan's output of per-state fading factors: (B, n), or (B, 0) where ``fading_cap`` is inf."""
+    return np.empty((law.batch_size, 0 if math.isinf(law.config.fading_cap) else law.n))
 
 
 def _compiled_epoch_io(law, r, H, R, mask, ctx, geometry):
     """The arrays of a compiled strong-tracking epoch (:func:`~.strong_tracking_rows.st_epoch`,
     :func:`~.strong_tracking_rows.ma_epoch`) that both laws share: the inputs, in the types the Python sequence
     hands its kernels (float64 copies for the fit split); the traces' and fit split's arrays (kept from call to
-    call); the update's outputs, with ``fade`` (B, n) or (B, 0) as :func:`_fused_plan_inputs` makes it, and
-    ``nchunk``."""
+    call); the update's outputs; the plan's fading output (:func:`_fade_out`) and ``nchunk``."""
     B, m = mask.shape
     n, dt = law.n, law.dtype
     c, e = np.ascontiguousarray, np.empty
@@ -235,8 +239,7 @@ def _compiled_epoch_io(law, r, H, R, mask, ctx, geometry):
     s, xn, ok = split[8:]
     outputs = (s, e((B, n, n), dt), xn, e((B, m), dt), e((B, m), dt), np.zeros(B, dt), ok, e((B, n), dt),
                e(B, np.int64))
-    fade = e((B, 0 if math.isinf(law.config.fading_cap) else n))
-    return inputs, split[:8], outputs, fade, row_kernel(None, None, B)[1]
+    return inputs, split[:8], outputs, _fade_out(law), row_chunks(B)
 
 
 def fading_factor(tr_c, traces, softening, lambda_max, scale=1.0):
@@ -343,12 +346,18 @@ class StrongTracking(AdaptiveLaw):
         B, e = self.batch_size, np.empty
         v, has, lam, fs, count = e(B), e(B, bool), e(B), e((B, SPLIT_STATS)), e(B, np.int64)
         ok = st_epoch(*inputs, self._count, self._v, self._fs, self._params["rho"], self._params["softening"],
-                      self._p0_diag, float(cfg.lambda_max), float(cfg.fading_cap), geo, float(cfg.fading_confidence),
-                      float(cfg.noise_gate), nchunk, *split, v, has, lam, fs, fade, *out, count)
+                      self._p0_diag, *self._plan_settings(), nchunk, *split, v, has, lam, fs, fade, *out, count)
         _, Pn, _, r_out, Sd, nis, _, x_new, n_used = out
         res = self._compiled_epoch_end(ok, Pn, x_new, nis, n_used, r_out, Sd)
         self._v, self._count, self._lambda, self._fs = v, count, lam, fs
         return res
+
+    def _plan_settings(self) -> tuple:
+        """The settings in the order :func:`~.strong_tracking_rows._st_plan_rows` takes them (``lambda_max`` ...
+        ``noise_gate``)."""
+        cfg = self.config
+        return (float(cfg.lambda_max), float(cfg.fading_cap), cfg.fading_noise == "geometry",
+                float(cfg.fading_confidence), float(cfg.noise_gate))
 
     def _plan(self, r, H, R, mask, ctx: EpochContext) -> UpdatePlan:
         if not self.fused:
@@ -362,10 +371,8 @@ class StrongTracking(AdaptiveLaw):
         fs = np.empty((B, SPLIT_STATS))
         kern, nchunk = row_kernel(_st_plan_serial, _st_plan_parallel, B)
         kern(tr.energy, tr.tr_m, tr.tr_q, tr.tr_r, np.ascontiguousarray(mask, bool), np.ascontiguousarray(ctx.prior),
-             bool(ctx.pending), *sp, self._count, self._v,
-             self._fs, self._params["rho"], self._params["softening"], self._p0_diag, float(cfg.lambda_max),
-             float(cfg.fading_cap), geo, float(cfg.fading_confidence), float(cfg.noise_gate), v, has, lam, fs, fade,
-             nchunk)
+             bool(ctx.pending), *sp, self._count, self._v, self._fs, self._params["rho"], self._params["softening"],
+             self._p0_diag, *self._plan_settings(), v, has, lam, fs, fade, nchunk)
         return UpdatePlan(fade=fade if fade.shape[1] else lam, R=R, mask=mask,
                           pending={"v": v, "has": has, "lambda": lam, "fs": fs})
 
@@ -606,15 +613,21 @@ class MeasurementAdaptiveSTKF(SatelliteNoise, AdaptiveLaw):
         p = self._params
         ok = ma_epoch(*inputs, self._count, self._c, self._beta, self._alpha, self._alpha_t, self._fs, self._streak,
                       p["b"], p["softening"], p["fading_scale"], p["fault_threshold"], self._p0_diag,
-                      int(cfg.warmup_epochs), int(cfg.max_consecutive_rejections), float(cfg.alpha_min),
-                      float(cfg.alpha_max), float(cfg.lambda_max), float(cfg.fading_cap), bool(cfg.fading_uses_alpha),
-                      float(cfg.fading_confidence), float(cfg.noise_gate), nchunk, *split, c_new, beta, alpha, accept,
-                      fault, lam, alpha_t, fs, fade, R_used, mask_used, *out, count, streak)
+                      *self._plan_settings(), nchunk, *split, c_new, beta, alpha, accept, fault, lam, alpha_t, fs,
+                      fade, R_used, mask_used, *out, count, streak)
         _, Pn, _, r_out, Sd, nis, _, x_new, n_used = out
         res = self._compiled_epoch_end(ok, Pn, x_new, nis, n_used, r_out, Sd)
         self._c, self._beta, self._alpha, self._alpha_t, self._fs = c_new, beta, alpha, alpha_t, fs
         self._count, self._streak, self._rejected, self._lambda = count, streak, fault, lam
         return res
+
+    def _plan_settings(self) -> tuple:
+        """The default configuration's settings in the order :func:`~.strong_tracking_rows._ma_plan_rows` takes
+        them (``warmup`` ... ``noise_gate``)."""
+        cfg = self.config
+        return (int(cfg.warmup_epochs), int(cfg.max_consecutive_rejections), float(cfg.alpha_min),
+                float(cfg.alpha_max), float(cfg.lambda_max), float(cfg.fading_cap), bool(cfg.fading_uses_alpha),
+                float(cfg.fading_confidence), float(cfg.noise_gate))
 
     def _plan(self, r, H, R, mask, ctx: EpochContext) -> UpdatePlan:
         cfg = self.config
@@ -634,10 +647,8 @@ class MeasurementAdaptiveSTKF(SatelliteNoise, AdaptiveLaw):
         kern(tr.energy, tr.tr_m, tr.tr_q, tr.tr_r, np.ascontiguousarray(H), R, np.ascontiguousarray(mask, bool),
              np.ascontiguousarray(ctx.prior), bool(ctx.pending), *sp, self._count, self._c, self._beta, self._alpha,
              self._alpha_t, self._fs, self._streak, p["b"], p["softening"], p["fading_scale"], p["fault_threshold"],
-             self._p0_diag, int(cfg.warmup_epochs), int(cfg.max_consecutive_rejections), float(cfg.alpha_min),
-             float(cfg.alpha_max), float(cfg.lambda_max), float(cfg.fading_cap), bool(cfg.fading_uses_alpha),
-             float(cfg.fading_confidence), float(cfg.noise_gate), c, beta, alpha, accept, fault, lam, alpha_t, fs,
-             fade, R_used, mask_used, nchunk)
+             self._p0_diag, *self._plan_settings(), c, beta, alpha, accept, fault, lam, alpha_t, fs, fade, R_used,
+             mask_used, nchunk)
         pending = {"c": c, "beta": beta, "alpha": alpha, "accept": accept, "fault": fault, "lambda": lam,
                    "alpha_t": alpha_t, "fs": fs}
         return UpdatePlan(fade=fade if fade.shape[1] else lam, R=R_used, mask=mask_used, pending=pending)

@@ -22,7 +22,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from ..kernels import PARALLEL_MIN_BATCH, row_nonzeros as _row_nonzeros, serial_and_parallel
+from ..kernels import PARALLEL_MIN_BATCH, row_kernel, row_nonzeros as _row_nonzeros, serial_and_parallel
 from .base import FilterForm, UpdateResult, symmetrize
 
 
@@ -535,10 +535,7 @@ def fused_update(P, x, H, R, dz, mask, Phi=None, Q=None, fade=None, prior=None):
     Sd = np.empty((B, m), dt)
     nis = np.zeros(B, dt)
     ok = np.empty(B, bool)
-    if B >= PARALLEL_MIN_BATCH:
-        kern, nchunk = _fused_parallel, min(B, 4 * nb.get_num_threads())
-    else:
-        kern, nchunk = _fused_serial, 1
+    kern, nchunk = row_kernel(_fused_serial, _fused_parallel, B)
     kern(c(P, dt), c(x, dt), Phi_, s, Q_, pri, mode, c(H, dt), c(R, dt), c(dz, dt), c(mask, bool),
          Pn, xn, r, Sd, nis, ok, nchunk)
     if np.count_nonzero(ok) != B:  # = not ok.all(), cheaper

@@ -148,9 +148,10 @@ def test_satellite_r_parallel_kernel_gives_the_serial_bits(monkeypatch):
     parallel on the fused path (B >= 64): every output equals the serial kernel's bit for bit."""
     import nav_filters.adaptive.satellite_r as sr
     from nav_filters.adaptive.base import EpochContext
+    from nav_filters.kernels import PARALLEL_MIN_BATCH
     from nav_filters.registry import make_form
 
-    B, m = sr.PARALLEL_MIN_BATCH + 6, 24
+    B, m = PARALLEL_MIN_BATCH + 6, 24
     rng = np.random.default_rng(0)
     A = rng.normal(size=(B, N, N))
     law = make_form("sage-husa", A @ A.mT + np.eye(N))
