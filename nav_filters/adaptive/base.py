@@ -56,7 +56,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..forms.base import FilterForm, UpdateResult, check_keys, symmetrize
-from ..forms.kf import KalmanFilter
+from ..forms.kf import KalmanFilter, transition_prior
 from ..rows import check_row_pairs, copy_dataclass_rows
 from .params import ParamSpec
 
@@ -219,7 +219,7 @@ class AdaptiveLaw(FilterForm):
             return EpochContext(pending=False, Phi=None, Q=None, prior=P)
         Phi, Q_acc = self._Phi_acc, self._Q_acc
         self._Phi_acc = self._Q_acc = None
-        return EpochContext(pending=True, Phi=Phi, Q=self._epoch_q(Q_acc), prior=symmetrize(Phi @ P @ Phi.mT))
+        return EpochContext(pending=True, Phi=Phi, Q=self._epoch_q(Q_acc), prior=transition_prior(Phi, P))
 
     def _apply_prediction(self, ctx: EpochContext, fade):
         """``inner.predict(D Phi, Q)`` with ``D = diag(sqrt(fade))``: ``P <- D Phi P Phi^T D + Q``.

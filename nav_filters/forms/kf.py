@@ -306,6 +306,55 @@ class KalmanFilter(FilterForm):
 
 
 # ----------------------------------------------------------------------------- fused predict + update
+@nb.njit(cache=True, inline="always")
+def _prior_row(Phi, P, T, C):
+    """``C = Phi P Phi^T`` (n, n) of one row, exactly symmetric: ``T = Phi P`` over Phi's non-zero entries (a
+    transition of the 17-state model is 60% zeros), then the lower triangle of ``T Phi^T``, mirrored. ``T`` is
+    scratch (n, n)."""
+    n = P.shape[0]
+    for i in range(n):
+        for j in range(n):
+            T[i, j] = 0.0
+        for k in range(n):
+            a = Phi[i, k]
+            if a != 0:
+                for j in range(n):
+                    T[i, j] += a * P[k, j]
+    for i in range(n):
+        for j in range(i + 1):
+            acc = T[i, 0] * Phi[j, 0]
+            for k in range(1, n):
+                acc += T[i, k] * Phi[j, k]
+            C[i, j] = acc
+    for i in range(n):
+        for j in range(i + 1, n):
+            C[i, j] = C[j, i]
+
+
+def _prior_rows(Phi, P, out, nchunk):
+    """:func:`_prior_row` of every batch row into ``out`` (B, n, n), in ``nchunk`` chunks of rows."""
+    B, n = P.shape[0], P.shape[1]
+    for c in nb.prange(nchunk):
+        T = np.empty((n, n), P.dtype)
+        for b in range(c * B // nchunk, (c + 1) * B // nchunk):
+            _prior_row(Phi[b], P[b], T, out[b])
+
+
+_prior_serial, _prior_parallel = serial_and_parallel(_prior_rows)
+
+
+def transition_prior(Phi, P):
+    """Compiled ``sym(Phi P Phi^T)`` of a batch (the predicted covariance before process noise, seed 000 eq 6):
+    a new (B, n, n) array in the dtype of ``P``, exactly symmetric. ``Phi`` (B, n, n) is cast to that dtype.
+    Equal to ``symmetrize(Phi @ P @ Phi.mT)`` to round-off (test: ``tests/nav_filters/test_fused_update.py``);
+    parallel over rows from :data:`~nav_filters.kernels.PARALLEL_MIN_BATCH` rows."""
+    dt = P.dtype
+    out = np.empty(P.shape, dt)
+    kern, nchunk = row_kernel(_prior_serial, _prior_parallel, P.shape[0])
+    kern(np.ascontiguousarray(Phi, dt), np.ascontiguousarray(P), out, nchunk)
+    return out
+
+
 def _fused_rows(P, x, Phi, s, Q, prior, mode, H, R, dz, mask, Pn, xn, r, Sd, nis, ok, nchunk):
     """Fused time and Joseph measurement update of every batch row (the fast path, ``fused_update=True``).
 
@@ -368,23 +417,7 @@ def _fused_rows(P, x, Phi, s, Q, prior, mode, H, R, dz, mask, Pn, xn, r, Sd, nis
                         Pm[i, j] = P[b, i, j]
             else:
                 if mode == 1:
-                    for i in range(n):
-                        for j in range(n):
-                            T[i, j] = 0.0
-                        for k in range(n):
-                            a = Phi[b, i, k]
-                            if a != 0:
-                                for j in range(n):
-                                    T[i, j] += a * P[b, k, j]
-                    for i in range(n):
-                        for j in range(i + 1):
-                            acc = T[i, 0] * Phi[b, j, 0]
-                            for k in range(1, n):
-                                acc += T[i, k] * Phi[b, j, k]
-                            C[i, j] = acc
-                    for i in range(n):
-                        for j in range(i + 1, n):
-                            C[i, j] = C[j, i]
+                    _prior_row(Phi[b], P[b], T, C)
                 else:
                     for i in range(n):
                         for j in range(n):

@@ -19,7 +19,8 @@ from envs.sim.world import generate_world
 from nav_filters.error_model import N_STATES
 from nav_filters.forms import KalmanFilter, SvdKalmanFilter
 from nav_filters.forms.base import prepare_measurement
-from nav_filters.forms.kf import PARALLEL_MIN_BATCH, fused_update
+from nav_filters.forms.base import symmetrize
+from nav_filters.forms.kf import PARALLEL_MIN_BATCH, fused_update, transition_prior
 from nav_filters.navigator import NavigatorConfig
 
 N = 17
@@ -92,6 +93,24 @@ def test_fused_kernel_equals_the_numpy_recursion(dtype, B, mode, correlated):
     np.testing.assert_array_equal(r[0], 0.0)
     np.testing.assert_array_equal(Sd[0], 1.0)
     assert nis[0] == 0
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+@pytest.mark.parametrize("B", [3, PARALLEL_MIN_BATCH + 5])
+def test_transition_prior_equals_numpy(dtype, B):
+    """``transition_prior`` (the adaptive laws' prior ``sym(Phi P Phi^T)``, compiled over Phi's non-zeros) equals
+    the numpy product to round-off, exactly symmetric, in the dtype of P; a transition with the zero pattern of
+    the 17-state model's (its zeros skipped) and a dense one; the serial and parallel kernels."""
+    P, _, _, _, _, _, Phi, _, _ = _problem(B)
+    Phi_sparse = Phi * (np.random.default_rng(1).random((B, N, N)) < 0.4)
+    for T in (Phi, Phi_sparse):
+        P_, T_ = P.astype(dtype), T.astype(dtype)
+        out = transition_prior(T, P_)  # Phi given in float64: cast to P's dtype
+        assert out.dtype == dtype and out.shape == (B, N, N)
+        np.testing.assert_array_equal(out, out.mT)
+        np.testing.assert_allclose(out, symmetrize(T_ @ P_ @ T_.mT), **TOL[dtype])
+    with pytest.raises(AssertionError):  # the check can see a wrong transition: Phi^T in place of Phi
+        np.testing.assert_allclose(transition_prior(Phi.mT, P), symmetrize(Phi @ P @ Phi.mT), **TOL[np.float64])
 
 
 def test_kalman_filter_fused_methods_agree_with_the_plain_form():
