@@ -150,7 +150,7 @@ def _sparse_left(F, X, T, nz):
 
 
 def _propagate_epoch(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, Cz, qg, qa, qdiag, kg, ka,
-                    Phi_acc, Q_acc, exact, orthonormalize, nz, integrate=False):
+                    Phi_acc, Q_acc, exact, orthonormalize, nz, integrate=False, start=False):
     """Advance every row by the n IMU samples of ``f_raw[:, :n]``, accumulating the transition.
 
     Parameters
@@ -168,19 +168,29 @@ def _propagate_epoch(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, C
     integrate : bool, the averaged-dynamics mode (module docstring): ``Phi_acc`` accumulates ``sum_i F_i h``
         (zero outside ``nz``) instead of the transition, and ``Q_acc`` the summed process noise
         (``exact`` must then be False).
+    start : bool, these are the first samples since the accumulators were handed over: each row's are set
+        first (``I`` and 0; 0 and 0 with ``integrate``) instead of read, so no caller pass clears them.
     """
     B = f_raw.shape[0]
     n = f_raw.shape[1]
+    nf = 0 if integrate else N  # the per-sample matrices of the composing modes (empty in the averaged one)
     for b in nb.prange(B):
-        F = np.zeros((N, N))
-        T = np.zeros((N, N))
-        T2 = np.zeros((N, N))
+        if start:
+            for i in range(N):
+                for j in range(N):
+                    Phi_acc[b, i, j] = 0.0
+                    Q_acc[b, i, j] = 0.0
+                if not integrate:
+                    Phi_acc[b, i, i] = 1.0
+        F = np.zeros((nf, nf))
+        T = np.zeros((nf, nf))
+        T2 = np.zeros((nf, nf))
         fc = np.empty(3)
         wc = np.empty(3)
         rr = np.empty(3)
         g = np.empty(3)
         Cb = np.empty((3, 3))
-        FQFt = np.zeros((N, N))
+        FQFt = np.zeros((nf, nf))
         uu = np.empty(3)
         vn = np.empty(3)
         Ex = np.empty((3, 3))
@@ -389,13 +399,13 @@ def row_kernel(serial, parallel, B: int):
 
 
 def propagate_epoch(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, Cz, qg, qa, qdiag, kg, ka,
-                    Phi_acc, Q_acc, exact, orthonormalize, nz, integrate=False):
+                    Phi_acc, Q_acc, exact, orthonormalize, nz, integrate=False, start=False):
     """Compiled epoch propagation (see :func:`_propagate_epoch`); parallel over rows for B >= 64."""
     if integrate and exact:
         raise ValueError("propagate_epoch: integrate (averaged dynamics) needs exact=False")
     kern = _parallel if f_raw.shape[0] >= PARALLEL_MIN_BATCH else _serial
     kern(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, Cz, qg, qa, qdiag, kg, ka,
-         Phi_acc, Q_acc, exact, orthonormalize, nz, bool(integrate))
+         Phi_acc, Q_acc, exact, orthonormalize, nz, bool(integrate), bool(start))
 
 
 # ----------------------------------------------------------------------------- small dense helpers
@@ -602,7 +612,7 @@ def sym_eig_inplace(A, d, Vt, e, v, wk):
 
     Parameters
     ----------
-    A : (n, n) symmetric (only read as such; destroyed). d : (n,) output eigenvalues (unsorted).
+    A : (n, n) symmetric (only its lower triangle is read; destroyed). d : (n,) output eigenvalues (unsorted).
     Vt : (n, n) output, row k the eigenvector of ``d[k]``. e, v, wk : (n,) scratch.
 
     Returns
@@ -630,19 +640,28 @@ def sym_eig_inplace(A, d, Vt, e, v, wk):
         for i in range(k + 1, n):
             v[i] = A[i, k] / vn
         v[k + 1] = (x0 - alpha) / vn
-        # p = A22 v, K = v^T p, q = p - K v;  A22 <- A22 - 2 (v q^T + q v^T)
+        # p = A22 v, K = v^T p, q = p - K v;  A22 <- A22 - 2 (v q^T + q v^T), on the lower triangle of the
+        # symmetric A22 only (half the arithmetic; p from each entry below the diagonal twice)
+        for i in range(k + 1, n):
+            wk[i] = 0.0
+        for i in range(k + 1, n):
+            vi = v[i]
+            s = A[i, i] * vi
+            for j in range(k + 1, i):
+                a = A[i, j]
+                s += a * v[j]
+                wk[j] += a * vi
+            wk[i] += s
         kk = 0.0
         for i in range(k + 1, n):
-            s = 0.0
-            for j in range(k + 1, n):
-                s += A[i, j] * v[j]
-            wk[i] = s
-            kk += v[i] * s
+            kk += v[i] * wk[i]
         for i in range(k + 1, n):
-            wk[i] -= kk * v[i]
+            wk[i] = 2.0 * (wk[i] - kk * v[i])
         for i in range(k + 1, n):
-            for j in range(k + 1, n):
-                A[i, j] -= 2.0 * (v[i] * wk[j] + wk[i] * v[j])
+            vi = 2.0 * v[i]
+            wi = wk[i]
+            for j in range(k + 1, i + 1):
+                A[i, j] -= vi * wk[j] * 0.5 + wi * v[j]
         e[k] = alpha
         # Vt <- H Vt on rows k+1..n-1:  Vt[i, :] -= 2 v_i (v^T Vt)
         for j in range(n):

@@ -199,12 +199,13 @@ _POS0, _VEL0, _CLK0, _DRIFT0 = POS.start, VEL.start, CLK.start, DRIFT.start
 
 def _innovations_rows(r, v, clk, drift, sat_pos, sat_vel, pr, prr, pr_var, prr_var, mask, with_rate,
                       dz, H, R, row_mask, u, nchunk):
-    """Fill dz, H (zeroed by the caller), R, row_mask, u for every row and channel (see the reference);
-    rows in ``nchunk`` chunks (parallel in the parallel variant), each row's arithmetic the same."""
+    """Fill dz, H, R, row_mask, u for every row and channel (see the reference; H zeroed here, row by row, in
+    the row's chunk); rows in ``nchunk`` chunks (parallel in the parallel variant), each row's arithmetic the same."""
     B, C = mask.shape
     for c in nb.prange(nchunk):
         uu = np.empty(3)
         for b in range(c * B // nchunk, (c + 1) * B // nchunk):
+            H[b] = 0.0
             for j in range(C):
                 rho, rho_dot = range_rate_pair(sat_pos[b, j, 0], sat_pos[b, j, 1], sat_pos[b, j, 2],
                                                sat_vel[b, j, 0], sat_vel[b, j, 1], sat_vel[b, j, 2],
@@ -249,7 +250,7 @@ def gnss_innovations(r_e, v_e, clk_m, drift_mps, sat_pos, sat_vel, pr, prr, pr_v
     m = 2 * C if with_rate else C
     dt = np.dtype(dtype)
     dz = np.empty((B, m), dt)
-    H = np.zeros((B, m, N_STATES), dt)
+    H = np.empty((B, m, N_STATES), dt)  # zeroed by the kernel, row by row
     R = np.empty((B, m), dt)
     row_mask = np.empty((B, m), bool)
     u = np.empty((B, C, 3))

@@ -190,19 +190,11 @@ class Navigator:
             """(B, 17, 17) ``sum_i F_i dt`` over the pending samples (averaged-dynamics mode)."""
             self._Qc_int = np.zeros((B, N_STATES, N_STATES))
             """(B, 17, 17) ``sum_i G Q_c G^T dt`` over the pending samples (averaged-dynamics mode)."""
-        self._reset_accumulator()
+        self._pending = 0
+        """IMU samples integrated since the last flush; at 0 the propagation kernel starts the accumulators
+        afresh (``I`` / 0), so a flush need not clear them."""
 
     # ------------------------------------------------------------------ time
-    def _reset_accumulator(self):
-        if self.exact_transition:
-            self._Phi_acc.fill(0.0)
-            idx = np.arange(N_STATES)
-            self._Phi_acc[:, idx, idx] = 1.0
-            self._Q_acc.fill(0.0)
-        else:
-            self._F_int.fill(0.0)
-            self._Qc_int.fill(0.0)
-        self._pending = 0
 
     def propagate_epoch(self, f_raw, w_raw, dt: float):
         """Advance all rows by n IMU samples.
@@ -229,11 +221,11 @@ class Navigator:
         if self.exact_transition:
             propagate_epoch(self.r, self.v, self.C, self.bg, self.ba, self.clk, self.drift, f, w, dt, *mats,
                             self._qg, self._qa, self._qdiag, self._kg, self._ka, self._Phi_acc, self._Q_acc,
-                            not self.onestep, False, F_NONZERO)
+                            not self.onestep, False, F_NONZERO, False, self._pending == 0)
         else:
             propagate_epoch(self.r, self.v, self.C, self.bg, self.ba, self.clk, self.drift, f, w, dt, *mats,
                             self._qg, self._qa, self._qdiag, self._kg, self._ka, self._F_int, self._Qc_int,
-                            False, False, F_NONZERO, True)
+                            False, False, F_NONZERO, True, self._pending == 0)
         self._pending += f.shape[1]
         self.time_since_update += dt * f.shape[1]
 
@@ -271,7 +263,7 @@ class Navigator:
         self._isolated(predict)
         if self.exact_transition:
             self._Phi_acc, self._Q_acc = np.empty_like(self._Phi_acc), np.empty_like(self._Q_acc)
-        self._reset_accumulator()
+        self._pending = 0  # the next propagation starts the accumulators afresh
 
     # ----------------------------------------------------------- measurement
     def update(self, dz, H, R, mask, keys=None) -> UpdateResult:

@@ -101,15 +101,23 @@ def _adapt_q_row(r, d, dx, P_post, prior, Q_nom, b, step, e_prev, b_used, q_init
             for j in range(n):
                 A[i, j] = Qw[i, j]
         if sym_eig_inplace(A, vals, Vt, sc[0], sc[1], sc[2]):
+            # Qw = Vt^T diag(clip(vals)) Vt = floor I + sum_k (clip(vals_k) - floor) v_k v_k^T (Vt = I's
+            # eigenbasis): only the eigenvalues above the floor add a term (the floor holds about half of them
+            # on the built-in scenarios). Their scaled rows A[q] = (min(vals_k, ceiling) - floor) Vt[k] and
+            # Vt[q] = Vt[k] are packed to the top (q <= k); then the upper triangle, mirrored.
+            na = 0
             for k in range(n):
-                vals[k] = min(max(vals[k], floor), ceiling)
-            for k in range(n):       # A = diag(vals) Vt
-                for j in range(n):
-                    A[k, j] = vals[k] * Vt[k, j]
-            for i in range(n):       # Qw = Vt^T diag(vals) Vt, upper triangle, mirrored
+                c = min(vals[k], ceiling) - floor
+                if c > 0:
+                    for j in range(n):
+                        A[na, j] = c * Vt[k, j]
+                        Vt[na, j] = Vt[k, j]
+                    na += 1
+            for i in range(n):
                 for j in range(i, n):
                     Qw[i, j] = 0.0
-                for k in range(n):
+                Qw[i, i] = floor
+                for k in range(na):
                     a = Vt[k, i]
                     for j in range(i, n):
                         Qw[i, j] += a * A[k, j]
@@ -121,14 +129,19 @@ def _adapt_q_row(r, d, dx, P_post, prior, Q_nom, b, step, e_prev, b_used, q_init
         for k in range(n):
             lam[k] = min(max(lam[k], floor), ceiling)
         for i in range(n):
-            for j in range(n):
+            for j in range(i, n):
                 s = 0.0
                 for k in range(n):
                     s += vecs[i, k] * lam[k] * vecs[j, k]
                 Qw[i, j] = s
+                Qw[j, i] = s
+    for i in range(n):       # back from the weighted frame: Q = W^-1 Qw W^-1, upper triangle, mirrored
+        w[i] = np.sqrt(q_ref[r, i])
     for i in range(n):
-        for j in range(n):
-            Q[r, i, j] = 0.5 * (Qw[i, j] / w[i] / w[j] + Qw[j, i] / w[j] / w[i])
+        for j in range(i, n):
+            q = Qw[i, j] * w[i] * w[j]
+            Q[r, i, j] = q
+            Q[r, j, i] = q
     q_init[r] = True
 
 
