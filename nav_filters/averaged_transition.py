@@ -57,7 +57,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from .kernels import F_NONZERO, N, PARALLEL_MIN_BATCH, serial_and_parallel
+from .kernels import F_NONZERO, N, row_kernel, serial_and_parallel
 
 SERIES_ORDER = 8
 """Highest power ``K`` of the series for ``exp(A)`` and the Van Loan integral (see the module docstring)."""
@@ -103,50 +103,63 @@ def averaged_transition(F_int, Qc_int, order: int = SERIES_ORDER):
     return Phi, Q
 
 
-def _averaged_transition_into(A, S, Phi, Q, order, nz):
+def _averaged_transition_into(A, S, Phi, Q, order, nz, nchunk):
     """Compiled :func:`averaged_transition` for every row: writes ``Phi`` and ``Q`` (B, 17, 17), float64.
 
     ``A`` must be zero outside the pattern ``nz`` (:data:`~nav_filters.kernels.F_NONZERO`): the products
     ``A X`` use only those entries (what the propagation kernel integrates has that pattern).
 
-    The size ``n`` (= 17) is read from the shape: loops of the constant 17 are fully unrolled by LLVM and left
-    scalar (numba runs no SLP vectorizer), loops of a run-time length vectorize. The same operations in the
-    same order, so the same bits."""
+    The rows run in ``nchunk`` chunks, each with its scratch allocated once. The scratch rows are padded with
+    zeros to a multiple of 4 columns (20 for n = 17) and the row loops run over the padded width, read from the
+    array's shape: LLVM vectorizes loops of a run-time length (not the fully unrolled constant 17-trip ones,
+    numba runs no SLP vectorizer), and a padded length leaves no scalar remainder. ``1/k`` multiplies instead of
+    dividing. The same series as the specification, to round-off."""
     B, n = A.shape[0], A.shape[1]
-    for b in nb.prange(B):
-        term = np.zeros((n, n))
-        nxt = np.zeros((n, n))
-        M = np.empty((n, n))
-        X = np.zeros((n, n))
-        for i in range(n):
-            term[i, i] = 1.0
-            for j in range(n):
-                Phi[b, i, j] = term[i, j]
-                m = 0.5 * (S[b, i, j] + S[b, j, i])
-                M[i, j] = m
-                Q[b, i, j] = m
-        for k in range(1, order + 1):
-            nxt[:, :] = 0.0
-            X[:, :] = 0.0
-            for p in range(nz.shape[0]):
-                i = nz[p, 0]
-                j = nz[p, 1]
-                a = A[b, i, j]
-                for c in range(n):
-                    nxt[i, c] += a * term[j, c]
-                    X[i, c] += a * M[j, c]
+    w = (n + 3) // 4 * 4
+    for ch in nb.prange(nchunk):
+        term = np.zeros((n, w))   # A^k / k!
+        nxt = np.zeros((n, w))
+        M = np.zeros((n, w))      # N_k / (k + 1)!
+        X = np.zeros((n, w))
+        P = np.zeros((n, w))      # the sums
+        Qs = np.zeros((n, w))
+        for b in range(ch * B // nchunk, (ch + 1) * B // nchunk):
             for i in range(n):
-                for c in range(n):
-                    term[i, c] = nxt[i, c] / k
-                    Phi[b, i, c] += term[i, c]
+                for j in range(n):
+                    term[i, j] = 0.0
+                    P[i, j] = 0.0
+                    m = 0.5 * (S[b, i, j] + S[b, j, i])
+                    M[i, j] = m
+                    Qs[i, j] = m
+                term[i, i] = 1.0
+                P[i, i] = 1.0
+            for k in range(1, order + 1):
+                for i in range(n):
+                    for c in range(w):
+                        nxt[i, c] = 0.0
+                        X[i, c] = 0.0
+                for p in range(nz.shape[0]):
+                    i = nz[p, 0]
+                    j = nz[p, 1]
+                    a = A[b, i, j]
+                    for c in range(w):
+                        nxt[i, c] += a * term[j, c]
+                        X[i, c] += a * M[j, c]
+                rk = 1.0 / k
+                for i in range(n):
+                    for c in range(w):
+                        term[i, c] = nxt[i, c] * rk
+                        P[i, c] += term[i, c]
+                rk1 = 1.0 / (k + 1)
+                for i in range(n):
+                    for c in range(n):
+                        M[i, c] = (X[i, c] + X[c, i]) * rk1   # exactly symmetric
+                    for c in range(w):
+                        Qs[i, c] += M[i, c]
             for i in range(n):
-                for c in range(i, n):
-                    m = (X[i, c] + X[c, i]) / (k + 1)
-                    M[i, c] = m
-                    M[c, i] = m
-                    Q[b, i, c] += m
-                    if c != i:
-                        Q[b, c, i] += m
+                for j in range(n):
+                    Phi[b, i, j] = P[i, j]
+                    Q[b, i, j] = Qs[i, j]
 
 
 _serial, _parallel = serial_and_parallel(_averaged_transition_into)
@@ -154,9 +167,10 @@ _serial, _parallel = serial_and_parallel(_averaged_transition_into)
 
 def averaged_transition_into(F_int, Qc_int, Phi, Q, order: int = SERIES_ORDER, nz=F_NONZERO):
     """Compiled :func:`averaged_transition` into the float64 buffers ``Phi``, ``Q`` (B, 17, 17); parallel over
-    rows for B >= :data:`PARALLEL_MIN_BATCH`. ``F_int`` (float64, C-contiguous) must vanish outside ``nz``."""
-    kern = _parallel if F_int.shape[0] >= PARALLEL_MIN_BATCH else _serial
-    kern(F_int, Qc_int, Phi, Q, int(order), nz)
+    rows from :data:`~nav_filters.kernels.PARALLEL_MIN_BATCH` rows. ``F_int`` (float64, C-contiguous) must vanish
+    outside ``nz``."""
+    kern, nchunk = row_kernel(_serial, _parallel, F_int.shape[0])
+    kern(F_int, Qc_int, Phi, Q, int(order), nz, nchunk)
 
 
 __all__ = ["SERIES_ORDER", "averaged_transition", "averaged_transition_into"]

@@ -383,26 +383,32 @@ def _fused_rows(P, x, Phi, s, Q, prior, mode, H, R, dz, mask, Pn, xn, r, Sd, nis
     Pn, xn : outputs (B, n, n), (B, n); r : (B, m) residual ``dz - H x-`` (0 on masked rows); Sd : (B, m)
     diag(S) (1 on masked rows); nis : (B,); ok : (B,) bool, False where S is not positive definite (that
     row's outputs are undefined). nchunk : number of row chunks (each allocates its scratch once).
+
+    The scratch matrices of n columns are padded with zeros to ``W`` (a multiple of 4: 20 for n = 17) and their row
+    operations run over all W columns, the triangular ones over whole rows: LLVM vectorizes these loops of a
+    run-time length, and W leaves them no scalar remainder. The padding stays zero and every kept entry is the same
+    sum in the same order as over n columns, so the same bits.
     """
     B, m, n = H.shape
     dt = P.dtype
     for c in nb.prange(nchunk):
         lo = c * B // nchunk
         hi = (c + 1) * B // nchunk
-        Pm = np.empty((n, n), dt)
+        W = (n + 3) // 4 * 4
+        Pm = np.zeros((n, W), dt)
         T = np.empty((n, n), dt)
         C = np.empty((n, n), dt)
         xm = np.empty(n, dt)
-        HP = np.empty((m, n), dt)
+        HP = np.zeros((m, W), dt)
         L = np.empty((m, m), dt)
-        Y = np.empty((m, n), dt)
+        Y = np.zeros((m, W), dt)
         w = np.empty(m, dt)
         rv = np.empty(m, dt)
-        AP = np.empty((n, n), dt)
-        X = np.empty((n, n), dt)
-        KRt = np.empty((m, n), dt)
+        AP = np.zeros((n, W), dt)
+        X = np.zeros((n, W), dt)
+        KRt = np.zeros((m, W), dt)
         idx = np.empty(m, np.int64)
-        KHt = np.empty((n, n), dt)
+        KHt = np.zeros((n, W), dt)
         cols = np.empty(n, np.int64)
         pos = np.full(n, -1, np.int64)
         nzc = np.empty((m, n), np.int64)
@@ -446,7 +452,7 @@ def _fused_rows(P, x, Phi, s, Q, prior, mode, H, R, dz, mask, Pn, xn, r, Sd, nis
             # ---- residual, H P-, S (lower triangle) and its Cholesky factor
             for t in range(mv):
                 i = idx[t]
-                for k in range(n):
+                for k in range(W):
                     HP[t, k] = 0.0
                 sres = _residual_and_hp(dz[b, i], nzc[t], nzv[t], cnt[t], xm, Pm, HP[t])
                 r[b, i] = sres
@@ -463,16 +469,20 @@ def _fused_rows(P, x, Phi, s, Q, prior, mode, H, R, dz, mask, Pn, xn, r, Sd, nis
             if not good:
                 continue
             # ---- w = L^-1 r, Y = L^-1 HP (forward), K^T = L^-T Y (backward, in place)
-            nis[b] = _gain_solve(L, rv, HP, Y, w, mv, n)
+            nis[b] = _gain_solve(L, rv, HP, Y, w, mv, W)
             # ---- x+ = x- + K r
             for k in range(n):
-                acc = xm[k]
-                for t in range(mv):
-                    acc += Y[t, k] * rv[t]
-                xn[b, k] = acc
+                AP[0, k] = xm[k]
+            for t in range(mv):
+                a = rv[t]
+                for k in range(W):
+                    AP[0, k] += Y[t, k] * a
+            for k in range(n):
+                xn[b, k] = AP[0, k]
             # ---- Joseph with A = I - K H non-trivial only in the nc columns of H that hold a non-zero
             # (8 of 17 for GNSS rows): KHt = (K H)^T on those columns, AP = P- - K H P-,
-            # X = AP A^T = AP - (AP)[:, cols] KHt   (upper triangle only: P+ is symmetric, mirrored below)
+            # X = AP A^T = AP - (AP)[:, cols] KHt   (whole rows; only the upper triangle is kept: P+ is symmetric,
+            # mirrored below)
             nc = 0
             for t in range(mv):
                 for q in range(cnt[t]):
@@ -480,45 +490,45 @@ def _fused_rows(P, x, Phi, s, Q, prior, mode, H, R, dz, mask, Pn, xn, r, Sd, nis
                     if pos[l] < 0:
                         pos[l] = nc
                         cols[nc] = l
-                        for k in range(n):
+                        for k in range(W):
                             KHt[nc, k] = 0.0
                         nc += 1
                     ci = pos[l]
                     h = nzv[t, q]
-                    for k in range(n):
+                    for k in range(W):
                         KHt[ci, k] += h * Y[t, k]
             for k in range(n):
-                for j in range(n):
+                for j in range(W):
                     AP[k, j] = Pm[k, j]
                 for ci in range(nc):
                     a = KHt[ci, k]
                     if a != 0:
                         l = cols[ci]
-                        for j in range(n):
+                        for j in range(W):
                             AP[k, j] -= a * Pm[l, j]
             for k in range(n):
-                for j in range(k, n):
+                for j in range(W):
                     X[k, j] = AP[k, j]
                 for ci in range(nc):
                     a = AP[k, cols[ci]]
                     if a != 0:
-                        for j in range(k, n):
+                        for j in range(W):
                             X[k, j] -= a * KHt[ci, j]
             for ci in range(nc):
                 pos[cols[ci]] = -1
             for t in range(mv):       # KRt = (K R)^T = R^T K^T over the valid rows
-                for k in range(n):
+                for k in range(W):
                     KRt[t, k] = 0.0
                 for u in range(mv):
                     ru = R[b, idx[u], idx[t]]
                     if ru != 0:
-                        for k in range(n):
+                        for k in range(W):
                             KRt[t, k] += ru * Y[u, k]
             for k in range(n):
                 for t in range(mv):
                     a = Y[t, k]
                     if a != 0:
-                        for j in range(k, n):
+                        for j in range(W):
                             X[k, j] += a * KRt[t, j]
             for k in range(n):
                 for j in range(k, n):
