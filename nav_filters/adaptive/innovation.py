@@ -381,19 +381,20 @@ def geometry_residuals_reference(dz, H, var, types, n_types: int = 2):
 
 @nb.njit(cache=True)
 def _posterior_work(m, n):
-    """Scratch of :func:`_posterior_residual_row` (allocated once per kernel call, not per row):
-    ``(idx, S, HP, y, Linv)``."""
-    return np.empty(m, np.int64), np.empty((m, m)), np.empty((m, n)), np.empty(m), np.empty((m, m))
+    """Scratch of :func:`_posterior_residual_row` for ``P`` of ``n`` columns (allocated once per kernel call, not
+    per row): ``(idx, S, HP, y, Linv)``, Linv with a spare row."""
+    return np.empty(m, np.int64), np.empty((m, m)), np.empty((m, n)), np.empty(m), np.empty((m + 1, m))
 
 
 @nb.njit(cache=True)
 def _posterior_residual_row(dz, nzc, nzv, cnt, P, Q, add_q, k_prior, var, use, v_out, red_out, work):
     """Post-fit residuals of one batch row's used rows against the prior ``k_prior P-`` (see
-    :func:`posterior_residuals`), ``P- = P (+ Q with add_q)`` (n, n); writes ``v_out``, ``red_out`` on the used
+    :func:`posterior_residuals`), ``P- = P (+ Q with add_q)`` (n, w): columns beyond the state count may be zero
+    padding (the rows of ``H P-`` then run over all w, vectorized); writes ``v_out``, ``red_out`` on the used
     rows. ``nzc`` / ``nzv`` / ``cnt``: the non-zeros of the used rows of H (:func:`_rows_nonzeros`): ``H P-``
     and ``H P- H^T`` run over them (in increasing column order: the same sums as over all n columns with the
-    zeros skipped). ``work``: :func:`_posterior_work`."""
-    n = P.shape[0]
+    zeros skipped). ``work``: :func:`_posterior_work` for w columns."""
+    n = P.shape[1]
     m = use.shape[0]
     idx, Sw, HPw, yw, Lw = work
     q = 0
@@ -432,20 +433,28 @@ def _posterior_residual_row(dz, nzc, nzv, cnt, P, Q, add_q, k_prior, var, use, v
     for i in range(q):
         y[i] = np.float64(dz[idx[i]])
     _cholesky_solve(S, y)
-    Linv = Lw[:q, :q]  # (S^-1)_ii = |L^-1 e_i|^2 (lower triangle)
-    for c in range(q):
-        for i in range(c, q):
-            acc = 1.0 if i == c else 0.0
-            for p_ in range(c, i):
-                acc -= S[i, p_] * Linv[p_, c]
-            Linv[i, c] = acc / S[i, i]
+    # (S^-1)_aa = |L^-1 e_a|^2, the column sums of squares of L^-1 (lower triangle): L^-1 by rows, row i from the
+    # rows above it (contiguous row operations), the sums accumulated row by row (the same sums in the same order)
+    Linv = Lw[:q, :q]
+    dg = Lw[q]
     for a in range(q):
-        sii = 0.0
-        for i in range(a, q):
-            sii += Linv[i, a] * Linv[i, a]
+        dg[a] = 0.0
+    for i in range(q):
+        for c in range(q):
+            Linv[i, c] = 0.0
+        Linv[i, i] = 1.0
+        for p_ in range(i):
+            sip = S[i, p_]
+            for c in range(p_ + 1):
+                Linv[i, c] -= sip * Linv[p_, c]
+        d = S[i, i]
+        for c in range(i + 1):
+            Linv[i, c] = Linv[i, c] / d
+            dg[c] += Linv[i, c] * Linv[i, c]
+    for a in range(q):
         ia = idx[a]
         v_out[ia] = var[ia] * y[a]
-        red_out[ia] = min(max(var[ia] * sii, 0.0), 1.0)
+        red_out[ia] = min(max(var[ia] * dg[a], 0.0), 1.0)
 
 
 @nb.njit(cache=True)

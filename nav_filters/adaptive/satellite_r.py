@@ -135,9 +135,17 @@ def _r_sat_kernel(r, H, prior, Q, add_q, R, mask, keys, bf, jcap, d_row, active,
     # scratch of the row helpers, allocated once per call (not per batch row)
     nzc, nzv, cnt = _nonzeros_work(m, n, H.dtype)
     geo_work = _geometry_work(n)
-    post_work = _posterior_work(m, n)
+    # the row's P- = prior (+ Q), formed once for both helpers (the sums they formed entry by entry, the same bits),
+    # its rows padded with zeros to a multiple of 4 columns (the posterior fit's row operations vectorize)
+    wp = (n + 3) // 4 * 4
+    Pm3 = np.zeros((1, n, wp), prior.dtype)
+    Pm = Pm3[0]
+    post_work = _posterior_work(m, wp)
     for b in range(B):
         _rows_nonzeros(H[b], mask[b], nzc, nzv, cnt)
+        for i in range(n):
+            for j in range(n):
+                Pm[i, j] = prior[b, i, j] + Q[b, i, j] if add_q else prior[b, i, j]
         j_last = -1  # the last count whose weight was computed for this row (most satellites share one)
         d_last = 0.0
         for i in range(m):
@@ -150,7 +158,7 @@ def _r_sat_kernel(r, H, prior, Q, add_q, R, mask, keys, bf, jcap, d_row, active,
             if not mask[b, i]:
                 continue
             gi[i] = _row_group(H, b, i, n)
-            q = _quad_nz(nzc, nzv, cnt, i, prior, Q, add_q, b)
+            q = _quad_nz(nzc, nzv, cnt, i, Pm3, Pm3, False, 0)
             rr = np.float64(r[b, i])
             ex[i] = rr * rr - q
             key = keys[b, i]
@@ -191,7 +199,7 @@ def _r_sat_kernel(r, H, prior, Q, add_q, R, mask, keys, bf, jcap, d_row, active,
             if sample >= 2:
                 for i in range(m):
                     use[i] = mask[b, i] and keys[b, i] >= 0
-                _posterior_residual_row(r[b], nzc, nzv, cnt, prior[b], Q[b], add_q, k_prior, var, use, v, red,
+                _posterior_residual_row(r[b], nzc, nzv, cnt, Pm, Pm, False, k_prior, var, use, v, red,
                                         post_work)
                 for i in range(m):
                     if use[i] and red[i] >= min_red:
