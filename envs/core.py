@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
+from nav_filters.kernels import row_kernel, serial_and_parallel
 from nav_filters.registry import parse_method
 from nav_filters.rows import check_row_pairs, copied_array, copy_dataclass_rows, copy_rows_generic
 
@@ -104,90 +105,107 @@ EMA_ALPHA = 0.1
 LOG_REWARD_OFFSET_M = 0.1
 
 
-@nb.njit(cache=True)
-def _frame_kernel(action, dz, S, mask, groups, ema, gdop, P, tsu, zflag, v, rose, smax, prev_n, lo, hi, out):
+@nb.njit(cache=True, inline="always")
+def _frame_row(b, action, dz, S, mask, groups, ema, gdop, P, tsu, zflag, v, rose, smax, prev_n, lo, hi, out,
+               f, xv, nis, rms):
+    """Row ``b`` of :func:`_frame_rows`, in the scratch ``f``, ``xv``, ``nis``, ``rms``."""
+    k = action.shape[1]
+    C = mask.shape[1]
+    n = 0
+    for j in range(C):
+        if mask[b, j]:
+            n += 1
+    nn = max(n, 1)
+    nis[0] = nis[1] = 0.0
+    rms[0] = rms[1] = 0.0
+    xmax = 0.0
+    p90 = 0.0
+    gate = 0.0
+    if n > 0:
+        q = 0
+        for j in range(C):
+            if mask[b, j]:
+                xv[q] = np.float64(dz[b, j]) ** 2 / np.float64(S[b, j])
+                q += 1
+        xs = xv[:q]
+        xs.sort()  # in place (np.sort's order)
+        xmax = xs[q - 1]
+        pos = 0.9 * (q - 1)
+        lo_i = int(np.floor(pos))
+        hi_i = min(lo_i + 1, q - 1)
+        p90 = xs[lo_i] + (pos - lo_i) * (xs[hi_i] - xs[lo_i])
+        for j in range(q):
+            if xs[j] > 9.0:
+                gate += 1.0
+        gate /= q
+        for g in range(groups):
+            sn = 0.0
+            sr = 0.0
+            for j in range(C):
+                if mask[b, j]:
+                    d2 = np.float64(dz[b, g * C + j]) ** 2
+                    sn += d2 / np.float64(S[b, g * C + j])
+                    sr += d2
+            nis[g] = sn / nn
+            rms[g] = np.sqrt(sr / nn)
+        for g in range(2):
+            ema[b, g] = (1 - EMA_ALPHA) * ema[b, g] + EMA_ALPHA * nis[g]
+    for i in range(k):
+        f[i] = action[b, i]
+    tr = np.float64(P[b, 6, 6]) + np.float64(P[b, 7, 7]) + np.float64(P[b, 8, 8])
+    f[k + 0] = nis[0]
+    f[k + 1] = nis[1]
+    f[k + 2] = ema[b, 0]
+    f[k + 3] = ema[b, 1]
+    f[k + 4] = np.log10(1.0 + rms[0])
+    f[k + 5] = np.log10(1.0 + rms[1])
+    f[k + 6] = n / C
+    f[k + 7] = min(gdop[b], 50.0) / 10.0
+    f[k + 8] = np.log10(max(tr, 1e-12))
+    f[k + 9] = tsu[b] / 60.0
+    f[k + 10] = 1.0 if n == 0 else 0.0
+    f[k + 11] = 1.0 if zflag[b] else 0.0
+    f[k + 12] = np.sqrt(v[b, 0] * v[b, 0] + v[b, 1] * v[b, 1] + v[b, 2] * v[b, 2]) / 10.0
+    f[k + 13] = xmax
+    f[k + 14] = p90
+    f[k + 15] = gate
+    f[k + 16] = rose[b] / C
+    f[k + 17] = np.log10(max(smax[b], 1e-12))
+    f[k + 18] = (n - prev_n[b]) / C if prev_n[b] >= 0 else 0.0
+    prev_n[b] = n
+    for i in range(f.shape[0]):
+        x = f[i]
+        if np.isnan(x):
+            x = 0.0
+        elif x == np.inf:
+            x = 1e30
+        elif x == -np.inf:
+            x = -1e30
+        x = min(max(x, np.float64(lo[i])), np.float64(hi[i]))
+        out[b, i] = x
+
+
+def _frame_rows(action, dz, S, mask, groups, ema, gdop, P, tsu, zflag, v, rose, smax, prev_n, lo, hi, out, nchunk):
     """Observation frames (B, k + len(OBS_FEATURES)) float32, same quantities as ``TuningCore._frame_reference``.
 
     Updates the NIS moving averages ``ema`` (B, 2) in place on rows with satellites and ``prev_n`` (B,) to the
     satellite counts of ``mask``; non-finite values map
     as ``np.nan_to_num`` (NaN -> 0, +-inf -> +-1e30) and every component is clipped to [lo, hi].
+    Batch rows in ``nchunk`` chunks (parallel in the parallel variant), each allocating its scratch once.
     """
-    B, k = action.shape
+    B = action.shape[0]
     C = mask.shape[1]
-    f = np.empty(lo.shape[0])
-    xv = np.empty(C)
-    for b in range(B):
-        n = 0
-        for j in range(C):
-            if mask[b, j]:
-                n += 1
-        nn = max(n, 1)
-        nis = np.zeros(2)
-        rms = np.zeros(2)
-        xmax = 0.0
-        p90 = 0.0
-        gate = 0.0
-        if n > 0:
-            q = 0
-            for j in range(C):
-                if mask[b, j]:
-                    xv[q] = np.float64(dz[b, j]) ** 2 / np.float64(S[b, j])
-                    q += 1
-            xs = np.sort(xv[:q])
-            xmax = xs[q - 1]
-            pos = 0.9 * (q - 1)
-            lo_i = int(np.floor(pos))
-            hi_i = min(lo_i + 1, q - 1)
-            p90 = xs[lo_i] + (pos - lo_i) * (xs[hi_i] - xs[lo_i])
-            for j in range(q):
-                if xs[j] > 9.0:
-                    gate += 1.0
-            gate /= q
-            for g in range(groups):
-                sn = 0.0
-                sr = 0.0
-                for j in range(C):
-                    if mask[b, j]:
-                        d2 = np.float64(dz[b, g * C + j]) ** 2
-                        sn += d2 / np.float64(S[b, g * C + j])
-                        sr += d2
-                nis[g] = sn / nn
-                rms[g] = np.sqrt(sr / nn)
-            for g in range(2):
-                ema[b, g] = (1 - EMA_ALPHA) * ema[b, g] + EMA_ALPHA * nis[g]
-        for i in range(k):
-            f[i] = action[b, i]
-        tr = np.float64(P[b, 6, 6]) + np.float64(P[b, 7, 7]) + np.float64(P[b, 8, 8])
-        f[k + 0] = nis[0]
-        f[k + 1] = nis[1]
-        f[k + 2] = ema[b, 0]
-        f[k + 3] = ema[b, 1]
-        f[k + 4] = np.log10(1.0 + rms[0])
-        f[k + 5] = np.log10(1.0 + rms[1])
-        f[k + 6] = n / C
-        f[k + 7] = min(gdop[b], 50.0) / 10.0
-        f[k + 8] = np.log10(max(tr, 1e-12))
-        f[k + 9] = tsu[b] / 60.0
-        f[k + 10] = 1.0 if n == 0 else 0.0
-        f[k + 11] = 1.0 if zflag[b] else 0.0
-        f[k + 12] = np.sqrt(v[b, 0] * v[b, 0] + v[b, 1] * v[b, 1] + v[b, 2] * v[b, 2]) / 10.0
-        f[k + 13] = xmax
-        f[k + 14] = p90
-        f[k + 15] = gate
-        f[k + 16] = rose[b] / C
-        f[k + 17] = np.log10(max(smax[b], 1e-12))
-        f[k + 18] = (n - prev_n[b]) / C if prev_n[b] >= 0 else 0.0
-        prev_n[b] = n
-        for i in range(f.shape[0]):
-            x = f[i]
-            if np.isnan(x):
-                x = 0.0
-            elif x == np.inf:
-                x = 1e30
-            elif x == -np.inf:
-                x = -1e30
-            x = min(max(x, np.float64(lo[i])), np.float64(hi[i]))
-            out[b, i] = x
+    for ch in nb.prange(nchunk):
+        f = np.empty(lo.shape[0])
+        xv = np.empty(C)
+        nis = np.empty(2)
+        rms = np.empty(2)
+        for b in range(ch * B // nchunk, (ch + 1) * B // nchunk):
+            _frame_row(b, action, dz, S, mask, groups, ema, gdop, P, tsu, zflag, v, rose, smax, prev_n, lo, hi, out,
+                       f, xv, nis, rms)
+
+
+_frame_serial, _frame_parallel = serial_and_parallel(_frame_rows)
 
 
 @nb.njit(cache=True)
@@ -557,15 +575,15 @@ class TuningCore:
 
     def _frame(self, res, zflag):
         """The observation frame of this epoch, written into ``self.frames[:, -1]`` and returned (compiled:
-        :func:`_frame_kernel`; :meth:`_frame_reference` is the numpy specification, agreement test in
+        :func:`_frame_rows`; :meth:`_frame_reference` is the numpy specification, agreement test in
         ``tests/envs/test_core_compiled.py``)."""
         groups = 2 if (self.nav.config.use_pseudorange_rate and self.has_rate) else 1
         out = self.frames[:, -1]  # the newest frame, in place
         rose, smax = self._satellite_health()
-        _frame_kernel(self.action, np.ascontiguousarray(res.innovation), np.ascontiguousarray(res.innovation_var),
-                      self._last_mask, groups, self.ema, self._last_gdop, self.nav.covariance,
-                      self.nav.time_since_update, zflag, self.nav.v, rose, smax, self.prev_nsat, self.frame_low,
-                      self.frame_high, out)
+        kern, nchunk = row_kernel(_frame_serial, _frame_parallel, self.B)
+        kern(self.action, np.ascontiguousarray(res.innovation), np.ascontiguousarray(res.innovation_var),
+             self._last_mask, groups, self.ema, self._last_gdop, self.nav.covariance, self.nav.time_since_update,
+             zflag, self.nav.v, rose, smax, self.prev_nsat, self.frame_low, self.frame_high, out, nchunk)
         return out
 
     def _satellite_health(self):

@@ -150,7 +150,7 @@ def _sparse_left(F, X, T, nz):
 
 
 def _propagate_epoch(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, Cz, qg, qa, qdiag, kg, ka,
-                    Phi_acc, Q_acc, exact, orthonormalize, nz, integrate=False, start=False):
+                    Phi_acc, Q_acc, exact, orthonormalize, nz, integrate=False, start=False, nchunk=1):
     """Advance every row by the n IMU samples of ``f_raw[:, :n]``, accumulating the transition.
 
     Parameters
@@ -170,18 +170,12 @@ def _propagate_epoch(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, C
         (``exact`` must then be False).
     start : bool, these are the first samples since the accumulators were handed over: each row's are set
         first (``I`` and 0; 0 and 0 with ``integrate``) instead of read, so no caller pass clears them.
+    nchunk : the rows run in this many chunks (parallel in the parallel variant), each allocating its scratch once.
     """
     B = f_raw.shape[0]
     n = f_raw.shape[1]
     nf = 0 if integrate else N  # the per-sample matrices of the composing modes (empty in the averaged one)
-    for b in nb.prange(B):
-        if start:
-            for i in range(N):
-                for j in range(N):
-                    Phi_acc[b, i, j] = 0.0
-                    Q_acc[b, i, j] = 0.0
-                if not integrate:
-                    Phi_acc[b, i, i] = 1.0
+    for ch in nb.prange(nchunk):
         F = np.zeros((nf, nf))
         T = np.zeros((nf, nf))
         T2 = np.zeros((nf, nf))
@@ -196,142 +190,155 @@ def _propagate_epoch(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, C
         Ex = np.empty((3, 3))
         CE = np.empty((3, 3))
         CC = np.empty((3, 3))
-        for i in range(3):
-            rr[i] = r[b, i]
-            for j in range(3):
-                Cb[i, j] = C[b, i, j]
         vb = np.empty(3)
-        for i in range(3):
-            vb[i] = v[b, i]
         # integrate mode: per-row sums of the time-varying parts of F and of G Q_c G^T over the samples
-        sC = np.zeros((3, 3))       # sum C
-        sa = np.zeros(3)            # sum C f
-        sG = np.zeros((3, 3))       # sum 3 GM r r^T / |r|^5
-        sk = 0.0                    # sum GM / |r|^3
-        sCC = np.zeros((3, 3, 3))   # sum c_m c_m^T per body axis m (c_m: column m of C)
-        for k in range(n):
-            for i in range(3):
-                fc[i] = f_raw[b, k, i] - ba[b, i]
-                wc[i] = w_raw[b, k, i] - bg[b, i]
-            # ---- covariance: Phi = I + F h at the state of the interval start ----
-            if integrate:
-                # averaged dynamics: only the parts of F (system_matrix) and of G Q_c G^T that vary are summed
-                for i in range(3):
-                    sa[i] += Cb[i, 0] * fc[0] + Cb[i, 1] * fc[1] + Cb[i, 2] * fc[2]
-                    for j in range(3):
-                        sC[i, j] += Cb[i, j]
-                        for m in range(3):
-                            sCC[m, i, j] += Cb[i, m] * Cb[j, m]
-                r2 = rr[0] * rr[0] + rr[1] * rr[1] + rr[2] * rr[2]
-                kr = _GM / (r2 * np.sqrt(r2))
-                c3 = 3.0 * kr / r2
-                sk += kr
-                for i in range(3):
-                    for j in range(3):
-                        sG[i, j] += c3 * rr[i] * rr[j]
-            else:
-                F[:, :] = 0.0
-                _fill_F(F, Cb, fc, rr, kg, ka)
-                _sparse_left(F, Phi_acc[b], T, nz)
-                if exact:
-                    _sparse_left(F, Q_acc[b], T2, nz)          # T2 = F Q
-                    # Q <- Q + h (F Q + Q F^T) + h^2 F Q F^T   (= Phi Q Phi^T)
-                    for i in range(N):
-                        for c in range(N):
-                            Q_acc[b, i, c] += h * (T2[i, c] + T2[c, i])
-                    # F (F Q)^T = F Q F^T, using T2^T as the right factor (written out: _sparse_left on the
-                    # transposed view T2.T gives the same bits but runs ~1.8x slower, a non-contiguous layout)
-                    FQFt[:, :] = 0.0
-                    for p in range(nz.shape[0]):
-                        i = nz[p, 0]
-                        j = nz[p, 1]
-                        fij = F[i, j]
-                        for c in range(N):
-                            FQFt[i, c] += fij * T2[c, j]
-                    for i in range(N):
-                        for c in range(N):
-                            Q_acc[b, i, c] += h * h * FQFt[i, c]
+        sC = np.empty((3, 3))       # sum C
+        sa = np.empty(3)            # sum C f
+        sG = np.empty((3, 3))       # sum 3 GM r r^T / |r|^5
+        sCC = np.empty((3, 3, 3))   # sum c_m c_m^T per body axis m (c_m: column m of C)
+        for b in range(ch * B // nchunk, (ch + 1) * B // nchunk):
+            if start:
                 for i in range(N):
-                    for c in range(N):
-                        Phi_acc[b, i, c] += h * T[i, c]
-                # process noise of this sample: C diag(qg) C^T, C diag(qa) C^T, diag(qdiag)
-                for i in range(3):
-                    for j in range(3):
-                        sg = 0.0
-                        sq = 0.0
-                        for m in range(3):
-                            sg += Cb[i, m] * qg[m] * Cb[j, m]
-                            sq += Cb[i, m] * qa[m] * Cb[j, m]
-                        Q_acc[b, i, j] += sg * h
-                        Q_acc[b, 3 + i, 3 + j] += sq * h
-                for i in range(6, N):
-                    Q_acc[b, i, i] += qdiag[i] * h
-            # ---- mechanization (ins.mechanize, single-sample scheme) ----
-            d0 = wc[0] * h
-            d1 = wc[1] * h
-            d2 = wc[2] * h
-            u0 = fc[0] * h
-            u1 = fc[1] * h
-            u2 = fc[2] * h
-            th2 = d0 * d0 + d1 * d1 + d2 * d2
-            if th2 < 1e-4:
-                ca = 1.0 - th2 / 6.0 + th2 * th2 / 120.0
-                cb = 0.5 - th2 / 24.0 + th2 * th2 / 720.0
-                cc = 1.0 / 6.0 - th2 / 120.0 + th2 * th2 / 5040.0
-            else:
-                th = np.sqrt(th2)
-                ca = np.sin(th) / th
-                cb = (1.0 - np.cos(th)) / th2
-                cc = (1.0 - ca) / th2
-            tdv = d0 * u0 + d1 * u1 + d2 * u2
-            e0 = (1.0 - cc * th2) * u0 + cb * (d1 * u2 - d2 * u1) + cc * tdv * d0
-            e1 = (1.0 - cc * th2) * u1 + cb * (d2 * u0 - d0 * u2) + cc * tdv * d1
-            e2 = (1.0 - cc * th2) * u2 + cb * (d0 * u1 - d1 * u0) + cc * tdv * d2
+                    for j in range(N):
+                        Phi_acc[b, i, j] = 0.0
+                        Q_acc[b, i, j] = 0.0
+                    if not integrate:
+                        Phi_acc[b, i, i] = 1.0
             for i in range(3):
-                uu[i] = Cb[i, 0] * e0 + Cb[i, 1] * e1 + Cb[i, 2] * e2
-            _gravity(rr[0] + 0.5 * h * vb[0], rr[1] + 0.5 * h * vb[1], rr[2] + 0.5 * h * vb[2], g)
-            for i in range(3):
-                vn[i] = (Av[i, 0] * vb[0] + Av[i, 1] * vb[1] + Av[i, 2] * vb[2]
-                         + Au[i, 0] * uu[0] + Au[i, 1] * uu[1] + Au[i, 2] * uu[2]
-                         + Ag[i, 0] * g[0] + Ag[i, 1] * g[1] + Ag[i, 2] * g[2])
-            for i in range(3):
-                rr[i] += 0.5 * h * (vb[i] + vn[i])
-                vb[i] = vn[i]
-            # attitude: C+ = Cz C exp([d x]) with exp = (1 - cb th2) I + ca [d x] + cb d d^T
-            Ex[0, 0] = 1.0 - cb * th2 + cb * d0 * d0
-            Ex[1, 1] = 1.0 - cb * th2 + cb * d1 * d1
-            Ex[2, 2] = 1.0 - cb * th2 + cb * d2 * d2
-            Ex[0, 1] = -ca * d2 + cb * d0 * d1
-            Ex[1, 0] = ca * d2 + cb * d0 * d1
-            Ex[0, 2] = ca * d1 + cb * d0 * d2
-            Ex[2, 0] = -ca * d1 + cb * d0 * d2
-            Ex[1, 2] = -ca * d0 + cb * d1 * d2
-            Ex[2, 1] = ca * d0 + cb * d1 * d2
-            for i in range(3):
+                rr[i] = r[b, i]
+                vb[i] = v[b, i]
+                sa[i] = 0.0
                 for j in range(3):
-                    CE[i, j] = Cb[i, 0] * Ex[0, j] + Cb[i, 1] * Ex[1, j] + Cb[i, 2] * Ex[2, j]
+                    Cb[i, j] = C[b, i, j]
+                    sC[i, j] = 0.0
+                    sG[i, j] = 0.0
+                    for k in range(3):
+                        sCC[i, j, k] = 0.0
+            sk = 0.0                # sum GM / |r|^3
+            for k in range(n):
+                for i in range(3):
+                    fc[i] = f_raw[b, k, i] - ba[b, i]
+                    wc[i] = w_raw[b, k, i] - bg[b, i]
+                # ---- covariance: Phi = I + F h at the state of the interval start ----
+                if integrate:
+                    # averaged dynamics: only the parts of F (system_matrix) and of G Q_c G^T that vary are summed
+                    for i in range(3):
+                        sa[i] += Cb[i, 0] * fc[0] + Cb[i, 1] * fc[1] + Cb[i, 2] * fc[2]
+                        for j in range(3):
+                            sC[i, j] += Cb[i, j]
+                            for m in range(3):
+                                sCC[m, i, j] += Cb[i, m] * Cb[j, m]
+                    r2 = rr[0] * rr[0] + rr[1] * rr[1] + rr[2] * rr[2]
+                    kr = _GM / (r2 * np.sqrt(r2))
+                    c3 = 3.0 * kr / r2
+                    sk += kr
+                    for i in range(3):
+                        for j in range(3):
+                            sG[i, j] += c3 * rr[i] * rr[j]
+                else:
+                    F[:, :] = 0.0
+                    _fill_F(F, Cb, fc, rr, kg, ka)
+                    _sparse_left(F, Phi_acc[b], T, nz)
+                    if exact:
+                        _sparse_left(F, Q_acc[b], T2, nz)          # T2 = F Q
+                        # Q <- Q + h (F Q + Q F^T) + h^2 F Q F^T   (= Phi Q Phi^T)
+                        for i in range(N):
+                            for c in range(N):
+                                Q_acc[b, i, c] += h * (T2[i, c] + T2[c, i])
+                        # F (F Q)^T = F Q F^T, using T2^T as the right factor (written out: _sparse_left on the
+                        # transposed view T2.T gives the same bits but runs ~1.8x slower, a non-contiguous layout)
+                        FQFt[:, :] = 0.0
+                        for p in range(nz.shape[0]):
+                            i = nz[p, 0]
+                            j = nz[p, 1]
+                            fij = F[i, j]
+                            for c in range(N):
+                                FQFt[i, c] += fij * T2[c, j]
+                        for i in range(N):
+                            for c in range(N):
+                                Q_acc[b, i, c] += h * h * FQFt[i, c]
+                    for i in range(N):
+                        for c in range(N):
+                            Phi_acc[b, i, c] += h * T[i, c]
+                    # process noise of this sample: C diag(qg) C^T, C diag(qa) C^T, diag(qdiag)
+                    for i in range(3):
+                        for j in range(3):
+                            sg = 0.0
+                            sq = 0.0
+                            for m in range(3):
+                                sg += Cb[i, m] * qg[m] * Cb[j, m]
+                                sq += Cb[i, m] * qa[m] * Cb[j, m]
+                            Q_acc[b, i, j] += sg * h
+                            Q_acc[b, 3 + i, 3 + j] += sq * h
+                    for i in range(6, N):
+                        Q_acc[b, i, i] += qdiag[i] * h
+                # ---- mechanization (ins.mechanize, single-sample scheme) ----
+                d0 = wc[0] * h
+                d1 = wc[1] * h
+                d2 = wc[2] * h
+                u0 = fc[0] * h
+                u1 = fc[1] * h
+                u2 = fc[2] * h
+                th2 = d0 * d0 + d1 * d1 + d2 * d2
+                if th2 < 1e-4:
+                    ca = 1.0 - th2 / 6.0 + th2 * th2 / 120.0
+                    cb = 0.5 - th2 / 24.0 + th2 * th2 / 720.0
+                    cc = 1.0 / 6.0 - th2 / 120.0 + th2 * th2 / 5040.0
+                else:
+                    th = np.sqrt(th2)
+                    ca = np.sin(th) / th
+                    cb = (1.0 - np.cos(th)) / th2
+                    cc = (1.0 - ca) / th2
+                tdv = d0 * u0 + d1 * u1 + d2 * u2
+                e0 = (1.0 - cc * th2) * u0 + cb * (d1 * u2 - d2 * u1) + cc * tdv * d0
+                e1 = (1.0 - cc * th2) * u1 + cb * (d2 * u0 - d0 * u2) + cc * tdv * d1
+                e2 = (1.0 - cc * th2) * u2 + cb * (d0 * u1 - d1 * u0) + cc * tdv * d2
+                for i in range(3):
+                    uu[i] = Cb[i, 0] * e0 + Cb[i, 1] * e1 + Cb[i, 2] * e2
+                _gravity(rr[0] + 0.5 * h * vb[0], rr[1] + 0.5 * h * vb[1], rr[2] + 0.5 * h * vb[2], g)
+                for i in range(3):
+                    vn[i] = (Av[i, 0] * vb[0] + Av[i, 1] * vb[1] + Av[i, 2] * vb[2]
+                             + Au[i, 0] * uu[0] + Au[i, 1] * uu[1] + Au[i, 2] * uu[2]
+                             + Ag[i, 0] * g[0] + Ag[i, 1] * g[1] + Ag[i, 2] * g[2])
+                for i in range(3):
+                    rr[i] += 0.5 * h * (vb[i] + vn[i])
+                    vb[i] = vn[i]
+                # attitude: C+ = Cz C exp([d x]) with exp = (1 - cb th2) I + ca [d x] + cb d d^T
+                Ex[0, 0] = 1.0 - cb * th2 + cb * d0 * d0
+                Ex[1, 1] = 1.0 - cb * th2 + cb * d1 * d1
+                Ex[2, 2] = 1.0 - cb * th2 + cb * d2 * d2
+                Ex[0, 1] = -ca * d2 + cb * d0 * d1
+                Ex[1, 0] = ca * d2 + cb * d0 * d1
+                Ex[0, 2] = ca * d1 + cb * d0 * d2
+                Ex[2, 0] = -ca * d1 + cb * d0 * d2
+                Ex[1, 2] = -ca * d0 + cb * d1 * d2
+                Ex[2, 1] = ca * d0 + cb * d1 * d2
+                for i in range(3):
+                    for j in range(3):
+                        CE[i, j] = Cb[i, 0] * Ex[0, j] + Cb[i, 1] * Ex[1, j] + Cb[i, 2] * Ex[2, j]
+                for i in range(3):
+                    for j in range(3):
+                        Cb[i, j] = Cz[i, 0] * CE[0, j] + Cz[i, 1] * CE[1, j] + Cz[i, 2] * CE[2, j]
+                if orthonormalize:
+                    # C <- 1.5 C - 0.5 (C C^T) C
+                    for i in range(3):
+                        for j in range(3):
+                            CC[i, j] = Cb[i, 0] * Cb[j, 0] + Cb[i, 1] * Cb[j, 1] + Cb[i, 2] * Cb[j, 2]
+                    for i in range(3):
+                        for j in range(3):
+                            CE[i, j] = 1.5 * Cb[i, j] - 0.5 * (CC[i, 0] * Cb[0, j] + CC[i, 1] * Cb[1, j]
+                                                               + CC[i, 2] * Cb[2, j])
+                    for i in range(3):
+                        for j in range(3):
+                            Cb[i, j] = CE[i, j]
+                clk[b] += drift[b] * h
             for i in range(3):
+                r[b, i] = rr[i]
+                v[b, i] = vb[i]
                 for j in range(3):
-                    Cb[i, j] = Cz[i, 0] * CE[0, j] + Cz[i, 1] * CE[1, j] + Cz[i, 2] * CE[2, j]
-            if orthonormalize:
-                # C <- 1.5 C - 0.5 (C C^T) C
-                for i in range(3):
-                    for j in range(3):
-                        CC[i, j] = Cb[i, 0] * Cb[j, 0] + Cb[i, 1] * Cb[j, 1] + Cb[i, 2] * Cb[j, 2]
-                for i in range(3):
-                    for j in range(3):
-                        CE[i, j] = 1.5 * Cb[i, j] - 0.5 * (CC[i, 0] * Cb[0, j] + CC[i, 1] * Cb[1, j] + CC[i, 2] * Cb[2, j])
-                for i in range(3):
-                    for j in range(3):
-                        Cb[i, j] = CE[i, j]
-            clk[b] += drift[b] * h
-        for i in range(3):
-            r[b, i] = rr[i]
-            v[b, i] = vb[i]
-            for j in range(3):
-                C[b, i, j] = Cb[i, j]
-        if integrate and n > 0:
-            _add_integrals(Phi_acc, Q_acc, b, n * h, h, sC, sa, sG, sk, sCC, qg, qa, qdiag, kg, ka)
+                    C[b, i, j] = Cb[i, j]
+            if integrate and n > 0:
+                _add_integrals(Phi_acc, Q_acc, b, n * h, h, sC, sa, sG, sk, sCC, qg, qa, qdiag, kg, ka)
 
 
 @nb.njit(cache=True, inline="always")
@@ -403,9 +410,9 @@ def propagate_epoch(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, Cz
     """Compiled epoch propagation (see :func:`_propagate_epoch`); parallel over rows for B >= 64."""
     if integrate and exact:
         raise ValueError("propagate_epoch: integrate (averaged dynamics) needs exact=False")
-    kern = _parallel if f_raw.shape[0] >= PARALLEL_MIN_BATCH else _serial
+    kern, nchunk = row_kernel(_serial, _parallel, f_raw.shape[0])
     kern(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, Cz, qg, qa, qdiag, kg, ka,
-         Phi_acc, Q_acc, exact, orthonormalize, nz, bool(integrate), bool(start))
+         Phi_acc, Q_acc, exact, orthonormalize, nz, bool(integrate), bool(start), nchunk)
 
 
 # ----------------------------------------------------------------------------- small dense helpers

@@ -427,7 +427,8 @@ class SageHusa(SatelliteNoise, AdaptiveLaw):
             c(self.inner.P, dt), c(self.inner.x, dt), self.x, self._seen, self._step, self._jcap, self._params["b"],
             self._d, int(cfg.warmup_epochs), epoch, self._sat_scale, self._sat_count, self._sat_last,
             *self._sat_settings(), self._r_scale, bool(cfg.adapt_q), self._b_used, self._e_prev, self._q_init,
-            self._q_ref, self._Q_raw, self._Q, *self._q_settings(), N_SAT_KEYS, float(ROSE_FACTOR), nchunk, has, active, d, s_rows, n_rows, s_prev, s_group, R_used, no_fade, unit, s,
+            self._q_ref, self._Q_raw, self._Q, *self._q_settings(), N_SAT_KEYS, float(ROSE_FACTOR), nchunk, has, active,
+            d, s_rows, n_rows, s_prev, s_group, R_used, no_fade, unit, s,
             Pn, xn, r_out, Sd, nis, np.empty(B, bool), n_used, summary, rows, b_used, step, seen, x_new)
         res = self._compiled_epoch_end(ok, Pn, x_new, nis, n_used, r_out, Sd)
         self._r_scale, self._epoch, self._sat_summary = s_group, epoch, summary

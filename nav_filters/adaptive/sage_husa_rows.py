@@ -18,7 +18,7 @@ import numpy as np
 
 from ..kernels import serial_and_parallel, sym_eig_inplace
 from .compiled_epoch import fused_law_update
-from .satellite_r import _commit_kernel, _r_sat_kernel, _r_sat_parallel, _weight_one
+from .satellite_r import _commit_parallel, _commit_serial, _r_sat_kernel, _r_sat_parallel, _weight_one
 
 
 def _adapt_q_rows(rows, d, dx, P_post, prior, Q_nom, b, step, e_prev, b_used, q_init, q_ref, Q_raw, Q,
@@ -194,7 +194,7 @@ def satellite_epoch(r, H, R, mask, keys, prior, Q, Phi, P, x_inner, x_law, seen,
     per-satellite R law (:func:`~.satellite_r._r_sat_kernel`, ``_plan_satellite``), the fused time + Joseph
     update without fading (:func:`.compiled_epoch.fused_law_update`), then, if every row's ``S`` was positive
     definite, the commit: ``x_new = x_law + xn``, the per-satellite tables
-    (:func:`~.satellite_r._commit_kernel`), the counts (:func:`_count_rows_kernel`) and the Q law
+    (:func:`~.satellite_r._commit_rows`), the counts (:func:`_count_rows_kernel`) and the Q law
     (:func:`_adapt_q_rows`, own eigen-decomposition) on the adapting rows. Row kernels run their parallel
     variant over ``nchunk`` chunks when ``nchunk > 1``.
 
@@ -227,8 +227,12 @@ def satellite_epoch(r, H, R, mask, keys, prior, Q, Phi, P, x_inner, x_law, seen,
     if not fused_law_update(P, x_inner, Phi, Q, prior, H, R_used, r, mask, no_fade, unit, s, Pn, xn, r_out, Sd, nis,
                             ok, x_law, x_new, n_used, nchunk):
         return False
-    _commit_kernel(mask, keys, s_rows, n_rows, s_prev, epoch, n_pr_keys, rose_factor, s_tab, n_tab, last_tab,
-                   summary)
+    if nchunk > 1:
+        _commit_parallel(mask, keys, s_rows, n_rows, s_prev, epoch, n_pr_keys, rose_factor, s_tab, n_tab, last_tab,
+                         summary, nchunk)
+    else:
+        _commit_serial(mask, keys, s_rows, n_rows, s_prev, epoch, n_pr_keys, rose_factor, s_tab, n_tab, last_tab,
+                       summary, 1)
     if _count_rows_kernel(active, has, True, adapt_q, b, b_used_prev, step, seen, rows, b_used, step_new,
                           seen_new):
         # the Q law reads the counts before this epoch's (step) and the b_used just formed

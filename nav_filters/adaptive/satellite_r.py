@@ -22,7 +22,7 @@ import numba as nb
 import numpy as np
 
 from ..error_model import CLK, DRIFT, N_STATES
-from ..kernels import row_chunks
+from ..kernels import row_chunks, row_kernel, serial_and_parallel
 from ..measurements import N_SAT_KEYS
 from .base import EpochContext, UpdatePlan
 from .innovation import (GROUP_NAMES, _geometry_residual_row, _geometry_work, _nonzeros_work, _posterior_residual_row,
@@ -266,54 +266,47 @@ def _r_sat_parallel(nchunk, r, H, prior, Q, add_q, R, mask, keys, bf, jcap, d_ro
                       r_scale[lo:hi], s_rows[lo:hi], n_rows[lo:hi], s_prev[lo:hi], s_group[lo:hi], R_out[lo:hi])
 
 
-@nb.njit(cache=True)
-def _summary_kernel(pr, s_rows, s_prev, rose_factor, out):
-    """The per-row summary of :meth:`SatelliteNoise._commit_satellites` (fused path): over the used pseudorange
-    rows ``pr`` (B, m), ``out[b] = (max scale, median scale, count risen above rose_factor x its prior, count)``;
-    1, 1, 0, 0 for a row without any. The median is ``np.nanmedian``'s (middle value, or the mean of the two)."""
-    B, m = pr.shape
-    vals = np.empty(m)
-    for b in range(B):
-        k = 0
-        rose = 0
-        mx = -np.inf
-        for i in range(m):
-            if pr[b, i]:
-                v = s_rows[b, i]
-                vals[k] = v
-                k += 1
-                mx = max(mx, v)
-                if v > rose_factor * s_prev[b, i]:
-                    rose += 1
-        if k == 0:
-            out[b, 0] = 1.0
-            out[b, 1] = 1.0
-        else:
-            srt = np.sort(vals[:k])
-            out[b, 0] = mx
-            out[b, 1] = srt[k // 2] if k % 2 == 1 else (srt[k // 2 - 1] + srt[k // 2]) / 2.0
-        out[b, 2] = rose
-        out[b, 3] = k
-
-
-@nb.njit(cache=True)
-def _commit_kernel(mask, keys, s_rows, n_rows, s_prev, epoch, n_pr_keys, rose_factor, sat_scale, sat_count,
-                   sat_last, out):
+def _commit_rows(mask, keys, s_rows, n_rows, s_prev, epoch, n_pr_keys, rose_factor, sat_scale, sat_count, sat_last,
+                 out, nchunk):
     """The fused path of :meth:`SatelliteNoise._commit_satellites` in one call: every used row ``(b, i)``
     (``mask`` and a key >= 0) writes its new scale, count and the epoch into the per-key tables at
-    ``keys[b, i]`` (in row order, as numpy's fancy assignment), then :func:`_summary_kernel` summarizes the
-    used pseudorange rows (keys below ``n_pr_keys``) into ``out`` (B, 4)."""
+    ``keys[b, i]`` (in row order, as numpy's fancy assignment), then the summary of the used pseudorange rows
+    (keys below ``n_pr_keys``) into ``out`` (B, 4): ``(max scale, median scale, count risen above rose_factor x
+    its prior, count)``, 1, 1, 0, 0 for a batch row without any; the median is ``np.nanmedian``'s (middle value,
+    or the mean of the two). Batch rows in ``nchunk`` chunks (parallel in the parallel variant)."""
     B, m = mask.shape
-    pr = np.zeros((B, m), np.bool_)
-    for b in range(B):
-        for i in range(m):
-            k = keys[b, i]
-            if mask[b, i] and k >= 0:
-                sat_scale[b, k] = s_rows[b, i]
-                sat_count[b, k] = n_rows[b, i]
-                sat_last[b, k] = epoch[b]
-                pr[b, i] = k < n_pr_keys
-    _summary_kernel(pr, s_rows, s_prev, rose_factor, out)
+    for ch in nb.prange(nchunk):
+        vals = np.empty(m)
+        for b in range(ch * B // nchunk, (ch + 1) * B // nchunk):
+            k = 0
+            rose = 0
+            mx = -np.inf
+            for i in range(m):
+                key = keys[b, i]
+                if mask[b, i] and key >= 0:
+                    v = s_rows[b, i]
+                    sat_scale[b, key] = v
+                    sat_count[b, key] = n_rows[b, i]
+                    sat_last[b, key] = epoch[b]
+                    if key < n_pr_keys:
+                        vals[k] = v
+                        k += 1
+                        mx = max(mx, v)
+                        if v > rose_factor * s_prev[b, i]:
+                            rose += 1
+            if k == 0:
+                out[b, 0] = 1.0
+                out[b, 1] = 1.0
+            else:
+                srt = vals[:k]
+                srt.sort()  # in place (np.sort's order)
+                out[b, 0] = mx
+                out[b, 1] = srt[k // 2] if k % 2 == 1 else (srt[k // 2 - 1] + srt[k // 2]) / 2.0
+            out[b, 2] = rose
+            out[b, 3] = k
+
+
+_commit_serial, _commit_parallel = serial_and_parallel(_commit_rows)
 
 
 @nb.njit(cache=True)
@@ -493,11 +486,12 @@ class SatelliteNoise:
         if self.fused:  # compiled, same values (the numpy lines below are its specification)
             self._epoch = epoch
             self._sat_summary = np.empty((mask.shape[0], 4))
-            _commit_kernel(np.ascontiguousarray(mask), np.ascontiguousarray(keys, np.int64),
-                           np.ascontiguousarray(s_rows, np.float64), np.ascontiguousarray(n_rows, np.int64),
-                           np.ascontiguousarray(s_prev, np.float64), np.ascontiguousarray(epoch, np.int64),
-                           N_SAT_KEYS, float(ROSE_FACTOR), self._sat_scale, self._sat_count, self._sat_last,
-                           self._sat_summary)
+            kern, nchunk = row_kernel(_commit_serial, _commit_parallel, mask.shape[0])
+            kern(np.ascontiguousarray(mask), np.ascontiguousarray(keys, np.int64),
+                 np.ascontiguousarray(s_rows, np.float64), np.ascontiguousarray(n_rows, np.int64),
+                 np.ascontiguousarray(s_prev, np.float64), np.ascontiguousarray(epoch, np.int64),
+                 N_SAT_KEYS, float(ROSE_FACTOR), self._sat_scale, self._sat_count, self._sat_last, self._sat_summary,
+                 nchunk)
             return
         used = mask & (keys >= 0)
         b_idx, i_idx = np.nonzero(used)

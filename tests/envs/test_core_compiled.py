@@ -9,12 +9,13 @@ import pytest
 from envs.config import EnvConfig
 from envs.core import LOG_REWARD_OFFSET_M, TuningCore, _clip_if_finite, _score_kernel, _score_reference
 from envs.gnss_ins_env import MASTKF_PARAMS, SAGE_HUSA_PARAMS
+from nav_filters.kernels import PARALLEL_MIN_BATCH
 
 
-@pytest.mark.parametrize("zupt", ["none", "truth"])
-def test_frame_kernel_matches_reference(zupt, monkeypatch):
-    core = TuningCore(EnvConfig(scenario="urban", episode_length_s=20.0, zupt=zupt), SAGE_HUSA_PARAMS, 3)
-    core.reset_rows(np.arange(3), [0, 1, 2])
+@pytest.mark.parametrize("zupt,B", [("none", 3), ("truth", 3), ("none", PARALLEL_MIN_BATCH + 2)])  # + the parallel one
+def test_frame_kernel_matches_reference(zupt, B, monkeypatch):
+    core = TuningCore(EnvConfig(scenario="urban", episode_length_s=20.0, zupt=zupt), SAGE_HUSA_PARAMS, B)
+    core.reset_rows(np.arange(B), list(range(B)))
     checked = []
 
     def compare(res, zflag):
@@ -49,7 +50,7 @@ def test_frame_kernel_matches_reference(zupt, monkeypatch):
     monkeypatch.setattr(core, "_frame", both)
     rng = np.random.default_rng(0)
     for _ in range(18):  # past the 10-epoch warm-up: the per-satellite scales move
-        core.step(rng.uniform(-1, 1, (3, 1)))
+        core.step(rng.uniform(-1, 1, (B, 1)))
     assert len(checked) == 18
     k = core.k
     late = np.array(checked[12:])

@@ -301,12 +301,13 @@ def test_serial_and_parallel_kernels_have_their_own_cache_entries():
     loaded for the serial dispatcher: a thread-pool launch per single-row call), with the flags they claim,
     and the two give the same bits on the same rows."""
     from nav_filters import averaged_transition, kernels
-    from nav_filters.adaptive import sage_husa
+    from nav_filters.adaptive import sage_husa, satellite_r
     from nav_filters.forms import kf
 
     pairs = [(kernels._serial, kernels._parallel), (averaged_transition._serial, averaged_transition._parallel),
              (kf._joseph_serial, kf._joseph_parallel), (kf._fused_serial, kf._fused_parallel),
-             (sage_husa._adapt_q_serial, sage_husa._adapt_q_parallel)]
+             (sage_husa._adapt_q_serial, sage_husa._adapt_q_parallel),
+             (satellite_r._commit_serial, satellite_r._commit_parallel), (kf._prior_serial, kf._prior_parallel)]
     names = set()
     for ser, par in pairs:
         assert ser.targetoptions["parallel"] is False and par.targetoptions["parallel"] is True
@@ -324,7 +325,8 @@ def test_serial_and_parallel_kernels_have_their_own_cache_entries():
         np.testing.assert_array_equal(a, b)
 
 
-def test_satellite_summary_kernel_equals_numpy():
+@pytest.mark.parametrize("B", [9, PARALLEL_MIN_BATCH + 6])  # the serial and the parallel kernel
+def test_satellite_summary_kernel_equals_numpy(B):
     """The commit of sage-husa's per-satellite tables (scale, count, last epoch per key: one compiled call on the
     fused path) and the summary of its adaptive state (max, median, risen count, count over the used pseudorange
     rows): the same values as the numpy lines, bit for bit, also where a row holds one key twice (last wins)."""
@@ -332,7 +334,7 @@ def test_satellite_summary_kernel_equals_numpy():
     from nav_filters.registry import make_form
 
     rng = np.random.default_rng(2)
-    B, m = 9, 10
+    m = 10
     laws = [make_form("sage-husa", np.broadcast_to(np.eye(N), (B, N, N)).copy()) for _ in range(2)]
     laws[1].set_fused(True)
     K = laws[0]._sat_scale.shape[1]
