@@ -255,8 +255,8 @@ class Navigator:
         Phi, Q = Phi64.astype(self.dtype, copy=False), Q64.astype(self.dtype, copy=False)
 
         def predict(form, keep):
-            if keep is None:
-                return form.predict(Phi, Q)
+            if keep is None:  # fresh arrays, not used here again: a form may keep them
+                return form.take_prediction(Phi, Q)
             k = keep[:, None, None]
             return form.predict(np.where(k, Phi, np.eye(N_STATES, dtype=self.dtype)), np.where(k, Q, 0))
 

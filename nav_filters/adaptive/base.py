@@ -194,6 +194,14 @@ class AdaptiveLaw(FilterForm):
         ----------
         Phi : (B, n, n) transition; Q : (B, n, n) process noise (anything broadcastable to it).
         """
+        self._accumulate(Phi, Q, given=False)
+
+    def take_prediction(self, Phi, Q):
+        """:meth:`predict`, keeping ``Phi`` and ``Q`` themselves (no copy) where they are (B, n, n) arrays of the
+        law's dtype: the caller hands them over (:meth:`FilterForm.take_prediction`)."""
+        self._accumulate(Phi, Q, given=True)
+
+    def _accumulate(self, Phi, Q, given):
         B, n = self.batch_size, self.n
         Phi = np.asarray(Phi, self.dtype)
         if Phi.shape != (B, n, n):
@@ -204,10 +212,11 @@ class AdaptiveLaw(FilterForm):
         except ValueError:
             raise ValueError(f"Q must broadcast to ({B}, {n}, {n}), got {Q.shape}") from None
         self._ctx = None
-        self.x = (Phi @ self.x[..., None])[..., 0]
+        if np.count_nonzero(self.x):  # (the error state is zero after each closed-loop feedback: Phi 0 = 0)
+            self.x = (Phi @ self.x[..., None])[..., 0]
         if self._Phi_acc is None:
-            self._Phi_acc = Phi.copy()
-            self._Q_acc = np.array(Q)
+            self._Phi_acc = Phi if given else Phi.copy()
+            self._Q_acc = Q if given and Q.flags.writeable else np.array(Q)  # (a broadcast view is read-only)
         else:
             self._Phi_acc = Phi @ self._Phi_acc
             self._Q_acc = Phi @ self._Q_acc @ Phi.mT + Q
@@ -270,8 +279,15 @@ class AdaptiveLaw(FilterForm):
         finally:
             self._keys = None
 
+    def _residual(self, dz, H):
+        """``r = dz - H x`` (B, m) of the law's state; ``dz`` itself (a copy) where x is zero, as after every
+        closed-loop feedback (no product to form)."""
+        if not np.count_nonzero(self.x):
+            return dz.copy()
+        return dz - (H @ self.x[..., None])[..., 0]
+
     def _update(self, dz, H, R, mask) -> UpdateResult:
-        r = dz - (H @ self.x[..., None])[..., 0]
+        r = self._residual(dz, H)
         if self._ctx is None:
             self._ctx = self._open_epoch()
         ctx = self._ctx
@@ -307,7 +323,7 @@ class AdaptiveLaw(FilterForm):
         ctx = self._ctx
         if not ctx.pending or ctx.applied:
             return None
-        return dz - (H @ self.x[..., None])[..., 0], ctx
+        return self._residual(dz, H), ctx
 
     def _compiled_epoch_end(self, ok, P, x, nis, n_used, r, Sd) -> UpdateResult:
         """Commit a compiled epoch's update: the inner form's posterior ``P`` (its state reset to zero, the

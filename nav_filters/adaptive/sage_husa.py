@@ -436,8 +436,16 @@ class SageHusa(SatelliteNoise, AdaptiveLaw):
         return res
 
     def _epoch_q(self, Q_acc):
-        if not self.config.adapt_q or not np.count_nonzero(self._q_init):
+        """The epoch's process noise: the adapted Q on the rows whose Q law has started, the nominal one
+        elsewhere. Where every row has started, the law's own ``_Q`` itself (no copy): the epoch only reads it,
+        and the Q law rewrites it in the commit, after every reader (the plan, the inner update)."""
+        if not self.config.adapt_q:
             return Q_acc
+        started = np.count_nonzero(self._q_init)
+        if not started:
+            return Q_acc
+        if started == self.batch_size:
+            return self._Q
         return np.where(self._q_init[:, None, None], self._Q, Q_acc)
 
     def _weights(self, active):

@@ -272,6 +272,12 @@ class FilterForm(ABC):
         """(B, n, n) current covariance P."""
 
     # -- shared ---------------------------------------------------------------
+    def take_prediction(self, Phi, Q):
+        """:meth:`predict` with arrays the caller hands over and does not touch again (the navigator's fresh
+        accumulators): a form that keeps them (an adaptive law defers its prediction) need not copy them. The
+        plain forms just predict."""
+        return self.predict(Phi, Q)
+
     def update(self, dz, H, R, mask=None, keys=None) -> UpdateResult:
         """Measurement update ``z = H x + v``, ``v ~ N(0, R)``; see :func:`prepare_measurement`.
 
