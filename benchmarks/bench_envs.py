@@ -308,30 +308,31 @@ def _time_feedback(B, reps, tmin):
     return tmin(lambda: nav._feedback_reference(dx), reps), tmin(lambda: nav._feedback(dx), reps)
 
 
-def _run_cell(root, kind, method, B, steps, episode_s, scenario, transition="exact"):
-    """One benchmark cell in a fresh process on the source tree ``root``; returns its JSON result."""
+def _run_cell(root, kind, method, B, steps, episode_s, scenario, transition="exact", stat="mean"):
+    """One benchmark cell in a fresh process on the source tree ``root``; returns its JSON result (a rate cell's
+    steps/s by ``stat``, as :func:`bench_env`)."""
     env = dict(os.environ, NAVGYM_BENCH_ROOT=root)
     cmd = [sys.executable, os.path.abspath(__file__), "--cell", kind, method, str(B), str(steps), str(episode_s),
-           scenario, transition]
+           scenario, transition, stat]
     out = subprocess.run(cmd, env=env, cwd=root, capture_output=True, text=True, check=True).stdout
     return json.loads(out.strip().splitlines()[-1])
 
 
-def _run_before(root, kind, method, B, steps, episode_s, scenario, transition):
+def _run_before(root, kind, method, B, steps, episode_s, scenario, transition, stat="mean"):
     """The *before* cell of ``--compare``: ``transition`` in the tree ``root``, or its exact default where that
     tree has no such mode (its env raises). Returns (JSON result, whether it fell back)."""
     try:
-        return _run_cell(root, kind, method, B, steps, episode_s, scenario, transition), False
+        return _run_cell(root, kind, method, B, steps, episode_s, scenario, transition, stat), False
     except subprocess.CalledProcessError:
         if transition == "exact":
             raise
-        return _run_cell(root, kind, method, B, steps, episode_s, scenario, "exact"), True
+        return _run_cell(root, kind, method, B, steps, episode_s, scenario, "exact", stat), True
 
 
-def _cell_main(kind, method, B, steps, episode_s, scenario, transition):
+def _cell_main(kind, method, B, steps, episode_s, scenario, transition, stat="mean"):
     B, steps, episode_s = int(B), int(steps), float(episode_s)
     if kind == "rate":
-        print(json.dumps(bench_env(method, B, steps, episode_s, scenario, transition)))
+        print(json.dumps(bench_env(method, B, steps, episode_s, scenario, transition, stat=stat)))
     else:
         print(json.dumps(profile_env(method, B, steps, episode_s, scenario, transition, cpu=kind == "cpu-profile")))
 
@@ -442,9 +443,10 @@ def main(argv=None):
                 if args.compare:
                     before, after = [], []
                     for _ in range(args.rounds):
-                        rb, fell_back = _run_before(other, *cell, tr)  # the before tree, same mode if it has it
+                        # the before tree, in the same mode if it has it
+                        rb, fell_back = _run_before(other, *cell, tr, args.stat)
                         before.append(rb)
-                        after.append(_run_cell(here, *cell, tr))
+                        after.append(_run_cell(here, *cell, tr, args.stat))
                     lab += "*" if fell_back else ""
                     rb, ra = np.median(before, axis=0), np.median(after, axis=0)
                     ups = [a[1] / b[1] for a, b in zip(after, before)]
@@ -483,6 +485,6 @@ def main(argv=None):
 
 if __name__ == "__main__":
     if len(sys.argv) > 1 and sys.argv[1] == "--cell":
-        _cell_main(*sys.argv[2:9])
+        _cell_main(*sys.argv[2:10])
     else:
         main()
