@@ -89,10 +89,10 @@ F_NONZERO = np.array(
 def _gravity(x, y, z, out):
     """earth.wgs84.gravity_ecef for one position (J2 gravitation + centrifugal), into out[0:3]."""
     r2 = x * x + y * y + z * z
-    r = np.sqrt(r2)
-    zr2 = z * z / r2
-    k = 1.5 * _J2 * _A * _A / r2
-    m = -_GM / (r2 * r)
+    ir2 = 1.0 / r2  # one division (a multiply is several times cheaper; the IMU kernel calls this every sample)
+    zr2 = z * z * ir2
+    k = (1.5 * _J2 * _A * _A) * ir2
+    m = -_GM * ir2 / np.sqrt(r2)
     fxy = 1.0 + k * (1.0 - 5.0 * zr2)
     out[0] = m * x * fxy + _W * _W * x
     out[1] = m * y * fxy + _W * _W * y
@@ -229,8 +229,9 @@ def _propagate_epoch(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, C
                             for m in range(3):
                                 sCC[m, i, j] += Cb[i, m] * Cb[j, m]
                     r2 = rr[0] * rr[0] + rr[1] * rr[1] + rr[2] * rr[2]
-                    kr = _GM / (r2 * np.sqrt(r2))
-                    c3 = 3.0 * kr / r2
+                    ir2 = 1.0 / r2  # (one division: a multiply is several times cheaper)
+                    kr = _GM * ir2 / np.sqrt(r2)
+                    c3 = 3.0 * kr * ir2
                     sk += kr
                     for i in range(3):
                         for j in range(3):
@@ -281,9 +282,10 @@ def _propagate_epoch(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, C
                 u2 = fc[2] * h
                 th2 = d0 * d0 + d1 * d1 + d2 * d2
                 if th2 < 1e-4:
-                    ca = 1.0 - th2 / 6.0 + th2 * th2 / 120.0
-                    cb = 0.5 - th2 / 24.0 + th2 * th2 / 720.0
-                    cc = 1.0 / 6.0 - th2 / 120.0 + th2 * th2 / 5040.0
+                    t4 = th2 * th2  # (constant reciprocals: multiplies, not divisions)
+                    ca = 1.0 - th2 * (1.0 / 6.0) + t4 * (1.0 / 120.0)
+                    cb = 0.5 - th2 * (1.0 / 24.0) + t4 * (1.0 / 720.0)
+                    cc = 1.0 / 6.0 - th2 * (1.0 / 120.0) + t4 * (1.0 / 5040.0)
                 else:
                     th = np.sqrt(th2)
                     ca = np.sin(th) / th
