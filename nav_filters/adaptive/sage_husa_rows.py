@@ -101,10 +101,10 @@ def _adapt_q_row(r, d, dx, P_post, prior, Q_nom, b, step, e_prev, b_used, q_init
             for j in range(n):
                 A[i, j] = Qw[i, j]
         if sym_eig_inplace(A, vals, Vt, sc[0], sc[1], sc[2]):
-            # Qw = Vt^T diag(clip(vals)) Vt = floor I + sum_k (clip(vals_k) - floor) v_k v_k^T (Vt = I's
-            # eigenbasis): only the eigenvalues above the floor add a term (the floor holds about half of them
-            # on the built-in scenarios). Their scaled rows A[q] = (min(vals_k, ceiling) - floor) Vt[k] and
-            # Vt[q] = Vt[k] are packed to the top (q <= k); then the upper triangle, mirrored.
+            # Qw = Vt^T diag(clip(vals)) Vt = floor I + sum_k (clip(vals_k) - floor) v_k v_k^T (the rows v_k of Vt
+            # are orthonormal, Vt^T Vt = I): only the eigenvalues above the floor add a term (the floor holds about
+            # half of them on the built-in scenarios). Their scaled rows A[q] = (min(vals_k, ceiling) - floor) Vt[k]
+            # and Vt[q] = Vt[k] are packed to the top (q <= k); then the upper triangle, mirrored.
             na = 0
             for k in range(n):
                 c = min(vals[k], ceiling) - floor
