@@ -57,7 +57,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from .kernels import F_NONZERO, N, row_kernel, serial_and_parallel
+from .kernels import F_NONZERO, N, padded_width, row_kernel, serial_and_parallel
 
 SERIES_ORDER = 8
 """Highest power ``K`` of the series for ``exp(A)`` and the Van Loan integral (see the module docstring)."""
@@ -110,12 +110,12 @@ def _averaged_transition_into(A, S, Phi, Q, order, nz, nchunk):
     ``A X`` use only those entries (what the propagation kernel integrates has that pattern).
 
     The rows run in ``nchunk`` chunks, each with its scratch allocated once. The scratch rows are padded with
-    zeros to a multiple of 4 columns (20 for n = 17) and the row loops run over the padded width, read from the
-    array's shape: LLVM vectorizes loops of a run-time length (not the fully unrolled constant 17-trip ones,
-    numba runs no SLP vectorizer), and a padded length leaves no scalar remainder. ``1/k`` multiplies instead of
-    dividing. The same series as the specification, to round-off."""
+    zeros (:func:`~nav_filters.kernels.padded_width`) and the row loops run over the padded width, a run-time
+    length read from the array's shape (LLVM fully unrolls constant 17-trip loops and leaves them scalar: numba
+    runs no SLP vectorizer). ``1/k`` multiplies instead of dividing. The same series as the specification, to
+    round-off."""
     B, n = A.shape[0], A.shape[1]
-    w = (n + 3) // 4 * 4
+    w = padded_width(n)
     for ch in nb.prange(nchunk):
         term = np.zeros((n, w))   # A^k / k!
         nxt = np.zeros((n, w))

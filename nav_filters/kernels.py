@@ -407,6 +407,15 @@ def row_kernel(serial, parallel, B: int):
     return (parallel if nchunk > 1 else serial), nchunk
 
 
+@nb.njit(cache=True, inline="always")
+def padded_width(n):
+    """The column count, a multiple of 4 (20 for n = 17), of a kernel's scratch rows padded with zeros: LLVM
+    vectorizes a row loop of a run-time length but leaves a scalar remainder of up to 15 elements, which for 17
+    columns is most of the loop; over the padded width there is none. The padding stays zero, so every kept entry
+    is the same sum in the same order (used by the fused kf update, the averaged series, the per-satellite R law)."""
+    return (n + 3) // 4 * 4
+
+
 def propagate_epoch(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, Cz, qg, qa, qdiag, kg, ka,
                     Phi_acc, Q_acc, exact, orthonormalize, nz, integrate=False, start=False):
     """Compiled epoch propagation (see :func:`_propagate_epoch`); parallel over rows for B >= 64."""

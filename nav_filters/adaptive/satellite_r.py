@@ -22,7 +22,7 @@ import numba as nb
 import numpy as np
 
 from ..error_model import CLK, DRIFT, N_STATES
-from ..kernels import row_chunks, row_kernel, serial_and_parallel
+from ..kernels import padded_width, row_chunks, row_kernel, serial_and_parallel
 from ..measurements import N_SAT_KEYS
 from .base import EpochContext, UpdatePlan
 from .innovation import (GROUP_NAMES, _geometry_residual_row, _geometry_work, _nonzeros_work, _posterior_residual_row,
@@ -136,8 +136,8 @@ def _r_sat_kernel(r, H, prior, Q, add_q, R, mask, keys, bf, jcap, d_row, active,
     nzc, nzv, cnt = _nonzeros_work(m, n, H.dtype)
     geo_work = _geometry_work(n)
     # the row's P- = prior (+ Q), formed once for both helpers (the sums they formed entry by entry, the same bits),
-    # its rows padded with zeros to a multiple of 4 columns (the posterior fit's row operations vectorize)
-    wp = (n + 3) // 4 * 4
+    # its rows padded with zeros (kernels.padded_width: the posterior fit's row operations vectorize)
+    wp = padded_width(n)
     Pm3 = np.zeros((1, n, wp), prior.dtype)
     Pm = Pm3[0]
     post_work = _posterior_work(m, wp)

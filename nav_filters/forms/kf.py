@@ -22,7 +22,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from ..kernels import PARALLEL_MIN_BATCH, row_kernel, row_nonzeros as _row_nonzeros, serial_and_parallel
+from ..kernels import PARALLEL_MIN_BATCH, padded_width, row_kernel, row_nonzeros as _row_nonzeros, serial_and_parallel
 from .base import FilterForm, UpdateResult, symmetrize
 
 
@@ -384,21 +384,21 @@ def _fused_rows(P, x, Phi, s, Q, prior, mode, H, R, dz, mask, Pn, xn, r, Sd, nis
     diag(S) (1 on masked rows); nis : (B,); ok : (B,) bool, False where S is not positive definite (that
     row's outputs are undefined). nchunk : number of row chunks (each allocates its scratch once).
 
-    The scratch matrices of n columns are padded with zeros to ``W`` (a multiple of 4: 20 for n = 17) and their row
-    operations run over all W columns, the triangular ones over whole rows: LLVM vectorizes these loops of a
-    run-time length, and W leaves them no scalar remainder. The padding stays zero and every kept entry is the same
-    sum in the same order as over n columns, so the same bits.
+    The scratch matrices of n columns are padded with zeros to ``W`` columns (:func:`~nav_filters.kernels.padded_width`)
+    and their row operations run over all W, the triangular ones over whole rows (vectorized, no scalar remainder):
+    the same bits.
     """
     B, m, n = H.shape
     dt = P.dtype
     for c in nb.prange(nchunk):
         lo = c * B // nchunk
         hi = (c + 1) * B // nchunk
-        W = (n + 3) // 4 * 4
+        W = padded_width(n)
         Pm = np.zeros((n, W), dt)
         T = np.empty((n, n), dt)
         C = np.empty((n, n), dt)
         xm = np.empty(n, dt)
+        xp = np.zeros(W, dt)      # x+
         HP = np.zeros((m, W), dt)
         L = np.empty((m, m), dt)
         Y = np.zeros((m, W), dt)
@@ -472,13 +472,13 @@ def _fused_rows(P, x, Phi, s, Q, prior, mode, H, R, dz, mask, Pn, xn, r, Sd, nis
             nis[b] = _gain_solve(L, rv, HP, Y, w, mv, W)
             # ---- x+ = x- + K r
             for k in range(n):
-                AP[0, k] = xm[k]
+                xp[k] = xm[k]
             for t in range(mv):
                 a = rv[t]
                 for k in range(W):
-                    AP[0, k] += Y[t, k] * a
+                    xp[k] += Y[t, k] * a
             for k in range(n):
-                xn[b, k] = AP[0, k]
+                xn[b, k] = xp[k]
             # ---- Joseph with A = I - K H non-trivial only in the nc columns of H that hold a non-zero
             # (8 of 17 for GNSS rows): KHt = (K H)^T on those columns, AP = P- - K H P-,
             # X = AP A^T = AP - (AP)[:, cols] KHt   (whole rows; only the upper triangle is kept: P+ is symmetric,

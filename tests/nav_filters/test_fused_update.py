@@ -18,8 +18,7 @@ from envs.episodes import navigator_for, run_episodes
 from envs.sim.world import generate_world
 from nav_filters.error_model import N_STATES
 from nav_filters.forms import KalmanFilter, SvdKalmanFilter
-from nav_filters.forms.base import prepare_measurement
-from nav_filters.forms.base import symmetrize
+from nav_filters.forms.base import prepare_measurement, symmetrize
 from nav_filters.forms.kf import PARALLEL_MIN_BATCH, fused_update, transition_prior
 from nav_filters.navigator import NavigatorConfig
 
@@ -99,8 +98,8 @@ def test_fused_kernel_equals_the_numpy_recursion(dtype, B, mode, correlated):
 @pytest.mark.parametrize("B", [3, PARALLEL_MIN_BATCH + 5])
 def test_transition_prior_equals_numpy(dtype, B):
     """``transition_prior`` (the adaptive laws' prior ``sym(Phi P Phi^T)``, compiled over Phi's non-zeros) equals
-    the numpy product to round-off, exactly symmetric, in the dtype of P; a transition with the zero pattern of
-    the 17-state model's (its zeros skipped) and a dense one; the serial and parallel kernels."""
+    the numpy product to round-off, exactly symmetric, in the dtype of P; a sparse transition (60% zeros, which it
+    skips) and a dense one; the serial and parallel kernels."""
     P, _, _, _, _, _, Phi, _, _ = _problem(B)
     Phi_sparse = Phi * (np.random.default_rng(1).random((B, N, N)) < 0.4)
     for T in (Phi, Phi_sparse):
