@@ -227,6 +227,43 @@ def _clip_if_finite(a):
     return True
 
 
+@nb.njit(cache=True, fastmath={"contract"})
+def _rotate(C, b, k, x0, x1, x2):
+    """``C[b, k] @ (x0, x1, x2)``, each row's dot product contracted to fused multiply-adds where the CPU has them,
+    as numpy's ``matmul`` of a stacked 3 x 3 by 3 x 1 (BLAS) forms it: the same bits as the numpy specification
+    on this machine."""
+    return (C[b, k, 0, 0] * x0 + C[b, k, 0, 1] * x1 + C[b, k, 0, 2] * x2,
+            C[b, k, 1, 0] * x0 + C[b, k, 1, 1] * x1 + C[b, k, 1, 2] * x2,
+            C[b, k, 2, 0] * x0 + C[b, k, 2, 1] * x1 + C[b, k, 2, 2] * x2)
+
+
+@nb.njit(cache=True)
+def _errors_kernel(r, truth_r, truth_Cne, j, last, h, e3):
+    """Horizontal and 3D position errors [m] of every row at its epoch ``j[b]`` (compiled; the numpy
+    specification is :func:`_errors_reference`, agreement test in ``tests/envs/test_core_compiled.py``).
+
+    ``r`` (B, 3) estimated ECEF position; ``truth_r`` (B, M, 3) true ECEF positions and ``truth_Cne``
+    (B, M, 3, 3) the ECEF-to-NED rotations at the epochs; ``j`` (B,) int epoch of each row, taken at most
+    ``last`` (the final epoch). The error
+    ``r - truth`` is rotated to NED, ``h = hypot(north, east)`` and ``e3 = |NED error|`` go into ``h``, ``e3`` (B,).
+    """
+    for b in range(r.shape[0]):
+        k = min(j[b], last)
+        x0 = r[b, 0] - truth_r[b, k, 0]
+        x1 = r[b, 1] - truth_r[b, k, 1]
+        x2 = r[b, 2] - truth_r[b, k, 2]
+        n0, n1, n2 = _rotate(truth_Cne, b, k, x0, x1, x2)
+        h[b] = math.hypot(n0, n1)
+        e3[b] = math.sqrt((n0 * n0 + n1 * n1) + n2 * n2)  # numpy's sum of three: in order, not fused
+
+
+def _errors_reference(r, truth_r, truth_Cne, j, last):
+    """Numpy specification of :func:`_errors_kernel`: ``(h, e3)`` (B,) of the rows at epochs ``min(j, last)``."""
+    rows, j = np.arange(r.shape[0]), np.minimum(j, last)
+    ned = (truth_Cne[rows, j] @ (r - truth_r[rows, j])[..., None])[..., 0]
+    return np.hypot(ned[:, 0], ned[:, 1]), np.linalg.norm(ned, axis=1)
+
+
 @nb.njit(cache=True)
 def _score_kernel(h, src, advantage, nav_diverged, bound, penalty, t, M, sq_err_sum, max_err, diverged, reward,
                   truncated):
@@ -565,10 +602,8 @@ class TuningCore:
         if odo_model is not None:  # the scenario's wheel odometer + NHC (envs.aiding)
             extra = with_rows(extra, odometer_rows(nav, self.odo[rows, jj], odo_model))
         res, gdop = nav.update_gnss(*g, extra=extra, sat_keys=self.sat_keys[rows, jj])
-        err = nav.r - self.truth_r[rows, jj]
-        ned = (self.truth_Cne[rows, jj] @ err[..., None])[..., 0]
-        h = np.hypot(ned[:, 0], ned[:, 1])
-        e3 = np.sqrt(np.add.reduce(ned * ned, axis=1))  # = np.linalg.norm(ned, axis=1), without its overhead
+        h, e3 = np.empty(B), np.empty(B)
+        _errors_kernel(nav.r, self.truth_r, self.truth_Cne, j, self.M - 1, h, e3)
         if nav is self.nav:
             self._last_res, self._last_gdop, self._last_mask = res, gdop, g[6] & ~nav.diverged[:, None]
         return h, e3, res, zflag

@@ -334,7 +334,7 @@ class Navigator:
             keys = measurement_keys(sk, n_gnss > mask.shape[1], dz.shape[1] - n_gnss, mask=mask)
         self.flush_prediction()  # the state was checked above and the prediction does not change it
         res = self._update_checked(dz, H, R, row_mask, keys)
-        self.time_since_update[mask.any(-1)] = 0.0
+        _clear_where_any(mask, self.time_since_update)
         return res, dop(u, mask)
 
     def _isolated(self, op):
@@ -451,8 +451,8 @@ class Navigator:
     def _check_state(self):
         """Flag and park rows whose nominal state became non-finite (before any innovation is formed)."""
         bad = np.empty(self.batch_size, bool)
-        _nonfinite_rows(self.r, self.v, self.C, self.clk, self.drift, self.diverged, bad)
-        self._flag(bad, REASON_STATE)
+        if _nonfinite_rows(self.r, self.v, self.C, self.clk, self.drift, self.diverged, bad):
+            self._flag(bad, REASON_STATE)
 
     def _park(self, rows):
         """Freeze diverged rows at a neutral finite state (flagged in :attr:`diverged`, never updated again)
@@ -516,7 +516,9 @@ _ATT0, _VEL0, _POS0, _BG0, _BA0, _CLK0, _DRIFT0 = (s.start for s in (ATT, VEL, P
 
 @nb.njit(cache=True)
 def _nonfinite_rows(r, v, C, clk, drift, diverged, bad):
-    """``bad[b]``: row b has not diverged yet and its nominal state (r, v, C, clock) is not finite."""
+    """``bad[b]``: row b has not diverged yet and its nominal state (r, v, C, clock) is not finite. Returns
+    whether any row is bad."""
+    any_bad = False
     for b in range(r.shape[0]):
         ok = np.isfinite(clk[b]) and np.isfinite(drift[b])
         for i in range(3):
@@ -524,6 +526,18 @@ def _nonfinite_rows(r, v, C, clk, drift, diverged, bad):
             for j in range(3):
                 ok = ok and np.isfinite(C[b, i, j])
         bad[b] = not ok and not diverged[b]
+        any_bad = any_bad or bad[b]
+    return any_bad
+
+
+@nb.njit(cache=True)
+def _clear_where_any(mask, t):
+    """``t[b] = 0`` on the rows b with any ``mask[b, :]`` (= ``t[mask.any(-1)] = 0``, without the temporaries)."""
+    for b in range(mask.shape[0]):
+        for i in range(mask.shape[1]):
+            if mask[b, i]:
+                t[b] = 0.0
+                break
 
 
 def _feedback_rows(r, v, C, bg, ba, clk, drift, dx, diverged, P, r2, v2, C2, bg2, ba2, clk2, drift2, code, nchunk):

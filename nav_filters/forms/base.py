@@ -210,9 +210,21 @@ def check_keys(keys, shape) -> np.ndarray | None:
     if k.shape != tuple(shape) or (k.size and k.dtype.kind not in "iu"):
         raise ValueError(f"keys must be an int array of shape {tuple(shape)} (one per measurement row), "
                          f"got {k.dtype} {k.shape}")
-    if k.size and k.min() < -1:
+    k = k.astype(np.int64, copy=False)
+    if k.size and _min_2d(k) < -1:
         raise ValueError(f"keys must be >= -1 (-1: no identity), got {int(k.min())}")
-    return k.astype(np.int64, copy=False)
+    return k
+
+
+@nb.njit(cache=True)
+def _min_2d(a):
+    """The smallest entry of the non-empty 2-D array ``a`` (= ``a.min()``, without numpy's reduction overhead)."""
+    lo = a[0, 0]
+    for i in range(a.shape[0]):
+        for j in range(a.shape[1]):
+            if a[i, j] < lo:
+                lo = a[i, j]
+    return lo
 
 
 def symmetrize(P):

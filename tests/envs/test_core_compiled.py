@@ -1,13 +1,14 @@
 """The env core's compiled kernels agree with their numpy references: the observation frame
-(``TuningCore._frame_reference``), the action check (``_clip_if_finite``) and the step's scoring
-(``_score_reference``)."""
+(``TuningCore._frame_reference``), the action check (``_clip_if_finite``), the step's scoring
+(``_score_reference``) and position errors (``_errors_reference``)."""
 import math
 
 import numpy as np
 import pytest
 
 from envs.config import EnvConfig
-from envs.core import LOG_REWARD_OFFSET_M, TuningCore, _clip_if_finite, _score_kernel, _score_reference
+from envs.core import (LOG_REWARD_OFFSET_M, TuningCore, _clip_if_finite, _errors_kernel, _errors_reference,
+                       _score_kernel, _score_reference)
 from envs.gnss_ins_env import MASTKF_PARAMS, SAGE_HUSA_PARAMS
 from nav_filters.kernels import PARALLEL_MIN_BATCH
 
@@ -135,6 +136,31 @@ def test_score_kernel_matches_reference(mode, B):
         for got_x, want_x in zip((div, rew, trunc, t1, sq1, mx1), (*want, t2, sq2, mx2)):
             assert _bits(got_x) == _bits(want_x)
         assert n == int(want[0].sum())
+
+
+@pytest.mark.parametrize("B", [1, 5])
+def test_errors_kernel_matches_reference(B):
+    """Horizontal and 3D errors of rows at different epochs (one past the last: clamped to it), against the numpy
+    specification (to round-off: the rotation may be contracted to fused multiply-adds), and a known case."""
+    rng = np.random.default_rng(B)
+    M = 6
+    r = rng.normal(0.0, 1e6, (B, 3))
+    truth_r = r[:, None, :] + rng.normal(0.0, 30.0, (B, M, 3))
+    q, _ = np.linalg.qr(rng.normal(size=(B, M, 3, 3)))  # rotations (orthonormal)
+    j = rng.integers(0, M + 1, B)
+    h, e3 = np.empty(B), np.empty(B)
+    _errors_kernel(r, truth_r, q, j, M - 1, h, e3)
+    h_ref, e3_ref = _errors_reference(r, truth_r, q, j, M - 1)
+    np.testing.assert_allclose(h, h_ref, rtol=1e-14)
+    np.testing.assert_allclose(e3, e3_ref, rtol=1e-14)
+    k = np.minimum(j, M - 1)
+    np.testing.assert_allclose(e3, np.linalg.norm(r - truth_r[np.arange(B), k], axis=1), rtol=1e-12)  # rotation-free
+    # NED axes: an error of (3, 4, 12) m north, east, down gives 5 m horizontal and 13 m in 3D
+    C = np.broadcast_to(np.eye(3), (B, M, 3, 3)).copy()
+    truth = r[:, None, :] - np.array([3.0, 4.0, 12.0])
+    _errors_kernel(r, np.broadcast_to(truth, (B, M, 3)).copy(), C, j, M - 1, h, e3)
+    np.testing.assert_allclose(h, 5.0, rtol=1e-9)
+    np.testing.assert_allclose(e3, 13.0, rtol=1e-9)
 
 
 def test_default_parameters_are_to_value_of_the_default_actions():

@@ -88,6 +88,22 @@ def test_satellite_key_encoding_and_measurement_keys():
         measurement_keys(sk, with_rate=True, mask=mask[:, :2])
 
 
+def test_check_keys_takes_int_arrays_of_the_shape_and_names_keys_below_minus_one():
+    k = forms.base.check_keys(np.array([[3, -1], [0, 7]], np.int32), (2, 2))
+    assert k.dtype == np.int64 and k.tolist() == [[3, -1], [0, 7]]
+    strided = np.arange(8).reshape(2, 4)[:, ::2]  # a strided view
+    np.testing.assert_array_equal(forms.base.check_keys(strided, (2, 2)), strided)
+    assert forms.base.check_keys(np.zeros((0, 3), np.int64), (0, 3)).shape == (0, 3)
+    assert forms.base.check_keys(None, (2, 2)) is None
+    for bad in ([[3, -1], [0, -2]], [[-5, 0], [1, 2]]):  # the smallest wherever it is
+        with pytest.raises(ValueError, match=f"keys must be >= -1 .*got {np.min(bad)}"):
+            forms.base.check_keys(np.array(bad), (2, 2))
+    with pytest.raises(ValueError, match="int array of shape"):
+        forms.base.check_keys(np.zeros((2, 2)), (2, 2))
+    with pytest.raises(ValueError, match="int array of shape"):
+        forms.base.check_keys(np.zeros((2, 3), int), (2, 2))
+
+
 def test_a_satellite_that_turns_nlos_converges_to_its_true_variance_while_the_others_stay_nominal():
     """12 satellites, true variance 1 (= reported); from epoch 100 satellite key 2 has variance 25 (an NLOS /
     multipath channel the receiver does not know about). The geometry-residual sample (snapshot least

@@ -121,3 +121,20 @@ def test_feedback_flags_a_non_pd_covariance_like_its_reference():
     nav._feedback(dx)
     ref._feedback_reference(dx)
     assert nav.divergence_code.tolist() == ref.divergence_code.tolist() == [0, 0, REASON_COVARIANCE]
+
+
+def test_time_since_update_restarts_on_rows_with_a_used_satellite_only():
+    """``time_since_update`` [s] grows with every propagated sample and restarts at a GNSS update on the rows that
+    used a satellite; a row in an outage (every channel masked) keeps counting."""
+    w = generate_world("seed000-sim", [0, 1, 2])
+    nav = _run(navigator_for(w, "kf"), w, 2)
+    np.testing.assert_array_equal(nav.time_since_update, 0.0)
+    g, a, b = w.gnss, w.epoch_idx[1], w.epoch_idx[2]
+    nav.propagate_epoch(w.imu.f_b[:, a + 1:b + 1], w.imu.w_b[:, a + 1:b + 1], 0.01)
+    np.testing.assert_allclose(nav.time_since_update, (b - a) * 0.01)
+    mask = g.mask[:, 2].copy()
+    mask[1] = False  # row 1: an outage
+    assert mask[[0, 2]].any(1).all()
+    nav.update_gnss(g.sat_pos[:, 2], g.sat_vel[:, 2], g.pr[:, 2], g.prr[:, 2], g.pr_sigma[:, 2], g.prr_sigma[:, 2],
+                    mask)
+    np.testing.assert_allclose(nav.time_since_update, [0.0, (b - a) * 0.01, 0.0])
