@@ -14,7 +14,11 @@ Frames and units (fixed once for the whole project)
 * SI units everywhere, angles in radians. Data-sheet units (deg, deg/h,
   deg/sqrt(h), mg, ug) only at the edges via :mod:`earth.units`.
 """
-from . import rotations, units, wgs84
+from .numba_cache import invalidate_stale_caches
+
+invalidate_stale_caches()  # before any kernel can load a cache compiled from older sources (see numba_cache)
+
+from . import rotations, units, wgs84  # noqa: E402
 from .rotations import dcm_from_euler, euler_from_dcm, exp_so3, log_so3, skew
 from .wgs84 import (
     C_LIGHT,
