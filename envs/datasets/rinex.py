@@ -160,6 +160,10 @@ def load_obs(path, systems=("G", "E", "C"), interval_s: float | None = None, tli
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", FutureWarning)
+            # georinex averages the empty column of a requested signal the file does not have (numpy warns twice);
+            # that case gets its own error below ("no <system> satellite with a <code> observation")
+            for message in ("Mean of empty slice", "invalid value encountered in scalar divide"):
+                warnings.filterwarnings("ignore", message, RuntimeWarning)
             obs = gr.load(path, meas=meas, use=set(systems), **kw)
     except Exception as exc:  # georinex raises many types on bad input
         raise DatasetFormatError(path, None, f"georinex could not read the observations: {exc}") from exc

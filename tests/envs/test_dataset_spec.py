@@ -253,6 +253,7 @@ def test_several_nav_files_merge_to_the_mixed_one(tmp_path):
 
 
 @needs_reach
+@pytest.mark.filterwarnings("error::RuntimeWarning")  # a missing signal is our error, not a numpy warning
 def test_galileo_with_its_own_nav_file_and_every_drop_rule(tmp_path, capsys):
     """GPS + Galileo from two nav files replays with both systems; a system without ephemeris, a missing
     Klobuchar model and a missing signal are errors; a satellite without ephemeris is one printed line."""
