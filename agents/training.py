@@ -49,7 +49,7 @@ with torch's default 2 threads and 282 with 1 (``benchmarks/bench_recurrent.py``
 :func:`set_torch_threads`, which keeps numba's kernels from resetting it. ``prefetch_worlds``: the training env draws
 the worlds of its next two automatic resets ahead in a background process at the lowest CPU priority
 (:class:`envs.prefetch.WorldPrefetcher`; the same episodes, drawn while the single-threaded gradient epochs leave
-a core idle); 0 turns it off."""
+a core idle), and so does the evaluation env, for the resets of its evaluations; 0 turns it off."""
 QUICK = dict(n_timesteps=24_576, n_envs=8, env_kwargs=dict(episode_length_s=60.0), eval_freq=1536, eval_episodes=8,
              hyper=dict(ppo=dict(n_steps=64, batch_size=256, n_epochs=5),
                         recurrentppo=dict(n_steps=128, batch_size=512, n_epochs=5),
@@ -210,7 +210,10 @@ def train_rl(env_id: str, algo: str, out, timesteps: int | None = None, seed: in
     venv = VecMonitor(make_sb3_vec_env(env_id, settings["n_envs"], seed=seed * 10_007,
                                        prefetch_worlds=settings["prefetch_worlds"], **ekw))
     n_eval = max(1, min(settings["eval_episodes"], 16))
-    eval_env = VecMonitor(make_sb3_vec_env(env_id, n_eval, seed=EVAL_SEED_OFFSET + 1000 * seed, **ekw))
+    # the evaluation env is reset at every evaluation and its rows end together: its coming worlds are drawn ahead
+    # too (a reset without a seed continues its rows' streams, envs.vector_env)
+    eval_env = VecMonitor(make_sb3_vec_env(env_id, n_eval, seed=EVAL_SEED_OFFSET + 1000 * seed,
+                                           prefetch_worlds=settings["prefetch_worlds"], **ekw))
     if settings["normalize"]:
         venv = VecNormalize(venv, norm_obs=True, norm_reward=True, gamma=hyper.get("gamma", 0.99))
         eval_env = VecNormalize(eval_env, norm_obs=True, norm_reward=False, training=False)

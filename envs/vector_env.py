@@ -6,7 +6,11 @@ episode* in ``obs`` and the last one in ``info["final_obs"]`` (masked by
 ``info["_final_obs"]``), with ``info["final_info"]`` holding the finished
 episode's metrics. Seeding: ``reset(seed=s)`` seeds row i with ``s + i`` (an
 int list seeds rows individually), so row i equals the single env reset with
-``seed=s + i``, also across automatic resets.
+``seed=s + i``, also across automatic resets. ``reset()`` without a seed starts
+every row's next episode from its own stream, as the single env's ``reset()``
+does (Gymnasium's semantics; the first reset without any seed draws the streams
+from the OS): an evaluation env that SB3 resets at every evaluation goes on
+through its seeded episodes, reproducibly.
 
 ``prefetch_worlds=depth`` (default 0: off) draws the worlds of up to ``depth`` coming automatic resets ahead
 in a background process at the lowest CPU priority (:class:`envs.prefetch.WorldPrefetcher`), so that a reset
@@ -82,7 +86,9 @@ class GnssInsTuningVectorEnv(VectorEnv):
                 pass
         return obs
 
-    def reset(self, *, seed=None, options=None):
+    def _seed_rows(self, seed):
+        """New streams for the rows: ``seed`` an int (row i: ``seed + i``), a list of one per row, or None (from
+        the OS); what was drawn ahead for the old streams is dropped."""
         if seed is None:
             seeds = [None] * self.num_envs
         elif isinstance(seed, (int, np.integer)):
@@ -96,6 +102,11 @@ class GnssInsTuningVectorEnv(VectorEnv):
             q.clear()
         if self._prefetch is not None:
             self._prefetch.cancel()
+
+    def reset(self, *, seed=None, options=None):
+        if seed is not None or any(r is None for r in self._rngs):
+            self._seed_rows(seed)
+        # else every row's stream goes on: the seeds drawn ahead, and the worlds prefetched for them, stay valid
         rows = np.arange(self.num_envs)
         world_seeds = self._coming_seeds(rows, 1)
         obs = self._reset_rows(rows)

@@ -88,3 +88,20 @@ def test_ppo_default_uses_torchs_fused_adam():
     assert type(opt).__name__ == "Adam" and opt.defaults["fused"] is True
     assert opt.param_groups[0]["lr"] == hp["learning_rate"]
 
+
+
+def test_the_evaluations_of_a_run_repeat_with_its_seed(tmp_path):
+    """SB3's EvalCallback resets the evaluation env at every evaluation; that reset continues the env's seeded
+    streams (envs.vector_env), so two runs with one seed log the same evaluation returns, every one of them.
+    Before, each reset after the first drew its rows' worlds from the OS: only the first evaluation repeated."""
+    import numpy as np
+
+    cfg = tmp_path / "c.yml"
+    cfg.write_text("GnssIns/SageHusa-v0:\n  n_envs: 2\n  n_timesteps: 64\n  n_steps: 8\n  batch_size: 16\n"
+                   "  n_epochs: 1\n  eval_episodes: 2\n  prefetch_worlds: 0\n  env_kwargs: {episode_length_s: 4.0}\n")
+    runs = []
+    for k in range(2):
+        train_rl("GnssIns/SageHusa-v0", "ppo", tmp_path / f"run{k}", config_file=cfg, seed=3, progress=False)
+        runs.append(np.load(tmp_path / f"run{k}" / "eval" / "evaluations.npz")["results"])
+    assert runs[0].shape[0] >= 3  # several evaluations
+    np.testing.assert_array_equal(runs[0], runs[1])

@@ -112,6 +112,32 @@ def test_vector_rows_equal_single_envs_across_autoreset(env_id):
             np.testing.assert_array_equal(o, vec[t + 1][i])
 
 
+def test_reset_without_a_seed_continues_every_rows_stream_as_the_single_env():
+    """``reset()`` after ``reset(seed=s)`` gives row i the next world of its stream, the single env's ``reset()``
+    after ``reset(seed=s + i)``; the same again in a second vector env (reproducible, as SB3's evaluation env
+    reset at every evaluation needs)."""
+    kw = dict(episode_length_s=3.0)
+    venvs = [gym.make_vec("GnssIns/SageHusa-v0", num_envs=3, vectorization_mode="vector_entry_point", **kw)
+             for _ in range(2)]
+    got = []
+    for venv in venvs:
+        _, first = venv.reset(seed=7)
+        obs, info = venv.reset()
+        _, third = venv.reset()
+        got.append((obs, info["seed"], third["seed"]))
+        assert len({*first["seed"], *info["seed"], *third["seed"]}) == 9  # each reset: new worlds
+    np.testing.assert_array_equal(got[0][0], got[1][0])
+    np.testing.assert_array_equal(got[0][1], got[1][1])
+    env = gym.make("GnssIns/SageHusa-v0", **kw)
+    for i in range(3):
+        env.reset(seed=7 + i)
+        o, info = env.reset()
+        assert info["seed"] == got[0][1][i] and env.reset()[1]["seed"] == got[0][2][i]
+        np.testing.assert_array_equal(o, got[0][0][i])
+    _, info = venvs[0].reset(seed=7)  # a seed starts the streams again
+    assert list(info["seed"]) == [env.reset(seed=7 + i)[1]["seed"] for i in range(3)]
+
+
 def test_world_seeds_are_apart_from_evaluation_seeds():
     """Training worlds come from [2**30, 2**31): never one of eval.py's episode seeds (< 2**30)."""
     from envs.core import TRAINING_WORLD_SEEDS

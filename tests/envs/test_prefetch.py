@@ -57,6 +57,11 @@ def test_prefetched_worlds_give_the_same_episodes():
         # a new reset(seed=...) drops what was drawn ahead for the old seeds
         _same(_run(plain, 5, 9), _run(ahead, 5, 9))
         assert pf.hits >= 5
+        # a reset without a seed continues the rows' streams: it takes the worlds drawn ahead for them
+        hits = pf.hits
+        np.testing.assert_array_equal(plain.reset()[0], ahead.reset()[0])
+        np.testing.assert_array_equal(plain.reset()[0], ahead.reset()[0])
+        assert pf.hits >= hits + 1, (pf.hits, hits)
     finally:
         plain.close()
         ahead.close()
