@@ -39,6 +39,10 @@ mode of this tree"). The stage profile's *before* column is the first mode of ``
 of the N per-round speed-ups: on a shared machine whose speed swings between runs a minute apart, one pair of
 cells can show 0.7x or 1.1x for unchanged code.
 
+``--kernel-time`` prints instead, for the first of ``--methods`` in its env default (fused) at B = 1 and 1024 (or
+``--batches``), how much of a step runs inside navgym's compiled kernels, per kernel, and how much is the Python
+around them (:mod:`kernel_time`).
+
 ``--accuracy`` prints instead the accuracy table of the fast modes (averaged, fused) against the exact one on
 every built-in scenario, paired episodes (:mod:`transition_accuracy`, a few minutes); ``--filterpy`` the
 side-by-side figure against filterpy's plain ``KalmanFilter`` loop (:mod:`filterpy_baseline`): filterpy
@@ -52,6 +56,7 @@ Usage::
     python benchmarks/bench_envs.py --accuracy [--accuracy-episodes 24] [--accuracy-max-s 700]
                                     [--accuracy-scenarios urban ...] [--accuracy-nees-runs 20]
     python benchmarks/bench_envs.py --filterpy [--batches 1 1024]
+    python benchmarks/bench_envs.py --kernel-time [--methods sage-husa] [--batches 1 1024]
 
 ``--quick``: B = 1, 16, 256, fewer steps, profile at B = 1 and 256 (a minute or two).
 """
@@ -391,6 +396,9 @@ def main(argv=None):
     p.add_argument("--accuracy-max-s", type=float, default=700.0, help="longest simulated episode [s] (--accuracy)")
     p.add_argument("--accuracy-scenarios", nargs="+", default=None, help="scenarios (--accuracy; default: all)")
     p.add_argument("--accuracy-nees-runs", type=int, default=20, help="matched-scenario NEES runs (--accuracy)")
+    p.add_argument("--kernel-time", action="store_true",
+                   help="only the time of a step inside the compiled kernels against the Python around them (the "
+                        "first of --methods, fused; default B = 1, 1024)")
     p.add_argument("--filterpy", action="store_true",
                    help="only the side-by-side figure against filterpy's KalmanFilter loop (default B = 1, 1024)")
     args = p.parse_args(argv)
@@ -406,6 +414,22 @@ def main(argv=None):
         print(f"{'component':42s} {'B':>5s} {'numpy [us]':>12s} {'compiled [us]':>14s} {'speed-up':>9s}")
         for name, B, t_ref, t_new in bench_components(tuple(args.batches or (1, 1024))):
             print(f"{name:42s} {B:5d} {t_ref:12.1f} {t_new:14.1f} {t_ref / t_new:8.1f}x", flush=True)
+        return
+    if args.kernel_time:
+        from kernel_time import kernel_share, print_kernel_share
+        m = args.methods[0]
+        for B in args.batches or [1, 1024]:
+            env = _make(m, B, args.episode_s, args.scenario, "fused")
+            env.reset(seed=0)
+            n = args.steps or (20 if B == 1 else 8)
+            acts = _actions(env.action_space, WARMUP_STEPS + 2 * n)
+            if len(acts) >= args.episode_s:  # 1 Hz GNSS: stay inside one episode
+                p.error(f"--steps {n}: {len(acts)} steps do not fit in one {args.episode_s:g} s episode")
+            for a in acts[:WARMUP_STEPS]:
+                env.step(a)
+            step, per_kernel = kernel_share(env, acts[WARMUP_STEPS:WARMUP_STEPS + n])
+            print_kernel_share(f"{_label(m, 'fused')} ({args.scenario})", B, step, per_kernel)
+            env.close()
         return
     if args.filterpy:
         steps = args.steps or (20 if args.quick else 30)
