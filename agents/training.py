@@ -221,6 +221,9 @@ def train_rl(env_id: str, algo: str, out, timesteps: int | None = None, seed: in
     cls = algo_class(algo)
     policy = hyper.pop("policy")
     model = cls(policy, venv, seed=seed, device="cpu", verbose=0, **hyper)
+    # SB3 seeds the env it is given with the algorithm's seed (BaseAlgorithm.set_random_seed: env.seed(seed)), which
+    # made the training worlds of seed s + 1 those of seed s shifted by one row: the training env keeps its own base
+    venv.seed(seed * 10_007)
     fmt = ["csv"]
     try:
         import tensorboard  # noqa: F401

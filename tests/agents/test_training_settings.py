@@ -105,3 +105,25 @@ def test_the_evaluations_of_a_run_repeat_with_its_seed(tmp_path):
         runs.append(np.load(tmp_path / f"run{k}" / "eval" / "evaluations.npz")["results"])
     assert runs[0].shape[0] >= 3  # several evaluations
     np.testing.assert_array_equal(runs[0], runs[1])
+
+
+def test_the_training_worlds_keep_their_seed_base_after_sb3_seeds_the_env(tmp_path, monkeypatch):
+    """SB3 seeds the env it trains on with the algorithm's seed; train_rl seeds it back to its own base
+    (``seed * 10_007``, in config.json), so the rows of seeds s and s + 1 draw apart streams (before: row i of
+    seed s + 1 was row i + 1 of seed s). The evaluation env keeps its base too."""
+    from envs.vector_env import GnssInsTuningVectorEnv
+
+    seen = []
+    seed_rows = GnssInsTuningVectorEnv._seed_rows
+
+    def record(self, seed):
+        seen.append(seed)
+        return seed_rows(self, seed)
+
+    monkeypatch.setattr(GnssInsTuningVectorEnv, "_seed_rows", record)
+    cfg = tmp_path / "c.yml"
+    cfg.write_text("GnssIns/SageHusa-v0:\n  n_envs: 2\n  n_timesteps: 16\n  n_steps: 8\n  batch_size: 16\n"
+                   "  n_epochs: 1\n  eval_episodes: 1\n  prefetch_worlds: 0\n  env_kwargs: {episode_length_s: 4.0}\n")
+    config = train_rl("GnssIns/SageHusa-v0", "ppo", tmp_path / "run", config_file=cfg, seed=3, progress=False)
+    assert seen[0] == config["train_seed_base"] == 3 * 10_007  # the training env's first reset
+    assert config["eval_seed_base"] in seen and 3 not in seen
