@@ -8,7 +8,8 @@
 
 ``rl`` writes ``runs/DIR/model.zip`` (stable-baselines3), ``config.json`` (the exact settings),
 ``vecnormalize.pkl`` (when observations are normalized), ``best/best_model.zip`` (best held-out
-evaluation), ``checkpoints/`` and ``logs/`` (CSV + tensorboard). ``tune`` writes ``runs/DIR/tuning.json``
+evaluation; with its ``best/vecnormalize.pkl``), ``checkpoints/`` and ``logs/`` (CSV + tensorboard); eval.py takes
+any of the three models (``ppo:runs/DIR/best/best_model.zip``) with the statistics saved with it. ``tune`` writes ``runs/DIR/tuning.json``
 for ``eval.py --methods tuned:runs/DIR/tuning.json``. ``zupt`` writes the detector's weights and
 ``metrics.json``. ``sweep`` runs a grid / random or Optuna search of ``rl`` runs (:mod:`agents.sweep`; on Ray Tune with
 ``--backend ray``) and writes ``sweep.csv`` / ``sweep.md`` beside the trials' run folders.

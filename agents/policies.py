@@ -4,14 +4,16 @@
 * :class:`ReactiveRule` -- a hand-designed causal rule: a short memory of the noise (small ``b``) while the
   satellites' normalized innovations are high, a long one otherwise (seed 000 eq 24's lowering of b).
 * :class:`ScheduledPolicy` -- a fixed action per episode and epoch (the replay of an oracle's schedule).
-* :class:`Sb3Policy` -- a trained stable-baselines3 / sb3-contrib model (``model.zip``), with the
-  ``vecnormalize.pkl`` observation statistics saved beside it when training used them, and recurrent
+* :class:`Sb3Policy` -- a trained stable-baselines3 / sb3-contrib model (``model.zip``, or a run's ``best/`` or
+  ``checkpoints/`` model), with the observation statistics saved with it when training used them
+  (``vecnormalize.pkl``; a model trained on normalized observations without them is an error), and recurrent
   state for ``RecurrentPPO``.
 """
 from __future__ import annotations
 
 import json
 import pickle
+import re
 from pathlib import Path
 
 import numpy as np
@@ -135,6 +137,23 @@ class ReactiveRule:
         return a
 
 
+def _run_files(path: Path) -> tuple[Path, Path]:
+    """``(config.json, observation statistics)`` of the model file ``path`` of a ``train.py rl`` run (either may
+    not exist): beside the model (the run's ``model.zip`` and ``vecnormalize.pkl``), or, for a model in the run's
+    ``best/`` or ``checkpoints/``, the run's ``config.json`` one folder up and the statistics saved with that
+    model (``best/vecnormalize.pkl``; SB3's ``<prefix>_vecnormalize_<steps>_steps.pkl`` beside
+    ``<prefix>_<steps>_steps.zip``)."""
+    here = path.parent
+    cfg = here / "config.json"
+    if not cfg.is_file() and here.name in ("best", "checkpoints"):
+        cfg = here.parent / "config.json"
+    vn = here / "vecnormalize.pkl"
+    m = re.fullmatch(r"(.+)_(\d+)_steps\.zip", path.name)
+    if not vn.is_file() and m:
+        vn = here / f"{m.group(1)}_vecnormalize_{m.group(2)}_steps.pkl"
+    return cfg, vn
+
+
 def _read_config(path: Path) -> dict:
     """``config.json`` beside a model as a dict ({} when absent); ``ValueError`` naming it when unreadable."""
     if not path.is_file():
@@ -177,8 +196,9 @@ class Sb3Policy:
 
     @classmethod
     def load(cls, path, algo: str):
-        """Load ``path`` (a ``model.zip``) as an ``algo`` model, with ``vecnormalize.pkl`` and ``config.json``
-        beside it when present.
+        """Load ``path`` (a ``model.zip``) as an ``algo`` model, with its observation statistics and its run's
+        ``config.json`` when present (:func:`_run_files`: beside it, or for a ``best/`` or ``checkpoints/`` model of
+        a ``train.py rl`` run, those saved with it and the run's).
 
         Raises
         ------
@@ -188,14 +208,16 @@ class Sb3Policy:
             a file that cannot be used, named with the reason: a damaged or foreign ``model.zip``, a model of
             another algorithm (``config.json``'s ``algo`` or the saved policy class), an unreadable
             ``vecnormalize.pkl`` or one whose statistics do not fit the model's observations, a
-            ``config.json`` that is not a JSON object.
+            ``config.json`` that is not a JSON object, a model trained on normalized observations (its run's
+            ``config.json``: ``normalize``) whose statistics are missing.
         """
         path = Path(path)
         if not path.is_file():
             raise FileNotFoundError(f"model file not found: {path}")
         algo = algo.lower()
         klass = algo_class(algo)
-        cfg = _read_config(path.parent / "config.json")
+        cfg_file, vn = _run_files(path)
+        cfg = _read_config(cfg_file)
         saved = cfg.get("algo")
         if saved is not None and str(saved).lower() != algo:
             raise ValueError(f"{path}: trained with {saved!r} ({path.parent / 'config.json'}), given as {algo!r}; "
@@ -210,7 +232,11 @@ class Sb3Policy:
             raise ValueError(f"{path}: holds a {type(model.policy).__name__}, not a {algo} policy "
                              f"({', '.join(p.__name__ for p in policies)})")
         obs_rms, clip, eps = None, 10.0, 1e-8
-        vn = path.parent / "vecnormalize.pkl"
+        if not vn.is_file() and cfg.get("normalize"):
+            raise ValueError(f"{path}: trained on normalized observations ({cfg_file}: normalize true) but their "
+                             f"statistics are not there ({vn}); without them the policy would see raw observations. "
+                             f"Evaluate the run's model.zip, or a best/ or checkpoints/ model saved with its "
+                             f"statistics")
         if vn.is_file():
             try:
                 with open(vn, "rb") as f:

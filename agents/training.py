@@ -146,6 +146,24 @@ class _ProgressBar:
         return Bar()
 
 
+class _SaveNormalization:
+    """An SB3 callback for ``EvalCallback(callback_on_new_best=...)``: saves the training env's observation
+    statistics (its ``VecNormalize``, if any) to ``path`` when a new best model is saved, so that
+    ``best/best_model.zip`` is evaluated on the observations it was chosen on (:meth:`Sb3Policy.load`)."""
+
+    def __new__(cls, path):
+        from stable_baselines3.common.callbacks import BaseCallback
+
+        class Save(BaseCallback):
+            def _on_step(self):
+                vn = self.model.get_vec_normalize_env()
+                if vn is not None:
+                    vn.save(str(path))
+                return True
+
+        return Save()
+
+
 def train_rl(env_id: str, algo: str, out, timesteps: int | None = None, seed: int = 0, n_envs: int | None = None,
              env_kwargs: dict | None = None, config_file=None, quick: bool = False, normalize: bool | None = None,
              progress: bool = True, eval_episodes: int | None = None) -> dict:
@@ -238,7 +256,8 @@ def train_rl(env_id: str, algo: str, out, timesteps: int | None = None, seed: in
     save_freq = max(min(per_env * 4, settings["n_timesteps"] // settings["n_envs"] // 2), 1)
     callbacks = [
         EvalCallback(eval_env, n_eval_episodes=n_eval, eval_freq=per_env, best_model_save_path=str(out / "best"),
-                     log_path=str(out / "eval"), deterministic=True, verbose=0),
+                     log_path=str(out / "eval"), deterministic=True, verbose=0,
+                     callback_on_new_best=_SaveNormalization(out / "best" / "vecnormalize.pkl")),
         CheckpointCallback(save_freq=save_freq, save_path=str(out / "checkpoints"), name_prefix="model",
                            save_vecnormalize=settings["normalize"]),
     ]

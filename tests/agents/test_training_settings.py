@@ -127,3 +127,33 @@ def test_the_training_worlds_keep_their_seed_base_after_sb3_seeds_the_env(tmp_pa
     config = train_rl("GnssIns/SageHusa-v0", "ppo", tmp_path / "run", config_file=cfg, seed=3, progress=False)
     assert seen[0] == config["train_seed_base"] == 3 * 10_007  # the training env's first reset
     assert config["eval_seed_base"] in seen and 3 not in seen
+
+
+def test_best_and_checkpoint_models_load_with_the_statistics_they_were_saved_with(tmp_path):
+    """A run with normalized observations saves them with best/best_model.zip (at each new best) and with every
+    checkpoint; Sb3Policy.load finds them and the run's config.json. A model trained on normalized observations
+    whose statistics are missing is an error naming the file (before: it loaded and saw raw observations)."""
+    import pickle
+
+    import numpy as np
+
+    from agents.policies import Sb3Policy
+
+    cfg = tmp_path / "c.yml"
+    cfg.write_text("GnssIns/SageHusa-v0:\n  n_envs: 2\n  n_timesteps: 64\n  n_steps: 8\n  batch_size: 16\n"
+                   "  n_epochs: 1\n  eval_episodes: 1\n  prefetch_worlds: 0\n  env_kwargs: {episode_length_s: 4.0}\n")
+    out = tmp_path / "run"
+    train_rl("GnssIns/SageHusa-v0", "ppo", out, config_file=cfg, seed=0, progress=False)
+    best = Sb3Policy.load(out / "best" / "best_model.zip", "ppo")
+    with open(out / "best" / "vecnormalize.pkl", "rb") as f:
+        saved = pickle.load(f)
+    np.testing.assert_array_equal(best.obs_rms.mean, saved.obs_rms.mean)
+    assert best.env_id == "GnssIns/SageHusa-v0"  # the run's config.json, one folder up
+    ckpt = sorted((out / "checkpoints").glob("model_*_steps.zip"))[0]
+    steps = ckpt.stem.split("_")[1]
+    with open(out / "checkpoints" / f"model_vecnormalize_{steps}_steps.pkl", "rb") as f:
+        saved = pickle.load(f)
+    np.testing.assert_array_equal(Sb3Policy.load(ckpt, "ppo").obs_rms.var, saved.obs_rms.var)
+    (out / "best" / "vecnormalize.pkl").unlink()
+    with pytest.raises(ValueError, match=r"normalized observations .*best/vecnormalize\.pkl"):
+        Sb3Policy.load(out / "best" / "best_model.zip", "ppo")
