@@ -15,6 +15,8 @@ import time
 from collections import defaultdict
 from contextlib import contextmanager
 
+from stage_timing import timed  # (this script's folder)
+
 PACKAGES = ("earth", "nav_filters", "envs")
 
 
@@ -36,25 +38,12 @@ def timed_kernels(totals: dict, calls: dict):
         for attr, value in list(vars(mod).items()):
             if isinstance(value, Dispatcher):
                 undo.append((mod, attr, value))
-                setattr(mod, attr, _wrap(value, _label(value), totals, calls))
+                setattr(mod, attr, timed(value, totals, _label(value), counts=calls))
     try:
         yield
     finally:
         for mod, attr, value in undo:
             setattr(mod, attr, value)
-
-
-def _wrap(dispatcher, label, totals, calls):
-    clock = time.perf_counter
-
-    def call(*args, **kwargs):
-        t = clock()
-        try:
-            return dispatcher(*args, **kwargs)
-        finally:
-            totals[label] += clock() - t
-            calls[label] += 1
-    return call
 
 
 def kernel_share(env, actions):
