@@ -220,7 +220,7 @@ class Sb3Policy:
         cfg = _read_config(cfg_file)
         saved = cfg.get("algo")
         if saved is not None and str(saved).lower() != algo:
-            raise ValueError(f"{path}: trained with {saved!r} ({path.parent / 'config.json'}), given as {algo!r}; "
+            raise ValueError(f"{path}: trained with {saved!r} ({cfg_file}), given as {algo!r}; "
                              f"use '{str(saved).lower()}:{path}'")
         try:
             model = klass.load(str(path), device="cpu")

@@ -243,9 +243,9 @@ def _errors_kernel(r, truth_r, truth_Cne, j, last, h, e3):
     specification is :func:`_errors_reference`, agreement test in ``tests/envs/test_core_compiled.py``).
 
     ``r`` (B, 3) estimated ECEF position; ``truth_r`` (B, M, 3) true ECEF positions and ``truth_Cne``
-    (B, M, 3, 3) the ECEF-to-NED rotations at the epochs; ``j`` (B,) int epoch of each row, taken at most
-    ``last`` (the final epoch). The error
-    ``r - truth`` is rotated to NED, ``h = hypot(north, east)`` and ``e3 = |NED error|`` go into ``h``, ``e3`` (B,).
+    (B, M, 3, 3) the ECEF-to-NED rotations at the epochs; ``j`` (B,) int epoch of each row, taken at most ``last``
+    (the final epoch). The error ``r - truth`` is rotated to NED; ``h = hypot(north, east)`` and
+    ``e3 = |NED error|`` go into ``h``, ``e3`` (B,).
     """
     for b in range(r.shape[0]):
         k = min(j[b], last)
