@@ -61,9 +61,13 @@ from .forms import UpdateResult
 from .registry import make_form, parse_method
 from .forms.base import check_dtype
 from .ins import _earth_rate_matrices_np, apply_correction
-from .averaged_transition import averaged_transition_into
-from .kernels import F_NONZERO, cholesky_inplace, propagate_epoch, row_kernel, serial_and_parallel
-from .measurements import dop, gnss_innovations, measurement_keys
+from .averaged_transition import SERIES_ORDER, averaged_transition_into, _serial as _averaged_serial
+from .forms.base import _prepare_serial
+from .forms.kf import _prior_serial
+from .kernels import (F_NONZERO, PARALLEL_MIN_BATCH, cholesky_inplace, propagate_epoch, row_kernel,
+                      serial_and_parallel)
+from .measurements import (_dop_kernel, _innovations_serial, _measurement_keys_kernel, dop, gnss_innovations,
+                           measurement_keys)
 from .rows import check_row_pairs, copy_rows_generic
 
 
@@ -315,6 +319,10 @@ class Navigator:
         result : :class:`~nav_filters.forms.UpdateResult` (rows ``[pr..., prr..., extra...]``)
         gdop : (B,) geometric DOP of the used satellites (inf below 4).
         """
+        if extra is None and sat_keys is not None:
+            direct = self._direct_gnss_epoch(sat_pos, sat_vel, pr, prr, pr_sigma, prr_sigma, mask, sat_keys)
+            if direct is not None:
+                return direct
         self._check_state()
         mask = np.asarray(mask, bool) & ~self.diverged[:, None]
         pr_var = np.square(np.asarray(pr_sigma, np.float64))
@@ -334,6 +342,76 @@ class Navigator:
             keys = measurement_keys(sk, n_gnss > mask.shape[1], dz.shape[1] - n_gnss, mask=mask)
         self.flush_prediction()  # the state was checked above and the prediction does not change it
         res = self._update_checked(dz, H, R, row_mask, keys)
+        _clear_where_any(mask, self.time_since_update)
+        return res, dop(u, mask)
+
+    def _direct_gnss_epoch(self, sat_pos, sat_vel, pr, prr, pr_sigma, prr_sigma, mask, sat_keys):
+        """:meth:`update_gnss` (no ``extra`` block) as one compiled call for the inputs and one for the law, or
+        None where the general sequence must run.
+
+        :func:`_gnss_epoch_inputs` runs the kernels of the general sequence on the same arrays (the state check,
+        the innovations, the keys, the averaged transition of the pending samples, the measurement's
+        preparation and the law's prior ``Phi P Phi^T``) and the law's :meth:`~nav_filters.adaptive.base.
+        AdaptiveLaw.direct_epoch` its compiled epoch, so the results are the same bits (test:
+        ``tests/nav_filters/test_direct_epoch.py``) without the Python of the layers in between, which took
+        most of a single env's step. It runs where every precondition holds: a fused law with a compiled epoch
+        ready for it (:meth:`~nav_filters.adaptive.base.AdaptiveLaw.direct_epoch_ready`), the averaged
+        transition with samples pending, float64, fewer rows than
+        :data:`~nav_filters.kernels.PARALLEL_MIN_BATCH` (the kernels run serially here) and inputs of the
+        expected shapes. Anything else, and a row whose state is not finite or an input the general sequence
+        rejects (it raises the error naming it), leaves the work to the general sequence, before any state
+        changed. Where some row's ``S`` is not positive definite the law keeps the epoch open and the general
+        update finds, flags and parks the failing rows (:meth:`_isolated`)."""
+        B = self.batch_size
+        form = self.form
+        ready = getattr(form, "direct_epoch_ready", None)
+        if (self.exact_transition or not self._pending or B >= PARALLEL_MIN_BATCH or self.dtype != np.float64
+                or ready is None or not ready()):
+            return None
+        f8, c = np.float64, np.ascontiguousarray  # (contiguous: one compiled specialization; no copy at B = 1)
+        mask_in = c(mask, bool)
+        sp, sv, pr, ps = c(sat_pos, f8), c(sat_vel, f8), c(pr, f8), c(pr_sigma, f8)
+        sk = c(sat_keys)
+        with_rate = bool(self.config.use_pseudorange_rate and prr is not None)
+        if with_rate:
+            if prr_sigma is None:
+                return None
+            prr, prs = c(prr, f8), c(prr_sigma, f8)
+        else:
+            prr, prs = pr, ps
+        C = mask_in.shape[-1]
+        if (mask_in.shape != (B, C) or sp.shape != (B, C, 3) or sv.shape != (B, C, 3) or sk.shape != (B, C)
+                or sk.dtype.kind not in "iu" or not pr.shape == ps.shape == prr.shape == prs.shape == (B, C)):
+            return None
+        m = 2 * C if with_rate else C
+        n = N_STATES
+        key = (B, C, with_rate)
+        scratch = self.__dict__.get("_direct_scratch")
+        if scratch is None or scratch[0] != key:
+            e = np.empty
+            scratch = self._direct_scratch = (key, (e(B, bool), e((B, C), bool), e((B, C)), e((B, C)), e((B, m)),
+                                                    e((B, m, n)), e((B, m)), e((B, C, 3)), e(1, bool)))
+        bad, mask, pr_var, prr_var, dz, H, R, u, ok = scratch[1]
+        e = np.empty
+        row_mask, keys = e((B, m), bool), e((B, m), np.int64)
+        Phi, Q, prior = e((B, n, n)), e((B, n, n)), e((B, n, n))
+        dz_o, H_o, R_o = e((B, m)), e((B, m, n)), e((B, m, m))
+        inner_P = np.ascontiguousarray(form.inner.P, f8)
+        if _gnss_epoch_inputs(self.r, self.v, self.C, self.clk, self.drift, self.diverged, sp, sv, pr, prr, ps, prs,
+                              mask_in, sk.astype(np.int64, copy=False), with_rate, self._F_int, self._Qc_int, inner_P,
+                              SERIES_ORDER, F_NONZERO, bad, mask, pr_var, prr_var, dz, H, R, row_mask, u, keys, Phi,
+                              Q, prior, dz_o, H_o, R_o, ok):
+            return None
+        if self.onestep:  # seed 001's summed noise (flush_prediction)
+            Q = self._Qc_int
+            self._Qc_int = np.empty_like(Q)
+        self._pending = 0
+        try:
+            res = form.direct_epoch(Phi, Q, prior, dz_o, H_o, R_o, row_mask, keys)
+        except np.linalg.LinAlgError:  # the epoch stays open in the law: the general update isolates the rows
+            res = self._update_checked(dz_o, H_o, R_o, row_mask, keys)
+        else:
+            return res, self._feedback(form.take_correction(), mask, u)
         _clear_where_any(mask, self.time_since_update)
         return res, dop(u, mask)
 
@@ -399,11 +477,14 @@ class Navigator:
             bad[search(live)] = True
         return bad
 
-    def _feedback(self, dx):
+    def _feedback(self, dx, mask=None, u=None):
         """Closed-loop correction: add the error-state estimate to the nominal state (B, 17).
 
         Compiled (:func:`_feedback_rows`); :meth:`_feedback_reference` is the numpy specification
-        (agreement test in ``tests/nav_filters/test_kernels.py``)."""
+        (agreement test in ``tests/nav_filters/test_kernels.py``). With ``mask`` (B, C) and ``u`` (B, C, 3), the
+        used channels and lines of sight of a GNSS epoch on fewer than
+        :data:`~nav_filters.kernels.PARALLEL_MIN_BATCH` rows (:meth:`_direct_gnss_epoch`), the same call also
+        restarts :attr:`time_since_update` and returns the GDOP (:func:`_feedback_clear_dop`)."""
         dx = np.ascontiguousarray(dx, np.float64)
         P = self.form.covariance
         B = self.batch_size
@@ -411,13 +492,20 @@ class Navigator:
         C = np.empty((B, 3, 3))
         clk, drift = np.empty(B), np.empty(B)
         code = np.empty(B, np.int8)
-        kern, nchunk = row_kernel(_feedback_serial, _feedback_parallel, B)
-        kern(self.r, self.v, self.C, self.bg, self.ba, self.clk, self.drift, dx, self.diverged,
-             P, r, v, C, bg, ba, clk, drift, code, nchunk)
+        state = (self.r, self.v, self.C, self.bg, self.ba, self.clk, self.drift, dx, self.diverged,
+                 P, r, v, C, bg, ba, clk, drift, code)
+        gdop = None
+        if mask is None:
+            kern, nchunk = row_kernel(_feedback_serial, _feedback_parallel, B)
+            kern(*state, nchunk)
+        else:
+            gdop = np.empty(B)
+            _feedback_clear_dop(*state, mask, self.time_since_update, u, gdop)
         self.r, self.v, self.C, self.bg, self.ba, self.clk, self.drift = r, v, C, bg, ba, clk, drift
         if np.count_nonzero(code):  # (cheaper than .any() on a few rows)
             for c in (REASON_STATE, REASON_COVARIANCE):
                 self._flag(code == c, c)
+        return gdop
 
     def _feedback_reference(self, dx):
         """Numpy reference of :meth:`_feedback` (Groves sec 14.1 closed-loop correction through
@@ -531,6 +619,46 @@ def _nonfinite_rows(r, v, C, clk, drift, diverged, bad):
 
 
 @nb.njit(cache=True)
+def _gnss_epoch_inputs(r, v, C, clk, drift, diverged, sat_pos, sat_vel, pr, prr, pr_sigma, prr_sigma, mask_in, sat_keys,
+                       with_rate, F_int, Qc_int, P, order, nz, bad, mask, pr_var, prr_var, dz, H, R, row_mask, u, keys,
+                       Phi, Q, prior, dz_o, H_o, R_o, ok):
+    """The inputs of a GNSS epoch's update (:meth:`Navigator._direct_gnss_epoch`), by the kernels the general
+    sequence of :meth:`Navigator.update_gnss` runs, serially, in one call: :func:`_nonfinite_rows` (``bad``),
+    ``mask = mask_in & ~diverged``, the variances ``pr_var = pr_sigma^2``, ``prr_var = prr_sigma^2``, the
+    innovations (:func:`~nav_filters.measurements._innovations_rows`: ``dz``, ``H``, ``R`` (B, m), ``row_mask``,
+    ``u``), the measurement keys (``keys``), the averaged transition of the pending samples
+    (:func:`~nav_filters.averaged_transition._averaged_transition_into`: ``Phi``, ``Q`` from ``F_int``,
+    ``Qc_int``), the prepared measurement (:func:`~nav_filters.forms.base._prepare_rows`: ``dz_o``, ``H_o``,
+    ``R_o`` (B, m, m)) and the law's prior ``sym(Phi P Phi^T)`` of the inner covariance ``P``
+    (:func:`~nav_filters.forms.kf._prior_rows`).
+
+    Returns 0, or where the general sequence must run instead (no state was changed): 1 a live row's nominal
+    state is not finite, 2 a satellite key out of range, 3 a used measurement row not finite or a variance not
+    positive (the general sequence flags the rows, or raises the error naming the input).
+    """
+    if _nonfinite_rows(r, v, C, clk, drift, diverged, bad):
+        return 1
+    B, n_ch = mask_in.shape
+    for b in range(B):
+        for j in range(n_ch):
+            mask[b, j] = mask_in[b, j] and not diverged[b]
+            s = pr_sigma[b, j]
+            pr_var[b, j] = s * s
+            s = prr_sigma[b, j]
+            prr_var[b, j] = s * s
+    _innovations_serial(r, v, clk, drift, sat_pos, sat_vel, pr, prr, pr_var, prr_var, mask, with_rate, dz, H, R,
+                        row_mask, u, 1)
+    if not _measurement_keys_kernel(sat_keys, mask, with_rate, 0, keys):
+        return 2
+    _prepare_serial(dz, H, R.reshape((B, R.shape[1], 1)), False, row_mask, dz_o, H_o, R_o, ok)
+    if not ok[0]:
+        return 3
+    _averaged_serial(F_int, Qc_int, Phi, Q, order, nz, 1)
+    _prior_serial(Phi, P, prior, 1)
+    return 0
+
+
+@nb.njit(cache=True)
 def _clear_where_any(mask, t):
     """``t[b] = 0`` on the rows b with any ``mask[b, :]`` (= ``t[mask.any(-1)] = 0``, without the temporaries)."""
     for b in range(mask.shape[0]):
@@ -616,6 +744,17 @@ def _feedback_rows(r, v, C, bg, ba, clk, drift, dx, diverged, P, r2, v2, C2, bg2
 
 
 _feedback_serial, _feedback_parallel = serial_and_parallel(_feedback_rows)
+
+
+@nb.njit(cache=True)
+def _feedback_clear_dop(r, v, C, bg, ba, clk, drift, dx, diverged, P, r2, v2, C2, bg2, ba2, clk2, drift2, code, mask,
+                        t, u, gdop):
+    """The end of a GNSS epoch in one call (:meth:`Navigator._direct_gnss_epoch`): the feedback
+    (:func:`_feedback_rows`, serially), ``t[b] = 0`` on the rows with a used channel (:func:`_clear_where_any`)
+    and the GDOP of the used channels (:func:`~nav_filters.measurements._dop_kernel`) into ``gdop`` (B,)."""
+    _feedback_serial(r, v, C, bg, ba, clk, drift, dx, diverged, P, r2, v2, C2, bg2, ba2, clk2, drift2, code, 1)
+    _clear_where_any(mask, t)
+    _dop_kernel(u, mask, gdop)
 
 
 @nb.njit(cache=True)

@@ -287,6 +287,9 @@ class AdaptiveLaw(FilterForm):
         return dz - (H @ self.x[..., None])[..., 0]
 
     def _update(self, dz, H, R, mask) -> UpdateResult:
+        start = self._compiled_epoch_start(dz, H) if self._has_compiled_epoch() else None
+        if start is not None:
+            return self._compiled_epoch(start[0], start[1], H, R, mask)
         r = self._residual(dz, H)
         if self._ctx is None:
             self._ctx = self._open_epoch()
@@ -311,7 +314,46 @@ class AdaptiveLaw(FilterForm):
 
     # --------------------------------------------------------- compiled epochs
     # A law may run a fused update (plan, inner update, commit) as one compiled call that calls the same kernels
-    # as _update's Python sequence in the same order (the same bits): SageHusa, StrongTracking, MA-STKF.
+    # as _update's Python sequence in the same order (the same bits): SageHusa, StrongTracking, MA-STKF. Such a
+    # law says so in _has_compiled_epoch and runs it in _compiled_epoch.
+    def _has_compiled_epoch(self) -> bool:
+        """Whether this law's configuration has a compiled epoch (:meth:`_compiled_epoch`); none here."""
+        return False
+
+    def _compiled_epoch(self, r, ctx: EpochContext, H, R, mask) -> UpdateResult:
+        """The fused update of a prepared measurement as one compiled call: ``r = dz - H x`` (B, m) of the law's
+        state, ``ctx`` the opened epoch (pending, not applied), ``H`` (B, m, n), ``R`` (B, m, m), ``mask``
+        (B, m); the measurement keys in ``self._keys``. Commits through :meth:`_compiled_epoch_end`."""
+        raise NotImplementedError(f"{type(self).__name__} has no compiled epoch")
+
+    def direct_epoch_ready(self) -> bool:
+        """Whether :meth:`direct_epoch` can run the next update: a compiled epoch on the fused ``kf``, no
+        transition accumulated or epoch opened yet, and the law's state zero (as after every closed-loop
+        feedback)."""
+        return (self.fused and self._Phi_acc is None and self._ctx is None and type(self.inner) is KalmanFilter
+                and self._has_compiled_epoch() and not np.count_nonzero(self.x))
+
+    def direct_epoch(self, Phi, Q, prior, dz, H, R, mask, keys) -> UpdateResult:
+        """:meth:`take_prediction` ``(Phi, Q)`` then :meth:`update` ``(dz, H, R, mask, keys)``, for a caller that
+        formed the epoch's inputs itself (the navigator's compiled GNSS epoch): the same compiled epoch on the
+        same arrays, without the generic layers in between, where :meth:`direct_epoch_ready` holds.
+
+        ``Phi``, ``Q`` (B, n, n) the epoch's transition and process noise, handed over; ``prior`` (B, n, n)
+        ``transition_prior(Phi, inner P)``; ``dz``, ``H``, ``R`` (B, m, m), ``mask`` a measurement as
+        :func:`~nav_filters.forms.base.prepare_measurement` returns it (checked, masked rows neutral), in the
+        law's dtype; ``keys`` (B, m) int64 valid measurement keys. Where some row's ``S`` is not positive
+        definite it raises ``LinAlgError`` having committed nothing, with the epoch left open as
+        :meth:`update` leaves it (so that an ``update`` of the same measurement retries it)."""
+        ctx = EpochContext(pending=True, Phi=Phi, Q=self._epoch_q(Q), prior=prior)
+        self._keys = keys
+        try:
+            return self._compiled_epoch(dz, ctx, H, R, mask)
+        except np.linalg.LinAlgError:
+            self._ctx = ctx
+            raise
+        finally:
+            self._keys = None
+
     def _compiled_epoch_start(self, dz, H):
         """``(r, ctx)`` for a compiled epoch: ``r = dz - H x`` of the law's state (as :meth:`_update` forms it)
         and the epoch context; None where :meth:`_update`'s sequence must run instead: no fused ``kf`` inside,

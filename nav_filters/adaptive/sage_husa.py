@@ -401,15 +401,15 @@ class SageHusa(SatelliteNoise, AdaptiveLaw):
         self._q_ref = np.ones((B, n))
         self._init_satellite_tables()
 
-    def _update(self, dz, H, R, mask) -> UpdateResult:
-        """:meth:`AdaptiveLaw._update`; on the fused path with per-satellite R and a pending transition, the
-        plan, the inner update and the commit run as one compiled call (:func:`.sage_husa_rows.satellite_epoch`:
-        the same kernels in the same order, the same bits)."""
+    def _has_compiled_epoch(self) -> bool:
+        """Per-satellite R (the default) has a compiled epoch."""
+        return self.config.r_mode == "satellite" and self.config.adapt_r
+
+    def _compiled_epoch(self, r, ctx, H, R, mask) -> UpdateResult:
+        """:meth:`AdaptiveLaw._compiled_epoch`: the plan, the inner update and the commit of the fused path with
+        per-satellite R as one compiled call (:func:`.sage_husa_rows.satellite_epoch`: the same kernels as
+        :meth:`AdaptiveLaw._update`'s sequence in the same order, the same bits)."""
         cfg = self.config
-        start = self._compiled_epoch_start(dz, H) if cfg.r_mode == "satellite" and cfg.adapt_r else None
-        if start is None:
-            return super()._update(dz, H, R, mask)
-        r, ctx = start
         B, m = mask.shape
         n, dt = self.n, self.dtype
         c, e = np.ascontiguousarray, np.empty

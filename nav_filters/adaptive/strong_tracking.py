@@ -333,16 +333,17 @@ class StrongTracking(AdaptiveLaw):
         self._lambda = np.ones(B)
         self._fs = np.zeros((B, SPLIT_STATS))
 
-    def _update(self, dz, H, R, mask):
-        """:meth:`AdaptiveLaw._update`; on the fused path with a pending transition, the plan, the inner update
-        and the commit as one compiled call (:func:`~.strong_tracking_rows.st_epoch`: the same kernels in the
-        same order, the same bits)."""
-        start = self._compiled_epoch_start(dz, H)
-        if start is None:
-            return super()._update(dz, H, R, mask)
+    def _has_compiled_epoch(self) -> bool:
+        """Every configuration has a compiled epoch."""
+        return True
+
+    def _compiled_epoch(self, r, ctx, H, R, mask):
+        """:meth:`AdaptiveLaw._compiled_epoch`: the plan, the inner update and the commit of the fused path as one
+        compiled call (:func:`~.strong_tracking_rows.st_epoch`: the same kernels as :meth:`AdaptiveLaw._update`'s
+        sequence in the same order, the same bits)."""
         cfg = self.config
         geo = cfg.fading_noise == "geometry"
-        inputs, split, out, fade, nchunk = _compiled_epoch_io(self, start[0], H, R, mask, start[1], geo)
+        inputs, split, out, fade, nchunk = _compiled_epoch_io(self, r, H, R, mask, ctx, geo)
         B, e = self.batch_size, np.empty
         v, has, lam, fs, count = e(B), e(B, bool), e(B), e((B, SPLIT_STATS)), e(B, np.int64)
         ok = st_epoch(*inputs, self._count, self._v, self._fs, self._params["rho"], self._params["softening"],
@@ -595,16 +596,15 @@ class MeasurementAdaptiveSTKF(SatelliteNoise, AdaptiveLaw):
             return np.broadcast_to(alpha[:, None], types.shape)
         return np.where(types == 0, alpha_t[:, :1], np.where(types == 1, alpha_t[:, 1:2], alpha[:, None]))
 
-    def _update(self, dz, H, R, mask):
-        """:meth:`AdaptiveLaw._update`; on the fused path of the default configuration with a pending transition,
-        the plan, the inner update and the commit as one compiled call (:func:`~.strong_tracking_rows.ma_epoch`:
-        the same kernels in the same order, the same bits)."""
-        cfg = self.config
-        default = cfg.fading_noise == "geometry" and not self._sat_enabled()
-        start = self._compiled_epoch_start(dz, H) if default else None
-        if start is None:
-            return super()._update(dz, H, R, mask)
-        inputs, split, out, fade, nchunk = _compiled_epoch_io(self, start[0], H, R, mask, start[1], True)
+    def _has_compiled_epoch(self) -> bool:
+        """The default configuration (geometry noise, no per-satellite R) has a compiled epoch."""
+        return self.config.fading_noise == "geometry" and not self._sat_enabled()
+
+    def _compiled_epoch(self, r, ctx, H, R, mask):
+        """:meth:`AdaptiveLaw._compiled_epoch`: the plan, the inner update and the commit of the fused path of the
+        default configuration as one compiled call (:func:`~.strong_tracking_rows.ma_epoch`: the same kernels as
+        :meth:`AdaptiveLaw._update`'s sequence in the same order, the same bits)."""
+        inputs, split, out, fade, nchunk = _compiled_epoch_io(self, r, H, R, mask, ctx, True)
         B, m = mask.shape
         e = np.empty
         c_new, beta, alpha, lam = e(B), e(B), e(B), e(B)

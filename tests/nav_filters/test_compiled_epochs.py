@@ -53,8 +53,8 @@ def _state(law):
 
 
 def _python_path(law):
-    """``law`` running the Python sequence (the base class's ``_update``) instead of the compiled epoch."""
-    law._update = types.MethodType(AdaptiveLaw._update, law)
+    """``law`` running the Python sequence of ``AdaptiveLaw._update`` instead of the compiled epoch."""
+    law._has_compiled_epoch = types.MethodType(AdaptiveLaw._has_compiled_epoch, law)
     return law
 
 
