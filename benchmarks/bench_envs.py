@@ -92,7 +92,8 @@ WARMUP_STEPS = 12
 """Untimed steps before timing: past the adaptive laws' warm-up (10 epochs) so that every code path (and
 every compiled kernel, loaded from numba's cache on first use) has run once."""
 
-STAGES = ("propagate", "innovations", "predict", "form update", "feedback", "dop", "observation", "env glue")
+STAGES = ("propagate", "innovations", "predict", "epoch inputs", "form update", "feedback", "dop", "observation",
+          "env glue")
 
 
 def _actions(space, n, seed=0):
@@ -175,6 +176,13 @@ class StageTimer:
         self._wrap(nav, "_feedback", "feedback")
         self._wrap(navmod, "gnss_innovations", "innovations")
         self._wrap(navmod, "dop", "dop")
+        # the navigator's compiled GNSS epoch (Navigator._direct_gnss_epoch): one kernel for its inputs (the
+        # innovations, keys, averaged transition, preparation and prior together), the law's compiled epoch
+        # (the form update), and the feedback, which then also restarts time_since_update and forms the GDOP
+        if hasattr(navmod, "_gnss_epoch_inputs"):  # (an older tree of --compare has none)
+            self._wrap(navmod, "_gnss_epoch_inputs", "epoch inputs")
+        if hasattr(nav.form, "direct_epoch"):
+            self._wrap(nav.form, "direct_epoch", "form update")
         self._wrap(core, "_frame", "observation")
         try:
             yield self
@@ -211,7 +219,8 @@ def profile_env(method, B, steps, episode_s, scenario, transition="exact", warmu
     env.close()
     t = timer.t
     # the stages do not nest: flush_prediction, form.update and _feedback run one after the other inside
-    # Navigator.update; gnss_innovations and dop before and after it.
+    # Navigator.update; gnss_innovations and dop before and after it (or, on the compiled GNSS epoch,
+    # _gnss_epoch_inputs, form.direct_epoch and _feedback one after the other).
     t["env glue"] = total - sum(v for k, v in t.items() if k != "env glue")
     return {k: 1e3 * v / steps for k, v in t.items()}, 1e3 * total / steps
 
