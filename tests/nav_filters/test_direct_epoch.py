@@ -9,6 +9,7 @@ from envs.sim.scenarios import get_scenario
 from envs.sim.world import generate_world
 from nav_filters.error_model import N_STATES
 from nav_filters.navigator import REASON_STATE, REASON_UPDATE, Navigator
+from tests.nav_filters.test_compiled_epochs import _state
 
 FAST = dict(exact_transition=False, fused_update=True)
 
@@ -54,23 +55,12 @@ def _run(w, method, epochs=8, poison=None, rate=True, **config):
     return nav, out
 
 
-def _law_state(form):
-    out = {}
-    for owner, obj in (("law", form), ("inner", getattr(form, "inner", None))):
-        for name, value in vars(obj or object()).items():
-            if isinstance(value, np.ndarray):
-                out[f"{owner}.{name}"] = value
-            elif isinstance(value, dict):
-                out.update({f"{owner}.{name}[{k}]": a for k, a in value.items() if isinstance(a, np.ndarray)})
-    return out
-
-
 def _assert_same(a, b):
     nav_a, out_a = a
     nav_b, out_b = b
     for name in ("r", "v", "C", "clk", "drift", "bg", "ba", "diverged", "divergence_code", "time_since_update"):
         np.testing.assert_array_equal(getattr(nav_a, name), getattr(nav_b, name), err_msg=name)
-    sa, sb = _law_state(nav_a.form), _law_state(nav_b.form)
+    sa, sb = _state(nav_a.form), _state(nav_b.form)
     assert sa.keys() == sb.keys()
     for name in sa:
         np.testing.assert_array_equal(sa[name], sb[name], err_msg=name)
