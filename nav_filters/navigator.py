@@ -386,16 +386,16 @@ class Navigator:
         m = 2 * C if with_rate else C
         n = N_STATES
         key = (B, C, with_rate)
+        # arrays read within this call only (the law keeps none of its inputs; a context left open by a failed
+        # row holds Phi, Q and prior until the general update below closes it, within the same call)
         scratch = self.__dict__.get("_direct_scratch")
         if scratch is None or scratch[0] != key:
             e = np.empty
             scratch = self._direct_scratch = (key, (e(B, bool), e((B, C), bool), e((B, C)), e((B, C)), e((B, m)),
-                                                    e((B, m, n)), e((B, m)), e((B, C, 3)), e(1, bool)))
-        bad, mask, pr_var, prr_var, dz, H, R, u, ok = scratch[1]
-        e = np.empty
-        row_mask, keys = e((B, m), bool), e((B, m), np.int64)
-        Phi, Q, prior = e((B, n, n)), e((B, n, n)), e((B, n, n))
-        dz_o, H_o, R_o = e((B, m)), e((B, m, n)), e((B, m, m))
+                                                    e((B, m, n)), e((B, m)), e((B, C, 3)), e(1, bool),
+                                                    e((B, m), bool), e((B, m), np.int64), e((B, n, n)), e((B, n, n)),
+                                                    e((B, n, n)), e((B, m)), e((B, m, n)), e((B, m, m))))
+        bad, mask, pr_var, prr_var, dz, H, R, u, ok, row_mask, keys, Phi, Q, prior, dz_o, H_o, R_o = scratch[1]
         inner_P = np.ascontiguousarray(form.inner.P, f8)
         if _gnss_epoch_inputs(self.r, self.v, self.C, self.clk, self.drift, self.diverged, sp, sv, pr, prr, ps, prs,
                               mask_in, sk.astype(np.int64, copy=False), with_rate, self._F_int, self._Qc_int, inner_P,
@@ -498,11 +498,12 @@ class Navigator:
         if mask is None:
             kern, nchunk = row_kernel(_feedback_serial, _feedback_parallel, B)
             kern(*state, nchunk)
+            flagged = np.count_nonzero(code)  # (cheaper than .any() on a few rows)
         else:
             gdop = np.empty(B)
-            _feedback_clear_dop(*state, mask, self.time_since_update, u, gdop)
+            flagged = _feedback_clear_dop(*state, mask, self.time_since_update, u, gdop)
         self.r, self.v, self.C, self.bg, self.ba, self.clk, self.drift = r, v, C, bg, ba, clk, drift
-        if np.count_nonzero(code):  # (cheaper than .any() on a few rows)
+        if flagged:
             for c in (REASON_STATE, REASON_COVARIANCE):
                 self._flag(code == c, c)
         return gdop
@@ -751,10 +752,15 @@ def _feedback_clear_dop(r, v, C, bg, ba, clk, drift, dx, diverged, P, r2, v2, C2
                         t, u, gdop):
     """The end of a GNSS epoch in one call (:meth:`Navigator._direct_gnss_epoch`): the feedback
     (:func:`_feedback_rows`, serially), ``t[b] = 0`` on the rows with a used channel (:func:`_clear_where_any`)
-    and the GDOP of the used channels (:func:`~nav_filters.measurements._dop_kernel`) into ``gdop`` (B,)."""
+    and the GDOP of the used channels (:func:`~nav_filters.measurements._dop_kernel`) into ``gdop`` (B,).
+    Returns the number of rows flagged (``code`` non-zero)."""
     _feedback_serial(r, v, C, bg, ba, clk, drift, dx, diverged, P, r2, v2, C2, bg2, ba2, clk2, drift2, code, 1)
     _clear_where_any(mask, t)
     _dop_kernel(u, mask, gdop)
+    flagged = 0
+    for b in range(code.shape[0]):
+        flagged += code[b] != 0
+    return flagged
 
 
 @nb.njit(cache=True)

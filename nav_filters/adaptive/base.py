@@ -386,6 +386,14 @@ class AdaptiveLaw(FilterForm):
             scratch = self._scratch = (key, make())
         return scratch[1]
 
+    def _config_settings(self, make):
+        """The settings a compiled epoch takes from the (frozen) config, ``make()`` of them, formed once per
+        config object instead of at every epoch."""
+        cached = self.__dict__.get("_settings")
+        if cached is None or cached[0] is not self.config:
+            cached = self._settings = (self.config, make())
+        return cached[1]
+
     # ------------------------------------------------------------- row reset
     def replace_rows(self, rows, other: "AdaptiveLaw") -> None:
         """Overwrite batch rows ``rows`` with the rows of ``other`` (same law, ``len(rows)`` rows).

@@ -416,20 +416,22 @@ class SageHusa(SatelliteNoise, AdaptiveLaw):
         keys = self._keys if self._keys is not None else np.full((B, m), -1, np.int64)
         epoch = self._epoch + 1
         nchunk = row_chunks(B)
-        has, active, s_rows, n_rows, s_prev, R_used, xn, rows, no_fade, unit, s = self._compiled_epoch_scratch(
+        has, active, s_rows, n_rows, s_prev, R_used, xn, rows, no_fade, unit, s, ok_rows = self._compiled_epoch_scratch(
             (B, m, dt), lambda: (e(B, bool), e(B, bool), e((B, m)), e((B, m), np.int64), e((B, m)),
-                                 e((B, m, m), dt), e((B, n), dt), e(B, bool), e((B, 0)), np.ones(B), e((B, n), dt)))
+                                 e((B, m, m), dt), e((B, n), dt), e(B, bool), e((B, 0)), np.ones(B), e((B, n), dt),
+                                 e(B, bool)))
         d, s_group, Pn, r_out, Sd = e(B), e((B, len(GROUP_NAMES))), e((B, n, n), dt), e((B, m), dt), e((B, m), dt)
         nis, n_used, summary = np.zeros(B, dt), e(B, np.int64), e((B, 4))
         b_used, step, seen, x_new = e(B), e(B, np.int64), e(B, np.int64), e((B, n), dt)
+        sat_set, q_set = self._config_settings(lambda: (self._sat_settings(), self._q_settings()))
         ok = satellite_epoch(
             c(r), c(H), c(R), c(mask, bool), c(keys, np.int64), c(ctx.prior, dt), c(ctx.Q, dt), c(ctx.Phi, dt),
             c(self.inner.P, dt), c(self.inner.x, dt), self.x, self._seen, self._step, self._jcap, self._params["b"],
             self._d, int(cfg.warmup_epochs), epoch, self._sat_scale, self._sat_count, self._sat_last,
-            *self._sat_settings(), self._r_scale, bool(cfg.adapt_q), self._b_used, self._e_prev, self._q_init,
-            self._q_ref, self._Q_raw, self._Q, *self._q_settings(), N_SAT_KEYS, float(ROSE_FACTOR), nchunk, has, active,
+            *sat_set, self._r_scale, bool(cfg.adapt_q), self._b_used, self._e_prev, self._q_init,
+            self._q_ref, self._Q_raw, self._Q, *q_set, N_SAT_KEYS, float(ROSE_FACTOR), nchunk, has, active,
             d, s_rows, n_rows, s_prev, s_group, R_used, no_fade, unit, s,
-            Pn, xn, r_out, Sd, nis, np.empty(B, bool), n_used, summary, rows, b_used, step, seen, x_new)
+            Pn, xn, r_out, Sd, nis, ok_rows, n_used, summary, rows, b_used, step, seen, x_new)
         res = self._compiled_epoch_end(ok, Pn, x_new, nis, n_used, r_out, Sd)
         self._r_scale, self._epoch, self._sat_summary = s_group, epoch, summary
         self._b_used, self._d, self._step, self._seen = b_used, d, step, seen

@@ -346,8 +346,9 @@ class StrongTracking(AdaptiveLaw):
         inputs, split, out, fade, nchunk = _compiled_epoch_io(self, r, H, R, mask, ctx, geo)
         B, e = self.batch_size, np.empty
         v, has, lam, fs, count = e(B), e(B, bool), e(B), e((B, SPLIT_STATS)), e(B, np.int64)
+        settings = self._config_settings(self._plan_settings)
         ok = st_epoch(*inputs, self._count, self._v, self._fs, self._params["rho"], self._params["softening"],
-                      self._p0_diag, *self._plan_settings(), nchunk, *split, v, has, lam, fs, fade, *out, count)
+                      self._p0_diag, *settings, nchunk, *split, v, has, lam, fs, fade, *out, count)
         _, Pn, _, r_out, Sd, nis, _, x_new, n_used = out
         res = self._compiled_epoch_end(ok, Pn, x_new, nis, n_used, r_out, Sd)
         self._v, self._count, self._lambda, self._fs = v, count, lam, fs
@@ -611,9 +612,10 @@ class MeasurementAdaptiveSTKF(SatelliteNoise, AdaptiveLaw):
         accept, fault, alpha_t, fs = e(B, bool), e(B, bool), e((B, 2)), e((B, SPLIT_STATS))
         R_used, mask_used, count, streak = e((B, m, m), self.dtype), e((B, m), bool), e(B, np.int64), e(B, np.int64)
         p = self._params
+        settings = self._config_settings(self._plan_settings)
         ok = ma_epoch(*inputs, self._count, self._c, self._beta, self._alpha, self._alpha_t, self._fs, self._streak,
                       p["b"], p["softening"], p["fading_scale"], p["fault_threshold"], self._p0_diag,
-                      *self._plan_settings(), nchunk, *split, c_new, beta, alpha, accept, fault, lam, alpha_t, fs,
+                      *settings, nchunk, *split, c_new, beta, alpha, accept, fault, lam, alpha_t, fs,
                       fade, R_used, mask_used, *out, count, streak)
         _, Pn, _, r_out, Sd, nis, _, x_new, n_used = out
         res = self._compiled_epoch_end(ok, Pn, x_new, nis, n_used, r_out, Sd)

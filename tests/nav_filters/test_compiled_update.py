@@ -172,7 +172,11 @@ def test_joseph_update_raises_like_cholesky_on_non_pd_innovation_covariance():
     np.testing.assert_array_equal(kf.P, P_before)  # nothing committed
 
 
-def test_feedback_compiled_matches_reference():
+@pytest.mark.parametrize("epoch_end", [False, True])
+def test_feedback_compiled_matches_reference(epoch_end):
+    """The compiled feedback against its numpy specification; ``epoch_end``: the form a small batch's compiled GNSS
+    epoch calls (:func:`~nav_filters.navigator._feedback_clear_dop`), which also restarts ``time_since_update``
+    on the rows with a used channel and returns the GDOP, and flags the same rows."""
     from envs.episodes import navigator_for
     from envs.sim.world import generate_world
     nav = navigator_for(generate_world("open-sky", [0, 1, 2, 3, 4]), "sage-husa")
@@ -181,10 +185,20 @@ def test_feedback_compiled_matches_reference():
     dx[1, :3] = [0.3, -0.2, 0.1]  # large angle: Rodrigues, not the series
     dx[3, 5] = np.nan  # becomes non-finite: flagged and parked
     nav.diverged[2] = True  # frozen row: unchanged
+    nav.time_since_update[:] = 3.0
     ref = copy.deepcopy(nav)
-    nav._feedback(dx.copy())
+    if epoch_end:
+        u = rng.normal(size=(5, 9, 3))
+        u /= np.linalg.norm(u, axis=-1, keepdims=True)
+        mask = rng.random((5, 9)) < 0.7
+        mask[4] = False  # an outage: its time keeps counting
+        gdop = nav._feedback(dx.copy(), mask, u)
+        np.testing.assert_array_equal(gdop, dop(u, mask))  # the general sequence's call
+        np.testing.assert_array_equal(nav.time_since_update, [0.0, 0.0, 0.0, 0.0, 3.0])
+    else:
+        assert nav._feedback(dx.copy()) is None
     ref._feedback_reference(dx.copy())
-    for k in ("r", "v", "bg", "ba", "clk", "drift", "diverged"):
+    for k in ("r", "v", "bg", "ba", "clk", "drift", "diverged", "divergence_code"):
         np.testing.assert_array_equal(getattr(nav, k), getattr(ref, k), err_msg=k)
     np.testing.assert_allclose(nav.C, ref.C, rtol=0, atol=1e-15)  # 3x3 products: last-bit differences
     assert nav.diverged[3] and nav.diverged[2] and not nav.diverged[[0, 1, 4]].any()
