@@ -15,6 +15,7 @@ import time
 def run(timesteps: int, threads: int, n_envs: int, hyper: dict) -> tuple[float, float]:
     import torch
     from sb3_contrib import RecurrentPPO
+    from stable_baselines3.common.logger import Logger
     from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
 
     import envs  # noqa: F401
@@ -27,6 +28,7 @@ def run(timesteps: int, threads: int, n_envs: int, hyper: dict) -> tuple[float, 
     venv = VecNormalize(VecMonitor(make_sb3_vec_env("GnssIns/SageHusa-v0", n_envs, seed=0, **QUICK["env_kwargs"])),
                         gamma=h["gamma"])
     model = RecurrentPPO(policy, venv, seed=0, device="cpu", verbose=0, **h)
+    model.set_logger(Logger(None, []))  # SB3's default logger leaves an empty SB3-<time> folder in the temp dir
     spent = [0.0]
     inner = model.train
 

@@ -79,10 +79,12 @@ MODES = {"exact": dict(exact_transition=True, fused_update=False),
 def learn_rate(venv, n_envs: int, rollouts: int) -> float:
     """Env-steps/s of ``PPO.learn`` over ``rollouts`` rollouts after one warm-up rollout."""
     from stable_baselines3 import PPO
+    from stable_baselines3.common.logger import Logger
     set_torch_threads(1)  # as train.py rl sets it: after numba's threading layer starts, so that it holds
     hp = dict(DEFAULT_HYPERPARAMS["ppo"])
     policy = hp.pop("policy")
     model = PPO(policy, venv, seed=0, device="cpu", verbose=0, **hp)
+    model.set_logger(Logger(None, []))  # SB3's default logger leaves an empty SB3-<time> folder in the temp dir
     steps = hp["n_steps"] * n_envs
     model.learn(total_timesteps=steps)
     t = time.perf_counter()

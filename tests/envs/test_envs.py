@@ -153,9 +153,11 @@ def test_world_seeds_are_apart_from_evaluation_seeds():
 
 def test_sb3_ppo_trains_on_the_vector_env():
     from stable_baselines3 import PPO
+    from stable_baselines3.common.logger import Logger
     from envs.sb3 import make_sb3_vec_env
     venv = make_sb3_vec_env("GnssIns/SageHusa-v0", n_envs=4, seed=0, episode_length_s=6.0)
     model = PPO("MlpPolicy", venv, n_steps=32, batch_size=64, n_epochs=1, seed=0, device="cpu")
+    model.set_logger(Logger(None, []))  # SB3's default logger leaves an empty SB3-<time> folder in the temp dir
     model.learn(total_timesteps=256)
     obs = venv.reset()
     act, _ = model.predict(obs, deterministic=True)
