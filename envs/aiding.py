@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from nav_filters.constraints import nhc, odometer, stack_measurements
+from nav_filters.constraints import odometer_nhc, stack_measurements
 
 from .sim.odometer import OdometerModel
 
@@ -28,13 +28,11 @@ def odometer_rows(nav, speed_mps: np.ndarray, model: OdometerModel):
     Returns
     -------
     ``(dz (B, 3), H (B, 3, 17), R (B, 3), row_mask (B, 3))``: the odometer row of
-    :func:`nav_filters.constraints.odometer` then the two rows of :func:`nav_filters.constraints.nhc`.
+    :func:`nav_filters.constraints.odometer` then the two rows of :func:`nav_filters.constraints.nhc`
+    (:func:`nav_filters.constraints.odometer_nhc`, one compiled pass).
     """
-    speed = np.asarray(speed_mps, np.float64)
-    have = np.isfinite(speed)
-    return stack_measurements(
-        odometer(nav.v, nav.C, np.where(have, speed, 0.0), model.sigma_mps, have, dtype=nav.dtype),
-        nhc(nav.v, nav.C, model.nhc_sigma_mps, model.nhc_sigma_mps, dtype=nav.dtype))
+    return odometer_nhc(nav.v, nav.C, np.asarray(speed_mps, np.float64), model.sigma_mps, model.nhc_sigma_mps,
+                        model.nhc_sigma_mps, dtype=nav.dtype)
 
 
 def with_rows(extra, rows):

@@ -61,6 +61,9 @@ sign convention.
 """
 from __future__ import annotations
 
+import math
+
+import numba as nb
 import numpy as np
 
 from earth.rotations import skew
@@ -76,6 +79,7 @@ __all__ = [
     "zero_heading_rate",
     "nhc",
     "odometer",
+    "odometer_nhc",
     "stack_measurements",
     "body_velocity_jacobian",
 ]
@@ -449,6 +453,93 @@ def odometer(v_e, C_eb, speed_mps, sigma_mps, mask, *, dtype=np.float64):
         _finite_on(name, a, rows)
     v_b, H = _body_velocity_rows(v, C, [0])
     return _finish(s[:, None] - v_b, H, var[:, None], rows, dtype)
+
+
+def odometer_nhc(v_e, C_eb, speed_mps, sigma_mps, sigma_lat_mps, sigma_vert_mps, *, dtype=np.float64):
+    """The odometer row then the two NHC rows of one epoch, as one block.
+
+    ``stack_measurements(odometer(v_e, C_eb, where(have, speed, 0), sigma_mps, have), nhc(v_e, C_eb,
+    sigma_lat_mps, sigma_vert_mps), dtype)`` with ``have = isfinite(speed_mps)`` (a NaN speed: no reading on
+    that row), bit for bit: :func:`body_velocity_jacobian` evaluated once for both (the same products) and one
+    compiled pass (:func:`_odometer_nhc_rows`) that places, neutralizes and casts the rows, instead of the
+    some fifty small array operations of the composition, most of a single env's step on ``seed003-sim``
+    (agreement test in ``tests/nav_filters/test_constraints.py``). Where the inputs are not what that pass
+    takes (a non-finite state, a sigma that is not a positive finite number, other shapes) the composition
+    runs, and raises its error naming the argument.
+
+    Parameters
+    ----------
+    v_e : (B, 3) estimated ECEF velocity [m/s]; C_eb : (B, 3, 3) estimated body (FRD) -> ECEF DCM;
+    speed_mps : (B,) measured forward speed [m/s], NaN where there is no reading;
+    sigma_mps, sigma_lat_mps, sigma_vert_mps : standard deviations [m/s] of the odometer and the lateral and
+    vertical NHC rows (floats or (B,) arrays, > 0); dtype : float32 or float64.
+
+    Returns
+    -------
+    dz : (B, 3) [m/s]; H : (B, 3, 17); R : (B, 3) [m^2/s^2]; row_mask : (B, 3) bool (the odometer row masked
+    where there is no reading).
+    """
+    sig = (sigma_mps, sigma_lat_mps, sigma_vert_mps)
+    v = np.asarray(v_e)
+    C = np.asarray(C_eb)
+    speed = np.asarray(speed_mps)
+    fast = (all(type(x) in (float, int, np.float64) and math.isfinite(x) and x > 0 for x in sig)
+            and v.dtype == C.dtype == speed.dtype == np.float64 and v.ndim == 2 and v.shape[1] == 3
+            and C.shape == (v.shape[0], 3, 3) and speed.shape == (v.shape[0],))
+    if fast:
+        dt = check_dtype(dtype)
+        if _states_finite(v, C):
+            B = v.shape[0]
+            dz, R, mask = np.empty((B, 3), dt), np.empty((B, 3), dt), np.empty((B, 3), bool)
+            H = np.empty((B, 3, N_STATES), dt)
+            v_b, _, H_att = body_velocity_jacobian(v, C)
+            _odometer_nhc_rows(speed, v_b, np.ascontiguousarray(C), H_att,
+                               *(float(x) * float(x) for x in sig), VEL.start, ATT.start, dz, H, R, mask)
+            return dz, H, R, mask
+    have = np.isfinite(np.asarray(speed_mps, np.float64))
+    return stack_measurements(
+        odometer(v_e, C_eb, np.where(have, speed_mps, 0.0), sigma_mps, have, dtype=dtype),
+        nhc(v_e, C_eb, sigma_lat_mps, sigma_vert_mps, dtype=dtype))
+
+
+@nb.njit(cache=True)
+def _states_finite(v, C):
+    """Whether every entry of ``v`` (B, 3) and ``C`` (B, 3, 3) is finite."""
+    for b in range(v.shape[0]):
+        for i in range(3):
+            if not np.isfinite(v[b, i]):
+                return False
+            for j in range(3):
+                if not np.isfinite(C[b, i, j]):
+                    return False
+    return True
+
+
+@nb.njit(cache=True)
+def _odometer_nhc_rows(speed, v_b, C, H_att, var_odo, var_lat, var_vert, vel0, att0, dz, H, R, mask):
+    """The rows of :func:`odometer_nhc` from ``v_b = C_be v_e`` (B, 3) and ``H_att = C_be [v_e x]`` (B, 3, 3) of
+    :func:`body_velocity_jacobian` and ``C`` = ``C_eb`` (B, 3, 3) (``H_vel = C_be = C^T``): row 0 the odometer
+    (``speed - v_b[0]``, neutral where ``speed`` is NaN), rows 1, 2 the NHC (``-v_b[1]``, ``-v_b[2]``), each
+    with its variance; the outputs in their own dtype (one rounding from float64, as ``astype``)."""
+    B = speed.shape[0]
+    n = H.shape[2]
+    for b in range(B):
+        for k in range(3):
+            for j in range(n):
+                H[b, k, j] = 0.0
+        have = np.isfinite(speed[b])
+        for k in range(3):
+            if k == 0 and not have:
+                dz[b, 0] = 0.0
+                R[b, 0] = 1.0
+                mask[b, 0] = False
+                continue
+            dz[b, k] = speed[b] - v_b[b, 0] if k == 0 else -v_b[b, k]
+            for j in range(3):
+                H[b, k, vel0 + j] = C[b, j, k]
+                H[b, k, att0 + j] = H_att[b, k, j]
+            R[b, k] = var_odo if k == 0 else (var_lat if k == 1 else var_vert)
+            mask[b, k] = True
 
 
 # --------------------------------------------------------------------------------------

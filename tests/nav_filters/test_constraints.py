@@ -12,7 +12,7 @@ import pytest
 
 from earth import OMEGA_IE_E, geodetic_to_ecef
 from earth.rotations import exp_so3
-from nav_filters.constraints import nhc, odometer, stack_measurements, zero_heading_rate, zupt
+from nav_filters.constraints import nhc, odometer, odometer_nhc, stack_measurements, zero_heading_rate, zupt
 from nav_filters.error_model import ATT, BG, N_STATES, VEL
 from nav_filters.forms import KalmanFilter
 from nav_filters.ins import ned_attitude_to_ecef
@@ -416,3 +416,49 @@ def test_bad_input_raises_value_error_naming_the_argument(i):
     name, call = _bad_calls()[i]
     with pytest.raises(ValueError, match=name):
         call()
+
+
+def _odometer_nhc_composition(v, C, speed, sigmas, dtype):
+    have = np.isfinite(speed)
+    return stack_measurements(odometer(v, C, np.where(have, speed, 0.0), sigmas[0], have, dtype=dtype),
+                              nhc(v, C, sigmas[1], sigmas[2], dtype=dtype))
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+@pytest.mark.parametrize("B", [1, 7])
+def test_odometer_nhc_equals_the_stacked_odometer_and_nhc_rows(dtype, B):
+    """The compiled block equals its specification, the stacked :func:`odometer` and :func:`nhc` rows, bit for
+    bit: rows with and without a speed reading, a reversing vehicle, either dtype."""
+    _, v, C, _, _ = _estimate(B, seed=B)
+    speed = np.random.default_rng(B).normal(10.0, 5.0, B)
+    speed[::3] = np.nan  # no reading: the odometer row is neutral
+    sigmas = (0.1, 0.2, 0.35)
+    got = odometer_nhc(v, C, speed, *sigmas, dtype=dtype)
+    want = _odometer_nhc_composition(v, C, speed, sigmas, dtype)
+    for g, w, name in zip(got, want, ("dz", "H", "R", "row_mask")):
+        assert g.dtype == w.dtype and g.shape == w.shape, name
+        np.testing.assert_array_equal(g, w, err_msg=name)
+    assert got[3][:, 0].tolist() == np.isfinite(speed).tolist() and got[3][:, 1:].all()
+    np.testing.assert_array_equal(got[0][::3, 0], 0.0)
+
+
+def test_odometer_nhc_bad_inputs_raise_the_composition_errors():
+    """Inputs the compiled pass does not take run the composition: per-row sigmas give its result, a non-finite
+    state or a bad sigma its error naming the argument."""
+    _, v, C, _, _ = _estimate(3, seed=4)
+    speed = np.array([3.0, np.nan, -2.0])
+    per_row = (np.array([0.1, 0.2, 0.3]), 0.2, 0.3)
+    for g, w in zip(odometer_nhc(v, C, speed, *per_row), _odometer_nhc_composition(v, C, speed, per_row, np.float64)):
+        np.testing.assert_array_equal(g, w)
+    v_bad = v.copy()
+    v_bad[1, 2] = np.nan  # on the row without a speed reading: the NHC rows need it
+    with pytest.raises(ValueError, match="v_e has a non-finite value on active batch row 1"):
+        odometer_nhc(v_bad, C, speed, 0.1, 0.2, 0.3)
+    C_bad = C.copy()
+    C_bad[0, 0, 0] = np.inf
+    with pytest.raises(ValueError, match="C_eb has a non-finite value on active batch row 0"):
+        odometer_nhc(v, C_bad, speed, 0.1, 0.2, 0.3)
+    with pytest.raises(ValueError, match="sigma_lat_mps must be positive and finite"):
+        odometer_nhc(v, C, speed, 0.1, 0.0, 0.3)
+    with pytest.raises(ValueError, match="C_eb must have shape"):
+        odometer_nhc(v, C[:2], speed, 0.1, 0.2, 0.3)
