@@ -319,8 +319,8 @@ class Navigator:
         result : :class:`~nav_filters.forms.UpdateResult` (rows ``[pr..., prr..., extra...]``)
         gdop : (B,) geometric DOP of the used satellites (inf below 4).
         """
-        if extra is None and sat_keys is not None:
-            direct = self._direct_gnss_epoch(sat_pos, sat_vel, pr, prr, pr_sigma, prr_sigma, mask, sat_keys)
+        if sat_keys is not None:
+            direct = self._direct_gnss_epoch(sat_pos, sat_vel, pr, prr, pr_sigma, prr_sigma, mask, sat_keys, extra)
             if direct is not None:
                 return direct
         self._check_state()
@@ -345,23 +345,25 @@ class Navigator:
         _clear_where_any(mask, self.time_since_update)
         return res, dop(u, mask)
 
-    def _direct_gnss_epoch(self, sat_pos, sat_vel, pr, prr, pr_sigma, prr_sigma, mask, sat_keys):
-        """:meth:`update_gnss` (no ``extra`` block) as one compiled call for the inputs and one for the law, or
-        None where the general sequence must run.
+    def _direct_gnss_epoch(self, sat_pos, sat_vel, pr, prr, pr_sigma, prr_sigma, mask, sat_keys, extra=None):
+        """:meth:`update_gnss` as one compiled call for the inputs and one for the law, or None where the general
+        sequence must run.
 
         :func:`_gnss_epoch_inputs` runs the kernels of the general sequence on the same arrays (the state check,
-        the innovations, the keys, the averaged transition of the pending samples, the measurement's
-        preparation and the law's prior ``Phi P Phi^T``) and the law's :meth:`~nav_filters.adaptive.base.
+        the innovations, the ``extra`` rows stacked after them as :func:`~nav_filters.constraints.
+        stack_measurements` stacks them, the keys, the averaged transition of the pending samples, the
+        measurement's preparation and the law's prior ``Phi P Phi^T``) and the law's :meth:`~nav_filters.adaptive.base.
         AdaptiveLaw.direct_epoch` its compiled epoch, so the results are the same bits (test:
         ``tests/nav_filters/test_direct_epoch.py``) without the Python of the layers in between, which took
         most of a single env's step. It runs where every precondition holds: a fused law with a compiled epoch
         ready for it (:meth:`~nav_filters.adaptive.base.AdaptiveLaw.direct_epoch_ready`), the averaged
         transition with samples pending, float64, fewer rows than
         :data:`~nav_filters.kernels.PARALLEL_MIN_BATCH` (the kernels run serially here) and inputs of the
-        expected shapes. Anything else, and a row whose state is not finite or an input the general sequence
-        rejects (it raises the error naming it), leaves the work to the general sequence, before any state
-        changed. Where some row's ``S`` is not positive definite the law keeps the epoch open and the general
-        update finds, flags and parks the failing rows (:meth:`_isolated`)."""
+        expected shapes (an ``extra`` block: a tuple of float64 arrays with (B, m_e) variances). Anything else,
+        and a row whose state is not finite or an input the general sequence rejects (it raises the error naming
+        it), leaves the work to the general sequence, before any state changed. Where some row's ``S`` is not
+        positive definite the law keeps the epoch open and the general update finds, flags and parks the failing
+        rows (:meth:`_isolated`)."""
         B = self.batch_size
         form = self.form
         ready = getattr(form, "direct_epoch_ready", None)
@@ -383,24 +385,40 @@ class Navigator:
         if (mask_in.shape != (B, C) or sp.shape != (B, C, 3) or sv.shape != (B, C, 3) or sk.shape != (B, C)
                 or sk.dtype.kind not in "iu" or not pr.shape == ps.shape == prr.shape == prs.shape == (B, C)):
             return None
-        m = 2 * C if with_rate else C
+        mg = 2 * C if with_rate else C
         n = N_STATES
-        key = (B, C, with_rate)
+        me = 0
+        if extra is not None:  # (dz (B, m_e), H (B, m_e, n), R (B, m_e) variances, row_mask (B, m_e)), float64
+            if not (type(extra) is tuple and len(extra) == 4 and all(type(a) is np.ndarray for a in extra)):
+                return None
+            e_dz, e_H, e_R, e_mask = (c(a) for a in extra)
+            me = e_dz.shape[1] if e_dz.ndim == 2 else -1
+            if (me < 1 or e_dz.dtype != f8 or e_H.dtype != f8 or e_R.dtype != f8 or e_mask.dtype != bool
+                    or e_dz.shape != (B, me) or e_H.shape != (B, me, n) or e_R.shape != (B, me)
+                    or e_mask.shape != (B, me)):
+                return None
+        m = mg + me
+        key = (B, C, with_rate, me)
         # arrays read within this call only (the law keeps none of its inputs; a context left open by a failed
         # row holds Phi, Q and prior until the general update below closes it, within the same call)
         scratch = self.__dict__.get("_direct_scratch")
         if scratch is None or scratch[0] != key:
             e = np.empty
-            scratch = self._direct_scratch = (key, (e(B, bool), e((B, C), bool), e((B, C)), e((B, C)), e((B, m)),
-                                                    e((B, m, n)), e((B, m)), e((B, C, 3)), e(1, bool),
-                                                    e((B, m), bool), e((B, m), np.int64), e((B, n, n)), e((B, n, n)),
-                                                    e((B, n, n)), e((B, m)), e((B, m, n)), e((B, m, m))))
-        bad, mask, pr_var, prr_var, dz, H, R, u, ok, row_mask, keys, Phi, Q, prior, dz_o, H_o, R_o = scratch[1]
+            gnss = (e((B, mg)), e((B, mg, n)), e((B, mg)), e((B, mg), bool))
+            scratch = self._direct_scratch = (key, (
+                e(B, bool), e((B, C), bool), e((B, C)), e((B, C)), *gnss, e((B, C, 3)), e(1, bool),
+                *((e((B, m)), e((B, m, n)), e((B, m)), e((B, m), bool)) if me else gnss),
+                e((B, m), np.int64), e((B, n, n)), e((B, n, n)), e((B, n, n)), e((B, m)), e((B, m, n)), e((B, m, m)),
+                e((B, 0)), e((B, 0, n)), e((B, 0)), e((B, 0), bool)))
+        (bad, mask, pr_var, prr_var, dz, H, R, gnss_mask, u, ok, dz_s, H_s, R_s, row_mask, keys, Phi, Q, prior, dz_o,
+         H_o, R_o, *no_extra) = scratch[1]
+        if not me:
+            e_dz, e_H, e_R, e_mask = no_extra
         inner_P = np.ascontiguousarray(form.inner.P, f8)
         if _gnss_epoch_inputs(self.r, self.v, self.C, self.clk, self.drift, self.diverged, sp, sv, pr, prr, ps, prs,
                               mask_in, sk.astype(np.int64, copy=False), with_rate, self._F_int, self._Qc_int, inner_P,
-                              SERIES_ORDER, F_NONZERO, bad, mask, pr_var, prr_var, dz, H, R, row_mask, u, keys, Phi,
-                              Q, prior, dz_o, H_o, R_o, ok):
+                              SERIES_ORDER, F_NONZERO, e_dz, e_H, e_R, e_mask, bad, mask, pr_var, prr_var, dz, H, R,
+                              gnss_mask, u, dz_s, H_s, R_s, row_mask, keys, Phi, Q, prior, dz_o, H_o, R_o, ok):
             return None
         if self.onestep:  # seed 001's summed noise (flush_prediction)
             Q = self._Qc_int
@@ -621,13 +639,16 @@ def _nonfinite_rows(r, v, C, clk, drift, diverged, bad):
 
 @nb.njit(cache=True)
 def _gnss_epoch_inputs(r, v, C, clk, drift, diverged, sat_pos, sat_vel, pr, prr, pr_sigma, prr_sigma, mask_in, sat_keys,
-                       with_rate, F_int, Qc_int, P, order, nz, bad, mask, pr_var, prr_var, dz, H, R, row_mask, u, keys,
-                       Phi, Q, prior, dz_o, H_o, R_o, ok):
+                       with_rate, F_int, Qc_int, P, order, nz, e_dz, e_H, e_R, e_mask, bad, mask, pr_var, prr_var,
+                       dz, H, R, gnss_mask, u, dz_s, H_s, R_s, row_mask, keys, Phi, Q, prior, dz_o, H_o, R_o, ok):
     """The inputs of a GNSS epoch's update (:meth:`Navigator._direct_gnss_epoch`), by the kernels the general
     sequence of :meth:`Navigator.update_gnss` runs, serially, in one call: :func:`_nonfinite_rows` (``bad``),
     ``mask = mask_in & ~diverged``, the variances ``pr_var = pr_sigma^2``, ``prr_var = prr_sigma^2``, the
-    innovations (:func:`~nav_filters.measurements._innovations_rows`: ``dz``, ``H``, ``R`` (B, m), ``row_mask``,
-    ``u``), the measurement keys (``keys``), the averaged transition of the pending samples
+    innovations (:func:`~nav_filters.measurements._innovations_rows`: ``dz``, ``H``, ``R`` (B, m_g),
+    ``gnss_mask``, ``u``), the ``m_e`` extra rows ``e_dz``, ``e_H``, ``e_R`` (variances), ``e_mask`` stacked
+    after them (:func:`_stack_extra`: ``dz_s``, ``H_s``, ``R_s``, ``row_mask`` (B, m_g + m_e); with
+    ``m_e = 0`` the caller passes the innovations' arrays themselves), the measurement keys (``keys``), the
+    averaged transition of the pending samples
     (:func:`~nav_filters.averaged_transition._averaged_transition_into`: ``Phi``, ``Q`` from ``F_int``,
     ``Qc_int``), the prepared measurement (:func:`~nav_filters.forms.base._prepare_rows`: ``dz_o``, ``H_o``,
     ``R_o`` (B, m, m)) and the law's prior ``sym(Phi P Phi^T)`` of the inner covariance ``P``
@@ -648,15 +669,44 @@ def _gnss_epoch_inputs(r, v, C, clk, drift, diverged, sat_pos, sat_vel, pr, prr,
             s = prr_sigma[b, j]
             prr_var[b, j] = s * s
     _innovations_serial(r, v, clk, drift, sat_pos, sat_vel, pr, prr, pr_var, prr_var, mask, with_rate, dz, H, R,
-                        row_mask, u, 1)
-    if not _measurement_keys_kernel(sat_keys, mask, with_rate, 0, keys):
+                        gnss_mask, u, 1)
+    m_e = e_dz.shape[1]
+    if m_e:
+        _stack_extra(dz, H, R, gnss_mask, e_dz, e_H, e_R, e_mask, diverged, dz_s, H_s, R_s, row_mask)
+    if not _measurement_keys_kernel(sat_keys, mask, with_rate, m_e, keys):
         return 2
-    _prepare_serial(dz, H, R.reshape((B, R.shape[1], 1)), False, row_mask, dz_o, H_o, R_o, ok)
+    _prepare_serial(dz_s, H_s, R_s.reshape((B, R_s.shape[1], 1)), False, row_mask, dz_o, H_o, R_o, ok)
     if not ok[0]:
         return 3
     _averaged_serial(F_int, Qc_int, Phi, Q, order, nz, 1)
     _prior_serial(Phi, P, prior, 1)
     return 0
+
+
+@nb.njit(cache=True)
+def _stack_extra(dz, H, R, gnss_mask, e_dz, e_H, e_R, e_mask, diverged, dz_s, H_s, R_s, row_mask):
+    """The GNSS rows ``dz``, ``H``, ``R`` (variances), ``gnss_mask`` (B, m_g) and the extra rows ``e_*`` (B, m_e)
+    stacked into ``dz_s``, ``H_s``, ``R_s``, ``row_mask`` (B, m_g + m_e) as the general sequence stacks them
+    (:func:`~nav_filters.constraints.stack_measurements`: each masked row ``dz = 0``, ``H = 0``, unit variance),
+    and ``row_mask`` the rows its update uses (an extra row of a diverged batch row is not)."""
+    B, mg = gnss_mask.shape
+    me = e_mask.shape[1]
+    n = H.shape[2]
+    for b in range(B):
+        for i in range(mg + me):
+            g = i < mg
+            keep = gnss_mask[b, i] if g else e_mask[b, i - mg]
+            if keep:
+                dz_s[b, i] = dz[b, i] if g else e_dz[b, i - mg]
+                R_s[b, i] = R[b, i] if g else e_R[b, i - mg]
+                for j in range(n):
+                    H_s[b, i, j] = H[b, i, j] if g else e_H[b, i - mg, j]
+            else:
+                dz_s[b, i] = 0.0
+                R_s[b, i] = 1.0
+                for j in range(n):
+                    H_s[b, i, j] = 0.0
+            row_mask[b, i] = keep and not diverged[b]
 
 
 @nb.njit(cache=True)

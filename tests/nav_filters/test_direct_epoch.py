@@ -7,6 +7,7 @@ import pytest
 from envs.episodes import navigator_for, satellite_keys
 from envs.sim.scenarios import get_scenario
 from envs.sim.world import generate_world
+from nav_filters.constraints import odometer_nhc, stack_measurements, zupt
 from nav_filters.error_model import N_STATES
 from nav_filters.navigator import REASON_STATE, REASON_UPDATE, Navigator
 from tests.nav_filters.test_compiled_epochs import _state
@@ -38,8 +39,9 @@ def _counting(monkeypatch):
     return count
 
 
-def _run(w, method, epochs=8, poison=None, rate=True, **config):
-    """(navigator, per-epoch outputs) of ``epochs`` GNSS epochs on ``w``."""
+def _run(w, method, epochs=8, poison=None, rate=True, extra=None, **config):
+    """(navigator, per-epoch outputs) of ``epochs`` GNSS epochs on ``w``; ``extra(nav, j)``: the epoch's extra
+    block."""
     nav = navigator_for(w, method, **config)
     g, keys, k, out = w.gnss, satellite_keys(w.gnss), 0, []
     for j, kk in enumerate(w.epoch_idx[:epochs]):
@@ -49,7 +51,7 @@ def _run(w, method, epochs=8, poison=None, rate=True, **config):
             poison(nav)
         res, gdop = nav.update_gnss(g.sat_pos[:, j], g.sat_vel[:, j], g.pr[:, j], g.prr[:, j] if rate else None,
                                     g.pr_sigma[:, j], g.prr_sigma[:, j] if rate else None, g.mask[:, j],
-                                    sat_keys=keys[:, j])
+                                    sat_keys=keys[:, j], extra=None if extra is None else extra(nav, j))
         out.append((res.nis, res.n_used, res.innovation, res.innovation_var, res.applied, gdop,
                     nav.time_since_update.copy()))
     return nav, out
@@ -84,6 +86,80 @@ def test_compiled_epoch_without_rates_is_the_general_sequence(world, monkeypatch
     assert count["hits"] == 8
     _general(monkeypatch)
     _assert_same(fast, _run(world, "sage-husa", rate=False, **FAST))
+
+
+def _aiding(nav, j):
+    """Odometer + NHC rows every epoch (row 1 without a speed reading at odd epochs) and, at epochs 2 and 5, ZUPT
+    rows on rows 0 and 2 stacked before them."""
+    speed = np.linalg.norm(nav.v, axis=1) + 0.05 * np.arange(nav.batch_size)
+    if j % 2:
+        speed[1] = np.nan
+    block = odometer_nhc(nav.v, nav.C, speed, 0.1, 0.05, 0.08)
+    if j in (2, 5):
+        block = stack_measurements(zupt(nav.v, None, 0.02, np.array([True, False, True])), block)
+    return block
+
+
+@pytest.mark.parametrize("method", ["sage-husa", "stkf", "ma-stkf"])
+def test_compiled_epoch_with_extra_rows_is_the_general_sequence(world, monkeypatch, method):
+    """Constraint rows stacked after the GNSS rows (odometer + NHC, ZUPT): the compiled epoch stacks them as
+    ``stack_measurements`` does, the same bits."""
+    count = _counting(monkeypatch)
+    fast = _run(world, method, extra=_aiding, **FAST)
+    assert count == {"hits": 8, "misses": 0}
+    _general(monkeypatch)
+    _assert_same(fast, _run(world, method, extra=_aiding, **FAST))
+
+
+def test_extra_rows_of_a_parked_row_are_left_out_as_in_the_general_sequence(world, monkeypatch):
+    """Row 1 fails at epoch 3 and is parked: its constraint rows are not used afterwards, on either path."""
+    def poison(nav):
+        nav.form.inner.P = nav.form.inner.P.copy()
+        nav.form.inner.P[1] = -1e6 * np.eye(N_STATES)
+
+    count = _counting(monkeypatch)
+    general = []
+    orig = Navigator._update_checked
+    monkeypatch.setattr(Navigator, "_update_checked", lambda self, *a: general.append(1) or orig(self, *a))
+    fast = _run(world, "sage-husa", poison=poison, extra=_aiding, **FAST)
+    assert count["hits"] == 8 and fast[0].divergence_code.tolist() == [0, REASON_UPDATE, 0]
+    assert len(general) == 1  # only the failing epoch needed the general update, the later ones ran compiled
+    assert fast[1][-1][1][1] == 0  # n_used of the parked row
+    _general(monkeypatch)
+    _assert_same(fast, _run(world, "sage-husa", poison=poison, extra=_aiding, **FAST))
+
+
+def _full_covariance(block):
+    dz, H, R, mask = block
+    return dz, H, R[:, :, None] * np.eye(R.shape[1]), mask
+
+
+@pytest.mark.parametrize("extra", [lambda nav, j: _full_covariance(_aiding(nav, j)),
+                                   lambda nav, j: tuple(np.asarray(a, np.float32) if a.dtype.kind == "f" else a
+                                                        for a in _aiding(nav, j))])
+def test_extra_rows_the_compiled_epoch_does_not_take_run_the_general_sequence(world, monkeypatch, extra):
+    """A full (B, m_e, m_e) covariance or float32 extra rows: the general sequence, with the same result."""
+    count = _counting(monkeypatch)
+    got = _run(world, "sage-husa", epochs=3, extra=extra, **FAST)
+    assert count == {"hits": 0, "misses": 3}
+    _general(monkeypatch)
+    _assert_same(got, _run(world, "sage-husa", epochs=3, extra=extra, **FAST))
+
+
+def test_a_non_finite_extra_row_raises_the_general_sequences_error(world):
+    w = world
+    nav = navigator_for(w, "sage-husa", **FAST)
+    nav.propagate_epoch(w.imu.f_b[:, 1:w.epoch_idx[0] + 1], w.imu.w_b[:, 1:w.epoch_idx[0] + 1], 0.01)
+    dz, H, R, mask = _aiding(nav, 0)
+    dz = dz.copy()
+    dz[2, 1] = np.inf
+    before = (nav.r.copy(), nav.form.inner.P.copy())
+    g = w.gnss
+    with pytest.raises(ValueError, match="dz"):
+        nav.update_gnss(g.sat_pos[:, 0], g.sat_vel[:, 0], g.pr[:, 0], g.prr[:, 0], g.pr_sigma[:, 0],
+                        g.prr_sigma[:, 0], g.mask[:, 0], sat_keys=satellite_keys(g)[:, 0], extra=(dz, H, R, mask))
+    np.testing.assert_array_equal(nav.r, before[0])
+    np.testing.assert_array_equal(nav.form.inner.P, before[1])
 
 
 @pytest.mark.parametrize("method,config", [("kf", FAST), ("sage-husa", dict(exact_transition=False)),
