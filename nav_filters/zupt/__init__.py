@@ -8,7 +8,8 @@ detectors, lazily):
 
 * :mod:`.prefilter` -- causal second-order Butterworth low-pass;
 * :mod:`.classical` -- SHOE (GLRT), ARE, MAG, MV statistics of Skog et al. (2010),
-  streaming, and the max-F1 threshold tuning;
+  streaming, and the max-F1 threshold tuning (:mod:`.classical_rows`: the streaming step compiled,
+  the same bits);
 * :mod:`.learned` -- MLP (window) and LSTM (sequence) detectors, their feature
   pipeline, weights files;
 * :mod:`.aiding` -- the ZUPT + zero-heading-rate measurement block from a

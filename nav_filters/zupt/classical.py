@@ -44,7 +44,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .base import ZuptDetector, window_sums
+from ..kernels import row_kernel
+from .base import DetectorOutput, ZuptDetector, window_sums
+from .classical_rows import KIND_CODES, _chunk_parallel, _chunk_serial, all_finite
 from .prefilter import LowPass, check_cutoff
 
 __all__ = ["CLASSICAL_KINDS", "ClassicalConfig", "ClassicalDetector", "classical_statistic", "tune_threshold",
@@ -152,6 +154,9 @@ class ClassicalDetector(ZuptDetector):
 
     score_kind = "statistic"
     _CHUNK = 8192
+    compiled = True
+    """Run :meth:`process` through the compiled kernel (:mod:`.classical_rows`, the same bits) where its inputs
+    allow; False: always the numpy specification (``_score``)."""
 
     def __init__(self, config: ClassicalConfig, rate_hz: float):
         if not isinstance(config, ClassicalConfig):
@@ -178,7 +183,50 @@ class ClassicalDetector(ZuptDetector):
         if self._lp is not None:
             self._lp.reset_rows(rows)
 
+    def process(self, f_b, w_b) -> DetectorOutput:
+        """:meth:`ZuptDetector.process`, compiled (:func:`.classical_rows._classical_rows`) for float64 arrays of
+        the same (B, n >= 1, 3) shape with finite samples and a batch size matching the detector's state; the
+        numpy specification otherwise (it raises the error naming the bad input)."""
+        out = self._process_compiled(f_b, w_b) if self.compiled else None
+        return super().process(f_b, w_b) if out is None else out
+
+    def _process_compiled(self, f, w):
+        """The compiled :meth:`process`, or None where the numpy path must run (nothing changed then)."""
+        if (type(f) is not np.ndarray or type(w) is not np.ndarray or f.dtype != np.float64
+                or w.dtype != np.float64 or f.ndim != 3 or f.shape != w.shape or f.shape[2] != 3 or f.shape[1] == 0):
+            return None
+        B, n, _ = f.shape
+        lp = self._lp
+        if ((self._tail is not None and self._tail.shape[0] != B)
+                or (lp is not None and lp.zi is not None and lp.zi.shape[1:] != (B, 2, 6)) or not all_finite(f, w)):
+            return None
+        first = self._tail is None
+        if first:
+            self._tail = np.empty((B, self.W - 1, 6))
+            self._count = np.zeros(B, np.int64)
+        tail = self._tail = np.ascontiguousarray(self._tail)
+        count = self._count = np.ascontiguousarray(self._count, np.int64)
+        if lp is not None:
+            if lp.zi is None:
+                lp.zi = np.zeros((lp.sos.shape[0], B, 2, 6))
+                lp._fresh = np.ones(B, bool)
+            zi = lp.zi = np.ascontiguousarray(lp.zi)
+            sos, zi_unit, fresh = lp.sos, lp._zi_unit, lp._fresh
+        else:
+            sos, zi_unit, zi, fresh = np.zeros((0, 6)), np.zeros((0, 2)), np.zeros((0, B, 2, 6)), np.zeros(B, bool)
+        c = self.config
+        W = self.W
+        score, stationary = np.empty((B, n)), np.empty((B, n), bool)
+        kern, nchunk = row_kernel(_chunk_serial, _chunk_parallel, B)
+        for s in range(0, n, self._CHUNK):
+            kern(f, w, s, min(self._CHUNK, n - s), sos, zi_unit, zi, fresh, lp is not None, tail, count, first, W,
+                 KIND_CODES[c.kind], c.gravity, c.sigma_a ** 2, W * c.sigma_a ** 2, W * c.sigma_w ** 2,
+                 float(self.threshold), score, stationary, nchunk)
+            first = False
+        return DetectorOutput(score=score, stationary=stationary)
+
     def _score(self, x):
+        """Scores of one validated chunk by the numpy specification (pre-filter, window statistic)."""
         B, n, _ = x.shape
         if self._tail is None:
             self._tail = None if n == 0 else np.empty((B, self.W - 1, 6))

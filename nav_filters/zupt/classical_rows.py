@@ -1,0 +1,139 @@
+"""Compiled streaming step of the classical zero-velocity detectors (:class:`~.classical.ClassicalDetector`).
+
+The numpy lines are the specification: :class:`~.prefilter.LowPass` (``scipy.signal.sosfilt``, direct form II
+transposed), ``ClassicalDetector._score`` (the trailing window of the stream, :func:`~.classical.
+classical_statistic` by cumulative sums) and ``ZuptDetector.decide``. :func:`_classical_rows` does the same
+operations in the same order on each batch row, for one chunk of samples, with no temporary arrays, so it gives
+the same bits (test: ``tests/nav_filters/test_zupt_compiled.py``). In a single environment's step with
+``zupt="shoe"`` the numpy path (input checks, a concatenation, scipy's argument handling, some forty small array
+operations for 100 samples) took about as long as the rest of the step.
+"""
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from ..kernels import serial_and_parallel
+
+KIND_CODES = {"shoe": 0, "are": 1, "mag": 2, "mv": 3}
+"""The ``kind`` argument of :func:`_classical_rows` for each classical detector."""
+
+
+@nb.njit(cache=True)
+def all_finite(f, w):
+    """Whether every entry of ``f`` and ``w`` (B, n, 3) is finite (what ``check_imu`` accepts)."""
+    for b in range(f.shape[0]):
+        for i in range(f.shape[1]):
+            for c in range(3):
+                if not (np.isfinite(f[b, i, c]) and np.isfinite(w[b, i, c])):
+                    return False
+    return True
+
+
+def _classical_rows(f, w, s0, k, sos, zi_unit, zi, fresh, has_lp, tail, count, first, W, kind, gravity, sa2,
+                    den_a, den_w, threshold, score, stationary, nchunk):
+    """One chunk, samples ``s0 .. s0 + k - 1`` of ``f``, ``w`` (B, n, 3), of every row's stream.
+
+    Per row, as the numpy path:
+
+    1. the six channels ``[f, w]`` low-pass filtered when ``has_lp`` (second-order sections ``sos`` (S, 6),
+       state ``zi`` (S, B, 2, 6) updated in place; a ``fresh`` row first set to the steady state of its first
+       sample, ``zi_unit`` (S, 2) times it, and unflagged): per section
+       ``y = b0 x + z0``, ``z0 <- b1 x - a1 y + z1``, ``z1 <- b2 x - a2 y``;
+    2. on the ``first`` chunk of a stream the window's history ``tail`` (B, W - 1, 6) filled with the first
+       filtered sample; the buffer ``[tail, chunk]`` of ``L = W - 1 + k`` samples;
+    3. the statistic ``T`` of ``kind`` (:data:`KIND_CODES`) on each of its ``k`` full windows, window sums as
+       differences of cumulative sums; SHOE and MV on the accelerometer samples shifted by the buffer's last one
+       (``classical_statistic``), ``sa2 = sigma_a^2``, ``den_a = W sigma_a^2``, ``den_w = W sigma_w^2``;
+    4. ``T = inf`` where the row has seen fewer than ``W`` samples (``count`` + the chunk's), then
+       ``score[b, s0 + i] = T`` and ``stationary = T < threshold``; ``tail`` the buffer's last ``W - 1``
+       samples and ``count <- min(count + k, W)``.
+
+    The rows run in ``nchunk`` chunks (parallel in the parallel variant), each with its scratch.
+    """
+    B = f.shape[0]
+    S = sos.shape[0]
+    L = W - 1 + k
+    for ch in nb.prange(nchunk):
+        buf = np.empty((L, 6))
+        cs = np.empty((L, 5))  # cumulative sums of the per-sample terms
+        for b in range(ch * B // nchunk, (ch + 1) * B // nchunk):
+            for c in range(6):
+                src = f if c < 3 else w
+                cc = c % 3
+                if has_lp:
+                    if fresh[b]:
+                        x0 = src[b, s0, cc]
+                        for s in range(S):
+                            zi[s, b, 0, c] = zi_unit[s, 0] * x0
+                            zi[s, b, 1, c] = zi_unit[s, 1] * x0
+                    for i in range(k):
+                        x_cur = src[b, s0 + i, cc]
+                        for s in range(S):
+                            x_new = sos[s, 0] * x_cur + zi[s, b, 0, c]
+                            zi[s, b, 0, c] = sos[s, 1] * x_cur - sos[s, 4] * x_new + zi[s, b, 1, c]
+                            zi[s, b, 1, c] = sos[s, 2] * x_cur - sos[s, 5] * x_new
+                            x_cur = x_new
+                        buf[W - 1 + i, c] = x_cur
+                else:
+                    for i in range(k):
+                        buf[W - 1 + i, c] = src[b, s0 + i, cc]
+            if has_lp:
+                fresh[b] = False
+            for j in range(W - 1):
+                for c in range(6):
+                    if first:
+                        tail[b, j, c] = buf[W - 1, c]
+                    buf[j, c] = tail[b, j, c]
+            # per-sample terms, summed cumulatively: SHOE / MV the shifted accelerometer d (3) and ||d||^2;
+            # SHOE / ARE ||w||^2; MAG (||a|| - g)^2
+            r0, r1, r2 = buf[L - 1, 0], buf[L - 1, 1], buf[L - 1, 2]
+            for j in range(L):
+                if kind == 0 or kind == 3:
+                    d0 = buf[j, 0] - r0
+                    d1 = buf[j, 1] - r1
+                    d2 = buf[j, 2] - r2
+                    t = (d0 * d0 + d1 * d1) + d2 * d2
+                    if j == 0:
+                        cs[j, 0], cs[j, 1], cs[j, 2], cs[j, 3] = d0, d1, d2, t
+                    else:
+                        cs[j, 0] = cs[j - 1, 0] + d0
+                        cs[j, 1] = cs[j - 1, 1] + d1
+                        cs[j, 2] = cs[j - 1, 2] + d2
+                        cs[j, 3] = cs[j - 1, 3] + t
+                if kind == 0 or kind == 1:
+                    t = (buf[j, 3] * buf[j, 3] + buf[j, 4] * buf[j, 4]) + buf[j, 5] * buf[j, 5]
+                    cs[j, 4] = t if j == 0 else cs[j - 1, 4] + t
+                elif kind == 2:
+                    m = np.sqrt((buf[j, 0] * buf[j, 0] + buf[j, 1] * buf[j, 1]) + buf[j, 2] * buf[j, 2]) - gravity
+                    cs[j, 4] = m * m if j == 0 else cs[j - 1, 4] + m * m
+            for i in range(k):
+                e = W - 1 + i  # the window's last sample; its sum is cs[e] - cs[i - 1]
+                if kind == 1 or kind == 2:
+                    sw = cs[e, 4] if i == 0 else cs[e, 4] - cs[i - 1, 4]
+                    T = sw / (den_w if kind == 1 else den_a)
+                else:
+                    s_0 = cs[e, 0] if i == 0 else cs[e, 0] - cs[i - 1, 0]
+                    s_1 = cs[e, 1] if i == 0 else cs[e, 1] - cs[i - 1, 1]
+                    s_2 = cs[e, 2] if i == 0 else cs[e, 2] - cs[i - 1, 2]
+                    s_3 = cs[e, 3] if i == 0 else cs[e, 3] - cs[i - 1, 3]
+                    m0, m1, m2 = s_0 / W, s_1 / W, s_2 / W
+                    var = max(s_3 / W - ((m0 * m0 + m1 * m1) + m2 * m2), 0.0)
+                    if kind == 3:
+                        T = var / sa2
+                    else:
+                        g0, g1, g2 = m0 + r0, m1 + r1, m2 + r2
+                        dg = np.sqrt((g0 * g0 + g1 * g1) + g2 * g2) - gravity
+                        sw = cs[e, 4] if i == 0 else cs[e, 4] - cs[i - 1, 4]
+                        T = (var + dg * dg) / sa2 + sw / den_w
+                if count[b] + i + 1 < W:
+                    T = np.inf
+                score[b, s0 + i] = T
+                stationary[b, s0 + i] = T < threshold
+            for j in range(W - 1):
+                for c in range(6):
+                    tail[b, j, c] = buf[k + j, c]
+            count[b] = min(count[b] + k, W)
+
+
+_chunk_serial, _chunk_parallel = serial_and_parallel(_classical_rows)

@@ -1,0 +1,122 @@
+"""The compiled classical zero-velocity detectors (``nav_filters.zupt.classical_rows``) against the numpy
+specification (``ClassicalDetector.compiled = False``: ``LowPass`` by ``scipy.signal.sosfilt``, ``_score``,
+``decide``): the same bits for every kind, with and without the pre-filter, over streamed chunks, restarted rows,
+several kernel chunks per call and the parallel row kernel; the detector state after each call the same; input
+the kernel does not take left to the numpy path, and its errors."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from nav_filters.kernels import PARALLEL_MIN_BATCH
+from nav_filters.zupt import ClassicalConfig, ClassicalDetector, make_detector
+from nav_filters.zupt.classical import CLASSICAL_KINDS, G0
+
+RATE = 100.0
+
+
+def _pair(kind, cutoff=5.0, threshold=5.0):
+    cfg = ClassicalConfig(kind=kind, window_s=0.3, threshold=threshold, cutoff_hz=cutoff)
+    fast, ref = ClassicalDetector(cfg, RATE), ClassicalDetector(cfg, RATE)
+    ref.compiled = False
+    return fast, ref
+
+
+def _imu(B, n, seed=0):
+    """A stream that stands still, moves, and stands still again (each detector fires in part of it)."""
+    rng = np.random.default_rng(seed)
+    f = rng.normal(0, 0.01, (B, n, 3)) + [0.0, 0.0, -G0]
+    w = rng.normal(0, 2e-4, (B, n, 3))
+    move = slice(n // 3, 2 * n // 3)
+    f[:, move] += rng.normal(0, 1.5, f[:, move].shape)
+    w[:, move] += rng.normal(0, 0.2, w[:, move].shape)
+    return f, w
+
+
+def _same_state(a, b):
+    np.testing.assert_array_equal(a._tail, b._tail)
+    np.testing.assert_array_equal(a._count, b._count)
+    if a._lp is not None:
+        np.testing.assert_array_equal(a._lp.zi, b._lp.zi)
+        np.testing.assert_array_equal(a._lp._fresh, b._lp._fresh)
+
+
+@pytest.mark.parametrize("kind", CLASSICAL_KINDS)
+@pytest.mark.parametrize("cutoff", [5.0, None])
+@pytest.mark.parametrize("B", [1, 3, PARALLEL_MIN_BATCH + 3])
+def test_compiled_detector_gives_the_numpy_bits(kind, cutoff, B):
+    f, w = _imu(B, 420, seed=B)
+    probe, _ = _pair(kind, cutoff)  # the threshold at the median statistic, so both decisions occur
+    T = probe.detect(f, w).score
+    fast, ref = _pair(kind, cutoff, threshold=float(np.median(T[np.isfinite(T)])))
+    fired = np.zeros(2, int)
+    for s, e in ((0, 1), (1, 20), (20, 140), (140, 141), (141, 330), (330, 420)):
+        if s == 141:  # new streams on some rows: the filter restarts from their next sample, windows refill
+            fast.reset_rows([0, B - 1])
+            ref.reset_rows([0, B - 1])
+        got, want = fast.process(f[:, s:e], w[:, s:e]), ref.process(f[:, s:e], w[:, s:e])
+        np.testing.assert_array_equal(got.score, want.score)
+        np.testing.assert_array_equal(np.signbit(got.score), np.signbit(want.score))
+        np.testing.assert_array_equal(got.stationary, want.stationary)
+        _same_state(fast, ref)
+        fired += np.bincount(got.stationary.ravel(), minlength=2)
+    assert fired.min() > 0  # both decisions were exercised
+
+
+def test_compiled_detector_runs_long_calls_in_chunks_as_the_numpy_path(monkeypatch):
+    monkeypatch.setattr(ClassicalDetector, "_CHUNK", 7)
+    for kind in ("shoe", "mv"):
+        fast, ref = _pair(kind)
+        f, w = _imu(2, 100)
+        for s, e in ((0, 3), (3, 80), (80, 100)):  # first call shorter than the window, then several chunks
+            got, want = fast.process(f[:, s:e], w[:, s:e]), ref.process(f[:, s:e], w[:, s:e])
+            np.testing.assert_array_equal(got.score, want.score)
+            _same_state(fast, ref)
+
+
+def test_input_the_kernel_does_not_take_runs_the_numpy_path():
+    fast, ref = _pair("shoe")
+    f, w = _imu(2, 60)
+    # float32 and strided (non-contiguous) inputs, and an empty chunk
+    for args in ((f[:, :10].astype(np.float32), w[:, :10].astype(np.float32)), (f[:, 10:40:2], w[:, 10:40:2]),
+                 (f[:, 40:40], w[:, 40:40]), (f[:, 40:], w[:, 40:])):
+        got, want = fast.process(*args), ref.process(*args)
+        np.testing.assert_array_equal(got.score, want.score)
+        _same_state(fast, ref)
+
+
+def test_bad_input_raises_the_numpy_error_and_leaves_the_state_unchanged():
+    det = make_detector("shoe", RATE)
+    assert det.compiled
+    ref = make_detector("shoe", RATE)
+    ref.compiled = False
+    f, w = _imu(2, 50)
+    det.process(f[:, :20], w[:, :20])
+    ref.process(f[:, :20], w[:, :20])
+    bad = f[:, 20:].copy()
+    bad[1, 7, 2] = np.inf
+    with pytest.raises(ValueError, match=r"f_b has a NaN or inf sample \(row 1, sample 7\)"):
+        det.process(bad, w[:, 20:])
+    _same_state(det, ref)
+    np.testing.assert_array_equal(det.process(f[:, 20:], w[:, 20:]).score, ref.process(f[:, 20:], w[:, 20:]).score)
+    with pytest.raises(ValueError, match="the detector runs B=2 streams"):
+        det.process(f[:1, :5], w[:1, :5])
+    with pytest.raises(ValueError, match="same shape"):
+        det.process(f, w[:, :10])
+
+
+def test_env_with_a_classical_detector_steps_the_same_with_and_without_the_kernel():
+    import gymnasium as gym
+    import envs  # noqa: F401  (registers the ids)
+
+    out = []
+    for compiled in (True, False):
+        env = gym.make("GnssIns/SageHusa-v0", episode_length_s=40.0, scenario="urban", zupt="shoe")
+        env.reset(seed=3)
+        env.unwrapped.core._zupt.detector.compiled = compiled
+        steps = [env.step(np.array([0.3 * np.sin(k)], np.float32)) for k in range(30)]
+        out.append((np.array([s[0] for s in steps]), np.array([s[1] for s in steps]),
+                    np.array([s[4]["zupt"] for s in steps])))
+    for a, b in zip(*out):
+        np.testing.assert_array_equal(a, b)
+    assert out[0][2].any()  # the urban drive stops: ZUPT rows were used
