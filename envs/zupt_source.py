@@ -71,6 +71,19 @@ class ZuptSource:
         self.choice = choice
         self.aiding = aiding
         self.detector = None if choice in ("none", "truth") else make_detector(choice, rate_hz, weights)
+        self._compiled = True
+
+    @property
+    def compiled(self) -> bool:
+        """Whether a classical detector's step and the constraint block run compiled (the default; the same
+        bits); False: their numpy specifications (for comparisons: ``benchmarks/bench_zupt.py``)."""
+        return self._compiled
+
+    @compiled.setter
+    def compiled(self, value: bool) -> None:
+        self._compiled = bool(value)
+        if hasattr(self.detector, "compiled"):
+            self.detector.compiled = self._compiled
 
     @property
     def enabled(self) -> bool:
@@ -93,4 +106,4 @@ class ZuptSource:
 
     def block(self, nav, w_b, decisions, dt: float):
         """``(extra, active)`` of :func:`nav_filters.zupt.stationary_block` for ``Navigator.update_gnss``."""
-        return stationary_block(nav, w_b, decisions, dt, self.aiding)
+        return stationary_block(nav, w_b, decisions, dt, self.aiding, compiled=self._compiled)

@@ -17,15 +17,28 @@ update instant) stationary; for those rows the block stacks
 
 The block is fused into the epoch's GNSS update through
 ``Navigator.update_gnss(..., extra=block)`` (one stacked update).
+
+The numpy composition (:func:`~nav_filters.constraints.zupt`, :func:`~nav_filters.constraints.zero_heading_rate`,
+:func:`~nav_filters.constraints.stack_measurements`) is the specification; :func:`stationary_block` forms the same
+block with two compiled passes around its three matrix products, which stay numpy's (their bits are BLAS's), so the
+block is the same bits (test: ``tests/nav_filters/test_zupt_compiled.py``). In an environment step with a classical
+detector, the composition took about a third of the step at a stationary epoch.
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 
+from earth.wgs84 import E2 as _E2
+from earth.wgs84 import OMEGA_IE
+
 from ..constraints import stack_measurements, zero_heading_rate, zupt
+from ..error_model import ATT, BG, N_STATES, VEL
+
+_W_IE = np.array([0.0, 0.0, OMEGA_IE])
 
 __all__ = ["ZuptAidingConfig", "stationary_block"]
 
@@ -56,7 +69,8 @@ class ZuptAidingConfig:
             raise ValueError(f"ZuptAidingConfig.heading_rate must be a bool, got {self.heading_rate!r}")
 
 
-def stationary_block(nav, w_raw, stationary, dt: float, config: ZuptAidingConfig = ZuptAidingConfig()):
+def stationary_block(nav, w_raw, stationary, dt: float, config: ZuptAidingConfig = ZuptAidingConfig(), *,
+                     compiled: bool = True):
     """Measurement block for the rows declared stationary at this epoch.
 
     Parameters
@@ -67,6 +81,9 @@ def stationary_block(nav, w_raw, stationary, dt: float, config: ZuptAidingConfig
     stationary : (B, n) bool detector decisions for those samples.
     dt : IMU sample interval [s].
     config : ZuptAidingConfig.
+    compiled : form the block by the compiled passes (the same bits) where the inputs allow (a live stationary
+        row with a state or gyro mean that is not finite runs the composition, which raises the error naming it);
+        False: always the numpy composition.
 
     Returns
     -------
@@ -86,6 +103,11 @@ def stationary_block(nav, w_raw, stationary, dt: float, config: ZuptAidingConfig
     active = st[:, -1] & ~nav.diverged
     if not active.any():
         return None, active
+    arw = math.sqrt(float(np.max(nav.config.noise.gyro_psd)))
+    if compiled:
+        block = _compiled_block(nav, w, st, active, float(dt), arw, config)
+        if block is not None:
+            return block, active
     blocks = [zupt(nav.v, nav.C, config.zupt_sigma_mps, active)]
     if config.heading_rate:
         # trailing run of stationary samples (>= 1 on active rows)
@@ -96,8 +118,112 @@ def stationary_block(nav, w_raw, stationary, dt: float, config: ZuptAidingConfig
         cnt = np.maximum(run, 1)
         w_mean = np.where(in_run[..., None], w, 0.0).sum(1) / cnt[:, None] - nav.bg
         T = cnt * dt
-        arw = math.sqrt(float(np.max(nav.config.noise.gyro_psd)))
         sigma = np.sqrt(arw ** 2 / T + (config.vibration_angle_rad / T) ** 2)
         sigma = np.maximum(sigma, 1e-12)  # the navigator floors its ARW (episodes.process_noise_for); never 0
         blocks.append(zero_heading_rate(nav.C, np.where(active[:, None], w_mean, 0.0), nav.r, sigma, active))
     return stack_measurements(*blocks, dtype=nav.dtype), active
+
+
+def _compiled_block(nav, w, st, active, dt, arw, config):
+    """The block of :func:`stationary_block` by :func:`_heading_inputs` and :func:`_block_rows` around the
+    numpy products of :func:`~nav_filters.constraints.zero_heading_rate` (the same expressions on arrays of the
+    same layout), or None where a live stationary row's state or gyro mean is not finite."""
+    B = w.shape[0]
+    f8 = np.float64
+    v, C, r, bg = (np.asarray(a, f8) for a in (nav.v, nav.C, nav.r, nav.bg))  # (as the composition reads them)
+    heading = bool(config.heading_rate)
+    wm, d_e, var_h = np.empty((B, 3)), np.empty((B, 3)), np.empty(B)
+    if not _heading_inputs(w, st, active, v, C, r, bg, dt, arw ** 2, float(config.vibration_angle_rad),
+                           1.0 / (1.0 - _E2), heading, wm, d_e, var_h):
+        return None
+    if heading:
+        with np.errstate(invalid="ignore"):
+            w_e = (C @ wm[..., None])[..., 0] - _W_IE
+            dz_h = np.einsum("bi,bi->b", d_e, w_e)
+            h_bg = (np.swapaxes(C, -1, -2) @ d_e[..., None])[..., 0]
+    else:
+        dz_h, h_bg = var_h, wm  # (unread)
+    m = 4 if heading else 3
+    dt_out = nav.dtype
+    dz, H, R, mask = np.empty((B, m), dt_out), np.empty((B, m, N_STATES), dt_out), np.empty((B, m), dt_out), \
+        np.empty((B, m), bool)
+    s = float(config.zupt_sigma_mps)
+    _block_rows(active, v, dz_h, h_bg, d_e, s * s, var_h, heading, OMEGA_IE, VEL.start, ATT.start, BG.start,
+                dz, H, R, mask)
+    return dz, H, R, mask
+
+
+@nb.njit(cache=True)
+def _heading_inputs(w, st, active, v, C, r, bg, dt, arw2, vib, down_k, heading, wm, d_e, var_h):
+    """Per live stationary row (``active``) of :func:`stationary_block`, as its numpy lines: the bias-corrected
+    mean gyro sample ``wm`` over the trailing stationary run (samples summed in order, over the count), the
+    variance ``var_h`` of the heading-rate row (``max(sqrt(arw2 / T + (vib / T)^2), 1e-12)^2``) and the local
+    down ``d_e`` (:func:`~nav_filters.constraints._local_down`, ``down_k = 1 / (1 - e^2)``); zeros elsewhere.
+    Returns False where such a row's ``v``, ``C``, ``r`` or ``wm`` is not finite (the composition raises)."""
+    B, n = st.shape
+    for b in range(B):
+        for c in range(3):
+            wm[b, c] = 0.0
+            d_e[b, c] = 0.0
+        var_h[b] = 1.0
+        if not active[b]:
+            continue
+        for c in range(3):
+            if not np.isfinite(v[b, c]):
+                return False
+        if not heading:
+            continue
+        for i in range(3):
+            if not (np.isfinite(r[b, i]) and np.isfinite(C[b, i, 0]) and np.isfinite(C[b, i, 1])
+                    and np.isfinite(C[b, i, 2])):
+                return False
+        last_moving = -1
+        for i in range(n):
+            if not st[b, i]:
+                last_moving = i
+        cnt = max(n - 1 - last_moving, 1)
+        for c in range(3):
+            s = 0.0
+            for i in range(last_moving + 1, n):
+                s += w[b, i, c]
+            wm[b, c] = s / cnt - bg[b, c]
+            if not np.isfinite(wm[b, c]):
+                return False
+        T = cnt * dt
+        q = vib / T
+        sig = max(np.sqrt(arw2 / T + q * q), 1e-12)
+        var_h[b] = sig * sig
+        n0, n1, n2 = r[b, 0] * 1.0, r[b, 1] * 1.0, r[b, 2] * down_k
+        nn = -np.sqrt((n0 * n0 + n1 * n1) + n2 * n2)
+        d_e[b, 0], d_e[b, 1], d_e[b, 2] = n0 / nn, n1 / nn, n2 / nn
+    return True
+
+
+@nb.njit(cache=True)
+def _block_rows(active, v, dz_h, h_bg, d_e, var_z, var_h, heading, omega, vel0, att0, bg0, dz, H, R, mask):
+    """The rows of :func:`stationary_block` into ``dz``, ``H``, ``R``, ``mask`` (B, m) of the navigator's dtype:
+    the three ZUPT rows (``dz = -v``, ``H[VEL] = I``, variance ``var_z``) and, with ``heading``, the heading-rate
+    row (``dz_h``, ``H[BG] = h_bg``, ``H[ATT] = (d_e x w_ie)^T``, ``var_h``); neutral (0, 0, variance 1) on the
+    other batch rows."""
+    B, m, n = H.shape
+    for b in range(B):
+        a = active[b]
+        for k in range(m):
+            for j in range(n):
+                H[b, k, j] = 0.0
+            mask[b, k] = a
+            dz[b, k] = 0.0
+            R[b, k] = 1.0
+        if not a:
+            continue
+        for k in range(3):
+            dz[b, k] = -v[b, k]
+            H[b, k, vel0 + k] = 1.0
+            R[b, k] = var_z
+        if heading:
+            dz[b, 3] = dz_h[b]
+            for j in range(3):
+                H[b, 3, bg0 + j] = h_bg[b, j]
+            H[b, 3, att0] = omega * d_e[b, 1]
+            H[b, 3, att0 + 1] = -omega * d_e[b, 0]
+            R[b, 3] = var_h[b]

@@ -105,7 +105,7 @@ def test_bad_input_raises_the_numpy_error_and_leaves_the_state_unchanged():
         det.process(f, w[:, :10])
 
 
-def test_env_with_a_classical_detector_steps_the_same_with_and_without_the_kernel():
+def test_env_with_a_classical_detector_steps_the_same_with_and_without_the_compiled_passes():
     import gymnasium as gym
     import envs  # noqa: F401  (registers the ids)
 
@@ -113,10 +113,93 @@ def test_env_with_a_classical_detector_steps_the_same_with_and_without_the_kerne
     for compiled in (True, False):
         env = gym.make("GnssIns/SageHusa-v0", episode_length_s=40.0, scenario="urban", zupt="shoe")
         env.reset(seed=3)
-        env.unwrapped.core._zupt.detector.compiled = compiled
+        env.unwrapped.core._zupt.compiled = compiled  # the detector's step and the constraint block
+        assert env.unwrapped.core._zupt.detector.compiled is compiled
         steps = [env.step(np.array([0.3 * np.sin(k)], np.float32)) for k in range(30)]
         out.append((np.array([s[0] for s in steps]), np.array([s[1] for s in steps]),
                     np.array([s[4]["zupt"] for s in steps])))
     for a, b in zip(*out):
         np.testing.assert_array_equal(a, b)
     assert out[0][2].any()  # the urban drive stops: ZUPT rows were used
+
+
+# ------------------------------------------------------------------------------------------ stationary block
+class _Nav:
+    """The navigator attributes ``stationary_block`` reads, with a varied state per row."""
+
+    def __init__(self, B, dtype=np.float64, seed=0):
+        from earth.rotations import exp_so3
+        from earth.wgs84 import C_en, geodetic_to_ecef
+        from nav_filters.error_model import ProcessNoise
+
+        rng = np.random.default_rng(seed)
+        self.batch_size = B
+        lat, lon = np.radians(rng.uniform(-60, 60, B)), np.radians(rng.uniform(-180, 180, B))
+        self.r = np.stack([geodetic_to_ecef(a, o, h) for a, o, h in zip(lat, lon, rng.uniform(0, 900, B))])
+        self.v = rng.normal(0, 0.05, (B, 3))
+        self.C = np.stack([C_en(a, o) @ exp_so3(rng.normal(0, 0.5, 3)) for a, o in zip(lat, lon)])
+        self.bg = rng.normal(0, 1e-4, (B, 3))
+        self.diverged = np.zeros(B, bool)
+        self.dtype = np.dtype(dtype)
+
+        class _Cfg:
+            noise = ProcessNoise(gyro_psd=rng.uniform(1e-9, 1e-7, 3))
+
+        self.config = _Cfg()
+
+
+def _blocks(nav, w, st, dt=0.01, config=None):
+    from nav_filters.zupt import ZuptAidingConfig, stationary_block
+
+    config = config or ZuptAidingConfig()
+    return (stationary_block(nav, w, st, dt, config), stationary_block(nav, w, st, dt, config, compiled=False))
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+@pytest.mark.parametrize("heading", [True, False])
+def test_compiled_stationary_block_gives_the_composition_bits(dtype, heading):
+    from nav_filters.zupt import ZuptAidingConfig
+
+    B, n = 40, 25
+    nav = _Nav(B, dtype)
+    rng = np.random.default_rng(1)
+    w = rng.normal(0, 0.02, (B, n, 3))
+    st = np.arange(n)[None, :] >= rng.integers(0, n, B)[:, None]  # runs of every length from the 10th row
+    st[:9] = True
+    st[1, :10] = False                  # stopped 15 samples before the epoch
+    st[2, 23] = False                   # a one-sample run
+    st[3, -1] = False                   # moving at the epoch: no rows
+    st[4, :] = False
+    st[4, -1] = True
+    nav.diverged[5] = True              # parked: no rows
+    nav.v[6] = np.nan                   # a moving row's state is not read
+    st[6, -1] = False
+    nav.v[7] = 0.0                      # -0.0 rows
+    cfg = ZuptAidingConfig(zupt_sigma_mps=0.03, heading_rate=heading, vibration_angle_rad=2e-4)
+    (got, act), (want, act_ref) = _blocks(nav, w, st, 0.01, cfg)
+    np.testing.assert_array_equal(act, act_ref)
+    assert act[:9].tolist() == [True, True, True, False, True, False, False, True, True] and act[9:].all()
+    for g, r in zip(got, want):
+        assert g.dtype == r.dtype and g.shape == r.shape
+        np.testing.assert_array_equal(g, r)
+        np.testing.assert_array_equal(np.signbit(g), np.signbit(r))
+    assert got[0].shape == (B, 4 if heading else 3)
+
+
+def test_compiled_stationary_block_leaves_bad_state_to_the_composition_and_its_error():
+    nav = _Nav(3)
+    w = np.zeros((3, 10, 3))
+    st = np.ones((3, 10), bool)
+    nav.C[1, 2, 0] = np.inf
+    from nav_filters.zupt import stationary_block
+
+    with pytest.raises(ValueError, match="C_eb has a non-finite value on active batch row 1"):
+        stationary_block(nav, w, st, 0.01)
+    nav.C[1, 2, 0] = 0.0
+    w[2, 4, 1] = np.nan                 # inside the trailing run of row 2: its gyro mean is not finite
+    with pytest.raises(ValueError, match="w_b_corrected has a non-finite value on active batch row 2"):
+        stationary_block(nav, w, st, 0.01)
+    st[2, 5] = False                    # the NaN sample is now before the run: not in the mean
+    (got, _), (want, _) = _blocks(nav, w, st)
+    for g, r in zip(got, want):
+        np.testing.assert_array_equal(g, r)
