@@ -11,7 +11,7 @@ detectors, lazily):
   streaming, and the max-F1 threshold tuning (:mod:`.classical_rows`: the streaming step compiled,
   the same bits);
 * :mod:`.learned` -- MLP (window) and LSTM (sequence) detectors, their feature
-  pipeline, weights files;
+  pipeline (:mod:`.learned_rows`: compiled, the same bits), weights files;
 * :mod:`.aiding` -- the ZUPT + zero-heading-rate measurement block from a
   detector's decisions (fused by ``Navigator.update_gnss(..., extra=block)``);
 * :mod:`.defaults` -- the shipped tuned constants and default weights.

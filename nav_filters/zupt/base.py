@@ -24,9 +24,10 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 
-__all__ = ["ZuptDetector", "DetectorOutput", "check_imu", "SCORE_KINDS"]
+__all__ = ["ZuptDetector", "DetectorOutput", "check_imu", "SCORE_KINDS", "all_finite"]
 
 SCORE_KINDS = ("statistic", "probability")
 
@@ -57,6 +58,18 @@ def check_imu(f_b, w_b) -> np.ndarray:
     if arrs[0].shape != arrs[1].shape:
         raise ValueError(f"f_b and w_b must have the same shape, got {arrs[0].shape} and {arrs[1].shape}")
     return np.concatenate(arrs, axis=2)
+
+
+@nb.njit(cache=True)
+def all_finite(f, w):
+    """Whether every entry of ``f`` and ``w`` (B, n, 3) is finite (the compiled detector steps' check of what
+    :func:`check_imu` accepts; where it fails the numpy path runs and raises the error naming the sample)."""
+    for b in range(f.shape[0]):
+        for i in range(f.shape[1]):
+            for c in range(3):
+                if not (np.isfinite(f[b, i, c]) and np.isfinite(w[b, i, c])):
+                    return False
+    return True
 
 
 @dataclass(frozen=True)

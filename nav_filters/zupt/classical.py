@@ -45,8 +45,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..kernels import row_kernel
-from .base import DetectorOutput, ZuptDetector, window_sums
-from .classical_rows import KIND_CODES, _chunk_parallel, _chunk_serial, all_finite
+from .base import DetectorOutput, ZuptDetector, all_finite, window_sums
+from .classical_rows import KIND_CODES, _chunk_parallel, _chunk_serial
 from .prefilter import LowPass, check_cutoff
 
 __all__ = ["CLASSICAL_KINDS", "ClassicalConfig", "ClassicalDetector", "classical_statistic", "tune_threshold",

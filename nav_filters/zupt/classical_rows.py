@@ -14,20 +14,10 @@ import numba as nb
 import numpy as np
 
 from ..kernels import serial_and_parallel
+from .prefilter import lowpass_channel
 
 KIND_CODES = {"shoe": 0, "are": 1, "mag": 2, "mv": 3}
 """The ``kind`` argument of :func:`_classical_rows` for each classical detector."""
-
-
-@nb.njit(cache=True)
-def all_finite(f, w):
-    """Whether every entry of ``f`` and ``w`` (B, n, 3) is finite (what ``check_imu`` accepts)."""
-    for b in range(f.shape[0]):
-        for i in range(f.shape[1]):
-            for c in range(3):
-                if not (np.isfinite(f[b, i, c]) and np.isfinite(w[b, i, c])):
-                    return False
-    return True
 
 
 def _classical_rows(f, w, s0, k, sos, zi_unit, zi, fresh, has_lp, tail, count, first, W, kind, gravity, sa2,
@@ -36,10 +26,9 @@ def _classical_rows(f, w, s0, k, sos, zi_unit, zi, fresh, has_lp, tail, count, f
 
     Per row, as the numpy path:
 
-    1. the six channels ``[f, w]`` low-pass filtered when ``has_lp`` (second-order sections ``sos`` (S, 6),
-       state ``zi`` (S, B, 2, 6) updated in place; a ``fresh`` row first set to the steady state of its first
-       sample, ``zi_unit`` (S, 2) times it, and unflagged): per section
-       ``y = b0 x + z0``, ``z0 <- b1 x - a1 y + z1``, ``z1 <- b2 x - a2 y``;
+    1. the six channels ``[f, w]`` low-pass filtered when ``has_lp`` (:func:`~.prefilter.lowpass_channel`:
+       second-order sections ``sos`` (S, 6), state ``zi`` (S, B, 2, 6) updated in place, a ``fresh`` row started
+       in the steady state of its first sample and unflagged);
     2. on the ``first`` chunk of a stream the window's history ``tail`` (B, W - 1, 6) filled with the first
        filtered sample; the buffer ``[tail, chunk]`` of ``L = W - 1 + k`` samples;
     3. the statistic ``T`` of ``kind`` (:data:`KIND_CODES`) on each of its ``k`` full windows, window sums as
@@ -52,7 +41,6 @@ def _classical_rows(f, w, s0, k, sos, zi_unit, zi, fresh, has_lp, tail, count, f
     The rows run in ``nchunk`` chunks (parallel in the parallel variant), each with its scratch.
     """
     B = f.shape[0]
-    S = sos.shape[0]
     L = W - 1 + k
     for ch in nb.prange(nchunk):
         buf = np.empty((L, 6))
@@ -60,24 +48,11 @@ def _classical_rows(f, w, s0, k, sos, zi_unit, zi, fresh, has_lp, tail, count, f
         for b in range(ch * B // nchunk, (ch + 1) * B // nchunk):
             for c in range(6):
                 src = f if c < 3 else w
-                cc = c % 3
                 if has_lp:
-                    if fresh[b]:
-                        x0 = src[b, s0, cc]
-                        for s in range(S):
-                            zi[s, b, 0, c] = zi_unit[s, 0] * x0
-                            zi[s, b, 1, c] = zi_unit[s, 1] * x0
-                    for i in range(k):
-                        x_cur = src[b, s0 + i, cc]
-                        for s in range(S):
-                            x_new = sos[s, 0] * x_cur + zi[s, b, 0, c]
-                            zi[s, b, 0, c] = sos[s, 1] * x_cur - sos[s, 4] * x_new + zi[s, b, 1, c]
-                            zi[s, b, 1, c] = sos[s, 2] * x_cur - sos[s, 5] * x_new
-                            x_cur = x_new
-                        buf[W - 1 + i, c] = x_cur
+                    lowpass_channel(src, b, s0, k, c % 3, c, sos, zi_unit, zi, fresh[b], buf, W - 1)
                 else:
                     for i in range(k):
-                        buf[W - 1 + i, c] = src[b, s0 + i, cc]
+                        buf[W - 1 + i, c] = src[b, s0 + i, c % 3]
             if has_lp:
                 fresh[b] = False
             for j in range(W - 1):

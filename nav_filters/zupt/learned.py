@@ -51,8 +51,10 @@ from pathlib import Path
 import numpy as np
 from scipy.signal import lfilter
 
-from .base import ZuptDetector
+from ..kernels import row_kernel
+from .base import DetectorOutput, ZuptDetector, all_finite
 from .classical import G0
+from .learned_rows import _features_parallel, _features_serial
 from .prefilter import LowPass, check_cutoff
 
 __all__ = ["LEARNED_KINDS", "N_FEATURES", "LearnedConfig", "FeatureStream", "LearnedDetector", "build_model",
@@ -209,6 +211,31 @@ class FeatureStream:
         feats[..., 9] = (np.linalg.norm(emas[0], axis=-1) - c.gravity) / c.accel_scale
         return feats, pos
 
+    def push_compiled(self, f, w):
+        """:meth:`push` of the chunk ``[f, w]`` (float64 (B, n >= 1, 3) each, finite, checked by the caller) by
+        the compiled kernel (:func:`.learned_rows._feature_rows`, the same bits), or None where the stream's
+        state has another batch size (nothing changed then; :meth:`push` raises)."""
+        B, n, _ = f.shape
+        lp = self._lp
+        if (lp.zi is not None and lp.zi.shape[1:] != (B, 2, 6)) or (self._ema is not None and self._ema.shape[1] != B):
+            return None
+        if self._ema is None:
+            self._ema = np.zeros((2, B, 3))
+            self._fresh = np.ones(B, bool)
+        if lp.zi is None:
+            lp.zi = np.zeros((lp.sos.shape[0], B, 2, 6))
+            lp._fresh = np.ones(B, bool)
+        zi = lp.zi = np.ascontiguousarray(lp.zi)
+        ema = self._ema = np.ascontiguousarray(self._ema)
+        pos = np.arange((self.factor - 1 - self._phase) % self.factor, n, self.factor)
+        self._phase = (self._phase + n) % self.factor
+        c = self.config
+        feats = np.empty((B, pos.size, N_FEATURES), np.float32)
+        kern, nchunk = row_kernel(_features_serial, _features_parallel, B)
+        kern(f, w, pos, lp.sos, lp._zi_unit, zi, lp._fresh, ema, self._fresh, self.alpha, c.accel_scale,
+             c.gyro_scale, c.gravity, feats, nchunk)
+        return feats, pos
+
 
 # ----------------------------------------------------------------------------------------- networks
 def _torch():
@@ -268,6 +295,9 @@ class LearnedDetector(ZuptDetector):
     """
 
     score_kind = "probability"
+    compiled = True
+    """Form the features in :meth:`process` by the compiled kernel (:mod:`.learned_rows`, the same bits) where
+    the inputs allow; False: always the numpy specification (``FeatureStream.push``)."""
 
     def __init__(self, config: LearnedConfig, model, rate_hz: float):
         if not isinstance(config, LearnedConfig):
@@ -332,14 +362,38 @@ class LearnedDetector(ZuptDetector):
         return torch.sigmoid(logit).numpy().astype(np.float64), state
 
     # ------------------------------------------------------------------ streaming
+    def process(self, f_b, w_b) -> DetectorOutput:
+        """:meth:`ZuptDetector.process` with the features formed by the compiled kernel
+        (:meth:`FeatureStream.push_compiled`) for float64 arrays of the same (B, n >= 1, 3) shape with finite
+        samples and a batch size matching the detector's state; the numpy specification otherwise (it raises the
+        error naming the bad input)."""
+        f, w = f_b, w_b
+        if (self.compiled and type(f) is np.ndarray and type(w) is np.ndarray and f.dtype == np.float64
+                and w.dtype == np.float64 and f.ndim == 3 and f.shape == w.shape and f.shape[2] == 3
+                and f.shape[1] > 0 and (self._last is None or self._last.shape[0] == f.shape[0])
+                and all_finite(f, w)):
+            B, n, _ = f.shape
+            got = self.features.push_compiled(f, w)
+            if got is not None:
+                if self._last is None:
+                    self._last = np.zeros(B)
+                score = self._score_features(B, n, *got)
+                return DetectorOutput(score=score, stationary=self.decide(score))
+        return super().process(f_b, w_b)
+
     def _score(self, x):
+        """Scores of one validated chunk by the numpy specification (features, network, hold)."""
         B, n, _ = x.shape
         if self._last is None:
             self._last = np.zeros(B)
         elif self._last.shape[0] != B:
             raise ValueError(f"the detector runs B={self._last.shape[0]} streams, got a chunk with B={B} "
                              "(call reset() first)")
-        feats, pos = self.features.push(x)
+        return self._score_features(B, n, *self.features.push(x))
+
+    def _score_features(self, B, n, feats, pos):
+        """Scores (B, n) of a chunk of n samples from the features (B, m, 10) of its model steps at ``pos``: the
+        network's probabilities, each held until the next model step."""
         m = pos.size
         out = np.empty((B, n))
         if m == 0:

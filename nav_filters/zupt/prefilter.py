@@ -21,10 +21,11 @@ from __future__ import annotations
 
 import math
 
+import numba as nb
 import numpy as np
 from scipy.signal import butter, sosfilt, sosfilt_zi
 
-__all__ = ["butter_lowpass", "LowPass", "lowpass", "check_cutoff"]
+__all__ = ["butter_lowpass", "LowPass", "lowpass", "check_cutoff", "lowpass_channel"]
 
 
 def check_cutoff(cutoff_hz, rate_hz, name="cutoff_hz"):
@@ -132,3 +133,30 @@ def lowpass(x, rate_hz: float, cutoff_hz: float, order: int = 2) -> np.ndarray:
     Seed paper 000 sec 2 pre-filter (see :func:`butter_lowpass`). Returns float64 (B, n, C).
     """
     return LowPass(cutoff_hz, rate_hz, order)(x)
+
+
+@nb.njit(cache=True, inline="always")
+def lowpass_channel(src, b, s0, k, cc, c, sos, zi_unit, zi, fresh, out, o0):
+    """Compiled :class:`LowPass` step of one channel of one row (the same bits as ``scipy.signal.sosfilt``, direct
+    form II transposed, and the steady-state start of ``sosfilt_zi``).
+
+    Filters ``src[b, s0 : s0 + k, cc]`` with the sections ``sos`` (S, 6) and the state ``zi[:, b, :, c]``
+    (``zi`` (S, B, 2, C), updated in place) into ``out[o0 : o0 + k, c]``; per sample and section
+    ``y = b0 x + z0``, ``z0 <- b1 x - a1 y + z1``, ``z1 <- b2 x - a2 y``. Where ``fresh`` the state is first set to
+    the steady state of the chunk's first sample, ``zi_unit`` (S, 2) times it (the caller clears the flag).
+    Used by the compiled detector steps (:mod:`.classical_rows`, :mod:`.learned_rows`).
+    """
+    S = sos.shape[0]
+    if fresh:
+        x0 = src[b, s0, cc]
+        for s in range(S):
+            zi[s, b, 0, c] = zi_unit[s, 0] * x0
+            zi[s, b, 1, c] = zi_unit[s, 1] * x0
+    for i in range(k):
+        x_cur = src[b, s0 + i, cc]
+        for s in range(S):
+            x_new = sos[s, 0] * x_cur + zi[s, b, 0, c]
+            zi[s, b, 0, c] = sos[s, 1] * x_cur - sos[s, 4] * x_new + zi[s, b, 1, c]
+            zi[s, b, 1, c] = sos[s, 2] * x_cur - sos[s, 5] * x_new
+            x_cur = x_new
+        out[o0 + i, c] = x_cur

@@ -1,8 +1,10 @@
-"""The compiled classical zero-velocity detectors (``nav_filters.zupt.classical_rows``) against the numpy
-specification (``ClassicalDetector.compiled = False``: ``LowPass`` by ``scipy.signal.sosfilt``, ``_score``,
-``decide``): the same bits for every kind, with and without the pre-filter, over streamed chunks, restarted rows,
-several kernel chunks per call and the parallel row kernel; the detector state after each call the same; input
-the kernel does not take left to the numpy path, and its errors."""
+"""The compiled zero-velocity detector steps against their numpy specifications: the classical detectors
+(``nav_filters.zupt.classical_rows``; ``ClassicalDetector.compiled = False``: ``LowPass`` by
+``scipy.signal.sosfilt``, ``_score``, ``decide``), the learned detectors' features (``learned_rows``;
+``FeatureStream.push`` with ``scipy.signal.lfilter``) and the stationary constraint block (``stationary_block``
+against its composition). The same bits for every kind, with and without the pre-filter, over streamed chunks,
+restarted rows, several kernel chunks per call and the parallel row kernel; the state after each call the same;
+input the kernels do not take left to the numpy path, and its errors."""
 from __future__ import annotations
 
 import numpy as np
@@ -105,13 +107,16 @@ def test_bad_input_raises_the_numpy_error_and_leaves_the_state_unchanged():
         det.process(f, w[:, :10])
 
 
-def test_env_with_a_classical_detector_steps_the_same_with_and_without_the_compiled_passes():
+@pytest.mark.parametrize("zupt", ["shoe", "lstm"])
+def test_env_with_a_detector_steps_the_same_with_and_without_the_compiled_passes(zupt):
     import gymnasium as gym
     import envs  # noqa: F401  (registers the ids)
 
+    if zupt == "lstm":
+        pytest.importorskip("torch")
     out = []
     for compiled in (True, False):
-        env = gym.make("GnssIns/SageHusa-v0", episode_length_s=40.0, scenario="urban", zupt="shoe")
+        env = gym.make("GnssIns/SageHusa-v0", episode_length_s=40.0, scenario="urban", zupt=zupt)
         env.reset(seed=3)
         env.unwrapped.core._zupt.compiled = compiled  # the detector's step and the constraint block
         assert env.unwrapped.core._zupt.detector.compiled is compiled
@@ -203,3 +208,61 @@ def test_compiled_stationary_block_leaves_bad_state_to_the_composition_and_its_e
     (got, _), (want, _) = _blocks(nav, w, st)
     for g, r in zip(got, want):
         np.testing.assert_array_equal(g, r)
+
+
+# ------------------------------------------------------------------------------------------ learned features
+def _streams(B, factor=2):
+    from nav_filters.zupt.learned import FeatureStream, LearnedConfig
+
+    cfg = LearnedConfig(kind="lstm", model_rate_hz=RATE / factor, cutoff_hz=0.2 * RATE / factor)
+    return FeatureStream(cfg, RATE), FeatureStream(cfg, RATE)
+
+
+@pytest.mark.parametrize("B", [1, 3, PARALLEL_MIN_BATCH + 3])
+@pytest.mark.parametrize("factor", [1, 2, 3])
+def test_compiled_features_give_the_numpy_bits(B, factor):
+    from nav_filters.zupt.base import check_imu
+
+    fast, ref = _streams(B, factor)
+    f, w = _imu(B, 420, seed=10 + B)
+    # chunks of 1 sample (no model step in some of them at factor > 1), odd lengths, rows restarted midway
+    for s, e in ((0, 1), (1, 2), (2, 3), (3, 104), (104, 250), (250, 251), (251, 420)):
+        if s == 250:
+            fast.reset_rows([0, B - 1])
+            ref.reset_rows([0, B - 1])
+        got, want = fast.push_compiled(f[:, s:e], w[:, s:e]), ref.push(check_imu(f[:, s:e], w[:, s:e]))
+        np.testing.assert_array_equal(got[1], want[1])
+        assert got[0].dtype == want[0].dtype == np.float32 and got[0].shape == want[0].shape
+        np.testing.assert_array_equal(got[0], want[0])
+        np.testing.assert_array_equal(np.signbit(got[0]), np.signbit(want[0]))
+        for name in ("_ema", "_fresh", "_phase"):
+            np.testing.assert_array_equal(getattr(fast, name), getattr(ref, name))
+        np.testing.assert_array_equal(fast._lp.zi, ref._lp.zi)
+        np.testing.assert_array_equal(fast._lp._fresh, ref._lp._fresh)
+
+
+@pytest.mark.parametrize("kind", ["lstm", "mlp"])
+def test_learned_detector_with_compiled_features_scores_as_the_numpy_path(kind):
+    pytest.importorskip("torch")
+    from nav_filters.zupt.learned import LearnedConfig, LearnedDetector
+
+    cfg = LearnedConfig(kind=kind, window=8, hidden=16)
+    fast = LearnedDetector(cfg, None, RATE)
+    ref = LearnedDetector(cfg, fast.model, RATE)
+    ref.compiled = False
+    assert fast.compiled
+    f, w = _imu(3, 300, seed=7)
+    for s, e in ((0, 1), (1, 130), (130, 300)):
+        got, want = fast.process(f[:, s:e], w[:, s:e]), ref.process(f[:, s:e], w[:, s:e])
+        np.testing.assert_array_equal(got.score, want.score)
+        np.testing.assert_array_equal(got.stationary, want.stationary)
+    bad = f[:, :10].copy()
+    bad[2, 3, 0] = np.nan
+    with pytest.raises(ValueError, match=r"f_b has a NaN or inf sample \(row 2, sample 3\)"):
+        fast.process(bad, w[:, :10])
+    np.testing.assert_array_equal(fast.features._ema, ref.features._ema)  # nothing changed by the bad chunk
+    with pytest.raises(ValueError, match="the detector runs B=3 streams"):
+        fast.process(f[:1, :10], w[:1, :10])
+    # float32 and strided input: the numpy path, the same scores
+    for args in ((f[:, 10:30].astype(np.float32), w[:, 10:30].astype(np.float32)), (f[:, 30:90:3], w[:, 30:90:3])):
+        np.testing.assert_array_equal(fast.process(*args).score, ref.process(*args).score)
