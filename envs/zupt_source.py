@@ -75,8 +75,9 @@ class ZuptSource:
 
     @property
     def compiled(self) -> bool:
-        """Whether a classical detector's step and the constraint block run compiled (the default; the same
-        bits); False: their numpy specifications (for comparisons: ``benchmarks/bench_zupt.py``)."""
+        """Whether the detector's step (a classical detector's whole step, a learned one's features) and the
+        constraint block run compiled (the default; the same bits); False: their numpy specifications (for
+        comparisons: ``benchmarks/bench_zupt.py``)."""
         return self._compiled
 
     @compiled.setter

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
-__all__ = ["ZuptDetector", "DetectorOutput", "check_imu", "SCORE_KINDS", "all_finite"]
+__all__ = ["ZuptDetector", "DetectorOutput", "check_imu", "SCORE_KINDS", "compiled_input"]
 
 SCORE_KINDS = ("statistic", "probability")
 
@@ -60,10 +60,17 @@ def check_imu(f_b, w_b) -> np.ndarray:
     return np.concatenate(arrs, axis=2)
 
 
+def compiled_input(f, w) -> bool:
+    """Whether a chunk ``f_b``, ``w_b`` is what the compiled detector steps take: float64 arrays of one
+    (B, n >= 1, 3) shape with finite samples (what :func:`check_imu` accepts, less the conversions). Elsewhere
+    the numpy path runs, and raises the error naming the input."""
+    return (type(f) is np.ndarray and type(w) is np.ndarray and f.dtype == np.float64 and w.dtype == np.float64
+            and f.ndim == 3 and f.shape == w.shape and f.shape[2] == 3 and f.shape[1] > 0 and _all_finite(f, w))
+
+
 @nb.njit(cache=True)
-def all_finite(f, w):
-    """Whether every entry of ``f`` and ``w`` (B, n, 3) is finite (the compiled detector steps' check of what
-    :func:`check_imu` accepts; where it fails the numpy path runs and raises the error naming the sample)."""
+def _all_finite(f, w):
+    """Whether every entry of ``f`` and ``w`` (B, n, 3) is finite."""
     for b in range(f.shape[0]):
         for i in range(f.shape[1]):
             for c in range(3):

@@ -45,7 +45,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..kernels import row_kernel
-from .base import DetectorOutput, ZuptDetector, all_finite, window_sums
+from .base import DetectorOutput, ZuptDetector, compiled_input, window_sums
 from .classical_rows import KIND_CODES, _chunk_parallel, _chunk_serial
 from .prefilter import LowPass, check_cutoff
 
@@ -192,13 +192,15 @@ class ClassicalDetector(ZuptDetector):
 
     def _process_compiled(self, f, w):
         """The compiled :meth:`process`, or None where the numpy path must run (nothing changed then)."""
-        if (type(f) is not np.ndarray or type(w) is not np.ndarray or f.dtype != np.float64
-                or w.dtype != np.float64 or f.ndim != 3 or f.shape != w.shape or f.shape[2] != 3 or f.shape[1] == 0):
+        if not compiled_input(f, w):
             return None
         B, n, _ = f.shape
         lp = self._lp
-        if ((self._tail is not None and self._tail.shape[0] != B)
-                or (lp is not None and lp.zi is not None and lp.zi.shape[1:] != (B, 2, 6)) or not all_finite(f, w)):
+        if self._tail is not None and self._tail.shape[0] != B:
+            return None
+        lp_state = (lp.compiled_state(B) if lp is not None
+                    else (np.zeros((0, 6)), np.zeros((0, 2)), np.zeros((0, B, 2, 6)), np.zeros(B, bool)))
+        if lp_state is None:
             return None
         first = self._tail is None
         if first:
@@ -206,20 +208,12 @@ class ClassicalDetector(ZuptDetector):
             self._count = np.zeros(B, np.int64)
         tail = self._tail = np.ascontiguousarray(self._tail)
         count = self._count = np.ascontiguousarray(self._count, np.int64)
-        if lp is not None:
-            if lp.zi is None:
-                lp.zi = np.zeros((lp.sos.shape[0], B, 2, 6))
-                lp._fresh = np.ones(B, bool)
-            zi = lp.zi = np.ascontiguousarray(lp.zi)
-            sos, zi_unit, fresh = lp.sos, lp._zi_unit, lp._fresh
-        else:
-            sos, zi_unit, zi, fresh = np.zeros((0, 6)), np.zeros((0, 2)), np.zeros((0, B, 2, 6)), np.zeros(B, bool)
         c = self.config
         W = self.W
         score, stationary = np.empty((B, n)), np.empty((B, n), bool)
         kern, nchunk = row_kernel(_chunk_serial, _chunk_parallel, B)
         for s in range(0, n, self._CHUNK):
-            kern(f, w, s, min(self._CHUNK, n - s), sos, zi_unit, zi, fresh, lp is not None, tail, count, first, W,
+            kern(f, w, s, min(self._CHUNK, n - s), *lp_state, lp is not None, tail, count, first, W,
                  KIND_CODES[c.kind], c.gravity, c.sigma_a ** 2, W * c.sigma_a ** 2, W * c.sigma_w ** 2,
                  float(self.threshold), score, stationary, nchunk)
             first = False

@@ -52,7 +52,7 @@ import numpy as np
 from scipy.signal import lfilter
 
 from ..kernels import row_kernel
-from .base import DetectorOutput, ZuptDetector, all_finite
+from .base import DetectorOutput, ZuptDetector, compiled_input
 from .classical import G0
 from .learned_rows import _features_parallel, _features_serial
 from .prefilter import LowPass, check_cutoff
@@ -216,24 +216,22 @@ class FeatureStream:
         the compiled kernel (:func:`.learned_rows._feature_rows`, the same bits), or None where the stream's
         state has another batch size (nothing changed then; :meth:`push` raises)."""
         B, n, _ = f.shape
-        lp = self._lp
-        if (lp.zi is not None and lp.zi.shape[1:] != (B, 2, 6)) or (self._ema is not None and self._ema.shape[1] != B):
+        if self._ema is not None and self._ema.shape[1] != B:
+            return None
+        lp_state = self._lp.compiled_state(B)
+        if lp_state is None:
             return None
         if self._ema is None:
             self._ema = np.zeros((2, B, 3))
             self._fresh = np.ones(B, bool)
-        if lp.zi is None:
-            lp.zi = np.zeros((lp.sos.shape[0], B, 2, 6))
-            lp._fresh = np.ones(B, bool)
-        zi = lp.zi = np.ascontiguousarray(lp.zi)
         ema = self._ema = np.ascontiguousarray(self._ema)
         pos = np.arange((self.factor - 1 - self._phase) % self.factor, n, self.factor)
         self._phase = (self._phase + n) % self.factor
         c = self.config
         feats = np.empty((B, pos.size, N_FEATURES), np.float32)
         kern, nchunk = row_kernel(_features_serial, _features_parallel, B)
-        kern(f, w, pos, lp.sos, lp._zi_unit, zi, lp._fresh, ema, self._fresh, self.alpha, c.accel_scale,
-             c.gyro_scale, c.gravity, feats, nchunk)
+        kern(f, w, pos, *lp_state, ema, self._fresh, self.alpha, c.accel_scale, c.gyro_scale, c.gravity, feats,
+             nchunk)
         return feats, pos
 
 
@@ -368,10 +366,8 @@ class LearnedDetector(ZuptDetector):
         samples and a batch size matching the detector's state; the numpy specification otherwise (it raises the
         error naming the bad input)."""
         f, w = f_b, w_b
-        if (self.compiled and type(f) is np.ndarray and type(w) is np.ndarray and f.dtype == np.float64
-                and w.dtype == np.float64 and f.ndim == 3 and f.shape == w.shape and f.shape[2] == 3
-                and f.shape[1] > 0 and (self._last is None or self._last.shape[0] == f.shape[0])
-                and all_finite(f, w)):
+        if (self.compiled and compiled_input(f, w)
+                and (self._last is None or self._last.shape[0] == f.shape[0])):
             B, n, _ = f.shape
             got = self.features.push_compiled(f, w)
             if got is not None:

@@ -108,6 +108,18 @@ class LowPass:
         if self._fresh is not None:
             self._fresh[np.asarray(rows, np.intp)] = True
 
+    def compiled_state(self, B: int):
+        """``(sos, zi_unit, zi, fresh)`` for a compiled step of B rows (:func:`lowpass_channel`): the state
+        created as :meth:`__call__` creates it on a first chunk (C = 6 channels) and made C-contiguous, updated in
+        place by the kernel; None where the filter runs another batch size (then :meth:`__call__` raises)."""
+        if self.zi is None:
+            self.zi = np.zeros((self.sos.shape[0], B, 2, 6))
+            self._fresh = np.ones(B, bool)
+        elif self.zi.shape[1:] != (B, 2, 6):
+            return None
+        self.zi = np.ascontiguousarray(self.zi)
+        return self.sos, self._zi_unit, self.zi, self._fresh
+
     def __call__(self, x) -> np.ndarray:
         x = _check_stream(x)
         B, n, C = x.shape
