@@ -76,10 +76,10 @@ def test_compiled_detector_runs_long_calls_in_chunks_as_the_numpy_path(monkeypat
             _same_state(fast, ref)
 
 
-def test_input_the_kernel_does_not_take_runs_the_numpy_path():
+def test_unusual_chunks_give_the_numpy_bits():
     fast, ref = _pair("shoe")
     f, w = _imu(2, 60)
-    # float32 and strided (non-contiguous) inputs, and an empty chunk
+    # float32 input and an empty chunk (the numpy path), a strided view (the kernel on non-contiguous arrays)
     for args in ((f[:, :10].astype(np.float32), w[:, :10].astype(np.float32)), (f[:, 10:40:2], w[:, 10:40:2]),
                  (f[:, 40:40], w[:, 40:40]), (f[:, 40:], w[:, 40:])):
         got, want = fast.process(*args), ref.process(*args)
@@ -263,6 +263,6 @@ def test_learned_detector_with_compiled_features_scores_as_the_numpy_path(kind):
     np.testing.assert_array_equal(fast.features._ema, ref.features._ema)  # nothing changed by the bad chunk
     with pytest.raises(ValueError, match="the detector runs B=3 streams"):
         fast.process(f[:1, :10], w[:1, :10])
-    # float32 and strided input: the numpy path, the same scores
+    # float32 input (the numpy path) and a strided view (the kernel on non-contiguous arrays): the same scores
     for args in ((f[:, 10:30].astype(np.float32), w[:, 10:30].astype(np.float32)), (f[:, 30:90:3], w[:, 30:90:3])):
         np.testing.assert_array_equal(fast.process(*args).score, ref.process(*args).score)
