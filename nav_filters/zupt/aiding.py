@@ -21,8 +21,8 @@ The block is fused into the epoch's GNSS update through
 The numpy composition (:func:`~nav_filters.constraints.zupt`, :func:`~nav_filters.constraints.zero_heading_rate`,
 :func:`~nav_filters.constraints.stack_measurements`) is the specification; :func:`stationary_block` forms the same
 block with two compiled passes around its three matrix products, which stay numpy's (their bits are BLAS's), so the
-block is the same bits (test: ``tests/nav_filters/test_zupt_compiled.py``). In an environment step with a classical
-detector, the composition took about a third of the step at a stationary epoch.
+block is the same bits (test: ``tests/nav_filters/test_zupt_compiled.py``). With the composition, cProfile put 21% of
+a single ``urban`` env's steps with ``zupt="shoe"`` in it (62 of the 300 epochs were stationary).
 """
 from __future__ import annotations
 

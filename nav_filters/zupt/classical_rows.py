@@ -4,9 +4,9 @@ The numpy lines are the specification: :class:`~.prefilter.LowPass` (``scipy.sig
 transposed), ``ClassicalDetector._score`` (the trailing window of the stream, :func:`~.classical.
 classical_statistic` by cumulative sums) and ``ZuptDetector.decide``. :func:`_classical_rows` does the same
 operations in the same order on each batch row, for one chunk of samples, with no temporary arrays, so it gives
-the same bits (test: ``tests/nav_filters/test_zupt_compiled.py``). In a single environment's step with
+the same bits (test: ``tests/nav_filters/test_zupt_compiled.py``). In a single ``urban`` env's step with
 ``zupt="shoe"`` the numpy path (input checks, a concatenation, scipy's argument handling, some forty small array
-operations for 100 samples) took about as long as the rest of the step.
+operations for 100 samples) took 45% of the step (cProfile).
 """
 from __future__ import annotations
 
