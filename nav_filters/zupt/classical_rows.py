@@ -20,6 +20,13 @@ KIND_CODES = {"shoe": 0, "are": 1, "mag": 2, "mv": 3}
 """The ``kind`` argument of :func:`_classical_rows` for each classical detector."""
 
 
+@nb.njit(cache=True, inline="always")
+def _window_sum(cs, i, e, c):
+    """Sum of column ``c`` over samples ``i .. e`` from its cumulative sums ``cs`` (L, C), as ``window_sums``
+    forms it: ``cs[e]`` for the first window, ``cs[e] - cs[i - 1]`` after it."""
+    return cs[e, c] if i == 0 else cs[e, c] - cs[i - 1, c]
+
+
 def _classical_rows(f, w, s0, k, sos, zi_unit, zi, fresh, has_lp, tail, count, first, W, kind, gravity, sa2,
                     den_a, den_w, threshold, score, stationary, nchunk):
     """One chunk, samples ``s0 .. s0 + k - 1`` of ``f``, ``w`` (B, n, 3), of every row's stream.
@@ -60,47 +67,42 @@ def _classical_rows(f, w, s0, k, sos, zi_unit, zi, fresh, has_lp, tail, count, f
                     if first:
                         tail[b, j, c] = buf[W - 1, c]
                     buf[j, c] = tail[b, j, c]
-            # per-sample terms, summed cumulatively: SHOE / MV the shifted accelerometer d (3) and ||d||^2;
-            # SHOE / ARE ||w||^2; MAG (||a|| - g)^2
+            # per-sample terms, then their cumulative sums (column by column, in sample order, as np.cumsum):
+            # SHOE / MV the shifted accelerometer d (columns 0-2) and ||d||^2 (3); SHOE / ARE ||w||^2 and MAG
+            # (||a|| - g)^2 (4)
             r0, r1, r2 = buf[L - 1, 0], buf[L - 1, 1], buf[L - 1, 2]
             for j in range(L):
                 if kind == 0 or kind == 3:
                     d0 = buf[j, 0] - r0
                     d1 = buf[j, 1] - r1
                     d2 = buf[j, 2] - r2
-                    t = (d0 * d0 + d1 * d1) + d2 * d2
-                    if j == 0:
-                        cs[j, 0], cs[j, 1], cs[j, 2], cs[j, 3] = d0, d1, d2, t
-                    else:
-                        cs[j, 0] = cs[j - 1, 0] + d0
-                        cs[j, 1] = cs[j - 1, 1] + d1
-                        cs[j, 2] = cs[j - 1, 2] + d2
-                        cs[j, 3] = cs[j - 1, 3] + t
+                    cs[j, 0], cs[j, 1], cs[j, 2] = d0, d1, d2
+                    cs[j, 3] = (d0 * d0 + d1 * d1) + d2 * d2
                 if kind == 0 or kind == 1:
-                    t = (buf[j, 3] * buf[j, 3] + buf[j, 4] * buf[j, 4]) + buf[j, 5] * buf[j, 5]
-                    cs[j, 4] = t if j == 0 else cs[j - 1, 4] + t
+                    cs[j, 4] = (buf[j, 3] * buf[j, 3] + buf[j, 4] * buf[j, 4]) + buf[j, 5] * buf[j, 5]
                 elif kind == 2:
                     m = np.sqrt((buf[j, 0] * buf[j, 0] + buf[j, 1] * buf[j, 1]) + buf[j, 2] * buf[j, 2]) - gravity
-                    cs[j, 4] = m * m if j == 0 else cs[j - 1, 4] + m * m
+                    cs[j, 4] = m * m
+            c_lo = 0 if (kind == 0 or kind == 3) else 4
+            c_hi = 4 if kind == 3 else 5
+            for j in range(1, L):
+                for c in range(c_lo, c_hi):
+                    cs[j, c] += cs[j - 1, c]
             for i in range(k):
-                e = W - 1 + i  # the window's last sample; its sum is cs[e] - cs[i - 1]
+                e = W - 1 + i  # the window's last sample
                 if kind == 1 or kind == 2:
-                    sw = cs[e, 4] if i == 0 else cs[e, 4] - cs[i - 1, 4]
-                    T = sw / (den_w if kind == 1 else den_a)
+                    T = _window_sum(cs, i, e, 4) / (den_w if kind == 1 else den_a)
                 else:
-                    s_0 = cs[e, 0] if i == 0 else cs[e, 0] - cs[i - 1, 0]
-                    s_1 = cs[e, 1] if i == 0 else cs[e, 1] - cs[i - 1, 1]
-                    s_2 = cs[e, 2] if i == 0 else cs[e, 2] - cs[i - 1, 2]
-                    s_3 = cs[e, 3] if i == 0 else cs[e, 3] - cs[i - 1, 3]
-                    m0, m1, m2 = s_0 / W, s_1 / W, s_2 / W
-                    var = max(s_3 / W - ((m0 * m0 + m1 * m1) + m2 * m2), 0.0)
+                    m0 = _window_sum(cs, i, e, 0) / W
+                    m1 = _window_sum(cs, i, e, 1) / W
+                    m2 = _window_sum(cs, i, e, 2) / W
+                    var = max(_window_sum(cs, i, e, 3) / W - ((m0 * m0 + m1 * m1) + m2 * m2), 0.0)
                     if kind == 3:
                         T = var / sa2
                     else:
                         g0, g1, g2 = m0 + r0, m1 + r1, m2 + r2
                         dg = np.sqrt((g0 * g0 + g1 * g1) + g2 * g2) - gravity
-                        sw = cs[e, 4] if i == 0 else cs[e, 4] - cs[i - 1, 4]
-                        T = (var + dg * dg) / sa2 + sw / den_w
+                        T = (var + dg * dg) / sa2 + _window_sum(cs, i, e, 4) / den_w
                 if count[b] + i + 1 < W:
                     T = np.inf
                 score[b, s0 + i] = T
