@@ -37,7 +37,10 @@ back to the exact transition, and the row is marked ``*`` ("before: the exact de
 mode of this tree"). The stage profile's *before* column is the first mode of ``--transitions`` alike.
 ``--rounds N`` runs each throughput cell N times in each tree, alternately, and prints the medians and the range
 of the N per-round speed-ups: on a shared machine whose speed swings between runs a minute apart, one pair of
-cells can show 0.7x or 1.1x for unchanged code.
+cells can show 0.7x or 1.1x for unchanged code. Without ``--compare``, ``--rounds N`` runs each throughput cell
+N times in fresh processes, one method and batch after another in turn, and prints the median steps/s with the
+lowest and highest of the N (a verdict against a target, e.g. 30k steps/s at B = 1024, is the median's, with
+the range beside it).
 
 ``--kernel-time`` prints instead, for the first of ``--methods`` in its env default (fused) at B = 1 and 1024 (or
 ``--batches``), how much of a step runs inside navgym's compiled kernels, per kernel, and how much is the Python
@@ -343,6 +346,25 @@ def _run_before(root, kind, method, B, steps, episode_s, scenario, transition, s
         return _run_cell(root, kind, method, B, steps, episode_s, scenario, "exact", stat), True
 
 
+def _print_rounds(args, batches, n_steps, root):
+    """The throughput table of ``--rounds N`` in one tree: every cell (method, B, mode) runs N times in fresh
+    processes, all cells in turn per round (so a slow minute of the machine falls on every cell alike, not on
+    one); each row the median steps/s (and of the reset and CPU times) with the lowest and highest of the N."""
+    cells = [(m, B, tr) for m in args.methods for B in batches for tr in args.transitions]
+    runs = {c: [] for c in cells}
+    for r in range(args.rounds):
+        for m, B, tr in cells:
+            runs[(m, B, tr)].append(_run_cell(root, "rate", m, B, n_steps(B), args.episode_s, args.scenario, tr,
+                                              args.stat))
+        print(f"round {r + 1}/{args.rounds} done", file=sys.stderr, flush=True)
+    for m, B, tr in cells:
+        res = np.asarray(runs[(m, B, tr)], float)
+        t_reset, rate, cpu = np.median(res, axis=0)
+        spread = f"{res[:, 1].min():.0f}-{res[:, 1].max():.0f}"
+        print(f"{_label(m, tr):16s} {B:5d} {t_reset:10.2f} {rate:12.0f} {1e3 * B / rate:9.2f} {cpu:12.2f} "
+              f"{spread:>18s}", flush=True)
+
+
 def _cell_main(kind, method, B, steps, episode_s, scenario, transition, stat="mean"):
     B, steps, episode_s = int(B), int(steps), float(episode_s)
     if kind == "rate":
@@ -393,8 +415,8 @@ def main(argv=None):
     p.add_argument("--compare", metavar="DIR", default=None,
                    help="also run every cell in the source tree DIR, alternately in fresh processes")
     p.add_argument("--rounds", type=int, default=1,
-                   help="--compare: run each throughput cell this many times in each tree, alternately, and print "
-                        "the medians with the range of the per-round speed-ups (for a machine whose speed swings "
+                   help="run each throughput cell this many times in fresh processes (with --compare: in each tree, "
+                        "alternately) and print the medians with the range (for a machine whose speed swings "
                         "between runs)")
     p.add_argument("--transitions", nargs="+", default=list(TRANSITIONS), choices=TRANSITIONS,
                    help="transition modes to run (exact: the reference; averaged: exact_transition=False; fused: "
@@ -466,9 +488,14 @@ def main(argv=None):
         if args.rounds > 1:
             print(f"each figure the median of {args.rounds} alternating runs per tree")
     else:
-        hdr = f"{'method':16s} {'B':>5s} {'reset [s]':>10s} {'steps/s':>12s} {'ms/step':>9s} {'cpu ms/step':>12s}"
+        hdr = (f"{'method':16s} {'B':>5s} {'reset [s]':>10s} {'steps/s':>12s} {'ms/step':>9s} {'cpu ms/step':>12s}"
+               + (f" {'rounds: steps/s':>18s}" if args.rounds > 1 else ""))
+        if args.rounds > 1:
+            print(f"each figure the median of {args.rounds} runs in fresh processes, cells in turn; their range beside")
     print("\n" + hdr + "\n" + "-" * len(hdr))
-    for m in ([] if args.profile_only else args.methods):
+    if args.rounds > 1 and not args.compare and not args.profile_only:
+        _print_rounds(args, batches, n_steps, here)
+    for m in ([] if args.profile_only or (args.rounds > 1 and not args.compare) else args.methods):
         for B in batches:
             cell = ("rate", m, B, n_steps(B), args.episode_s, args.scenario)
             for tr in args.transitions:
