@@ -620,35 +620,47 @@ def row_nonzeros(h_row, nzc_row, nzv_row):
 
 @nb.njit(cache=True, error_model="numpy")
 def sym_eig_inplace(A, d, Vt, e, v, wk):
-    """Eigen-decomposition of the symmetric ``A`` (n, n; overwritten): ``A = Vt^T diag(d) Vt``.
+    """Eigen-decomposition of the symmetric ``A`` (n rows, overwritten): ``A = Vt^T diag(d) Vt``.
 
     Householder reduction to tridiagonal form with the transformations accumulated, then the implicit
     symmetric QR iteration with Wilkinson shifts on the tridiagonal matrix, rotations accumulated into the
     eigenvectors (Golub & Van Loan, *Matrix Computations*, 4th ed., algorithms 8.3.1 and 8.3.3). Backward
-    stable like LAPACK's ``syevd`` (what ``np.linalg.eigh`` runs), with no allocation and no call overhead:
-    about twice as fast for n = 17 in a compiled loop over rows.
+    stable like LAPACK's ``syevd`` (what ``np.linalg.eigh`` runs), with no allocation and no call overhead.
+
+    The rows of ``A`` and ``Vt`` are padded with zero columns to ``W >= n`` (:func:`padded_width`: 20 for n = 17)
+    and every row operation runs over all W (vectorized, no scalar remainder): the Householder step's product
+    ``p = A v`` as a sum of rows of the full symmetric ``A`` and its rank-2 update on whole rows (the columns left
+    of the trailing block take values never read again), the accumulation and the QR rotations on whole rows of
+    ``Vt``; the padding stays zero (faster than the same steps over the lower triangle and n columns, whose short
+    row loops leave most of their work to a scalar remainder; ``bench_envs.py --components``, Q law).
 
     Parameters
     ----------
-    A : (n, n) symmetric (only its lower triangle is read; destroyed). d : (n,) output eigenvalues (unsorted).
-    Vt : (n, n) output, row k the eigenvector of ``d[k]``. e, v, wk : (n,) scratch.
+    A : (n, W) symmetric in its first n columns, both triangles stored, zero in the others (destroyed).
+    d : (n,) output eigenvalues (unsorted). Vt : (n, W) output, row k the eigenvector of ``d[k]`` (zero padding).
+    e : (>= n,), v, wk : (W,) scratch.
 
     Returns
     -------
     bool, False when the QR iteration did not converge in 30 n steps (outputs undefined).
     """
     n = A.shape[0]
+    W = A.shape[1]
     for i in range(n):
-        for j in range(n):
+        for j in range(W):
             Vt[i, j] = 0.0
         Vt[i, i] = 1.0
         e[i] = 0.0
-    # ---- Householder tridiagonalization: A <- H A H on the trailing block, Vt <- H Vt
+    for j in range(W):
+        v[j] = 0.0
+    # ---- Householder tridiagonalization: A <- H A H on the trailing block, Vt <- H Vt; v is zero outside the
+    # block's rows k+1..n-1 (so are the padding entries of every product below)
     for k in range(n - 2):
+        v[k] = 0.0
         a2 = 0.0
         for i in range(k + 2, n):
-            a2 += A[i, k] * A[i, k]
-        x0 = A[k + 1, k]
+            a2 += A[k, i] * A[k, i]
+        x0 = A[k, k + 1]
         if a2 == 0.0:  # column already reduced
             e[k] = x0
             continue
@@ -656,42 +668,37 @@ def sym_eig_inplace(A, d, Vt, e, v, wk):
         alpha = -np.sqrt(a2) if x0 >= 0 else np.sqrt(a2)
         vn = np.sqrt(2.0 * (a2 - x0 * alpha))
         for i in range(k + 1, n):
-            v[i] = A[i, k] / vn
+            v[i] = A[k, i] / vn
         v[k + 1] = (x0 - alpha) / vn
-        # p = A22 v, K = v^T p, q = p - K v;  A22 <- A22 - 2 (v q^T + q v^T), on the lower triangle of the
-        # symmetric A22 only (half the arithmetic; p from each entry below the diagonal twice)
-        for i in range(k + 1, n):
-            wk[i] = 0.0
-        for i in range(k + 1, n):
-            vi = v[i]
-            s = A[i, i] * vi
-            for j in range(k + 1, i):
-                a = A[i, j]
-                s += a * v[j]
-                wk[j] += a * vi
-            wk[i] += s
+        # p = A v (rows k+1..n-1 of A, whole rows), K = v^T p, w = 2 (p - K v);  A <- A - (v w^T + w v^T)
+        for c in range(W):
+            wk[c] = 0.0
+        for j in range(k + 1, n):
+            vj = v[j]
+            for c in range(W):
+                wk[c] += A[j, c] * vj
         kk = 0.0
         for i in range(k + 1, n):
             kk += v[i] * wk[i]
-        for i in range(k + 1, n):
-            wk[i] = 2.0 * (wk[i] - kk * v[i])
-        for i in range(k + 1, n):
-            vi = 2.0 * v[i]
-            wi = wk[i]
-            for j in range(k + 1, i + 1):
-                A[i, j] -= vi * wk[j] * 0.5 + wi * v[j]
-        e[k] = alpha
-        # Vt <- H Vt on rows k+1..n-1:  Vt[i, :] -= 2 v_i (v^T Vt)
-        for j in range(n):
-            wk[j] = 0.0
+        for c in range(W):
+            wk[c] = 2.0 * (wk[c] - kk * v[c])
         for i in range(k + 1, n):
             vi = v[i]
-            for j in range(n):
-                wk[j] += vi * Vt[i, j]
+            wi = wk[i]
+            for c in range(W):
+                A[i, c] -= vi * wk[c] + wi * v[c]
+        e[k] = alpha
+        # Vt <- H Vt on rows k+1..n-1:  Vt[i, :] -= 2 v_i (v^T Vt)
+        for c in range(W):
+            wk[c] = 0.0
+        for i in range(k + 1, n):
+            vi = v[i]
+            for c in range(W):
+                wk[c] += vi * Vt[i, c]
         for i in range(k + 1, n):
             f = 2.0 * v[i]
-            for j in range(n):
-                Vt[i, j] -= f * wk[j]
+            for c in range(W):
+                Vt[i, c] -= f * wk[c]
     if n >= 2:
         e[n - 2] = A[n - 1, n - 2]
     for i in range(n):
@@ -739,7 +746,7 @@ def sym_eig_inplace(A, d, Vt, e, v, wk):
                 x = e[k]
                 z = s * e[k + 1]
                 e[k + 1] = c * e[k + 1]
-            for j in range(n):
+            for j in range(W):
                 a = Vt[k, j]
                 b = Vt[k + 1, j]
                 Vt[k, j] = c * a + s * b

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from ..kernels import serial_and_parallel, sym_eig_inplace
+from ..kernels import padded_width, serial_and_parallel, sym_eig_inplace
 from .compiled_epoch import fused_law_update
 from .satellite_r import _commit_parallel, _commit_serial, _r_sat_kernel, _r_sat_parallel, _weight_one
 
@@ -44,10 +44,11 @@ def _adapt_q_rows(rows, d, dx, P_post, prior, Q_nom, b, step, e_prev, b_used, q_
         Qh = np.empty((n, n), Q_raw.dtype)
         w = np.empty(n)
         Qw = np.empty((n, n))
-        A = np.empty((n, n))
+        W = padded_width(n)   # sym_eig_inplace's rows, padded with zero columns (it keeps them zero)
+        A = np.zeros((n, W))
         vals = np.empty(n)
-        Vt = np.empty((n, n))
-        sc = np.empty((3, n))
+        Vt = np.zeros((n, W))
+        sc = np.zeros((3, W))
         for r in range(ch * B // nchunk, (ch + 1) * B // nchunk):
             if rows[r]:
                 _adapt_q_row(r, d, dx, P_post, prior, Q_nom, b, step, e_prev, b_used, q_init, q_ref, Q_raw, Q,
@@ -58,8 +59,8 @@ def _adapt_q_rows(rows, d, dx, P_post, prior, Q_nom, b, step, e_prev, b_used, q_
 @nb.njit(cache=True, inline="always")
 def _adapt_q_row(r, d, dx, P_post, prior, Q_nom, b, step, e_prev, b_used, q_init, q_ref, Q_raw, Q,
                  jump_ratio, b_min, b_jump_factor, diagonal, floor, ceiling, own_eig, X, Qh, w, Qw, A, vals, Vt, sc):
-    """Row ``r`` of :func:`_adapt_q_rows`, in the scratch ``X``, ``Qh``, ``Qw``, ``A``, ``Vt`` (n, n), ``w``,
-    ``vals`` (n,), ``sc`` (3, n)."""
+    """Row ``r`` of :func:`_adapt_q_rows`, in the scratch ``X``, ``Qh``, ``Qw`` (n, n), ``A``, ``Vt`` (n, W) (W the
+    padded width of :func:`~nav_filters.kernels.sym_eig_inplace`, zero padding), ``w``, ``vals`` (n,), ``sc`` (3, W)."""
     n = dx.shape[1]
     for i in range(n):
         for j in range(n):

@@ -256,16 +256,23 @@ def test_own_symmetric_eigendecomposition():
     """``sym_eig_inplace`` (Householder + implicit QR, the Sage-Husa Q law's projection on the fused path):
     ``A = Vt^T diag(d) Vt`` and ``Vt`` orthonormal to round-off, eigenvalues those of ``np.linalg.eigvalsh``,
     on random matrices, spectra spread over ten decades like the law's (W Q W with P >> Q), and the edge
-    cases: diagonal, identity (a full cluster), zero, a 1e-300 coupling, a 1 x 1 and a 2 x 2 matrix."""
+    cases: diagonal, identity (a full cluster), zero, a 1e-300 coupling, a 1 x 1 and a 2 x 2 matrix; the rows
+    padded with zero columns, which stay zero."""
     import numba as nb
-    from nav_filters.kernels import sym_eig_inplace
+    from nav_filters.kernels import padded_width, sym_eig_inplace
 
     @nb.njit
     def run(As, ds, Vs):
         ok = True
+        n = As.shape[1]
+        W = padded_width(n)
+        A = np.zeros((n, W))   # rows padded with zero columns, one scratch for every matrix (as the Q law)
+        Vt = np.zeros((n, W))
         for b in range(As.shape[0]):
-            n = As.shape[1]
-            ok &= sym_eig_inplace(As[b].copy(), ds[b], Vs[b], np.empty(n), np.empty(n), np.empty(n))
+            A[:, :n] = As[b]
+            ok &= sym_eig_inplace(A, ds[b], Vt, np.empty(n), np.empty(W), np.empty(W))
+            ok &= np.all(A[:, n:] == 0) and np.all(Vt[:, n:] == 0)   # the padding stays zero
+            Vs[b] = Vt[:, :n]
         return ok
 
     rng = np.random.default_rng(4)
