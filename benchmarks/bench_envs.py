@@ -493,9 +493,10 @@ def main(argv=None):
         if args.rounds > 1:
             print(f"each figure the median of {args.rounds} runs in fresh processes, cells in turn; their range beside")
     print("\n" + hdr + "\n" + "-" * len(hdr))
-    if args.rounds > 1 and not args.compare and not args.profile_only:
+    rounds_here = args.rounds > 1 and not args.compare  # the table of _print_rounds instead of the loop below
+    if rounds_here and not args.profile_only:
         _print_rounds(args, batches, n_steps, here)
-    for m in ([] if args.profile_only or (args.rounds > 1 and not args.compare) else args.methods):
+    for m in ([] if args.profile_only or rounds_here else args.methods):
         for B in batches:
             cell = ("rate", m, B, n_steps(B), args.episode_s, args.scenario)
             for tr in args.transitions:

@@ -631,8 +631,8 @@ def sym_eig_inplace(A, d, Vt, e, v, wk):
     and every row operation runs over all W (vectorized, no scalar remainder): the Householder step's product
     ``p = A v`` as a sum of rows of the full symmetric ``A`` and its rank-2 update on whole rows (the columns left
     of the trailing block take values never read again), the accumulation and the QR rotations on whole rows of
-    ``Vt``; the padding stays zero (faster than the same steps over the lower triangle and n columns, whose short
-    row loops leave most of their work to a scalar remainder; ``bench_envs.py --components``, Q law).
+    ``Vt``; the padding stays zero. Faster than the same steps over the lower triangle and n columns, whose short
+    row loops leave most of their work to a scalar remainder.
 
     Parameters
     ----------
