@@ -458,8 +458,9 @@ class SageHusa(SatelliteNoise, AdaptiveLaw):
 
     def _epoch_rows(self, mask):
         """(has, active, d) of this update: rows with a used measurement, rows adapting (past the warm-up), and
-        their weights (compiled on the fused path: :func:`_epoch_rows_kernel`; the same bits as
-        :meth:`_epoch_rows_reference`, agreement test)."""
+        their weights (compiled on the fused path: :func:`_epoch_rows_kernel`; the same flags as
+        :meth:`_epoch_rows_reference` and the same weights to the rounding of ``b^(j+1)``: numpy's power runs its
+        own SIMD code on CPUs with AVX-512, the kernel the C library's pow; agreement test)."""
         if not self.fused:
             return self._epoch_rows_reference(mask)
         B = self.batch_size
