@@ -361,8 +361,12 @@ def _print_rounds(args, batches, n_steps, root):
         res = np.asarray(runs[(m, B, tr)], float)
         t_reset, rate, cpu = np.median(res, axis=0)
         spread = f"{res[:, 1].min():.0f}-{res[:, 1].max():.0f}"
-        print(f"{_label(m, tr):16s} {B:5d} {t_reset:10.2f} {rate:12.0f} {1e3 * B / rate:9.2f} {cpu:12.2f} "
-              f"{spread:>18s}", flush=True)
+        _print_rate_row(_label(m, tr), B, t_reset, rate, cpu, f" {spread:>18s}")
+
+
+def _print_rate_row(label, B, t_reset, rate, cpu, extra=""):
+    """One row of the single-tree throughput table (``extra``: the rounds' range column)."""
+    print(f"{label:16s} {B:5d} {t_reset:10.2f} {rate:12.0f} {1e3 * B / rate:9.2f} {cpu:12.2f}{extra}", flush=True)
 
 
 def _cell_main(kind, method, B, steps, episode_s, scenario, transition, stat="mean"):
@@ -517,8 +521,7 @@ def main(argv=None):
                 else:
                     t_reset, rate, cpu = bench_env(m, B, n_steps(B), args.episode_s, args.scenario, tr,
                                                    stat=args.stat)
-                    print(f"{lab:16s} {B:5d} {t_reset:10.2f} {rate:12.0f} {1e3 * B / rate:9.2f} {cpu:12.2f}",
-                          flush=True)
+                    _print_rate_row(lab, B, t_reset, rate, cpu)
 
     if args.no_profile:
         return
