@@ -112,10 +112,14 @@ def _averaged_transition_into(A, S, Phi, Q, order, nz, nchunk):
     The rows run in ``nchunk`` chunks, each with its scratch allocated once. The scratch rows are padded with
     zeros (:func:`~nav_filters.kernels.padded_width`) and the row loops run over the padded width, a run-time
     length read from the array's shape (LLVM fully unrolls constant 17-trip loops and leaves them scalar: numba
-    runs no SLP vectorizer). ``1/k`` multiplies instead of dividing. The same series as the specification, to
-    round-off."""
+    runs no SLP vectorizer); the whole-matrix passes run as one loop over the flat rows (``n w`` long); each of
+    the two products loops over the pattern on its own, with the pattern and the row's values read once (faster than
+    one loop updating both products and 2-D element passes, the same bits: ``bench_envs.py --compare``). ``1/k``
+    multiplies instead of dividing. The same series as the specification, to round-off."""
     B, n = A.shape[0], A.shape[1]
     w = padded_width(n)
+    L = n * w
+    nnz = nz.shape[0]
     for ch in nb.prange(nchunk):
         term = np.zeros((n, w))   # A^k / k!
         nxt = np.zeros((n, w))
@@ -123,7 +127,22 @@ def _averaged_transition_into(A, S, Phi, Q, order, nz, nchunk):
         X = np.zeros((n, w))
         P = np.zeros((n, w))      # the sums
         Qs = np.zeros((n, w))
+        # flat views for the whole-matrix passes (one loop of n w: LLVM's widest vector body, little remainder)
+        tf = term.ravel()
+        nf = nxt.ravel()
+        Mf = M.ravel()
+        Xf = X.ravel()
+        Pf = P.ravel()
+        Qf = Qs.ravel()
+        ia = np.empty(nnz, np.int64)  # the pattern's rows, columns and this row's values, read once per row
+        ja = np.empty(nnz, np.int64)
+        av = np.empty(nnz)
+        for p in range(nnz):
+            ia[p] = nz[p, 0]
+            ja[p] = nz[p, 1]
         for b in range(ch * B // nchunk, (ch + 1) * B // nchunk):
+            for p in range(nnz):
+                av[p] = A[b, ia[p], ja[p]]
             for i in range(n):
                 for j in range(n):
                     term[i, j] = 0.0
@@ -134,28 +153,33 @@ def _averaged_transition_into(A, S, Phi, Q, order, nz, nchunk):
                 term[i, i] = 1.0
                 P[i, i] = 1.0
             for k in range(1, order + 1):
-                for i in range(n):
+                for q in range(L):
+                    nf[q] = 0.0
+                    Xf[q] = 0.0
+                # the two sparse-by-dense products in separate loops over the pattern (one output row each)
+                for p in range(nnz):
+                    a = av[p]
+                    out = nxt[ia[p]]
+                    src = term[ja[p]]
                     for c in range(w):
-                        nxt[i, c] = 0.0
-                        X[i, c] = 0.0
-                for p in range(nz.shape[0]):
-                    i = nz[p, 0]
-                    j = nz[p, 1]
-                    a = A[b, i, j]
+                        out[c] += a * src[c]
+                for p in range(nnz):
+                    a = av[p]
+                    out = X[ia[p]]
+                    src = M[ja[p]]
                     for c in range(w):
-                        nxt[i, c] += a * term[j, c]
-                        X[i, c] += a * M[j, c]
+                        out[c] += a * src[c]
                 rk = 1.0 / k
-                for i in range(n):
-                    for c in range(w):
-                        term[i, c] = nxt[i, c] * rk
-                        P[i, c] += term[i, c]
+                for q in range(L):
+                    t = nf[q] * rk
+                    tf[q] = t
+                    Pf[q] += t
                 rk1 = 1.0 / (k + 1)
                 for i in range(n):
                     for c in range(n):
                         M[i, c] = (X[i, c] + X[c, i]) * rk1   # exactly symmetric
-                    for c in range(w):
-                        Qs[i, c] += M[i, c]
+                for q in range(L):
+                    Qf[q] += Mf[q]
             for i in range(n):
                 for j in range(n):
                     Phi[b, i, j] = P[i, j]
