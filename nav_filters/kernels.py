@@ -30,7 +30,7 @@ is then called once with the result):
     seed paper 001 (one-step prediction of P, multiplication method, eqs
     19-20): ``Phi_acc <- Phi_i Phi_acc`` and ``Q_acc <- Q_acc + Q_i`` (the
     process noise is not propagated through the transitions).
-``integrate=True`` (with ``exact=False``)
+``integrate=True`` (with ``exact=False``; :mod:`nav_filters.imu_lanes`, rows in SIMD lanes)
     the averaged dynamics of :mod:`nav_filters.averaged_transition`:
     ``Phi_acc <- Phi_acc + sum_i F_i h`` (the integral of F, no product at all)
     and ``Q_acc <- Q_acc + sum_i Q_i``, from per-row sums of the parts that vary
@@ -86,17 +86,128 @@ F_NONZERO = np.array(
 
 
 @nb.njit(cache=True, inline="always")
-def _gravity(x, y, z, out):
-    """earth.wgs84.gravity_ecef for one position (J2 gravitation + centrifugal), into out[0:3]."""
+def _gravity(x, y, z):
+    """earth.wgs84.gravity_ecef for one position (J2 gravitation + centrifugal): ``(gx, gy, gz)``."""
     r2 = x * x + y * y + z * z
     ir2 = 1.0 / r2  # one division (a multiply is several times cheaper; the IMU kernel calls this every sample)
     zr2 = z * z * ir2
     k = (1.5 * _J2 * _A * _A) * ir2
     m = -_GM * ir2 / np.sqrt(r2)
     fxy = 1.0 + k * (1.0 - 5.0 * zr2)
-    out[0] = m * x * fxy + _W * _W * x
-    out[1] = m * y * fxy + _W * _W * y
-    out[2] = m * z * (1.0 + k * (3.0 - 5.0 * zr2))
+    return m * x * fxy + _W * _W * x, m * y * fxy + _W * _W * y, m * z * (1.0 + k * (3.0 - 5.0 * zr2))
+
+
+@nb.njit(cache=True, inline="always")
+def _small_angle(th2):
+    """``(sin t / t, (1 - cos t) / t^2, (1 - sin t / t) / t^2)`` of ``t^2 = th2 < 1e-4`` by their series (to
+    t^4: below round-off there). Constant reciprocals: multiplies, not divisions."""
+    t4 = th2 * th2
+    ca = 1.0 - th2 * (1.0 / 6.0) + t4 * (1.0 / 120.0)
+    cb = 0.5 - th2 * (1.0 / 24.0) + t4 * (1.0 / 720.0)
+    cc = 1.0 / 6.0 - th2 * (1.0 / 120.0) + t4 * (1.0 / 5040.0)
+    return ca, cb, cc
+
+
+@nb.njit(cache=True, inline="always")
+def _large_angle(th2):
+    """The coefficients of :func:`_small_angle` from ``sin`` and ``cos`` (``th2 >= 1e-4``)."""
+    th = np.sqrt(th2)
+    ca = np.sin(th) / th
+    cb = (1.0 - np.cos(th)) / th2
+    cc = (1.0 - ca) / th2
+    return ca, cb, cc
+
+
+@nb.njit(cache=True, inline="always")
+def _tuple9(M):
+    """The (3, 3) ``M`` as a row-major 9-tuple."""
+    return (M[0, 0], M[0, 1], M[0, 2], M[1, 0], M[1, 1], M[1, 2], M[2, 0], M[2, 1], M[2, 2])
+
+
+@nb.njit(cache=True, inline="always")
+def _mechanize_sample(r0, r1, r2, v0, v1, v2, c00, c01, c02, c10, c11, c12, c20, c21, c22, f0, f1, f2, d0, d1, d2,
+                      rot, h, Av, Au, Ag, Cz, orthonormalize):
+    """One sample of :func:`nav_filters.ins.mechanize` (single-sample scheme) on scalars: position ``r``,
+    velocity ``v``, attitude ``C`` (row-major), the bias-compensated specific force ``f`` [m/s^2], the rotation
+    increment ``d = w h`` [rad] with ``rot = (th2, ca, cb, cc)``: ``th2 = |d|^2`` and its coefficients
+    (:func:`_small_angle` or :func:`_large_angle`); ``Av``, ``Au``, ``Ag``, ``Cz`` the (3, 3) matrices of :func:`propagate_epoch` as
+    9-tuples, row-major (:func:`_tuple9`: constants in registers, no loads a store might alias). Returns the new ``(r, v, C)`` as 15 scalars. (At most 30 arguments: CPython passes more as ``*args``,
+    which numba's inlining does not take.) Scalars in and out, no branch but the
+    loop-invariant ``orthonormalize``, so a loop over rows of it vectorizes (:mod:`nav_filters.imu_lanes`)."""
+    th2, ca, cb, cc = rot
+    u0 = f0 * h
+    u1 = f1 * h
+    u2 = f2 * h
+    tdv = d0 * u0 + d1 * u1 + d2 * u2
+    e0 = (1.0 - cc * th2) * u0 + cb * (d1 * u2 - d2 * u1) + cc * tdv * d0
+    e1 = (1.0 - cc * th2) * u1 + cb * (d2 * u0 - d0 * u2) + cc * tdv * d1
+    e2 = (1.0 - cc * th2) * u2 + cb * (d0 * u1 - d1 * u0) + cc * tdv * d2
+    uu0 = c00 * e0 + c01 * e1 + c02 * e2
+    uu1 = c10 * e0 + c11 * e1 + c12 * e2
+    uu2 = c20 * e0 + c21 * e1 + c22 * e2
+    g0, g1, g2 = _gravity(r0 + 0.5 * h * v0, r1 + 0.5 * h * v1, r2 + 0.5 * h * v2)
+    vn0 = (Av[0] * v0 + Av[1] * v1 + Av[2] * v2
+           + Au[0] * uu0 + Au[1] * uu1 + Au[2] * uu2
+           + Ag[0] * g0 + Ag[1] * g1 + Ag[2] * g2)
+    vn1 = (Av[3] * v0 + Av[4] * v1 + Av[5] * v2
+           + Au[3] * uu0 + Au[4] * uu1 + Au[5] * uu2
+           + Ag[3] * g0 + Ag[4] * g1 + Ag[5] * g2)
+    vn2 = (Av[6] * v0 + Av[7] * v1 + Av[8] * v2
+           + Au[6] * uu0 + Au[7] * uu1 + Au[8] * uu2
+           + Ag[6] * g0 + Ag[7] * g1 + Ag[8] * g2)
+    r0 += 0.5 * h * (v0 + vn0)
+    r1 += 0.5 * h * (v1 + vn1)
+    r2 += 0.5 * h * (v2 + vn2)
+    # attitude: C+ = Cz C exp([d x]) with exp = (1 - cb th2) I + ca [d x] + cb d d^T
+    x00 = 1.0 - cb * th2 + cb * d0 * d0
+    x11 = 1.0 - cb * th2 + cb * d1 * d1
+    x22 = 1.0 - cb * th2 + cb * d2 * d2
+    x01 = -ca * d2 + cb * d0 * d1
+    x10 = ca * d2 + cb * d0 * d1
+    x02 = ca * d1 + cb * d0 * d2
+    x20 = -ca * d1 + cb * d0 * d2
+    x12 = -ca * d0 + cb * d1 * d2
+    x21 = ca * d0 + cb * d1 * d2
+    e00 = c00 * x00 + c01 * x10 + c02 * x20
+    e01 = c00 * x01 + c01 * x11 + c02 * x21
+    e02 = c00 * x02 + c01 * x12 + c02 * x22
+    e10 = c10 * x00 + c11 * x10 + c12 * x20
+    e11 = c10 * x01 + c11 * x11 + c12 * x21
+    e12 = c10 * x02 + c11 * x12 + c12 * x22
+    e20 = c20 * x00 + c21 * x10 + c22 * x20
+    e21 = c20 * x01 + c21 * x11 + c22 * x21
+    e22 = c20 * x02 + c21 * x12 + c22 * x22
+    c00 = Cz[0] * e00 + Cz[1] * e10 + Cz[2] * e20
+    c01 = Cz[0] * e01 + Cz[1] * e11 + Cz[2] * e21
+    c02 = Cz[0] * e02 + Cz[1] * e12 + Cz[2] * e22
+    c10 = Cz[3] * e00 + Cz[4] * e10 + Cz[5] * e20
+    c11 = Cz[3] * e01 + Cz[4] * e11 + Cz[5] * e21
+    c12 = Cz[3] * e02 + Cz[4] * e12 + Cz[5] * e22
+    c20 = Cz[6] * e00 + Cz[7] * e10 + Cz[8] * e20
+    c21 = Cz[6] * e01 + Cz[7] * e11 + Cz[8] * e21
+    c22 = Cz[6] * e02 + Cz[7] * e12 + Cz[8] * e22
+    if orthonormalize:
+        # C <- 1.5 C - 0.5 (C C^T) C
+        k00 = c00 * c00 + c01 * c01 + c02 * c02
+        k01 = c00 * c10 + c01 * c11 + c02 * c12
+        k02 = c00 * c20 + c01 * c21 + c02 * c22
+        k10 = c10 * c00 + c11 * c01 + c12 * c02
+        k11 = c10 * c10 + c11 * c11 + c12 * c12
+        k12 = c10 * c20 + c11 * c21 + c12 * c22
+        k20 = c20 * c00 + c21 * c01 + c22 * c02
+        k21 = c20 * c10 + c21 * c11 + c22 * c12
+        k22 = c20 * c20 + c21 * c21 + c22 * c22
+        o00 = 1.5 * c00 - 0.5 * (k00 * c00 + k01 * c10 + k02 * c20)
+        o01 = 1.5 * c01 - 0.5 * (k00 * c01 + k01 * c11 + k02 * c21)
+        o02 = 1.5 * c02 - 0.5 * (k00 * c02 + k01 * c12 + k02 * c22)
+        o10 = 1.5 * c10 - 0.5 * (k10 * c00 + k11 * c10 + k12 * c20)
+        o11 = 1.5 * c11 - 0.5 * (k10 * c01 + k11 * c11 + k12 * c21)
+        o12 = 1.5 * c12 - 0.5 * (k10 * c02 + k11 * c12 + k12 * c22)
+        o20 = 1.5 * c20 - 0.5 * (k20 * c00 + k21 * c10 + k22 * c20)
+        o21 = 1.5 * c21 - 0.5 * (k20 * c01 + k21 * c11 + k22 * c21)
+        o22 = 1.5 * c22 - 0.5 * (k20 * c02 + k21 * c12 + k22 * c22)
+        c00, c01, c02, c10, c11, c12, c20, c21, c22 = o00, o01, o02, o10, o11, o12, o20, o21, o22
+    return r0, r1, r2, vn0, vn1, vn2, c00, c01, c02, c10, c11, c12, c20, c21, c22
 
 
 @nb.njit(cache=True)
@@ -150,8 +261,9 @@ def _sparse_left(F, X, T, nz):
 
 
 def _propagate_epoch(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, Cz, qg, qa, qdiag, kg, ka,
-                    Phi_acc, Q_acc, exact, orthonormalize, nz, integrate=False, start=False, nchunk=1):
-    """Advance every row by the n IMU samples of ``f_raw[:, :n]``, accumulating the transition.
+                    Phi_acc, Q_acc, exact, orthonormalize, nz, start=False, nchunk=1):
+    """Advance every row by the n IMU samples of ``f_raw[:, :n]``, accumulating the transition (the composing
+    modes; the averaged one is :mod:`nav_filters.imu_lanes`).
 
     Parameters
     ----------
@@ -165,223 +277,102 @@ def _propagate_epoch(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, C
     kg, ka : -1/tau of the bias Gauss-Markov processes (0 for random walk);
     Phi_acc, Q_acc : (B, 17, 17) accumulators (in/out); exact : bool (see module docstring);
     orthonormalize : bool, re-orthonormalize C every sample (float32); nz : F_NONZERO.
-    integrate : bool, the averaged-dynamics mode (module docstring): ``Phi_acc`` accumulates ``sum_i F_i h``
-        (zero outside ``nz``) instead of the transition, and ``Q_acc`` the summed process noise
-        (``exact`` must then be False).
     start : bool, these are the first samples since the accumulators were handed over: each row's are set
-        first (``I`` and 0; 0 and 0 with ``integrate``) instead of read, so no caller pass clears them.
+        first (``I`` and 0) instead of read, so no caller pass clears them.
     nchunk : the rows run in this many chunks (parallel in the parallel variant), each allocating its scratch once.
     """
     B = f_raw.shape[0]
     n = f_raw.shape[1]
-    nf = 0 if integrate else N  # the per-sample matrices of the composing modes (empty in the averaged one)
     for ch in nb.prange(nchunk):
-        F = np.zeros((nf, nf))
-        T = np.zeros((nf, nf))
-        T2 = np.zeros((nf, nf))
+        F = np.zeros((N, N))
+        T = np.zeros((N, N))
+        T2 = np.zeros((N, N))
         fc = np.empty(3)
         wc = np.empty(3)
         rr = np.empty(3)
-        g = np.empty(3)
         Cb = np.empty((3, 3))
-        FQFt = np.zeros((nf, nf))
-        uu = np.empty(3)
-        vn = np.empty(3)
-        Ex = np.empty((3, 3))
-        CE = np.empty((3, 3))
-        CC = np.empty((3, 3))
+        FQFt = np.zeros((N, N))
         vb = np.empty(3)
-        # integrate mode: per-row sums of the time-varying parts of F and of G Q_c G^T over the samples
-        sC = np.empty((3, 3))       # sum C
-        sa = np.empty(3)            # sum C f
-        sG = np.empty((3, 3))       # sum 3 GM r r^T / |r|^5
-        sCC = np.empty((3, 3, 3))   # sum c_m c_m^T per body axis m (c_m: column m of C)
+        Avt = _tuple9(Av)
+        Aut = _tuple9(Au)
+        Agt = _tuple9(Ag)
+        Czt = _tuple9(Cz)
         for b in range(ch * B // nchunk, (ch + 1) * B // nchunk):
             if start:
                 for i in range(N):
                     for j in range(N):
                         Phi_acc[b, i, j] = 0.0
                         Q_acc[b, i, j] = 0.0
-                    if not integrate:
-                        Phi_acc[b, i, i] = 1.0
+                    Phi_acc[b, i, i] = 1.0
             for i in range(3):
                 rr[i] = r[b, i]
                 vb[i] = v[b, i]
-                sa[i] = 0.0
                 for j in range(3):
                     Cb[i, j] = C[b, i, j]
-                    sC[i, j] = 0.0
-                    sG[i, j] = 0.0
-                    for k in range(3):
-                        sCC[i, j, k] = 0.0
-            sk = 0.0                # sum GM / |r|^3
             for k in range(n):
                 for i in range(3):
                     fc[i] = f_raw[b, k, i] - ba[b, i]
                     wc[i] = w_raw[b, k, i] - bg[b, i]
                 # ---- covariance: Phi = I + F h at the state of the interval start ----
-                if integrate:
-                    # averaged dynamics: only the parts of F (system_matrix) and of G Q_c G^T that vary are summed
-                    for i in range(3):
-                        sa[i] += Cb[i, 0] * fc[0] + Cb[i, 1] * fc[1] + Cb[i, 2] * fc[2]
-                        for j in range(3):
-                            sC[i, j] += Cb[i, j]
-                            for m in range(3):
-                                sCC[m, i, j] += Cb[i, m] * Cb[j, m]
-                    r2 = rr[0] * rr[0] + rr[1] * rr[1] + rr[2] * rr[2]
-                    ir2 = 1.0 / r2  # (one division: a multiply is several times cheaper)
-                    kr = _GM * ir2 / np.sqrt(r2)
-                    c3 = 3.0 * kr * ir2
-                    sk += kr
-                    for i in range(3):
-                        for j in range(3):
-                            sG[i, j] += c3 * rr[i] * rr[j]
-                else:
-                    F[:, :] = 0.0
-                    _fill_F(F, Cb, fc, rr, kg, ka)
-                    _sparse_left(F, Phi_acc[b], T, nz)
-                    if exact:
-                        _sparse_left(F, Q_acc[b], T2, nz)          # T2 = F Q
-                        # Q <- Q + h (F Q + Q F^T) + h^2 F Q F^T   (= Phi Q Phi^T)
-                        for i in range(N):
-                            for c in range(N):
-                                Q_acc[b, i, c] += h * (T2[i, c] + T2[c, i])
-                        # F (F Q)^T = F Q F^T, using T2^T as the right factor (written out: _sparse_left on the
-                        # transposed view T2.T gives the same bits but runs ~1.8x slower, a non-contiguous layout)
-                        FQFt[:, :] = 0.0
-                        for p in range(nz.shape[0]):
-                            i = nz[p, 0]
-                            j = nz[p, 1]
-                            fij = F[i, j]
-                            for c in range(N):
-                                FQFt[i, c] += fij * T2[c, j]
-                        for i in range(N):
-                            for c in range(N):
-                                Q_acc[b, i, c] += h * h * FQFt[i, c]
+                F[:, :] = 0.0
+                _fill_F(F, Cb, fc, rr, kg, ka)
+                _sparse_left(F, Phi_acc[b], T, nz)
+                if exact:
+                    _sparse_left(F, Q_acc[b], T2, nz)          # T2 = F Q
+                    # Q <- Q + h (F Q + Q F^T) + h^2 F Q F^T   (= Phi Q Phi^T)
                     for i in range(N):
                         for c in range(N):
-                            Phi_acc[b, i, c] += h * T[i, c]
-                    # process noise of this sample: C diag(qg) C^T, C diag(qa) C^T, diag(qdiag)
-                    for i in range(3):
-                        for j in range(3):
-                            sg = 0.0
-                            sq = 0.0
-                            for m in range(3):
-                                sg += Cb[i, m] * qg[m] * Cb[j, m]
-                                sq += Cb[i, m] * qa[m] * Cb[j, m]
-                            Q_acc[b, i, j] += sg * h
-                            Q_acc[b, 3 + i, 3 + j] += sq * h
-                    for i in range(6, N):
-                        Q_acc[b, i, i] += qdiag[i] * h
+                            Q_acc[b, i, c] += h * (T2[i, c] + T2[c, i])
+                    # F (F Q)^T = F Q F^T, using T2^T as the right factor (written out: _sparse_left on the
+                    # transposed view T2.T gives the same bits but runs ~1.8x slower, a non-contiguous layout)
+                    FQFt[:, :] = 0.0
+                    for p in range(nz.shape[0]):
+                        i = nz[p, 0]
+                        j = nz[p, 1]
+                        fij = F[i, j]
+                        for c in range(N):
+                            FQFt[i, c] += fij * T2[c, j]
+                    for i in range(N):
+                        for c in range(N):
+                            Q_acc[b, i, c] += h * h * FQFt[i, c]
+                for i in range(N):
+                    for c in range(N):
+                        Phi_acc[b, i, c] += h * T[i, c]
+                # process noise of this sample: C diag(qg) C^T, C diag(qa) C^T, diag(qdiag)
+                for i in range(3):
+                    for j in range(3):
+                        sg = 0.0
+                        sq = 0.0
+                        for m in range(3):
+                            sg += Cb[i, m] * qg[m] * Cb[j, m]
+                            sq += Cb[i, m] * qa[m] * Cb[j, m]
+                        Q_acc[b, i, j] += sg * h
+                        Q_acc[b, 3 + i, 3 + j] += sq * h
+                for i in range(6, N):
+                    Q_acc[b, i, i] += qdiag[i] * h
                 # ---- mechanization (ins.mechanize, single-sample scheme) ----
                 d0 = wc[0] * h
                 d1 = wc[1] * h
                 d2 = wc[2] * h
-                u0 = fc[0] * h
-                u1 = fc[1] * h
-                u2 = fc[2] * h
                 th2 = d0 * d0 + d1 * d1 + d2 * d2
                 if th2 < 1e-4:
-                    t4 = th2 * th2  # (constant reciprocals: multiplies, not divisions)
-                    ca = 1.0 - th2 * (1.0 / 6.0) + t4 * (1.0 / 120.0)
-                    cb = 0.5 - th2 * (1.0 / 24.0) + t4 * (1.0 / 720.0)
-                    cc = 1.0 / 6.0 - th2 * (1.0 / 120.0) + t4 * (1.0 / 5040.0)
+                    ca, cb, cc = _small_angle(th2)
                 else:
-                    th = np.sqrt(th2)
-                    ca = np.sin(th) / th
-                    cb = (1.0 - np.cos(th)) / th2
-                    cc = (1.0 - ca) / th2
-                tdv = d0 * u0 + d1 * u1 + d2 * u2
-                e0 = (1.0 - cc * th2) * u0 + cb * (d1 * u2 - d2 * u1) + cc * tdv * d0
-                e1 = (1.0 - cc * th2) * u1 + cb * (d2 * u0 - d0 * u2) + cc * tdv * d1
-                e2 = (1.0 - cc * th2) * u2 + cb * (d0 * u1 - d1 * u0) + cc * tdv * d2
+                    ca, cb, cc = _large_angle(th2)
+                out = _mechanize_sample(rr[0], rr[1], rr[2], vb[0], vb[1], vb[2], Cb[0, 0], Cb[0, 1], Cb[0, 2],
+                                        Cb[1, 0], Cb[1, 1], Cb[1, 2], Cb[2, 0], Cb[2, 1], Cb[2, 2], fc[0], fc[1], fc[2],
+                                        d0, d1, d2, (th2, ca, cb, cc), h, Avt, Aut, Agt, Czt, orthonormalize)
                 for i in range(3):
-                    uu[i] = Cb[i, 0] * e0 + Cb[i, 1] * e1 + Cb[i, 2] * e2
-                _gravity(rr[0] + 0.5 * h * vb[0], rr[1] + 0.5 * h * vb[1], rr[2] + 0.5 * h * vb[2], g)
-                for i in range(3):
-                    vn[i] = (Av[i, 0] * vb[0] + Av[i, 1] * vb[1] + Av[i, 2] * vb[2]
-                             + Au[i, 0] * uu[0] + Au[i, 1] * uu[1] + Au[i, 2] * uu[2]
-                             + Ag[i, 0] * g[0] + Ag[i, 1] * g[1] + Ag[i, 2] * g[2])
-                for i in range(3):
-                    rr[i] += 0.5 * h * (vb[i] + vn[i])
-                    vb[i] = vn[i]
-                # attitude: C+ = Cz C exp([d x]) with exp = (1 - cb th2) I + ca [d x] + cb d d^T
-                Ex[0, 0] = 1.0 - cb * th2 + cb * d0 * d0
-                Ex[1, 1] = 1.0 - cb * th2 + cb * d1 * d1
-                Ex[2, 2] = 1.0 - cb * th2 + cb * d2 * d2
-                Ex[0, 1] = -ca * d2 + cb * d0 * d1
-                Ex[1, 0] = ca * d2 + cb * d0 * d1
-                Ex[0, 2] = ca * d1 + cb * d0 * d2
-                Ex[2, 0] = -ca * d1 + cb * d0 * d2
-                Ex[1, 2] = -ca * d0 + cb * d1 * d2
-                Ex[2, 1] = ca * d0 + cb * d1 * d2
-                for i in range(3):
+                    rr[i] = out[i]
+                    vb[i] = out[3 + i]
                     for j in range(3):
-                        CE[i, j] = Cb[i, 0] * Ex[0, j] + Cb[i, 1] * Ex[1, j] + Cb[i, 2] * Ex[2, j]
-                for i in range(3):
-                    for j in range(3):
-                        Cb[i, j] = Cz[i, 0] * CE[0, j] + Cz[i, 1] * CE[1, j] + Cz[i, 2] * CE[2, j]
-                if orthonormalize:
-                    # C <- 1.5 C - 0.5 (C C^T) C
-                    for i in range(3):
-                        for j in range(3):
-                            CC[i, j] = Cb[i, 0] * Cb[j, 0] + Cb[i, 1] * Cb[j, 1] + Cb[i, 2] * Cb[j, 2]
-                    for i in range(3):
-                        for j in range(3):
-                            CE[i, j] = 1.5 * Cb[i, j] - 0.5 * (CC[i, 0] * Cb[0, j] + CC[i, 1] * Cb[1, j]
-                                                               + CC[i, 2] * Cb[2, j])
-                    for i in range(3):
-                        for j in range(3):
-                            Cb[i, j] = CE[i, j]
+                        Cb[i, j] = out[6 + 3 * i + j]
                 clk[b] += drift[b] * h
             for i in range(3):
                 r[b, i] = rr[i]
                 v[b, i] = vb[i]
                 for j in range(3):
                     C[b, i, j] = Cb[i, j]
-            if integrate and n > 0:
-                _add_integrals(Phi_acc, Q_acc, b, n * h, h, sC, sa, sG, sk, sCC, qg, qa, qdiag, kg, ka)
-
-
-@nb.njit(cache=True, inline="always")
-def _add_integrals(A, S, b, nh, h, sC, sa, sG, sk, sCC, qg, qa, qdiag, kg, ka):
-    """``A[b] += sum_i F_i h`` and ``S[b] += sum_i G_i Q_c G_i^T h`` from the per-row sums of the varying
-    parts (the entries of :func:`_fill_F`, term by term; ``nh``: the summed interval)."""
-    for i in range(3):
-        for j in range(3):
-            A[b, i, 9 + j] -= h * sC[i, j]
-            A[b, 3 + i, 12 + j] -= h * sC[i, j]
-            A[b, 3 + i, 6 + j] += h * sG[i, j]
-            qgs = 0.0
-            qas = 0.0
-            for m in range(3):
-                qgs += qg[m] * sCC[m, i, j]
-                qas += qa[m] * sCC[m, i, j]
-            S[b, i, j] += h * qgs
-            S[b, 3 + i, 3 + j] += h * qas
-    A[b, 3, 1] += h * sa[2]
-    A[b, 3, 2] -= h * sa[1]
-    A[b, 4, 0] -= h * sa[2]
-    A[b, 4, 2] += h * sa[0]
-    A[b, 5, 0] += h * sa[1]
-    A[b, 5, 1] -= h * sa[0]
-    A[b, 3, 6] -= h * sk - nh * _W * _W
-    A[b, 4, 7] -= h * sk - nh * _W * _W
-    A[b, 5, 8] -= h * sk
-    A[b, 0, 1] += nh * _W
-    A[b, 1, 0] -= nh * _W
-    A[b, 3, 4] += 2.0 * nh * _W
-    A[b, 4, 3] -= 2.0 * nh * _W
-    A[b, 6, 3] += nh
-    A[b, 7, 4] += nh
-    A[b, 8, 5] += nh
-    for i in range(9, 12):
-        A[b, i, i] += nh * kg
-    for i in range(12, 15):
-        A[b, i, i] += nh * ka
-    A[b, 15, 16] += nh
-    for i in range(6, N):
-        S[b, i, i] += nh * qdiag[i]
 
 
 _serial, _parallel = serial_and_parallel(_propagate_epoch)
@@ -418,12 +409,21 @@ def padded_width(n):
 
 def propagate_epoch(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, Cz, qg, qa, qdiag, kg, ka,
                     Phi_acc, Q_acc, exact, orthonormalize, nz, integrate=False, start=False):
-    """Compiled epoch propagation (see :func:`_propagate_epoch`); parallel over rows for B >= 64."""
+    """Compiled epoch propagation (see :func:`_propagate_epoch`); parallel over rows for B >= 64.
+
+    ``integrate``: the averaged-dynamics mode (module docstring), :func:`nav_filters.imu_lanes.propagate_lanes`:
+    ``Phi_acc`` accumulates ``sum_i F_i h`` (zero outside ``nz``) instead of the transition, and ``Q_acc`` the
+    summed process noise (``exact`` must then be False; ``start`` sets both to 0 first)."""
     if integrate and exact:
         raise ValueError("propagate_epoch: integrate (averaged dynamics) needs exact=False")
+    if integrate:
+        from .imu_lanes import propagate_lanes  # (imu_lanes builds on this module's helpers)
+        propagate_lanes(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, Cz, qg, qa, qdiag, kg, ka,
+                        Phi_acc, Q_acc, orthonormalize, start)
+        return
     kern, nchunk = row_kernel(_serial, _parallel, f_raw.shape[0])
     kern(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, Cz, qg, qa, qdiag, kg, ka,
-         Phi_acc, Q_acc, exact, orthonormalize, nz, bool(integrate), bool(start), nchunk)
+         Phi_acc, Q_acc, exact, orthonormalize, nz, bool(start), nchunk)
 
 
 # ----------------------------------------------------------------------------- small dense helpers
