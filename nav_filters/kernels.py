@@ -127,13 +127,15 @@ def _tuple9(M):
 @nb.njit(cache=True, inline="always")
 def _mechanize_sample(r0, r1, r2, v0, v1, v2, c00, c01, c02, c10, c11, c12, c20, c21, c22, f0, f1, f2, d0, d1, d2,
                       rot, h, Av, Au, Ag, Cz, orthonormalize):
-    """One sample of :func:`nav_filters.ins.mechanize` (single-sample scheme) on scalars: position ``r``,
-    velocity ``v``, attitude ``C`` (row-major), the bias-compensated specific force ``f`` [m/s^2], the rotation
-    increment ``d = w h`` [rad] with ``rot = (th2, ca, cb, cc)``: ``th2 = |d|^2`` and its coefficients
-    (:func:`_small_angle` or :func:`_large_angle`); ``Av``, ``Au``, ``Ag``, ``Cz`` the (3, 3) matrices of :func:`propagate_epoch` as
-    9-tuples, row-major (:func:`_tuple9`: constants in registers, no loads a store might alias). Returns the new ``(r, v, C)`` as 15 scalars. (At most 30 arguments: CPython passes more as ``*args``,
-    which numba's inlining does not take.) Scalars in and out, no branch but the
-    loop-invariant ``orthonormalize``, so a loop over rows of it vectorizes (:mod:`nav_filters.imu_lanes`)."""
+    """One sample of :func:`nav_filters.ins.mechanize` (single-sample scheme) on scalars.
+
+    Position ``r``, velocity ``v``, attitude ``C`` (row-major), the bias-compensated specific force ``f``
+    [m/s^2], the rotation increment ``d = w h`` [rad] with ``rot = (th2, ca, cb, cc)``: ``th2 = |d|^2`` and its
+    coefficients (:func:`_small_angle` or :func:`_large_angle`); ``Av``, ``Au``, ``Ag``, ``Cz`` the (3, 3)
+    matrices of :func:`propagate_epoch` as row-major 9-tuples (:func:`_tuple9`: constants in registers, no loads
+    that a store might alias). Returns the new ``(r, v, C)`` as 15 scalars. Scalars in and out, no branch but the
+    loop-invariant ``orthonormalize``, so a loop over rows of it vectorizes (:mod:`nav_filters.imu_lanes`). At
+    most 30 arguments: CPython passes more as ``*args``, which numba's inlining does not take."""
     th2, ca, cb, cc = rot
     u0 = f0 * h
     u1 = f1 * h
