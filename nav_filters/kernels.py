@@ -609,14 +609,15 @@ def row_nonzeros(h_row, nzc_row, nzv_row):
 
     A GNSS row of the 17-state H has 4 non-zeros: products with H over these lists, in this (increasing column)
     order, add the same terms in the same order as a loop over all n columns that skips the zeros, so they
-    give the same bits."""
+    give the same bits. ``nzc_row`` / ``nzv_row`` need n slots: every column is written at the running count
+    and the count advances past the non-zeros (no branch to mispredict; the slots past the count hold
+    leftovers)."""
     c = 0
     for l in range(h_row.shape[0]):
         h = h_row[l]
-        if h != 0:
-            nzc_row[c] = l
-            nzv_row[c] = h
-            c += 1
+        nzc_row[c] = l
+        nzv_row[c] = h
+        c += h != 0
     return c
 
 

@@ -115,3 +115,17 @@ def test_scale_symmetric_matches_numpy_bit_for_bit(B, dtypes):
     idx = np.arange(m)
     assert np.all(scale_symmetric(R, s, keep=keep)[:, idx, idx][~keep] == 1)
     assert np.array_equal(scale_symmetric(R[:, ::-1, ::-1], s[:, ::-1]), scale_symmetric_reference(R[:, ::-1, ::-1], s[:, ::-1]))
+
+
+def test_row_nonzeros_lists_the_nonzero_columns_in_order():
+    rng = np.random.default_rng(8)
+    for _ in range(50):
+        h = rng.normal(size=17) * (rng.random(17) < 0.3)
+        if rng.random() < 0.3:
+            h[rng.integers(17)] = np.nan   # a non-finite entry is a non-zero (the products then carry it)
+        nzc, nzv = np.full(17, -1, np.int64), np.full(17, np.inf)
+        c = K.row_nonzeros(h, nzc, nzv)
+        cols = np.flatnonzero(h != 0)
+        assert c == cols.size
+        np.testing.assert_array_equal(nzc[:c], cols)
+        np.testing.assert_array_equal(nzv[:c], h[cols])
