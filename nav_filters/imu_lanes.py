@@ -16,9 +16,9 @@ What keeps the lane loops vectorizable (numba runs LLVM's loop vectorizer only, 
   (``|w h|^2 >= 1e-4``: turns faster than 1 rad/s at 100 Hz; a call to ``sin`` would keep the loop scalar);
 * ``error_model='numpy'``: no division check (a branch) in the loop;
 * the block's rows a constant distance apart in one flat array (so LLVM sees that different rows do not
-  overlap), and short loops: one per summed quantity, one for the mechanization (its new state into a separate
-  array, copied back), none reading a tuple at a loop index. One loop over all of a sample's ~140 accesses,
-  or the new state stored from the returned tuple by a loop, stayed scalar.
+  overlap), and short loops: one per summed quantity, one for the mechanization, none reading a tuple at a
+  loop index. One loop over all of a sample's ~140 accesses, or the new state stored from the returned tuple
+  by a loop, stayed scalar.
 Only the averaged mode is here: its per-sample work is the mechanization and a few sums. The composing modes
 (``exact``, seed 001's one-step prediction) multiply 17 x 17 matrices at every sample and stay row by row.
 """
@@ -54,7 +54,7 @@ def _propagate_lanes(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, C
     for ch in nb.prange(nchunk):
         St = np.empty((_NQ, LANES))
         Sf = St.ravel()
-        T = np.empty(15 * LANES)
+        T = np.empty(LANES)
         fw = np.empty((n, 6, LANES))    # per sample: bias-compensated specific force and angular rate
         sa = np.empty(3)
         sC = np.empty((3, 3))
@@ -105,7 +105,7 @@ def _propagate_lanes(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, C
                         sC[i, j] = St[_SC + 3 * i + j, l]
                         sG[i, j] = St[_SG + 3 * i + j, l]
                         for m in range(3):
-                            sCC[m, i, j] = St[_SCC + 9 * m + 3 * i + j, l]
+                            sCC[m, i, j] = St[_SCC + 9 * m + 3 * min(i, j) + max(i, j), l]
                 clk[b] = St[_CLK, l]
                 if start:
                     for i in range(A_acc.shape[1]):
@@ -139,8 +139,7 @@ def _lane_samples(S, T, L, h, Av, Au, Ag, Cz, orthonormalize):
     kernel's operations in its order.
 
     ``S`` the lane block flat (row q of lane l at ``q * LANES + l``: the rows' distance a constant, so LLVM can
-    tell that the reads and writes of different rows do not overlap), ``T`` (15 LANES,) scratch for the new
-    state; ``Av`` ... ``Cz`` 9-tuples (:func:`~.kernels._tuple9`). Every lane loop is short and straight-line
+    tell that the reads and writes of different rows do not overlap), ``T`` (LANES,) scratch; ``Av`` ... ``Cz`` 9-tuples (:func:`~.kernels._tuple9`). Every lane loop is short and straight-line
     (LLVM's vectorizer gives up on a loop with very many accesses to one array, and on a tuple read at a loop
     index), so each one vectorizes."""
     for i in range(3):       # sum C f
@@ -154,9 +153,9 @@ def _lane_samples(S, T, L, h, Av, Au, Ag, Cz, orthonormalize):
         c = (_C + q) * LANES
         for l in range(L):
             S[o + l] += S[c + l]
-    for m in range(3):       # sum c_m c_m^T, c_m column m of C
+    for m in range(3):       # sum c_m c_m^T (c_m column m of C), the upper triangle: the lower is its mirror
         for i in range(3):
-            for j in range(3):
+            for j in range(i, 3):
                 o = (_SCC + 9 * m + 3 * i + j) * LANES
                 a = (_C + 3 * i + m) * LANES
                 c = (_C + 3 * j + m) * LANES
@@ -189,24 +188,21 @@ def _lane_samples(S, T, L, h, Av, Au, Ag, Cz, orthonormalize):
             S[_WR * LANES + l] * h, S[(_WR + 1) * LANES + l] * h, S[(_WR + 2) * LANES + l] * h,
             (S[_TH2 * LANES + l], S[_CA * LANES + l], S[_CB * LANES + l], S[_CC * LANES + l]),
             h, Av, Au, Ag, Cz, orthonormalize)
-        T[l] = r0
-        T[LANES + l] = r1
-        T[2 * LANES + l] = r2
-        T[3 * LANES + l] = v0
-        T[4 * LANES + l] = v1
-        T[5 * LANES + l] = v2
-        T[6 * LANES + l] = c00
-        T[7 * LANES + l] = c01
-        T[8 * LANES + l] = c02
-        T[9 * LANES + l] = c10
-        T[10 * LANES + l] = c11
-        T[11 * LANES + l] = c12
-        T[12 * LANES + l] = c20
-        T[13 * LANES + l] = c21
-        T[14 * LANES + l] = c22
-    for q in range(15):      # the new position, velocity and attitude (S rows 0..14)
-        for l in range(L):
-            S[q * LANES + l] = T[q * LANES + l]
+        S[_R * LANES + l] = r0
+        S[(_R + 1) * LANES + l] = r1
+        S[(_R + 2) * LANES + l] = r2
+        S[_V * LANES + l] = v0
+        S[(_V + 1) * LANES + l] = v1
+        S[(_V + 2) * LANES + l] = v2
+        S[_C * LANES + l] = c00
+        S[(_C + 1) * LANES + l] = c01
+        S[(_C + 2) * LANES + l] = c02
+        S[(_C + 3) * LANES + l] = c10
+        S[(_C + 4) * LANES + l] = c11
+        S[(_C + 5) * LANES + l] = c12
+        S[(_C + 6) * LANES + l] = c20
+        S[(_C + 7) * LANES + l] = c21
+        S[(_C + 8) * LANES + l] = c22
     for l in range(L):
         S[_CLK * LANES + l] += S[_DR * LANES + l] * h
 
