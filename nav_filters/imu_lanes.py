@@ -139,9 +139,10 @@ def _lane_samples(S, T, L, h, Av, Au, Ag, Cz, orthonormalize):
     kernel's operations in its order.
 
     ``S`` the lane block flat (row q of lane l at ``q * LANES + l``: the rows' distance a constant, so LLVM can
-    tell that the reads and writes of different rows do not overlap), ``T`` (LANES,) scratch; ``Av`` ... ``Cz`` 9-tuples (:func:`~.kernels._tuple9`). Every lane loop is short and straight-line
-    (LLVM's vectorizer gives up on a loop with very many accesses to one array, and on a tuple read at a loop
-    index), so each one vectorizes."""
+    tell that the reads and writes of different rows do not overlap), ``T`` (LANES,) scratch; ``Av`` ... ``Cz``
+    9-tuples (:func:`~.kernels._tuple9`). Every lane loop is short and straight-line (LLVM's vectorizer gives up
+    on a loop with very many accesses to one array, and on a tuple read at a loop index), so each one
+    vectorizes."""
     for i in range(3):       # sum C f
         o = (_SA + i) * LANES
         c = (_C + 3 * i) * LANES
