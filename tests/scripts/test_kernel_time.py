@@ -40,4 +40,4 @@ def test_an_env_step_is_mostly_accounted_for():
     inside = sum(t for t, _ in per.values())
     assert 0 < inside < step
     assert per["sage_husa_rows.satellite_epoch"][1] == 1.0  # the law's fused epoch: one call per step
-    assert per["kernels._propagate_epoch_serial"][1] == 1.0  # the IMU kernel (serial at B = 1)
+    assert per["imu_lanes._propagate_lanes_serial"][1] == 1.0  # the IMU kernel (serial at B = 1)
