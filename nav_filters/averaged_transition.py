@@ -103,6 +103,18 @@ def averaged_transition(F_int, Qc_int, order: int = SERIES_ORDER):
     return Phi, Q
 
 
+@nb.njit(cache=True, inline="always")
+def _pattern_product_add(av, ia, ja, src, out):
+    """``out += A src`` over whole rows, ``A`` the sparse matrix with the values ``av`` at rows ``ia``, columns
+    ``ja`` (in that order: the same sums as over all columns with the zeros skipped)."""
+    for p in range(av.shape[0]):
+        a = av[p]
+        o = out[ia[p]]
+        x = src[ja[p]]
+        for c in range(o.shape[0]):
+            o[c] += a * x[c]
+
+
 def _averaged_transition_into(A, S, Phi, Q, order, nz, nchunk):
     """Compiled :func:`averaged_transition` for every row: writes ``Phi`` and ``Q`` (B, 17, 17), float64.
 
@@ -156,19 +168,9 @@ def _averaged_transition_into(A, S, Phi, Q, order, nz, nchunk):
                 for q in range(L):
                     nf[q] = 0.0
                     Xf[q] = 0.0
-                # the two sparse-by-dense products in separate loops over the pattern (one output row each)
-                for p in range(nnz):
-                    a = av[p]
-                    out = nxt[ia[p]]
-                    src = term[ja[p]]
-                    for c in range(w):
-                        out[c] += a * src[c]
-                for p in range(nnz):
-                    a = av[p]
-                    out = X[ia[p]]
-                    src = M[ja[p]]
-                    for c in range(w):
-                        out[c] += a * src[c]
+                # the two sparse-by-dense products, each its own loop over the pattern
+                _pattern_product_add(av, ia, ja, term, nxt)
+                _pattern_product_add(av, ia, ja, M, X)
                 rk = 1.0 / k
                 for q in range(L):
                     t = nf[q] * rk

@@ -38,7 +38,7 @@ LANES = 32
 # rows of the lane block St: position, velocity, attitude (row-major), clock bias, then the per-row sums of
 # the averaged mode (kernels._propagate_epoch): C f, C, the gravity gradient, c_m c_m^T per body axis, GM / |r|^3;
 # then the inputs of the sample at hand: clock drift, bias-compensated specific force and angular rate, |d|^2 and
-# the rotation coefficients
+# the rotation coefficients (d = w h is formed again where used: cheaper than storing it, measured)
 _R, _V, _C, _CLK, _SA, _SC, _SG, _SCC, _SK = 0, 3, 6, 15, 16, 19, 28, 37, 64
 _DR, _F, _WR, _TH2, _CA, _CB, _CC = 65, 66, 69, 72, 73, 74, 75
 _NQ = 76
@@ -54,7 +54,7 @@ def _propagate_lanes(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, C
     for ch in nb.prange(nchunk):
         St = np.empty((_NQ, LANES))
         Sf = St.ravel()
-        T = np.empty(LANES)
+        c3 = np.empty(LANES)            # per sample: 3 GM / |r|^5
         fw = np.empty((n, 6, LANES))    # per sample: bias-compensated specific force and angular rate
         sa = np.empty(3)
         sC = np.empty((3, 3))
@@ -91,9 +91,9 @@ def _propagate_lanes(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, C
                     if not St[_TH2, l] < 1e-4:
                         St[_CA, l], St[_CB, l], St[_CC, l] = _large_angle(St[_TH2, l])
                 if orthonormalize:
-                    _lane_samples(Sf, T, L, h, Avt, Aut, Agt, Czt, True)
+                    _lane_samples(Sf, c3, L, h, Avt, Aut, Agt, Czt, True)
                 else:
-                    _lane_samples(Sf, T, L, h, Avt, Aut, Agt, Czt, False)
+                    _lane_samples(Sf, c3, L, h, Avt, Aut, Agt, Czt, False)
             for l in range(L):
                 b = lo + l
                 for i in range(3):
@@ -118,8 +118,8 @@ def _propagate_lanes(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, C
 
 @nb.njit(cache=True, error_model="numpy")
 def _lane_angles(St, L, h):
-    """|d|^2 (``d = w h``) of the sample at hand and the series coefficients (:func:`~.kernels._small_angle`) of
-    lanes ``0..L-1``."""
+    """``|d|^2`` (``d = w h``) of the sample at hand and the series coefficients (:func:`~.kernels._small_angle`)
+    of lanes ``0..L-1``."""
     for l in range(L):
         d0 = St[_WR, l] * h
         d1 = St[_WR + 1, l] * h
@@ -133,13 +133,13 @@ def _lane_angles(St, L, h):
 
 
 @nb.njit(cache=True, error_model="numpy")
-def _lane_samples(S, T, L, h, Av, Au, Ag, Cz, orthonormalize):
+def _lane_samples(S, c3, L, h, Av, Au, Ag, Cz, orthonormalize):
     """The sample at hand in lanes ``0..L-1``: the sums of the averaged mode at the state of the sample's start,
     then the mechanization (:func:`~nav_filters.kernels._mechanize_sample`) and the clock; per lane the row
     kernel's operations in its order.
 
     ``S`` the lane block flat (row q of lane l at ``q * LANES + l``: the rows' distance a constant, so LLVM can
-    tell that the reads and writes of different rows do not overlap), ``T`` (LANES,) scratch; ``Av`` ... ``Cz``
+    tell that the reads and writes of different rows do not overlap), ``c3`` (LANES,) scratch; ``Av`` ... ``Cz``
     9-tuples (:func:`~.kernels._tuple9`). Every lane loop is short and straight-line (LLVM's vectorizer gives up
     on a loop with very many accesses to one array, and on a tuple read at a loop index), so each one
     vectorizes."""
@@ -162,7 +162,7 @@ def _lane_samples(S, T, L, h, Av, Au, Ag, Cz, orthonormalize):
                 c = (_C + 3 * j + m) * LANES
                 for l in range(L):
                     S[o + l] += S[a + l] * S[c + l]
-    for l in range(L):       # GM / |r|^3, and 3 GM / |r|^5 into T's first row
+    for l in range(L):       # sum GM / |r|^3, and 3 GM / |r|^5 into c3
         r0 = S[_R * LANES + l]
         r1 = S[(_R + 1) * LANES + l]
         r2 = S[(_R + 2) * LANES + l]
@@ -170,14 +170,14 @@ def _lane_samples(S, T, L, h, Av, Au, Ag, Cz, orthonormalize):
         ir2 = 1.0 / rs2
         kr = _GM * ir2 / np.sqrt(rs2)
         S[_SK * LANES + l] += kr
-        T[l] = 3.0 * kr * ir2
+        c3[l] = 3.0 * kr * ir2
     for i in range(3):       # sum 3 GM r r^T / |r|^5
         for j in range(3):
             o = (_SG + 3 * i + j) * LANES
             a = (_R + i) * LANES
             c = (_R + j) * LANES
             for l in range(L):
-                S[o + l] += T[l] * S[a + l] * S[c + l]
+                S[o + l] += c3[l] * S[a + l] * S[c + l]
     for l in range(L):
         (r0, r1, r2, v0, v1, v2, c00, c01, c02, c10, c11, c12, c20, c21, c22) = _mechanize_sample(
             S[_R * LANES + l], S[(_R + 1) * LANES + l], S[(_R + 2) * LANES + l],
