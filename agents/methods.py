@@ -326,11 +326,10 @@ def check_method_params(method: str, params: dict, spec: str) -> None:
     unknown name, NaN, inf or a value outside the parameter's range raises ``ValueError`` naming the spec."""
     if not params:
         return
-    from nav_filters.registry import FORMS
-    law = getattr(FORMS[parse_method(method)[0]], "law", None)
-    if law is None:
+    from nav_filters.registry import law_params
+    specs = {p.name: p for p in law_params(method)}
+    if not specs:
         raise ValueError(f"{spec}: method {method!r} has no parameters to set (got {', '.join(sorted(params))})")
-    specs = {p.name: p for p in law.PARAMS}
     for k, v in params.items():
         if k not in specs:
             raise ValueError(f"{spec}: unknown parameter {k!r} of {method!r}; known: {', '.join(sorted(specs))}")

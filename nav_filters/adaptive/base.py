@@ -62,20 +62,17 @@ from .params import ParamSpec
 
 
 def resolve_inner(inner):
-    """The inner-form factory: a callable ``(P0, x0=None, dtype=None) -> FilterForm``, or a method name.
+    """The inner-form factory: a callable ``(P0, x0=None, dtype=None) -> FilterForm`` (a form class such as
+    :class:`~nav_filters.forms.kf.KalmanFilter`, or a factory of :data:`nav_filters.registry.FORMS`).
 
-    A name is looked up in :data:`nav_filters.registry.FORMS` (at construction time, so the registry may
-    itself register adaptive laws); an unknown name raises ``ValueError`` naming ``inner``.
+    The laws know nothing of method names: the registry, which sits above them, resolves a name and hands the
+    law its factory. Anything else raises ``ValueError`` naming ``inner``.
     """
-    if isinstance(inner, str):
-        from ..registry import FORMS  # late: the registry imports this package
-
-        if inner not in FORMS:
-            raise ValueError(f"inner must be a registered filter form, got {inner!r}; known: {sorted(FORMS)}")
-        return FORMS[inner]
-    if not callable(inner):
-        raise ValueError(f"inner must be a form name or a callable (P0, x0=None, dtype=None) -> FilterForm, "
-                         f"got {inner!r}")
+    if isinstance(inner, type) and issubclass(inner, FilterForm):
+        return inner
+    if isinstance(inner, str) or not callable(inner):
+        raise ValueError(f"inner must be a form class or a callable (P0, x0=None, dtype=None) -> FilterForm, "
+                         f"got {inner!r} (a method name is resolved by nav_filters.registry.make_form)")
     return inner
 
 
@@ -126,8 +123,8 @@ class AdaptiveLaw(FilterForm):
     P0 : (B, n, n) initial covariance.
     x0 : (B, n) initial error state (default zeros).
     dtype : float32 or float64 (default: P0's).
-    inner : the inner form: a method name of :data:`nav_filters.registry.FORMS` (default ``'kf'``) or a
-        callable ``(P0, x0=None, dtype=None) -> FilterForm``.
+    inner : the inner form: a form class (default :class:`~nav_filters.forms.kf.KalmanFilter`) or a callable
+        ``(P0, x0=None, dtype=None) -> FilterForm`` (:data:`nav_filters.registry.FORMS` holds one per method name).
     config : the law's frozen configuration dataclass (default: its defaults).
 
     Subclasses set :attr:`PARAMS` (the per-row parameters, initialized from the config fields of the
@@ -139,7 +136,7 @@ class AdaptiveLaw(FilterForm):
     PARAMS: tuple[ParamSpec, ...] = ()
     config_class: type = type(None)
 
-    def __init__(self, P0, x0=None, dtype=None, *, inner="kf", config=None):
+    def __init__(self, P0, x0=None, dtype=None, *, inner=KalmanFilter, config=None):
         if config is None:
             config = self.config_class()
         if not isinstance(config, self.config_class):
@@ -295,7 +292,12 @@ class AdaptiveLaw(FilterForm):
             self._ctx = self._open_epoch()
         ctx = self._ctx
         plan = self._plan(r, H, R, mask, ctx)
-        if self.inner.fused:
+        if isinstance(self.inner, AdaptiveLaw):
+            # a law around a law (``sage-husa+fde``): the inner law defers the prediction to its own update and
+            # keys its estimates by the measurement rows' identities
+            self._apply_prediction(ctx, plan.fade)
+            res = self.inner.update(r, H, plan.R, plan.mask, keys=self._keys)
+        elif self.inner.fused:
             # one compiled call (commits nothing when it raises, so ctx.applied stays False for a retry)
             if ctx.pending and not ctx.applied:
                 res = self.inner._predicted_update(ctx.Phi, ctx.Q, r, H, plan.R, plan.mask, fade=plan.fade,
@@ -480,6 +482,11 @@ class AdaptiveLaw(FilterForm):
     def satellite_health(self):
         """``(sats_rose, sat_scale_max)`` of :meth:`satellite_summary`, (B,) float64 copies, or None for a law
         without per-satellite R: the two entries an env's observation frame reads, without the dict."""
+        return None
+
+    def excluded(self):
+        """(B,) int measurement rows the law excluded from its last update (fault exclusion, a zero robust
+        weight), or None for a law that never excludes."""
         return None
 
     # -------------------------------------------------------------- hooks

@@ -2,7 +2,7 @@
 
 The method names of DESIGN.md section 4 (these forms and the adaptive laws of :mod:`nav_filters.adaptive`
 that compose them) are looked up in :mod:`nav_filters.registry` (``FORMS``, ``parse_method``,
-``make_form``), which sits above both packages.
+``make_form``), which sits above both packages; the forms know nothing of it.
 """
 from __future__ import annotations
 
@@ -15,12 +15,3 @@ from .svd import SvdKalmanFilter, SvdSquareRootKF
 __all__ = ["FilterForm", "UpdateResult", "KalmanFilter", "InformationFilter", "SvdInformationFilter",
            "SquareRootInformationFilter", "SvdSquareRootKF", "SvdKalmanFilter", "prepare_measurement"]
 
-
-def __getattr__(name):
-    """``nav_filters.forms.FORMS`` / ``parse_method`` / ``make_form``: the registry's own objects (the same
-    dict, so registering through either name is one registration), looked up on first use; new code imports
-    them from :mod:`nav_filters.registry`."""
-    if name in ("FORMS", "parse_method", "make_form", "ONESTEP_SUFFIX"):
-        from .. import registry
-        return getattr(registry, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -363,17 +363,17 @@ def test_smartloc_world_runs_kf_end_to_end_deterministically(smartloc):
 
 @needs_smartloc
 def test_pseudorange_only_replay_agrees_across_filter_forms(smartloc):
-    """20 s of recorded pseudoranges (no rate rows) through every non-adaptive form: the same estimate as kf
-    (algebraically equivalent forms; measured <= 3e-9 m over 60 s); the adaptive laws run without divergence."""
+    """20 s of recorded pseudoranges (no rate rows) through every plain form: the same estimate as kf
+    (algebraically equivalent forms; measured <= 3e-9 m over 60 s); the adaptive laws and the robust screens run
+    without divergence."""
     from envs.datasets.replay import load_smartloc_world
-    from nav_filters.adaptive import ADAPTIVE_METHODS
-    from nav_filters.registry import FORMS
+    from nav_filters.registry import ADAPTIVE_METHODS, PLAIN_FORMS, ROBUST_METHODS
     w = load_smartloc_world([4], duration_s=20.0, data=smartloc)
     ref = _run(w, "kf").pos_err_ned
-    for method in ADAPTIVE_METHODS:
+    for method in [*ADAPTIVE_METHODS, *ROBUST_METHODS]:
         log = _run(w, method)
         assert not log.diverged.any() and np.all(np.isfinite(log.pos_err_ned)), method
-    for method in sorted(set(FORMS) - set(ADAPTIVE_METHODS)):
+    for method in PLAIN_FORMS:
         log = _run(w, method)
         assert not log.diverged.any(), method
         assert np.abs(log.pos_err_ned - ref).max() < 1e-6, method

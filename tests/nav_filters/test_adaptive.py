@@ -9,7 +9,8 @@ import pytest
 
 import nav_filters.forms as forms
 from nav_filters.adaptive.sage_husa import freeze_count, sage_husa_weight
-from nav_filters.adaptive import (ADAPTIVE_METHODS, MeasurementAdaptiveSTKF, MeasurementAdaptiveSTKFConfig, SageHusa,
+from nav_filters.registry import ADAPTIVE_METHODS, FORMS
+from nav_filters.adaptive import (MeasurementAdaptiveSTKF, MeasurementAdaptiveSTKFConfig, SageHusa,
                                   SageHusaConfig, StrongTracking, StrongTrackingConfig, law_factory,
                                   measurement_groups, sage_husa_weight)
 from nav_filters.error_model import CLK, DRIFT, N_STATES
@@ -109,7 +110,7 @@ def test_neutral_law_reproduces_kf_over_many_cycles(law):
     np.testing.assert_allclose(w.x, kf.x, rtol=1e-10, atol=1e-12)
 
 
-INNER_FORMS = [name for name in ("svd-kf", "svd-srkf", "if", "svd-if", "srif") if name in forms.FORMS]
+INNER_FORMS = ["svd-kf", "svd-srkf", "if", "svd-if", "srif"]
 
 
 @pytest.mark.parametrize("inner", INNER_FORMS)
@@ -124,7 +125,7 @@ def test_laws_agree_across_inner_forms(inner):
             lambda i: SageHusa(P0, inner=i, config=SageHusaConfig(warmup_epochs=2, diagonal_q=True)),
             lambda i: StrongTracking(P0, inner=i),
             lambda i: MeasurementAdaptiveSTKF(P0, inner=i, config=MeasurementAdaptiveSTKFConfig(warmup_epochs=2))]
-    pairs = [(f(inner), f("kf")) for f in make]
+    pairs = [(f(FORMS[inner]), f(FORMS["kf"])) for f in make]
     for k in range(40):
         for _ in range(rng.integers(0, 3)):
             Phi = np.eye(n) + 0.05 * rng.normal(size=(B, n, n))
@@ -138,7 +139,7 @@ def test_laws_agree_across_inner_forms(inner):
             a.update(dz, H, R, mask)
             b.update(dz, H, R, mask)
     for a, b in pairs:
-        assert a.inner.name == inner or type(a.inner) is forms.FORMS[inner]
+        assert type(a.inner) is FORMS[inner]
         np.testing.assert_allclose(a.covariance, b.covariance, rtol=0, atol=1e-9 * np.abs(b.covariance).max())
         np.testing.assert_allclose(a.x, b.x, rtol=0, atol=1e-9 * np.abs(b.x).max())
         for key, v in b.adaptive_state().items():
@@ -486,7 +487,7 @@ def test_navigation_noise_burst_runs_without_divergence(monkeypatch, method, dty
     from envs.sim.world import generate_world
 
     for name in ("sage-husa", "stkf", "ma-stkf"):
-        monkeypatch.setitem(forms.FORMS, name, ADAPTIVE_METHODS[name])
+        monkeypatch.setitem(FORMS, name, ADAPTIVE_METHODS[name])
     log = run_episodes(generate_world("noise-burst", [0, 1]), method, dtype=dtype)
     assert not log.diverged.any()
     assert np.all(np.isfinite(log.pos_err_ned))
@@ -494,12 +495,14 @@ def test_navigation_noise_burst_runs_without_divergence(monkeypatch, method, dty
 
 
 def test_law_factory_fits_the_forms_registry():
-    f = law_factory(SageHusa, "kf", diagonal_q=True, adapt_r=False)
+    f = law_factory(SageHusa, KalmanFilter, diagonal_q=True, adapt_r=False)
     P0 = np.broadcast_to(np.eye(4), (2, 4, 4)).copy()
     form = f(P0, dtype=np.float32)
     assert isinstance(form, SageHusa) and form.config.diagonal_q and form.dtype == np.float32
     assert isinstance(form.inner, KalmanFilter)
     assert set(ADAPTIVE_METHODS) == {"sage-husa", "svd-akf", "svd-asrkf", "sage-husa-r", "sage-husa-group", "stkf",
-                                     "ma-stkf"}
+                                     "ma-stkf", "vb-akf"}
     with pytest.raises(ValueError, match="b"):
-        law_factory(SageHusa, "kf", b=2.0)
+        law_factory(SageHusa, KalmanFilter, b=2.0)
+    with pytest.raises(ValueError, match="inner"):
+        law_factory(SageHusa, "kf")  # names are the registry's: the laws take factories

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 import nav_filters.forms as forms
+import nav_filters.registry as registry
 from nav_filters.adaptive import SageHusa, SageHusaConfig, law_factory
 from nav_filters.adaptive.innovation import (deleted_residuals, geometry_residuals, geometry_residuals_reference,
                                              posterior_residuals, posterior_residuals_reference)
@@ -451,13 +452,13 @@ def test_group_mode_reproduces_the_law_before_per_satellite_r():
     from envs.worlds import make_world
     ref = json.loads(SNAPSHOT.read_text())
     names = {"sage-husa": "sage-husa-group",
-             "svd-akf": law_factory(SageHusa, "svd-kf", diagonal_q=False, adapt_r=False),
-             "svd-asrkf": law_factory(SageHusa, "svd-srkf", diagonal_q=True, adapt_r=False)}
+             "svd-akf": law_factory(SageHusa, registry.FORMS["svd-kf"], diagonal_q=False, adapt_r=False),
+             "svd-asrkf": law_factory(SageHusa, registry.FORMS["svd-srkf"], diagonal_q=True, adapt_r=False)}
     added = []
     try:
         for old, new in names.items():
             if not isinstance(new, str):
-                forms.FORMS[f"_test-{old}"] = new
+                registry.FORMS[f"_test-{old}"] = new
                 added.append(f"_test-{old}")
                 names[old] = f"_test-{old}"
         for scen in ("urban", "noise-burst"):
@@ -469,7 +470,7 @@ def test_group_mode_reproduces_the_law_before_per_satellite_r():
                                                atol=1e-9, err_msg=f"{scen} {method} b={b}")
     finally:
         for a in added:
-            forms.FORMS.pop(a, None)
+            registry.FORMS.pop(a, None)
 
 
 def test_common_scale_and_per_satellite_scales_share_a_common_increase():

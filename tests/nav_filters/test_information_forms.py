@@ -10,7 +10,7 @@ algebraic error (those show up at >= 1e-3).
 import numpy as np
 import pytest
 
-import nav_filters.forms
+import nav_filters.registry
 from nav_filters.forms import KalmanFilter
 from nav_filters.forms.information import InformationFilter, SvdInformationFilter, process_noise_factor
 from nav_filters.forms.srif import SquareRootInformationFilter
@@ -390,7 +390,7 @@ def test_navigation_matches_kf(cls, monkeypatch, seed000_world_and_kf):
     from envs.episodes import run_episodes
 
     world, ref = seed000_world_and_kf
-    monkeypatch.setitem(nav_filters.forms.FORMS, cls.name, cls)
+    monkeypatch.setitem(nav_filters.registry.FORMS, cls.name, cls)
     log = run_episodes(world, cls.name)
     assert not log.diverged.any()
     assert np.abs(log.pos_err_ned - ref.pos_err_ned).max() < 1e-6

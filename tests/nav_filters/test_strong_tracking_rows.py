@@ -121,7 +121,7 @@ def test_compiled_plan_is_the_numpy_plan(compare_plans, method, scenario, B, dty
 def test_configurations(compare_plans, monkeypatch, law, config, compiled):
     """The kernels cover the configurations they claim (the same bits); the others run the numpy lines."""
     method = law.name
-    monkeypatch.setitem(registry.FORMS, method, law_factory(law, "kf", **config))
+    monkeypatch.setitem(registry.FORMS, method, law_factory(law, **config))
     w = generate_world(get_scenario("urban", duration_s=40.0), [4, 5])
     run_episodes(w, method, exact_transition=False, fused_update=True)
     assert compare_plans["calls"] >= 30

@@ -8,7 +8,7 @@ margin for the growth over the cycles while still catching any wrong sign, trans
 import numpy as np
 import pytest
 
-import nav_filters.forms
+import nav_filters.registry
 from nav_filters.forms import KalmanFilter
 from nav_filters.forms.svd import SvdKalmanFilter, SvdSquareRootKF
 
@@ -309,8 +309,8 @@ def test_navigation_seed000_matches_kf(monkeypatch, seed000_world_and_kf, method
     """Closed-loop navigation (60 s, 2 episodes, float64): the SVD forms reproduce kf to 1e-6 m."""
     from envs.episodes import run_episodes
 
-    monkeypatch.setitem(nav_filters.forms.FORMS, "svd-kf", SvdKalmanFilter)
-    monkeypatch.setitem(nav_filters.forms.FORMS, "svd-srkf", SvdSquareRootKF)
+    monkeypatch.setitem(nav_filters.registry.FORMS, "svd-kf", SvdKalmanFilter)
+    monkeypatch.setitem(nav_filters.registry.FORMS, "svd-srkf", SvdSquareRootKF)
     world, ref = seed000_world_and_kf
     log = run_episodes(world, method)
     assert not log.diverged.any()
