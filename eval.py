@@ -370,11 +370,15 @@ def run_batches(args, methods_by_scenario: dict, seeds: list[int]) -> tuple[dict
 
 
 COLUMNS = [("rmse_h_m", "RMSE h [m]"), ("rmse_h_ci95_m", "95% CI [m]"), ("rmse_3d_m", "RMSE 3D [m]"),
-           ("p95_h_m", "p95 h [m]"), ("max_h_m", "max h [m]"), ("filter_time_per_epoch_s", "ms/epoch"),
-           ("diverged", "div")]
+           ("p95_h_m", "p95 h [m]"), ("max_h_m", "max h [m]"), ("excluded_per_epoch", "excl/epoch"),
+           ("filter_time_per_epoch_s", "ms/epoch"), ("diverged", "div")]
+"""The table's metric columns; ``excl/epoch`` (measurement rows excluded per epoch) is ``-`` for a method that
+never excludes."""
 
 
 def _fmt(key, v):
+    if v is None:
+        return "-"
     if key == "rmse_h_ci95_m":
         return f"{v[0]:.2f}-{v[1]:.2f}"
     if key == "filter_time_per_epoch_s":
@@ -415,7 +419,7 @@ def format_table(results: dict) -> str:
         for m, r in list(per.items()) + list(_group_rows(results, s)):
             few = r["episodes"] < MIN_CI_EPISODES
             rows.append(f"| {s} | {m} | {r['episodes']} | " + " | ".join(
-                no_ci_text() if few and k == "rmse_h_ci95_m" else _fmt(k, r[k]) for k, _ in COLUMNS)
+                no_ci_text() if few and k == "rmse_h_ci95_m" else _fmt(k, r.get(k)) for k, _ in COLUMNS)
                         + f" | {_fmt_pair(r)} |")
     return "\n".join(rows)
 
@@ -429,7 +433,10 @@ def write_csv(results: dict, path: Path) -> None:
         for m, r in list(per.items()) + pooled:
             vals = []
             for k in keys:
-                vals += [f"{r[k][0]:.6g}", f"{r[k][1]:.6g}"] if k == "rmse_h_ci95_m" else [f"{r[k]:.6g}"]
+                if k == "rmse_h_ci95_m":
+                    vals += [f"{r[k][0]:.6g}", f"{r[k][1]:.6g}"]
+                else:
+                    vals.append("" if r.get(k) is None else f"{r[k]:.6g}")  # (a method that never excludes)
             p = r.get("paired_vs_reference")
             vals += ([f"{p['diff_rmse_h_m']:.6g}", f"{p['diff_rmse_h_ci95_m'][0]:.6g}",
                       f"{p['diff_rmse_h_ci95_m'][1]:.6g}"] if p else ["0", "0", "0"])

@@ -22,7 +22,6 @@ import numba as nb
 import numpy as np
 
 from nav_filters.kernels import row_kernel, serial_and_parallel
-from nav_filters.registry import parse_method
 from nav_filters.rows import check_row_pairs, copied_array, copy_dataclass_rows, copy_rows_generic
 
 from .config import EnvConfig, ParamSpec
@@ -53,17 +52,15 @@ def check_batch_size(n, name: str = "num_envs") -> int:
 def check_method_has_params(method: str, specs) -> None:
     """``ValueError`` at construction when the filter ``method`` cannot take the parameters ``specs`` the env's
     action sets (``kf`` in the Sage-Husa env, ``stkf`` in the MA-STKF env, ...), naming the methods that can."""
-    from nav_filters.registry import FORMS
-    base, _ = parse_method(method)
+    from nav_filters.registry import FORMS, law_params
     need = {s.name for s in specs}
 
     def params(name):
-        law = getattr(FORMS[name], "law", None)
-        return set() if law is None else {p.name for p in law.PARAMS}
+        return {p.name for p in law_params(name)}
 
-    if not need <= params(base):
+    if not need <= params(method):
         fits = [m for m in sorted(FORMS) if need <= params(m)]
-        have = sorted(params(base))
+        have = sorted(params(method))
         raise ValueError(f"method {method!r} does not take the parameter(s) {', '.join(sorted(need))} this env sets "
                          f"({'its parameters: ' + ', '.join(have) if have else 'it has no adjustable parameters'}); "
                          f"methods that do: {', '.join(fits)} (optionally with '+onestep')")
@@ -433,6 +430,7 @@ class TuningCore:
         self.prev_nsat[rows] = -1
         self.sq_err_sum[rows] = 0.0
         self.max_err[rows] = 0.0
+        self.excluded_sum[rows] = 0
         self.est_track[rows] = np.nan
         frame = self._initial_frame(rows)
         self.frames[rows] = frame[:, None, :]
@@ -467,6 +465,7 @@ class TuningCore:
         self.prev_nsat = np.full(B, -1, np.int64)
         self.sq_err_sum = np.zeros(B)
         self.max_err = np.zeros(B)
+        self.excluded_sum = np.zeros(B, np.int64)  # measurement rows the filter excluded (fault exclusion)
         self.frames = np.zeros((B, self.config.history, self.frame_dim), np.float32)
         self.est_track = np.full((B, M, 3), np.nan)
 
@@ -554,6 +553,11 @@ class TuningCore:
         }
         for s in self.specs:
             info[s.name] = vals[s.name].copy()
+        excluded = getattr(self.nav.form, "excluded", None)
+        excluded = None if excluded is None else excluded()
+        if excluded is not None:  # a method that screens its measurements (kf-fde, +fde, kf-igg3)
+            info["n_excluded"] = excluded
+            self.excluded_sum += excluded
         if self.ref is not None:
             info["reference_horizontal_error_m"] = ref_h
         return StepResult(obs=self.frames.reshape(self.B, -1).copy(), reward=reward, terminated=terminated,
@@ -565,7 +569,8 @@ class TuningCore:
         for i in np.atleast_1d(rows):
             n = max(int(self.t[i]), 1)
             out.append({"rmse_h_m": float(np.sqrt(self.sq_err_sum[i] / n)), "max_h_m": float(self.max_err[i]),
-                        "epochs": int(self.t[i]), "seed": self.seeds[i]})
+                        "epochs": int(self.t[i]), "seed": self.seeds[i],
+                        "excluded_per_epoch": float(self.excluded_sum[i] / n)})
         return out
 
     def _advance(self, nav, j):

@@ -93,6 +93,8 @@ class EpisodeLog:
     filter_time_s : wall time spent in the navigator (all B rows).
     params : ``{name: (B, M)}`` the filter parameter values a policy set at each epoch (the action in the
         parameter's units, e.g. the Sage-Husa ``b``), or None for a method with fixed parameters.
+    n_excluded : (B, M) int measurement rows the method excluded at each epoch (fault exclusion, IGG-III's
+        zero weights), or None for a method that never excludes.
     """
 
     t: np.ndarray
@@ -107,6 +109,7 @@ class EpisodeLog:
     diverged: np.ndarray
     filter_time_s: float
     params: dict | None = None
+    n_excluded: np.ndarray | None = None
 
     @property
     def horizontal_error(self) -> np.ndarray:
@@ -155,6 +158,8 @@ def run_episodes(world: World, method: str = "kf", dtype="float64", progress=Non
     n_sats = np.zeros((B, M), int)
     gdop = np.zeros((B, M))
     zflag = np.zeros((B, M), bool)
+    excluded = getattr(nav.form, "excluded", None)
+    n_excl = None if excluded is None or excluded() is None else np.zeros((B, M), np.int64)
     f_all, w_all = imu.f_b, imu.w_b
     keys = satellite_keys(gnss)
     pv = np.r_[np.arange(VEL.start, VEL.stop), np.arange(POS.start, POS.stop)]
@@ -189,6 +194,8 @@ def run_episodes(world: World, method: str = "kf", dtype="float64", progress=Non
         n_used[:, j] = res.n_used
         n_sats[:, j] = gnss.mask[:, j].sum(-1)
         gdop[:, j] = g
+        if n_excl is not None:
+            n_excl[:, j] = excluded()
         if progress is not None:
             progress(j + 1)
     elapsed = time.perf_counter() - t0
@@ -198,7 +205,8 @@ def run_episodes(world: World, method: str = "kf", dtype="float64", progress=Non
     vel_ned = (Cne @ verr_e[..., None])[..., 0]
     div = nav.diverged | ~np.isfinite(pos_ned).all((1, 2))
     return EpisodeLog(t=truth.t[ep], pos_err_ned=pos_ned, vel_err_ned=vel_ned, nees_pv=nees, nis=nis,
-                      n_used=n_used, n_sats=n_sats, gdop=gdop, zupt=zflag, diverged=div, filter_time_s=elapsed)
+                      n_used=n_used, n_sats=n_sats, gdop=gdop, zupt=zflag, diverged=div, filter_time_s=elapsed,
+                      n_excluded=n_excl)
 
 
 def concat_logs(logs: list[EpisodeLog]) -> EpisodeLog:
@@ -215,6 +223,8 @@ def concat_logs(logs: list[EpisodeLog]) -> EpisodeLog:
         elif f == "params":
             kw[f] = (None if any(v is None for v in vals) else
                      {k: np.concatenate([v[k] for v in vals], 0) for k in vals[0]})
+        elif f == "n_excluded":
+            kw[f] = None if any(v is None for v in vals) else np.concatenate(vals, 0)
         else:
             kw[f] = np.concatenate(vals, 0)
     return EpisodeLog(**kw)

@@ -55,6 +55,8 @@ def summarize(log: EpisodeLog) -> dict:
     used = log.n_used[ok]
     nis = log.nis[ok]
     out["mean_nis_per_dof"] = float(np.sum(nis[used > 0]) / max(np.sum(used[used > 0]), 1))
+    if log.n_excluded is not None:  # a method that screens its measurements
+        out["excluded_per_epoch"] = float(np.mean(log.n_excluded[ok])) if ok.any() else float("nan")
     return out
 
 
