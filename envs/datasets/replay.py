@@ -239,7 +239,7 @@ def load_smartloc_world(seeds, imu_grade: str = "industrial", imu_rate_hz: float
                         name: str = POTSDAMER_PLATZ, systems=(1, 4), min_elevation_deg: float = 0.0,
                         min_cn0_dbhz: float = 0.0, vibration: Vibration | None = None,
                         initial: InitialErrors | None = None, duration_s: float | None = None, dtype=np.float64,
-                        data=None) -> World:
+                        data=None, sigma_model=None) -> World:
     """The ``smartloc-potsdamer-platz`` replay world for ``seeds`` (B rows, one IMU-noise draw each).
 
     Parameters
@@ -253,6 +253,8 @@ def load_smartloc_world(seeds, imu_grade: str = "industrial", imu_rate_hz: float
     duration_s : replay only the first ``duration_s`` seconds (>= 2 s); None: the whole recording.
     dtype : float dtype of the IMU samples.
     data : an already loaded :class:`~envs.datasets.smartloc.SmartLocData` (skips reading the files).
+    sigma_model : an :class:`envs.sim.sigma_models.SigmaModel` for the pseudorange sigma the filter is told
+        (None or ``'receiver'``: the recorded variance).
 
     Returns
     -------
@@ -273,6 +275,8 @@ def load_smartloc_world(seeds, imu_grade: str = "industrial", imu_rate_hz: float
                              start=(math.degrees(lat), math.degrees(lon), float(h)), vibration=vibration,
                              initial=initial)
     ep = data.epochs(systems=systems, min_elevation_deg=min_elevation_deg, min_cn0_dbhz=min_cn0_dbhz)
+    if sigma_model is not None:
+        ep = ep.with_sigma_model(sigma_model, data.input_path)
     return replay_world(scen, ep, fit, seeds, dtype=dtype)
 
 

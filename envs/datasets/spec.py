@@ -20,6 +20,8 @@ key, with examples, is ``docs/datasets.md``; in short::
     min_cn0_dbhz = 0.0
     sigma0_m = 1.5                        # zenith code sigma of the elevation model
     interval_s = 1.0                      # keep one epoch every interval_s (optional)
+    sigma_model = "receiver"              # or "elevation", "sigma-epsilon", "elevation-cn0", or a table
+                                          #   { name = "elevation", a_m = 0.3, b_m = 0.3 } (envs.sim.sigma_models)
 
     [corrections]                         # RINEX only (smartLoc pseudoranges come corrected)
     iono = true                           # Klobuchar (GPS broadcast coefficients)
@@ -55,6 +57,7 @@ from pathlib import Path
 from ..sim.gnss import ClockModel, ReceiverConfig
 from ..sim.imu import IMU_GRADES, Vibration
 from ..sim.scenarios import InitialErrors, Scenario
+from ..sim.sigma_models import MODEL_PARAMETERS, SIGMA_MODELS, SigmaModel
 from .errors import shared_data_dir
 
 try:  # Python >= 3.11
@@ -113,6 +116,8 @@ class GnssSpec:
     interval_s : float or None, keep one epoch every ``interval_s`` [s] (RINEX).
     doppler : bool, pseudorange rates from the Doppler observables (RINEX).
     doppler_sigma0_mps : zenith pseudorange-rate sigma of the elevation model [m/s].
+    sigma_model : :class:`~envs.sim.sigma_models.SigmaModel`, the pseudorange sigma the filter is told
+        (``'receiver'``: smartLoc's recorded variance, RINEX's ``sigma0_m`` elevation model).
     """
 
     format: str
@@ -126,6 +131,7 @@ class GnssSpec:
     interval_s: float | None = None
     doppler: bool = True
     doppler_sigma0_mps: float = 0.1
+    sigma_model: SigmaModel = SigmaModel()
 
 
 @dataclass(frozen=True)
@@ -202,8 +208,8 @@ class DatasetSpec:
 class ReplayScenario(Scenario):
     """A :class:`~envs.sim.scenarios.Scenario` that replays a recorded data set (its ``dataset`` spec).
 
-    Only ``imu_rate_hz``, ``imu_grade``, ``vibration``, ``receiver.clock``, ``initial`` and ``duration_s`` (a
-    prefix of the recording) are used by :func:`envs.datasets.dataset_world.world_from_spec`; ``drive``,
+    Only ``imu_rate_hz``, ``imu_grade``, ``vibration``, ``receiver.clock``, ``receiver.sigma_model`` (the
+    spec's ``gnss.sigma_model``), ``initial`` and ``duration_s`` (a prefix of the recording) are used by :func:`envs.datasets.dataset_world.world_from_spec`; ``drive``,
     ``constellation``, ``events`` describe nothing and ``gnss_rate_hz`` is the nominal rate.
     """
 
@@ -217,7 +223,8 @@ class ReplayScenario(Scenario):
 
 def replay_scenario(spec: DatasetSpec, duration_s: float | None = None, imu_grade: str | None = None,
                     gnss_rate_hz: float | None = None) -> ReplayScenario:
-    """The descriptor scenario of ``spec``: its IMU grade and rate, TCXO clock, default initial errors.
+    """The descriptor scenario of ``spec``: its IMU grade and rate, TCXO clock, pseudorange sigma model, default
+    initial errors.
 
     ``duration_s`` None means the whole recording (a nominal 1e6 s: the replay cuts at the truth's end);
     ``gnss_rate_hz`` the nominal GNSS rate (default: smartLoc 5 Hz, RINEX 1 Hz).
@@ -229,7 +236,8 @@ def replay_scenario(spec: DatasetSpec, duration_s: float | None = None, imu_grad
     return ReplayScenario(name=spec.name, duration_s=1e6 if duration_s is None else float(duration_s),
                           imu_rate_hz=imu_rate, gnss_rate_hz=rate, imu_grade=imu_grade or spec.imu.grade,
                           drive="urban" if spec.gnss.format == "smartloc" else "open", vibration=Vibration(),
-                          receiver=ReceiverConfig(clock=ClockModel.tcxo()), initial=InitialErrors(),
+                          receiver=ReceiverConfig(clock=ClockModel.tcxo(), sigma_model=spec.gnss.sigma_model),
+                          initial=InitialErrors(),
                           description=f"replay: {spec.description or spec.path.name}", dataset=spec)
 
 
@@ -300,9 +308,10 @@ def load_dataset_spec(path) -> DatasetSpec:
 
 def _gnss(r: "_Reader", t: dict) -> GnssSpec:
     r.keys(t, "gnss", {"format", "obs", "nav", "systems", "signals", "elevation_mask_deg", "min_cn0_dbhz",
-                       "sigma0_m", "interval_s", "doppler", "doppler_sigma0_mps"})
+                       "sigma0_m", "interval_s", "doppler", "doppler_sigma0_mps", "sigma_model"})
     fmt = r.choice(t, "gnss.format", GNSS_FORMATS, required=True)
     obs = r.file(t, "gnss.obs", required=True)
+    sigma_model = _sigma_model(r, t)
     if fmt == "smartloc":
         if not obs.name.endswith("_Input.txt"):
             raise DatasetSpecError(r.path, "gnss.obs", f"a smartLoc observation file is '<name>_Input.txt', "
@@ -314,7 +323,11 @@ def _gnss(r: "_Reader", t: dict) -> GnssSpec:
         systems = r.letters(t, "gnss.systems", SMARTLOC_SYSTEMS, default=SMARTLOC_SYSTEMS)
         return GnssSpec(format=fmt, obs=obs, nav=(), systems=systems, signals=(),
                         elevation_mask_deg=r.num(t, "gnss.elevation_mask_deg", 0.0, lo=-90, hi=90),
-                        min_cn0_dbhz=r.num(t, "gnss.min_cn0_dbhz", 0.0, lo=0), doppler=False)
+                        min_cn0_dbhz=r.num(t, "gnss.min_cn0_dbhz", 0.0, lo=0), doppler=False,
+                        sigma_model=sigma_model)
+    if sigma_model.name != "receiver" and _has(t, "gnss.sigma0_m"):
+        raise DatasetSpecError(r.path, "gnss.sigma0_m", f"applies to sigma_model 'receiver' only (the loader's "
+                                                        f"elevation model), not {sigma_model.name!r}")
     nav = t.get("nav")
     if isinstance(nav, str):
         nav = [nav]
@@ -352,7 +365,33 @@ def _gnss(r: "_Reader", t: dict) -> GnssSpec:
                     min_cn0_dbhz=r.num(t, "gnss.min_cn0_dbhz", 0.0, lo=0),
                     sigma0_m=r.num(t, "gnss.sigma0_m", 1.5, lo=0, lo_open=True), interval_s=interval,
                     doppler=r.bool(t, "gnss.doppler", True),
-                    doppler_sigma0_mps=r.num(t, "gnss.doppler_sigma0_mps", 0.1, lo=0, lo_open=True))
+                    doppler_sigma0_mps=r.num(t, "gnss.doppler_sigma0_mps", 0.1, lo=0, lo_open=True),
+                    sigma_model=sigma_model)
+
+
+def _sigma_model(r: "_Reader", t: dict) -> SigmaModel:
+    """``gnss.sigma_model``: a model name, or a table with ``name`` and the model's parameters
+    (:data:`envs.sim.sigma_models.MODEL_PARAMETERS`, numbers >= 0)."""
+    v = t.get("sigma_model", "receiver")
+    key = "gnss.sigma_model"
+    if isinstance(v, str):
+        v = {"name": v}
+    elif not isinstance(v, dict):
+        r.fail(key, f"must be a model name or a table {{ name = ..., <parameters> }}, got {v!r}")
+    elif "name" not in v:
+        r.fail(key + ".name", "missing: the model's name")
+    name = r.choice(v, key + ".name", SIGMA_MODELS)
+    known = MODEL_PARAMETERS[name]
+    for k in v:
+        if k != "name" and k not in known:
+            r.fail(f"{key}.{k}", f"not a parameter of the {name!r} model (its parameters: "
+                                 f"{', '.join(known) or 'none'})")
+    params = {k: r.num(v, f"{key}.{k}", None, lo=0) for k in known if k in v}
+    try:
+        return SigmaModel(name, **params)
+    except ValueError as exc:                     # "SigmaModel.<field>..." -> the spec's key
+        field_name = str(exc).split(":")[0].split()[0].split(".")[-1]
+        raise DatasetSpecError(r.path, f"{key}.{field_name}", str(exc)) from None
 
 
 def _truth(r: "_Reader", t: dict, gnss: GnssSpec) -> TruthSpec:

@@ -121,3 +121,115 @@ def test_simulated_sigma_model_keeps_the_mismatch_factor():
         ratios.append(a.pr_sigma[a.mask] / b.pr_sigma[b.mask])
     np.testing.assert_allclose(ratios[0], ratios[1], rtol=1e-12)
     assert np.ptp(ratios[0]) > 0.5                                                  # factors do vary
+
+
+# ------------------------------------------------------------------------------------------ dataset specs
+from envs.datasets.errors import shared_data_dir  # noqa: E402
+from envs.datasets.spec import SHIPPED_SPECS, SPEC_DIR, DatasetSpecError, load_dataset_spec  # noqa: E402
+
+DATA = shared_data_dir()
+SMARTLOC_SPEC = SPEC_DIR / SHIPPED_SPECS["smartloc-potsdamer-platz"]
+REACH_SPEC = SPEC_DIR / SHIPPED_SPECS["instinct-reach-static"]
+needs_smartloc = pytest.mark.skipif(not (DATA / "smartloc" / "Berlin_Potsdamer_Platz_Input.txt").is_file(),
+                                    reason=f"smartLoc data not found in {DATA / 'smartloc'} (../shared/data is "
+                                           f"absent in a fresh clone; CI has it)")
+needs_reach = pytest.mark.skipif(not (DATA / "instinct_tckf_static").is_dir(),
+                                 reason=f"Reach M2 RINEX files not found in {DATA / 'instinct_tckf_static'}")
+
+
+def _with_gnss_line(tmp_path, shipped, line: str, name="sigma-test"):
+    """A copy of a shipped spec (its ${NAVGYM_DATA_DIR} paths still expand) with ``line`` added to [gnss]."""
+    text = shipped.read_text().replace("[gnss]\n", f"[gnss]\n{line}\n", 1)
+    text = "\n".join(f'name = "{name}"' if ln.startswith("name = ") else ln for ln in text.splitlines()) + "\n"
+    p = tmp_path / f"{name}.toml"
+    p.write_text(text)
+    return p
+
+
+def test_spec_sigma_model_parsed_by_name_and_table(tmp_path):
+    assert load_dataset_spec(SMARTLOC_SPEC).gnss.sigma_model == SigmaModel()           # default: receiver
+    s = load_dataset_spec(_with_gnss_line(tmp_path, SMARTLOC_SPEC, 'sigma_model = "sigma-epsilon"'))
+    assert s.gnss.sigma_model == SigmaModel("sigma-epsilon")
+    assert s.scenario().receiver.sigma_model == SigmaModel("sigma-epsilon")            # the replay descriptor
+    text = REACH_SPEC.read_text().replace("sigma0_m = 1.5\n", "")
+    p = tmp_path / "reach.toml"
+    p.write_text(text.replace("[gnss]\n", '[gnss]\nsigma_model = { name = "elevation", a_m = 0.5, b_m = 2 }\n'))
+    assert load_dataset_spec(p).gnss.sigma_model == SigmaModel("elevation", a_m=0.5, b_m=2.0)
+    p.write_text(text.replace("[corrections]", '[gnss.sigma_model]\nname = "elevation-cn0"\nzenith_m = 1.0\n'
+                                               '\n[corrections]'))
+    assert load_dataset_spec(p).gnss.sigma_model == SigmaModel("elevation-cn0", zenith_m=1.0)
+
+
+@pytest.mark.parametrize("line, key, words", [
+    ('sigma_model = "snr"', "gnss.sigma_model.name", "must be one of receiver, elevation, sigma-epsilon"),
+    ('sigma_model = { name = "elevation", a_m = -0.5 }', "gnss.sigma_model.a_m", "must be >= 0, got -0.5"),
+    ('sigma_model = { name = "elevation", c_m2hz = 1e4 }', "gnss.sigma_model.c_m2hz",
+     "not a parameter of the 'elevation' model"),
+    ('sigma_model = { name = "sigma-epsilon", c_m2hz = 0 }', "gnss.sigma_model.c_m2hz", "a zero sigma"),
+    ('sigma_model = { a_m = 1.0 }', "gnss.sigma_model.name", "missing"),
+    ("sigma_model = 3", "gnss.sigma_model", "a model name or a table"),
+])
+def test_bad_spec_sigma_model_names_the_key(tmp_path, line, key, words):
+    p = _with_gnss_line(tmp_path, SMARTLOC_SPEC, line)
+    with pytest.raises(DatasetSpecError, match=words) as ei:
+        load_dataset_spec(p)
+    assert ei.value.key == key and str(ei.value).startswith(f"{p}: {key}: ") and "\n" not in str(ei.value)
+
+
+def test_rinex_sigma0_with_another_model_is_refused(tmp_path):
+    p = _with_gnss_line(tmp_path, REACH_SPEC, 'sigma_model = "elevation"')                 # sigma0_m = 1.5 too
+    with pytest.raises(DatasetSpecError, match="applies to sigma_model 'receiver' only") as ei:
+        load_dataset_spec(p)
+    assert ei.value.key == "gnss.sigma0_m"
+
+
+@needs_smartloc
+def test_smartloc_replay_applies_the_sigma_model(tmp_path):
+    from envs.worlds import make_world
+    default = make_world("smartloc-potsdamer-platz", [0], duration_s=20.0)
+    g0 = default.gnss
+    m = g0.mask
+    np.testing.assert_allclose(g0.pr_sigma[m] ** 2, np.round(g0.pr_sigma[m] ** 2), atol=1e-9)  # recorded: 25, 64..
+    for name in ("elevation", "sigma-epsilon", "elevation-cn0"):
+        w = make_world(_with_gnss_line(tmp_path, SMARTLOC_SPEC, f'sigma_model = "{name}"', f"s-{name}"), [0],
+                       duration_s=20.0)
+        g = w.gnss
+        np.testing.assert_array_equal(g.pr, g0.pr)
+        np.testing.assert_array_equal(g.mask, m)
+        want = np.sqrt(SigmaModel(name).variance(g.elevation, g.cn0_dbhz))
+        np.testing.assert_allclose(g.pr_sigma[m], want[m], rtol=1e-12)
+        assert np.all(g.pr_sigma[~m] == 0) and w.scenario.receiver.sigma_model.name == name
+    # sigma-epsilon by hand on one channel: C/N0 49 dB-Hz -> sqrt(1.1e4 * 10^-4.9)
+    g = make_world(_with_gnss_line(tmp_path, SMARTLOC_SPEC, 'sigma_model = "sigma-epsilon"', "s-one"), [0],
+                   duration_s=20.0).gnss
+    k = np.argwhere(m[0] & (g.cn0_dbhz[0] == 49.0))[0]
+    assert abs(g.pr_sigma[0][tuple(k)] - math.sqrt(1.1e4 * 10 ** -4.9)) < 1e-12
+
+
+@needs_reach
+def test_rinex_replay_applies_the_sigma_model_and_names_a_file_without_cn0(tmp_path, monkeypatch):
+    from envs.datasets import dataset_world
+    from envs.worlds import make_world
+    text = REACH_SPEC.read_text().replace("sigma0_m = 1.5\n", "")
+    p = tmp_path / "reach.toml"
+    p.write_text(text.replace("[gnss]\n", '[gnss]\nsigma_model = "elevation-cn0"\n'))
+    w = make_world(p, [0], duration_s=10.0)
+    g, m = w.gnss, w.gnss.mask
+    assert m.sum() > 50 and np.all(g.cn0_dbhz[m] > 20)                            # the file's S1C
+    want = np.sqrt(SigmaModel("elevation-cn0").variance(g.elevation, g.cn0_dbhz))
+    np.testing.assert_allclose(g.pr_sigma[m], want[m], rtol=1e-12)
+    base = make_world("instinct-reach-static", [0], duration_s=10.0).gnss
+    np.testing.assert_array_equal(g.pr, base.pr)
+    np.testing.assert_allclose(base.pr_sigma[m], 1.5 * np.sqrt(1 + 1 / np.sin(np.maximum(base.elevation[m],
+                                                                                     MIN_ELEVATION_RAD)) ** 2))
+    # a recording without C/N0 (no S1C): one error naming the observation file
+    real = dataset_world.prepare_rinex
+
+    def no_cn0(spec):
+        rec = real(spec)
+        return dataclasses.replace(rec, epochs=dataclasses.replace(rec.epochs, cn0=np.zeros_like(rec.epochs.cn0)))
+
+    monkeypatch.setattr(dataset_world, "prepare_rinex", no_cn0)
+    with pytest.raises(ValueError, match=r"reach-m2-01_raw_202306291111\.23O: sigma_model 'elevation-cn0' "
+                                         r"needs the C/N0"):
+        make_world(p, [0], duration_s=10.0)
