@@ -65,6 +65,9 @@ def world_from_spec(scenario: ReplayScenario, seeds, dtype=np.float64) -> World:
     if not isinstance(scenario, ReplayScenario):
         raise ValueError(f"scenario must be a ReplayScenario, got {type(scenario).__name__}")
     spec = scenario.dataset
+    if scenario.odometer is not None and spec.gnss.format != "smartloc":
+        raise ValueError(f"{spec.path}: recorded odometry (scenario.odometer) needs gnss.format = 'smartloc' "
+                         f"(its odom3 rows); this data set is {spec.gnss.format!r}")
     if spec.gnss.format == "smartloc":
         if spec.imu.source != "synthesized":
             raise ValueError(f"{spec.path}: imu.source = 'recorded' needs gnss.format = 'rinex' (smartLoc "
@@ -88,7 +91,7 @@ def _smartloc_world(scenario: ReplayScenario, seeds, dtype) -> World:
                                min_elevation_deg=g.elevation_mask_deg, min_cn0_dbhz=g.min_cn0_dbhz,
                                vibration=scenario.vibration, initial=scenario.initial,
                                duration_s=scenario.duration_s, dtype=dtype,
-                               sigma_model=scenario.receiver.sigma_model)
+                               sigma_model=scenario.receiver.sigma_model, odometer=scenario.odometer)
 
 
 def _rinex_world(scenario: ReplayScenario, seeds, dtype) -> World:

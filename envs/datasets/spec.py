@@ -36,6 +36,13 @@ key, with examples, is ``docs/datasets.md``; in short::
     grade = "industrial"                  #   column map, units and mounting (envs.datasets.recorded_imu)
     rate_hz = 100.0
 
+    [odometry]                            # optional; smartLoc only: the recording's wheel odometry as aiding
+    source = "recorded"                   #   (forward speed + NHC rows, and the yaw rate)
+    speed_sigma_mps = 0.1                 # the sigmas the filter assumes
+    nhc_sigma_mps = 0.1
+    yaw_rate = true                       # fuse the recorded yaw rate too
+    yaw_rate_sigma_dps = 0.3
+
 Every key is checked when the file is loaded (:func:`load_dataset_spec`);
 a wrong one raises :class:`DatasetSpecError` naming the file and the key.
 ``${NAVGYM_DATA_DIR}`` in a path expands to
@@ -56,6 +63,7 @@ from pathlib import Path
 
 from ..sim.gnss import ClockModel, ReceiverConfig
 from ..sim.imu import IMU_GRADES, Vibration
+from ..sim.odometer import OdometerModel
 from ..sim.scenarios import InitialErrors, Scenario
 from ..sim.sigma_models import MODEL_PARAMETERS, SIGMA_MODELS, SigmaModel
 from .errors import shared_data_dir
@@ -68,17 +76,20 @@ except ImportError:  # pragma: no cover - Python 3.10
     except ImportError:
         tomllib = None
 
-__all__ = ["DatasetSpecError", "GnssSpec", "CorrectionsSpec", "TruthSpec", "ImuSpec", "DatasetSpec",
-           "ReplayScenario", "SPEC_DIR", "SHIPPED_SPECS", "GNSS_FORMATS", "IMU_SOURCES", "load_dataset_spec",
-           "is_spec_path", "dataset_spec_of", "replay_scenario"]
+__all__ = ["DatasetSpecError", "GnssSpec", "CorrectionsSpec", "TruthSpec", "ImuSpec", "OdometrySpec", "DatasetSpec",
+           "ReplayScenario", "SPEC_DIR", "SHIPPED_SPECS", "GNSS_FORMATS", "IMU_SOURCES", "ODOMETRY_SOURCES",
+           "load_dataset_spec", "is_spec_path", "dataset_spec_of", "replay_scenario"]
 
 SPEC_DIR = Path(__file__).resolve().parent / "specs"
 """Folder of the shipped specs."""
 SHIPPED_SPECS = {"smartloc-potsdamer-platz": "smartloc-potsdamer-platz.toml",
-                 "instinct-reach-static": "instinct-reach-static.toml"}
+                 "instinct-reach-static": "instinct-reach-static.toml",
+                 "smartloc-potsdamer-platz-odometry": "smartloc-potsdamer-platz-odometry.toml"}
 """Scenario name -> shipped spec file in :data:`SPEC_DIR`."""
 GNSS_FORMATS = ("rinex", "smartloc")
 IMU_SOURCES = ("synthesized", "recorded")
+ODOMETRY_SOURCES = ("recorded",)
+"""Sources of ``[odometry]``: the recording's own wheel odometry (smartLoc ``odom3`` rows)."""
 RINEX_SYSTEMS = ("G", "E", "C")
 """Systems with broadcast Keplerian ephemerides (GLONASS state vectors are not supported)."""
 SMARTLOC_SYSTEMS = ("G", "R")
@@ -188,6 +199,35 @@ class ImuSpec:
 
 
 @dataclass(frozen=True)
+class OdometrySpec:
+    """The ``[odometry]`` section: the recording's wheel odometry as aiding (smartLoc only).
+
+    Attributes
+    ----------
+    source : ``'recorded'``.
+    speed_sigma_mps : forward-speed sigma the filter assumes [m/s] (default 0.1: on Potsdamer Platz the
+        recorded speed differs from the SPAN truth's by 0.04 m/s median, 0.18 m/s p95; scale 1.0044).
+    nhc_sigma_mps : lateral / vertical NHC sigma [m/s] (default 0.1, as :data:`envs.sim.odometer.SEED003_ODOMETER`).
+    yaw_rate : fuse the recorded yaw rate (default true).
+    yaw_rate_sigma_dps : its sigma [deg/s] (default 0.3: the median |recorded - SPAN-spline truth| yaw rate
+        above 3 m/s is 0.29 deg/s; the file reports 0.11 deg/s).
+    """
+
+    source: str = "recorded"
+    speed_sigma_mps: float = 0.1
+    nhc_sigma_mps: float = 0.1
+    yaw_rate: bool = True
+    yaw_rate_sigma_dps: float = 0.3
+
+    def model(self) -> OdometerModel:
+        """The :class:`~envs.sim.odometer.OdometerModel` of the replay scenario (its simulated-sensor fields,
+        ``scale_error`` and ``noise_mps``, are 0: nothing is simulated)."""
+        return OdometerModel(scale_error=0.0, noise_mps=0.0, sigma_mps=self.speed_sigma_mps,
+                             nhc_sigma_mps=self.nhc_sigma_mps,
+                             yaw_rate_sigma_rps=math.radians(self.yaw_rate_sigma_dps) if self.yaw_rate else None)
+
+
+@dataclass(frozen=True)
 class DatasetSpec:
     """One recorded data set (module docstring), loaded from ``path`` by :func:`load_dataset_spec`."""
 
@@ -198,6 +238,7 @@ class DatasetSpec:
     imu: ImuSpec = field(default_factory=ImuSpec)
     corrections: CorrectionsSpec = field(default_factory=CorrectionsSpec)
     description: str = ""
+    odometry: OdometrySpec | None = None
 
     def scenario(self, duration_s: float | None = None, imu_grade: str | None = None) -> "ReplayScenario":
         """The descriptor :class:`ReplayScenario` of this data set (no file is read)."""
@@ -209,7 +250,8 @@ class ReplayScenario(Scenario):
     """A :class:`~envs.sim.scenarios.Scenario` that replays a recorded data set (its ``dataset`` spec).
 
     Only ``imu_rate_hz``, ``imu_grade``, ``vibration``, ``receiver.clock``, ``receiver.sigma_model`` (the
-    spec's ``gnss.sigma_model``), ``initial`` and ``duration_s`` (a prefix of the recording) are used by :func:`envs.datasets.dataset_world.world_from_spec`; ``drive``,
+    spec's ``gnss.sigma_model``), ``odometer`` (the spec's ``[odometry]``: the recorded odometry is carried and
+    fused), ``initial`` and ``duration_s`` (a prefix of the recording) are used by :func:`envs.datasets.dataset_world.world_from_spec`; ``drive``,
     ``constellation``, ``events`` describe nothing and ``gnss_rate_hz`` is the nominal rate.
     """
 
@@ -223,8 +265,8 @@ class ReplayScenario(Scenario):
 
 def replay_scenario(spec: DatasetSpec, duration_s: float | None = None, imu_grade: str | None = None,
                     gnss_rate_hz: float | None = None) -> ReplayScenario:
-    """The descriptor scenario of ``spec``: its IMU grade and rate, TCXO clock, pseudorange sigma model, default
-    initial errors.
+    """The descriptor scenario of ``spec``: its IMU grade and rate, TCXO clock, pseudorange sigma model, recorded
+    odometry's model (``odometer``, from ``[odometry]``), default initial errors.
 
     ``duration_s`` None means the whole recording (a nominal 1e6 s: the replay cuts at the truth's end);
     ``gnss_rate_hz`` the nominal GNSS rate (default: smartLoc 5 Hz, RINEX 1 Hz).
@@ -237,7 +279,7 @@ def replay_scenario(spec: DatasetSpec, duration_s: float | None = None, imu_grad
                           imu_rate_hz=imu_rate, gnss_rate_hz=rate, imu_grade=imu_grade or spec.imu.grade,
                           drive="urban" if spec.gnss.format == "smartloc" else "open", vibration=Vibration(),
                           receiver=ReceiverConfig(clock=ClockModel.tcxo(), sigma_model=spec.gnss.sigma_model),
-                          initial=InitialErrors(),
+                          initial=InitialErrors(), odometer=None if spec.odometry is None else spec.odometry.model(),
                           description=f"replay: {spec.description or spec.path.name}", dataset=spec)
 
 
@@ -287,7 +329,7 @@ def load_dataset_spec(path) -> DatasetSpec:
     except tomllib.TOMLDecodeError as exc:
         raise DatasetSpecError(path, "(syntax)", f"not valid TOML: {exc}") from None
     r = _Reader(path)
-    r.keys(doc, "", {"name", "description", "gnss", "truth", "imu", "corrections"})
+    r.keys(doc, "", {"name", "description", "gnss", "truth", "imu", "corrections", "odometry"})
     name = r.str(doc, "name", required=True)
     if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9._+-]*", name):
         raise DatasetSpecError(path, "name", f"must be letters, digits, '.', '_', '+', '-' (it names result "
@@ -302,8 +344,9 @@ def load_dataset_spec(path) -> DatasetSpec:
                            tropo=r.bool(corr_t, "corrections.tropo", True))
     truth = _truth(r, r.table(doc, "truth", required=True), gnss)
     imu = _imu(r, r.table(doc, "imu"))
+    odometry = _odometry(r, doc, gnss)
     return DatasetSpec(name=name, path=path, gnss=gnss, truth=truth, imu=imu, corrections=corr,
-                       description=r.str(doc, "description", default=""))
+                       description=r.str(doc, "description", default=""), odometry=odometry)
 
 
 def _gnss(r: "_Reader", t: dict) -> GnssSpec:
@@ -441,6 +484,26 @@ def _imu(r: "_Reader", t: dict) -> ImuSpec:
     opts.pop("file")
     return ImuSpec(source=src, grade=grade, rate_hz=rate, file=file,
                    options=tuple(sorted((k, _freeze(v)) for k, v in opts.items())))
+
+
+def _odometry(r: "_Reader", doc: dict, gnss: GnssSpec) -> OdometrySpec | None:
+    if "odometry" not in doc:
+        return None
+    t = r.table(doc, "odometry")
+    r.keys(t, "odometry", {"source", "speed_sigma_mps", "nhc_sigma_mps", "yaw_rate", "yaw_rate_sigma_dps"})
+    src = r.choice(t, "odometry.source", ODOMETRY_SOURCES, required=True)
+    if gnss.format != "smartloc":
+        r.fail("odometry.source", f"recorded odometry is read from smartLoc files only (their odom3 rows); "
+                                  f"gnss.format is {gnss.format!r}")
+    d = OdometrySpec()
+    yaw = r.bool(t, "odometry.yaw_rate", d.yaw_rate)
+    if not yaw and _has(t, "odometry.yaw_rate_sigma_dps"):
+        r.fail("odometry.yaw_rate_sigma_dps", "applies with yaw_rate = true only")
+    return OdometrySpec(source=src, yaw_rate=yaw,
+                        speed_sigma_mps=r.num(t, "odometry.speed_sigma_mps", d.speed_sigma_mps, lo=0, lo_open=True),
+                        nhc_sigma_mps=r.num(t, "odometry.nhc_sigma_mps", d.nhc_sigma_mps, lo=0, lo_open=True),
+                        yaw_rate_sigma_dps=r.num(t, "odometry.yaw_rate_sigma_dps", d.yaw_rate_sigma_dps, lo=0,
+                                                 lo_open=True))
 
 
 def _has(t: dict, dotted: str) -> bool:
