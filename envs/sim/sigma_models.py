@@ -44,7 +44,7 @@ code/carrier-phase error ratio (100) (RTKLIB ver. 2.4.2 manual, Appendix E.6 / E
 ``eratio``)."""
 SIGMA_EPSILON_CODE_M2HZ = 1.1e4
 """The SIGMA-epsilon constant for GPS C/A-code pseudoranges [m^2 Hz]. Hartinger & Brunner (1999) give the
-form and constants for *carrier phase* (L1: 0.00224 m^2 Hz); for code pseudoranges the form is used with
+form and its constants for *carrier phase* (millimetre-level); for code pseudoranges the form is used with
 ``C = 1.1e4 m^2 Hz`` in urban single-point positioning (quoted among the citing statements of Hartinger &
 Brunner 1999; the primary source of the number could not be traced here). Its physical reading: the
 thermal-noise variance of a coherent early-minus-late code loop, ``Tc^2 B_L d / (2 c/n0)``, with the C/A chip
