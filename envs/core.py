@@ -452,6 +452,7 @@ class TuningCore:
         self.pr, self.prr, self.pr_sigma, self.prr_sigma = (np.zeros((B, M, C)) for _ in range(4))
         self.gmask = np.zeros((B, M, C), bool)
         self.odo = np.full((B, M), np.nan)  # odometer readings [m/s] (scenarios with an odometer)
+        self.odo_yaw = np.full((B, M), np.nan)  # yaw-rate readings [rad/s] (recorded odometry)
         self.sat_keys = np.full((B, M, C), -1, np.int64)
         self.truth_r = np.zeros((B, M, 3))
         self.truth_Cne = np.zeros((B, M, 3, 3))
@@ -603,9 +604,10 @@ class TuningCore:
             if nav is self.nav:  # the detector runs once per step; a reference navigator reuses its decisions
                 self._zflags = self._zupt.decide(self.f[sel], self.w[sel], self.truth_still_n[sel])
             extra, zflag = self._zupt.block(nav, self.w[sel], self._zflags, self.dt)
-        odo_model = getattr(self.scenario, "odometer", None)  # a recorded data set's scenario has none
-        if odo_model is not None:  # the scenario's wheel odometer + NHC (envs.aiding)
-            extra = with_rows(extra, odometer_rows(nav, self.odo[rows, jj], odo_model))
+        odo_model = getattr(self.scenario, "odometer", None)  # simulated, or a recording's ([odometry] of its spec)
+        if odo_model is not None:  # the scenario's wheel odometer + NHC (+ yaw rate) (envs.aiding)
+            extra = with_rows(extra, odometer_rows(nav, self.odo[rows, jj], odo_model, self.odo_yaw[rows, jj],
+                                                   self.w[sel], self.dt))
         res, gdop = nav.update_gnss(*g, extra=extra, sat_keys=self.sat_keys[rows, jj])
         h, e3 = np.empty(B), np.empty(B)
         _errors_kernel(nav.r, self.truth_r, self.truth_Cne, j, self.M - 1, h, e3)

@@ -165,8 +165,11 @@ def run_episodes(world: World, method: str = "kf", dtype="float64", progress=Non
     pv = np.r_[np.arange(VEL.start, VEL.stop), np.arange(POS.start, POS.stop)]
     t0 = time.perf_counter()
     k = 0
+    yaw = world.odometer_yaw_rate
+    odo_model = world.scenario.odometer if world.odometer is not None else None
     for j in range(M):
         extra = None
+        sl = None
         if ep[j] > k:
             sl = slice(k + 1, ep[j] + 1)
             nav.propagate_epoch(f_all[:, sl], w_all[:, sl], dt)
@@ -174,8 +177,10 @@ def run_episodes(world: World, method: str = "kf", dtype="float64", progress=Non
             if source.enabled:
                 decisions = source.decide(f_all[:, sl], w_all[:, sl], None if still is None else still[:, sl])
                 extra, zflag[:, j] = source.block(nav, w_all[:, sl], decisions, dt)
-        if world.odometer is not None:  # the scenario's wheel odometer + NHC (envs.aiding)
-            extra = with_rows(extra, odometer_rows(nav, world.odometer[:, j], world.scenario.odometer))
+        if odo_model is not None:  # the scenario's wheel odometer + NHC (+ yaw rate) (envs.aiding)
+            extra = with_rows(extra, odometer_rows(nav, world.odometer[:, j], odo_model,
+                                                   None if yaw is None else yaw[:, j],
+                                                   None if sl is None else w_all[:, sl], dt))
         prr = None if gnss.prr is None else gnss.prr[:, j]  # recorded data may have no Doppler
         prr_sigma = None if gnss.prr_sigma is None else gnss.prr_sigma[:, j]
         res, g = nav.update_gnss(gnss.sat_pos[:, j], gnss.sat_vel[:, j], gnss.pr[:, j], prr,

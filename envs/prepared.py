@@ -22,7 +22,8 @@ from .sim.world import World
 from .zupt_source import STILL_SPEED_MPS
 
 WORLD_ARRAY_NAMES = ("f", "w", "sat_pos", "sat_vel", "pr", "prr", "pr_sigma", "prr_sigma", "gmask", "truth_r",
-                     "truth_Cne", "truth_still", "truth_still_n", "origin", "origin_Cne", "sat_keys", "odo")
+                     "truth_Cne", "truth_still", "truth_still_n", "origin", "origin_Cne", "sat_keys", "odo",
+                     "odo_yaw")
 """The per-row world arrays of an env core (all with leading axis B), in :class:`PreparedWorld.arrays`:
 
 ``f``, ``w`` (B, N, 3) IMU specific force [m/s^2] and angular rate [rad/s] interval means; ``sat_pos``,
@@ -30,7 +31,8 @@ WORLD_ARRAY_NAMES = ("f", "w", "sat_pos", "sat_vel", "pr", "prr", "pr_sigma", "p
 and its sigma zeros when the world has no Doppler); ``gmask`` (B, M, C) bool; ``truth_r`` (B, M, 3) true ECEF
 position at the epochs [m]; ``truth_Cne`` (B, M, 3, 3) ECEF-to-NED rotation there; ``truth_still`` (B, M) and
 ``truth_still_n`` (B, N) bool stationary truth; ``origin`` (B, 3) start position [m], ``origin_Cne`` (B, 3, 3);
-``sat_keys`` (B, M, C) int64 (-1 on empty channels); ``odo`` (B, M) odometer readings [m/s] (NaN without one).
+``sat_keys`` (B, M, C) int64 (-1 on empty channels); ``odo`` (B, M) odometer readings [m/s] (NaN without one);
+``odo_yaw`` (B, M) yaw-rate readings over each epoch's IMU interval [rad/s] (NaN without one).
 """
 
 
@@ -82,6 +84,7 @@ def world_arrays(world: World) -> dict:
         "origin_Cne": np.swapaxes(C_en(lat0, lon0), -1, -2),
         "sat_keys": satellite_keys(g),
         "odo": np.full((B, M), np.nan) if world.odometer is None else world.odometer,
+        "odo_yaw": np.full((B, M), np.nan) if world.odometer_yaw_rate is None else world.odometer_yaw_rate,
     }
 
 

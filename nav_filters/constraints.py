@@ -1,4 +1,4 @@
-"""Vehicle pseudo-measurements: ZUPT, zero heading rate (ZIHR/ZARU), NHC, odometer, and stacking.
+"""Vehicle pseudo-measurements: ZUPT, zero heading rate (ZIHR/ZARU), NHC, odometer, yaw rate, and stacking.
 
 Every function here returns the structure of
 :func:`nav_filters.measurements.gnss_innovations` (less its line-of-sight
@@ -80,6 +80,7 @@ __all__ = [
     "nhc",
     "odometer",
     "odometer_nhc",
+    "yaw_rate",
     "stack_measurements",
     "body_velocity_jacobian",
 ]
@@ -540,6 +541,64 @@ def _odometer_nhc_rows(speed, v_b, C, H_att, var_odo, var_lat, var_vert, vel0, a
                 H[b, k, att0 + j] = H_att[b, k, j]
             R[b, k] = var_odo if k == 0 else (var_lat if k == 1 else var_vert)
             mask[b, k] = True
+
+
+# --------------------------------------------------------------------------------------
+# vehicle yaw rate
+# --------------------------------------------------------------------------------------
+def yaw_rate(C_eb, w_b_corrected, yaw_rate_rps, sigma_rps, mask, *, dtype=np.float64):
+    """Yaw-rate row of a vehicle rate sensor (wheel odometry / ESP yaw-rate sensor), body FRD.
+
+    The sensor reads the Earth-referenced rate of the body about its z axis (down): ``z = (omega_eb^b)[2]``
+    (positive: a right turn), as a vehicle sensor zeroed at standstill does. The navigator predicts it from
+    its bias-corrected gyro ``w = w_raw - bg_est = omega_ib_true + b_g + n_g`` (over the same interval as the
+    reading) and its attitude; linearized under the project convention (``C_be_true = C_be (I - [psi x])``,
+    ``bias_true = bias_est + b_g``; module docstring)::
+
+        dz = z - (w - C_be w_ie)[2]
+           = -b_g[2] - (C_be [w_ie x] psi)[2] - n_g[2] + n_z
+        H[BG] = -e_z^T,   H[ATT] = -(C_be [w_ie x])[2, :]
+
+    (the rate counterpart of :func:`zero_heading_rate`, which constrains the same quantity to zero at rest;
+    Groves 2013 ch. 15/16 land-vehicle aiding, chapter level, re-derived here). It observes the z gyro bias
+    while moving; the sensor's own scale error and bias are not modelled (cover them in ``sigma_rps``).
+
+    Parameters
+    ----------
+    C_eb : (B, 3, 3) estimated body (FRD) -> ECEF DCM
+    w_b_corrected : (B, 3) bias-corrected angular rate omega_ib^b [rad/s] (e.g. the mean of the navigator's
+        corrected samples over the reading's interval)
+    yaw_rate_rps : (B,) measured yaw rate about body z (down) [rad/s]; may be NaN where ``mask`` is False
+    sigma_rps : float or (B,) standard deviation of the row [rad/s], > 0: the sensor's noise and the gyro
+        white noise over the interval
+    mask : (B,) bool, True where a reading is available
+    dtype : float32 or float64
+
+    Returns
+    -------
+    dz : (B, 1) [rad/s]; H : (B, 1, 17); R : (B, 1) [rad^2/s^2]; row_mask : (B, 1) bool
+
+    Raises
+    ------
+    ValueError
+        naming the argument.
+    """
+    dtype = check_dtype(dtype)
+    C = _array("C_eb", C_eb, (3, 3))
+    B = C.shape[0]
+    w = _array("w_b_corrected", w_b_corrected, (3,), B)
+    z = _array("yaw_rate_rps", yaw_rate_rps, (), B)
+    rows = _rows("mask", mask, B)
+    var = _variance("sigma_rps", sigma_rps, B)
+    for name, a in (("C_eb", C), ("w_b_corrected", w), ("yaw_rate_rps", z)):
+        _finite_on(name, a, rows)
+    with np.errstate(invalid="ignore"):
+        C_be = np.swapaxes(C, -1, -2)
+        dz = z - (w - C_be @ _W_IE)[:, 2]
+        H = np.zeros((B, 1, N_STATES))
+        H[:, 0, BG.start + 2] = -1.0
+        H[:, 0, ATT] = -(C_be @ _W_IE_SKEW)[:, 2]
+    return _finish(dz[:, None], H, var[:, None], rows, dtype)
 
 
 # --------------------------------------------------------------------------------------

@@ -2,7 +2,9 @@
 
 Prints the observation span, epochs, satellites used per system, the truth's
 coverage of the epochs, Doppler availability, and the single-point solution's
-horizontal error against the truth (p50 / p95). Exit status 0 when the set
+horizontal error against the truth (p50 / p95), the IMU, the pseudorange
+sigma model (its C/N0 checked where it needs one) and the recorded odometry
+of an ``[odometry]`` section. Exit status 0 when the set
 loads and at least one epoch has both a valid SPP and truth; 1 with a one-line
 ``check: error: ...`` otherwise (a bad spec key, a missing file, a damaged
 file, no overlap with the truth, no usable epoch).
@@ -41,10 +43,12 @@ class DatasetCheck:
     spp_h_p50_m: float
     spp_h_p95_m: float
     imu: str = ""
+    sigma_model: str = ""
+    odometry: str = ""
 
 
 def _epochs_and_truth(spec):
-    """(GnssEpochs, truth times on the epochs' time base, truth ECEF) of a spec."""
+    """(GnssEpochs, truth times on the epochs' time base, truth ECEF, smartLoc odometry or None) of a spec."""
     if spec.gnss.format == "smartloc":
         from .epochs import SYSTEM_LETTERS
         from .smartloc import load_smartloc
@@ -52,17 +56,19 @@ def _epochs_and_truth(spec):
         data = load_smartloc(g.obs.parent, g.obs.name[:-len("_Input.txt")])
         ep = data.epochs(systems=tuple(SYSTEM_LETTERS[s] for s in g.systems), min_elevation_deg=g.elevation_mask_deg,
                          min_cn0_dbhz=g.min_cn0_dbhz)
-        return ep, data.ground_truth.t, data.ground_truth.r_e
+        return ep, data.ground_truth.t, data.ground_truth.r_e, data.odometry
     from .dataset_world import prepare_rinex
     rec = prepare_rinex(spec)
-    return rec.epochs, rec.truth.t - rec.epochs.t0_gps, rec.truth.r_e
+    return rec.epochs, rec.truth.t - rec.epochs.t0_gps, rec.truth.r_e, None
 
 
 def check_dataset(spec) -> DatasetCheck:
     """Load ``spec`` (a :class:`~envs.datasets.spec.DatasetSpec`) and measure it (module docstring)."""
-    ep, t_tr, r_tr = _epochs_and_truth(spec)
+    ep, t_tr, r_tr, odometry = _epochs_and_truth(spec)
     if not isinstance(ep, GnssEpochs):  # pragma: no cover - loaders return GnssEpochs
         raise TypeError("loader did not return GnssEpochs")
+    model = spec.gnss.sigma_model
+    ep = ep.with_sigma_model(model, spec.gnss.obs)        # the SPP weights as the filter; a missing C/N0 raises
     inside = (ep.t >= t_tr[0]) & (ep.t <= t_tr[-1])
     sats = {}
     from .epochs import SYSTEM_NAMES
@@ -82,7 +88,20 @@ def check_dataset(spec) -> DatasetCheck:
                         t0_gps=ep.t0_gps, satellites=sats, truth_rows=int(np.size(t_tr)),
                         truth_covered=int(inside.sum()), n_prr=0 if ep.prr is None else
                         int((ep.mask & (ep.prr_sigma < 1e3)).sum()), spp_epochs=int(use.sum()),
-                        spp_h_p50_m=p50, spp_h_p95_m=p95, imu=_imu_summary(spec, ep))
+                        spp_h_p50_m=p50, spp_h_p95_m=p95, imu=_imu_summary(spec, ep),
+                        sigma_model=model.name, odometry=_odometry_summary(spec, odometry, ep))
+
+
+def _odometry_summary(spec, odometry, ep) -> str:
+    """One line on the recorded odometry of an ``[odometry]`` section ('' without one)."""
+    o = spec.odometry
+    if o is None:
+        return ""
+    t = odometry.t
+    covered = int(((ep.t >= t[0]) & (ep.t <= t[-1])).sum())
+    fused = "speed + NHC" + (f" + yaw rate (sigma {o.yaw_rate_sigma_dps:g} deg/s)" if o.yaw_rate else "")
+    return (f"recorded odom3: {t.size} rows over {t[-1] - t[0]:.1f} s, covers {covered} of {ep.n_epochs} epochs; "
+            f"fused: {fused}, speed sigma {o.speed_sigma_mps:g} m/s, NHC {o.nhc_sigma_mps:g} m/s")
 
 
 def _imu_summary(spec, ep) -> str:
@@ -112,6 +131,10 @@ def format_check(c: DatasetCheck) -> str:
              f"  pseudorange rates (Doppler): {c.n_prr}" if c.n_prr else "  pseudorange rates (Doppler): none",
              f"  SPP vs truth over {c.spp_epochs} epochs: horizontal p50 {c.spp_h_p50_m:.2f} m, "
              f"p95 {c.spp_h_p95_m:.2f} m"] + ([f"  IMU: {c.imu}"] if c.imu else [])
+    if c.sigma_model and c.sigma_model != "receiver":
+        lines.append(f"  pseudorange sigma: {c.sigma_model} model")
+    if c.odometry:
+        lines.append(f"  odometry: {c.odometry}")
     return "\n".join(lines)
 
 

@@ -59,11 +59,15 @@ class PreparedRecording:
 
 
 def world_from_spec(scenario: ReplayScenario, seeds, dtype=np.float64) -> World:
-    """The replay world of ``scenario`` (its spec, IMU grade and rate, vibration, initial errors and
-    ``duration_s``: the first ``duration_s`` seconds of the truth) for ``seeds`` (B rows)."""
+    """The replay world of ``scenario`` (its spec, IMU grade and rate, vibration, pseudorange sigma model
+    ``receiver.sigma_model``, initial errors and ``duration_s``: the first ``duration_s`` seconds of the truth)
+    for ``seeds`` (B rows)."""
     if not isinstance(scenario, ReplayScenario):
         raise ValueError(f"scenario must be a ReplayScenario, got {type(scenario).__name__}")
     spec = scenario.dataset
+    if scenario.odometer is not None and spec.gnss.format != "smartloc":
+        raise ValueError(f"{spec.path}: recorded odometry (scenario.odometer) needs gnss.format = 'smartloc' "
+                         f"(its odom3 rows); this data set is {spec.gnss.format!r}")
     if spec.gnss.format == "smartloc":
         if spec.imu.source != "synthesized":
             raise ValueError(f"{spec.path}: imu.source = 'recorded' needs gnss.format = 'rinex' (smartLoc "
@@ -86,14 +90,15 @@ def _smartloc_world(scenario: ReplayScenario, seeds, dtype) -> World:
                                systems=tuple(SYSTEM_LETTERS[s] for s in g.systems),
                                min_elevation_deg=g.elevation_mask_deg, min_cn0_dbhz=g.min_cn0_dbhz,
                                vibration=scenario.vibration, initial=scenario.initial,
-                               duration_s=scenario.duration_s, dtype=dtype)
+                               duration_s=scenario.duration_s, dtype=dtype,
+                               sigma_model=scenario.receiver.sigma_model, odometer=scenario.odometer)
 
 
 def _rinex_world(scenario: ReplayScenario, seeds, dtype) -> World:
     from .replay import replay_world
     spec = scenario.dataset
     rec = prepare_rinex(spec)
-    ep, tr = rec.epochs, rec.truth
+    ep, tr = rec.epochs.with_sigma_model(scenario.receiver.sigma_model, spec.gnss.obs), rec.truth
     t = tr.t - ep.t0_gps
     inside, recorded = np.ones(t.size, bool), None
     if spec.imu.source == "recorded":

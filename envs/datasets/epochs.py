@@ -151,6 +151,20 @@ class GnssEpochs:
             out[f.name] = a
         return replace(self, mask=mask, **out)
 
+    def with_sigma_model(self, model, source=None) -> "GnssEpochs":
+        """A copy whose ``pr_sigma`` is ``model``'s (an :class:`envs.sim.sigma_models.SigmaModel`) at the recorded
+        elevation and C/N0 (:func:`envs.sim.sigma_models.model_pr_sigma`); itself for ``'receiver'``.
+
+        Raises ``ValueError`` naming ``source`` (default :attr:`source`) when a C/N0 model meets a valid
+        channel without a C/N0 (0 dB-Hz: a RINEX file without the ``S`` observable of the code used).
+        """
+        from ..sim.sigma_models import model_pr_sigma
+        if model.name == "receiver":
+            return self
+        sigma = model_pr_sigma(model, self.pr_sigma, self.mask, self.elevation, self.cn0,
+                               str(source) if source is not None else self.source)
+        return replace(self, pr_sigma=sigma)
+
     def window(self, t0: float, t1: float) -> "GnssEpochs":
         """The epochs with ``t0 <= t <= t1`` (times unchanged)."""
         sel = (self.t >= t0) & (self.t <= t1)

@@ -59,7 +59,7 @@ from .smartloc import POTSDAMER_PLATZ, load_smartloc, smartloc_dir
 from .spline_truth import SplineFit, fit_positions, truth_from_fit
 
 __all__ = ["SMARTLOC_SCENARIO", "RINEX_SCENARIO", "reference_clock", "gnss_data_from_epochs", "replay_world",
-           "smartloc_scenario", "load_smartloc_world", "load_rinex_world"]
+           "interval_means", "smartloc_scenario", "load_smartloc_world", "load_rinex_world"]
 
 SMARTLOC_SCENARIO = "smartloc-potsdamer-platz"
 RINEX_SCENARIO = "rinex"
@@ -165,7 +165,7 @@ def gnss_data_from_epochs(epochs: GnssEpochs, r_e, batch_size: int, clock_bias_m
 
 
 def replay_world(scenario: Scenario, epochs: GnssEpochs, fit: SplineFit, seeds, dtype=np.float64,
-                 min_speed_mps: float = 1.0, recorded_imu=None) -> World:
+                 min_speed_mps: float = 1.0, recorded_imu=None, odometry=None) -> World:
     """A :class:`World` replaying ``epochs`` along the reference trajectory ``fit`` (module docstring).
 
     Parameters
@@ -181,6 +181,11 @@ def replay_world(scenario: Scenario, epochs: GnssEpochs, fit: SplineFit, seeds, 
         :class:`~envs.sim.imu.ImuData` and the reference attitude (N, 3, 3) body -> ECEF, which replaces the
         spline's (:mod:`envs.datasets.recorded_imu`); the truth's ideal ``f_b`` / ``w_b`` are then unknown
         (NaN), as no ideal IMU exists for the recorded sensor's axes.
+    odometry : None, or recorded wheel odometry with a ``frd_at(t)`` method (forward speed and yaw rate about
+        body z, FRD, at the recording's times ``t``: :meth:`envs.datasets.smartloc.SmartLocOdometry.frd_at`):
+        the world's ``odometer`` is the speed at each epoch, its ``odometer_yaw_rate`` the yaw rate averaged
+        over the epoch's IMU interval (:func:`interval_means` of the rate at the IMU samples' midpoints, where
+        the samples' own interval means are centred).
     """
     if not isinstance(scenario, Scenario):
         raise ValueError(f"scenario must be a Scenario, got {type(scenario).__name__}")
@@ -205,7 +210,26 @@ def replay_world(scenario: Scenario, epochs: GnssEpochs, fit: SplineFit, seeds, 
         imu, C_eb = recorded_imu(fit.t0 + truth.t, B, dtype)
         truth = _with_attitude(truth, np.asarray(C_eb, np.float64))
     init = initial_estimate(scenario, truth, gnss, row_generators(seeds, "init"))
-    return World(scenario=scenario, seeds=seeds, truth=truth, imu=imu, gnss=gnss, epoch_idx=idx, init=init)
+    odo = yaw = None
+    if odometry is not None:
+        speed = odometry.frd_at(epochs.t)[0]
+        yaw = interval_means(odometry.frd_at(fit.t0 + truth.t - 0.5 / rate)[1], idx)
+        odo, yaw = (np.broadcast_to(x[None], (B, x.size)) for x in (speed, yaw))
+    return World(scenario=scenario, seeds=seeds, truth=truth, imu=imu, gnss=gnss, epoch_idx=idx, init=init,
+                 odometer=odo, odometer_yaw_rate=yaw)
+
+
+def interval_means(x, epoch_idx) -> np.ndarray:
+    """Means of the samples ``x`` (N,) over each epoch's IMU interval: samples ``epoch_idx[j-1] + 1 ..
+    epoch_idx[j]`` (from sample 1 for ``j = 0``: what the navigator integrates before the epoch's update),
+    NaN where the interval is empty. Returns (M,)."""
+    x = np.asarray(x, np.float64)
+    idx = np.asarray(epoch_idx, np.int64)
+    cs = np.concatenate([[0.0], np.cumsum(x)])
+    prev = np.concatenate([[0], idx[:-1]])
+    n = idx - prev
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(n > 0, (cs[idx + 1] - cs[prev + 1]) / n, np.nan)
 
 
 def _with_attitude(truth, C_eb):
@@ -224,13 +248,15 @@ def _with_attitude(truth, C_eb):
 
 def smartloc_scenario(imu_grade: str = "industrial", imu_rate_hz: float = 100.0, duration_s: float = 282.8,
                       start=(52.5046, 13.3737, 76.0), vibration: Vibration | None = None,
-                      initial: InitialErrors | None = None, clock: ClockModel | None = None) -> Scenario:
-    """The descriptor :class:`Scenario` of the smartLoc Potsdamer Platz replay (module docstring)."""
+                      initial: InitialErrors | None = None, clock: ClockModel | None = None,
+                      odometer=None) -> Scenario:
+    """The descriptor :class:`Scenario` of the smartLoc Potsdamer Platz replay (module docstring); ``odometer``:
+    the model of its recorded wheel odometry, or None."""
     return Scenario(name=SMARTLOC_SCENARIO, duration_s=duration_s, imu_rate_hz=imu_rate_hz, gnss_rate_hz=5.0,
                     imu_grade=imu_grade, drive="urban", start=tuple(start),
                     vibration=Vibration() if vibration is None else vibration,
                     receiver=ReceiverConfig(clock=ClockModel.tcxo() if clock is None else clock),
-                    initial=InitialErrors() if initial is None else initial,
+                    initial=InitialErrors() if initial is None else initial, odometer=odometer,
                     description="replay: smartLoc Berlin Potsdamer Platz recorded GPS+GLONASS pseudoranges "
                                 "(urban), IMU synthesized from the SPAN ground truth")
 
@@ -239,7 +265,7 @@ def load_smartloc_world(seeds, imu_grade: str = "industrial", imu_rate_hz: float
                         name: str = POTSDAMER_PLATZ, systems=(1, 4), min_elevation_deg: float = 0.0,
                         min_cn0_dbhz: float = 0.0, vibration: Vibration | None = None,
                         initial: InitialErrors | None = None, duration_s: float | None = None, dtype=np.float64,
-                        data=None) -> World:
+                        data=None, sigma_model=None, odometer=None) -> World:
     """The ``smartloc-potsdamer-platz`` replay world for ``seeds`` (B rows, one IMU-noise draw each).
 
     Parameters
@@ -253,6 +279,12 @@ def load_smartloc_world(seeds, imu_grade: str = "industrial", imu_rate_hz: float
     duration_s : replay only the first ``duration_s`` seconds (>= 2 s); None: the whole recording.
     dtype : float dtype of the IMU samples.
     data : an already loaded :class:`~envs.datasets.smartloc.SmartLocData` (skips reading the files).
+    sigma_model : an :class:`envs.sim.sigma_models.SigmaModel` for the pseudorange sigma the filter is told
+        (None or ``'receiver'``: the recorded variance).
+    odometer : None, or an :class:`envs.sim.odometer.OdometerModel` (the sigmas the filter assumes): the
+        recorded wheel odometry (``odom3`` rows) becomes the world's ``odometer`` (forward speed at the epochs)
+        and ``odometer_yaw_rate`` (:func:`replay_world`), fused with the NHC by every filter loop, as a
+        simulated scenario's odometer (a dataset spec's ``[odometry]``).
 
     Returns
     -------
@@ -271,9 +303,14 @@ def load_smartloc_world(seeds, imu_grade: str = "industrial", imu_rate_hz: float
     lat, lon, h = ecef_to_geodetic(gt.r_e[0])
     scen = smartloc_scenario(imu_grade, imu_rate_hz, duration_s=max(fit.t1 - fit.t0, 1.0),
                              start=(math.degrees(lat), math.degrees(lon), float(h)), vibration=vibration,
-                             initial=initial)
+                             initial=initial, odometer=odometer)
     ep = data.epochs(systems=systems, min_elevation_deg=min_elevation_deg, min_cn0_dbhz=min_cn0_dbhz)
-    return replay_world(scen, ep, fit, seeds, dtype=dtype)
+    if sigma_model is not None:
+        ep = ep.with_sigma_model(sigma_model, data.input_path)
+    if odometer is not None and data.odometry.t.size < 2:
+        raise ValueError(f"{data.input_path}: recorded odometry requested but the file has "
+                         f"{data.odometry.t.size} odom3 rows")
+    return replay_world(scen, ep, fit, seeds, dtype=dtype, odometry=None if odometer is None else data.odometry)
 
 
 def _load_smartloc_cached(folder, name):

@@ -20,6 +20,8 @@ key, with examples, is ``docs/datasets.md``; in short::
     min_cn0_dbhz = 0.0
     sigma0_m = 1.5                        # zenith code sigma of the elevation model
     interval_s = 1.0                      # keep one epoch every interval_s (optional)
+    sigma_model = "receiver"              # or "elevation", "sigma-epsilon", "elevation-cn0", or a table
+                                          #   { name = "elevation", a_m = 0.3, b_m = 0.3 } (envs.sim.sigma_models)
 
     [corrections]                         # RINEX only (smartLoc pseudoranges come corrected)
     iono = true                           # Klobuchar (GPS broadcast coefficients)
@@ -33,6 +35,13 @@ key, with examples, is ``docs/datasets.md``; in short::
     source = "synthesized"                # from the truth with a named grade, or "recorded": a CSV with its
     grade = "industrial"                  #   column map, units and mounting (envs.datasets.recorded_imu)
     rate_hz = 100.0
+
+    [odometry]                            # optional; smartLoc only: the recording's wheel odometry as aiding
+    source = "recorded"                   #   (forward speed + NHC rows, and the yaw rate)
+    speed_sigma_mps = 0.1                 # the sigmas the filter assumes
+    nhc_sigma_mps = 0.1
+    yaw_rate = true                       # fuse the recorded yaw rate too
+    yaw_rate_sigma_dps = 0.3
 
 Every key is checked when the file is loaded (:func:`load_dataset_spec`);
 a wrong one raises :class:`DatasetSpecError` naming the file and the key.
@@ -54,7 +63,9 @@ from pathlib import Path
 
 from ..sim.gnss import ClockModel, ReceiverConfig
 from ..sim.imu import IMU_GRADES, Vibration
+from ..sim.odometer import OdometerModel
 from ..sim.scenarios import InitialErrors, Scenario
+from ..sim.sigma_models import MODEL_PARAMETERS, SIGMA_MODELS, SigmaModel
 from .errors import shared_data_dir
 
 try:  # Python >= 3.11
@@ -65,17 +76,20 @@ except ImportError:  # pragma: no cover - Python 3.10
     except ImportError:
         tomllib = None
 
-__all__ = ["DatasetSpecError", "GnssSpec", "CorrectionsSpec", "TruthSpec", "ImuSpec", "DatasetSpec",
-           "ReplayScenario", "SPEC_DIR", "SHIPPED_SPECS", "GNSS_FORMATS", "IMU_SOURCES", "load_dataset_spec",
-           "is_spec_path", "dataset_spec_of", "replay_scenario"]
+__all__ = ["DatasetSpecError", "GnssSpec", "CorrectionsSpec", "TruthSpec", "ImuSpec", "OdometrySpec", "DatasetSpec",
+           "ReplayScenario", "SPEC_DIR", "SHIPPED_SPECS", "GNSS_FORMATS", "IMU_SOURCES", "ODOMETRY_SOURCES",
+           "load_dataset_spec", "is_spec_path", "dataset_spec_of", "replay_scenario"]
 
 SPEC_DIR = Path(__file__).resolve().parent / "specs"
 """Folder of the shipped specs."""
 SHIPPED_SPECS = {"smartloc-potsdamer-platz": "smartloc-potsdamer-platz.toml",
-                 "instinct-reach-static": "instinct-reach-static.toml"}
+                 "instinct-reach-static": "instinct-reach-static.toml",
+                 "smartloc-potsdamer-platz-odometry": "smartloc-potsdamer-platz-odometry.toml"}
 """Scenario name -> shipped spec file in :data:`SPEC_DIR`."""
 GNSS_FORMATS = ("rinex", "smartloc")
 IMU_SOURCES = ("synthesized", "recorded")
+ODOMETRY_SOURCES = ("recorded",)
+"""Sources of ``[odometry]``: the recording's own wheel odometry (smartLoc ``odom3`` rows)."""
 RINEX_SYSTEMS = ("G", "E", "C")
 """Systems with broadcast Keplerian ephemerides (GLONASS state vectors are not supported)."""
 SMARTLOC_SYSTEMS = ("G", "R")
@@ -113,6 +127,8 @@ class GnssSpec:
     interval_s : float or None, keep one epoch every ``interval_s`` [s] (RINEX).
     doppler : bool, pseudorange rates from the Doppler observables (RINEX).
     doppler_sigma0_mps : zenith pseudorange-rate sigma of the elevation model [m/s].
+    sigma_model : :class:`~envs.sim.sigma_models.SigmaModel`, the pseudorange sigma the filter is told
+        (``'receiver'``: smartLoc's recorded variance, RINEX's ``sigma0_m`` elevation model).
     """
 
     format: str
@@ -126,6 +142,7 @@ class GnssSpec:
     interval_s: float | None = None
     doppler: bool = True
     doppler_sigma0_mps: float = 0.1
+    sigma_model: SigmaModel = SigmaModel()
 
 
 @dataclass(frozen=True)
@@ -182,6 +199,35 @@ class ImuSpec:
 
 
 @dataclass(frozen=True)
+class OdometrySpec:
+    """The ``[odometry]`` section: the recording's wheel odometry as aiding (smartLoc only).
+
+    Attributes
+    ----------
+    source : ``'recorded'``.
+    speed_sigma_mps : forward-speed sigma the filter assumes [m/s] (default 0.1: on Potsdamer Platz the
+        recorded speed differs from the SPAN truth's by 0.04 m/s median, 0.18 m/s p95; scale 1.0044).
+    nhc_sigma_mps : lateral / vertical NHC sigma [m/s] (default 0.1, as :data:`envs.sim.odometer.SEED003_ODOMETER`).
+    yaw_rate : fuse the recorded yaw rate (default true).
+    yaw_rate_sigma_dps : its sigma [deg/s] (default 0.3: the median |recorded - SPAN-spline truth| yaw rate
+        above 3 m/s is 0.29 deg/s; the file reports 0.11 deg/s).
+    """
+
+    source: str = "recorded"
+    speed_sigma_mps: float = 0.1
+    nhc_sigma_mps: float = 0.1
+    yaw_rate: bool = True
+    yaw_rate_sigma_dps: float = 0.3
+
+    def model(self) -> OdometerModel:
+        """The :class:`~envs.sim.odometer.OdometerModel` of the replay scenario (its simulated-sensor fields,
+        ``scale_error`` and ``noise_mps``, are 0: nothing is simulated)."""
+        return OdometerModel(scale_error=0.0, noise_mps=0.0, sigma_mps=self.speed_sigma_mps,
+                             nhc_sigma_mps=self.nhc_sigma_mps,
+                             yaw_rate_sigma_rps=math.radians(self.yaw_rate_sigma_dps) if self.yaw_rate else None)
+
+
+@dataclass(frozen=True)
 class DatasetSpec:
     """One recorded data set (module docstring), loaded from ``path`` by :func:`load_dataset_spec`."""
 
@@ -192,6 +238,7 @@ class DatasetSpec:
     imu: ImuSpec = field(default_factory=ImuSpec)
     corrections: CorrectionsSpec = field(default_factory=CorrectionsSpec)
     description: str = ""
+    odometry: OdometrySpec | None = None
 
     def scenario(self, duration_s: float | None = None, imu_grade: str | None = None) -> "ReplayScenario":
         """The descriptor :class:`ReplayScenario` of this data set (no file is read)."""
@@ -202,8 +249,9 @@ class DatasetSpec:
 class ReplayScenario(Scenario):
     """A :class:`~envs.sim.scenarios.Scenario` that replays a recorded data set (its ``dataset`` spec).
 
-    Only ``imu_rate_hz``, ``imu_grade``, ``vibration``, ``receiver.clock``, ``initial`` and ``duration_s`` (a
-    prefix of the recording) are used by :func:`envs.datasets.dataset_world.world_from_spec`; ``drive``,
+    Only ``imu_rate_hz``, ``imu_grade``, ``vibration``, ``receiver.clock``, ``receiver.sigma_model`` (the
+    spec's ``gnss.sigma_model``), ``odometer`` (the spec's ``[odometry]``: the recorded odometry is carried and
+    fused), ``initial`` and ``duration_s`` (a prefix of the recording) are used by :func:`envs.datasets.dataset_world.world_from_spec`; ``drive``,
     ``constellation``, ``events`` describe nothing and ``gnss_rate_hz`` is the nominal rate.
     """
 
@@ -217,7 +265,8 @@ class ReplayScenario(Scenario):
 
 def replay_scenario(spec: DatasetSpec, duration_s: float | None = None, imu_grade: str | None = None,
                     gnss_rate_hz: float | None = None) -> ReplayScenario:
-    """The descriptor scenario of ``spec``: its IMU grade and rate, TCXO clock, default initial errors.
+    """The descriptor scenario of ``spec``: its IMU grade and rate, TCXO clock, pseudorange sigma model, recorded
+    odometry's model (``odometer``, from ``[odometry]``), default initial errors.
 
     ``duration_s`` None means the whole recording (a nominal 1e6 s: the replay cuts at the truth's end);
     ``gnss_rate_hz`` the nominal GNSS rate (default: smartLoc 5 Hz, RINEX 1 Hz).
@@ -229,7 +278,8 @@ def replay_scenario(spec: DatasetSpec, duration_s: float | None = None, imu_grad
     return ReplayScenario(name=spec.name, duration_s=1e6 if duration_s is None else float(duration_s),
                           imu_rate_hz=imu_rate, gnss_rate_hz=rate, imu_grade=imu_grade or spec.imu.grade,
                           drive="urban" if spec.gnss.format == "smartloc" else "open", vibration=Vibration(),
-                          receiver=ReceiverConfig(clock=ClockModel.tcxo()), initial=InitialErrors(),
+                          receiver=ReceiverConfig(clock=ClockModel.tcxo(), sigma_model=spec.gnss.sigma_model),
+                          initial=InitialErrors(), odometer=None if spec.odometry is None else spec.odometry.model(),
                           description=f"replay: {spec.description or spec.path.name}", dataset=spec)
 
 
@@ -279,7 +329,7 @@ def load_dataset_spec(path) -> DatasetSpec:
     except tomllib.TOMLDecodeError as exc:
         raise DatasetSpecError(path, "(syntax)", f"not valid TOML: {exc}") from None
     r = _Reader(path)
-    r.keys(doc, "", {"name", "description", "gnss", "truth", "imu", "corrections"})
+    r.keys(doc, "", {"name", "description", "gnss", "truth", "imu", "corrections", "odometry"})
     name = r.str(doc, "name", required=True)
     if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9._+-]*", name):
         raise DatasetSpecError(path, "name", f"must be letters, digits, '.', '_', '+', '-' (it names result "
@@ -294,15 +344,17 @@ def load_dataset_spec(path) -> DatasetSpec:
                            tropo=r.bool(corr_t, "corrections.tropo", True))
     truth = _truth(r, r.table(doc, "truth", required=True), gnss)
     imu = _imu(r, r.table(doc, "imu"))
+    odometry = _odometry(r, doc, gnss)
     return DatasetSpec(name=name, path=path, gnss=gnss, truth=truth, imu=imu, corrections=corr,
-                       description=r.str(doc, "description", default=""))
+                       description=r.str(doc, "description", default=""), odometry=odometry)
 
 
 def _gnss(r: "_Reader", t: dict) -> GnssSpec:
     r.keys(t, "gnss", {"format", "obs", "nav", "systems", "signals", "elevation_mask_deg", "min_cn0_dbhz",
-                       "sigma0_m", "interval_s", "doppler", "doppler_sigma0_mps"})
+                       "sigma0_m", "interval_s", "doppler", "doppler_sigma0_mps", "sigma_model"})
     fmt = r.choice(t, "gnss.format", GNSS_FORMATS, required=True)
     obs = r.file(t, "gnss.obs", required=True)
+    sigma_model = _sigma_model(r, t)
     if fmt == "smartloc":
         if not obs.name.endswith("_Input.txt"):
             raise DatasetSpecError(r.path, "gnss.obs", f"a smartLoc observation file is '<name>_Input.txt', "
@@ -314,7 +366,11 @@ def _gnss(r: "_Reader", t: dict) -> GnssSpec:
         systems = r.letters(t, "gnss.systems", SMARTLOC_SYSTEMS, default=SMARTLOC_SYSTEMS)
         return GnssSpec(format=fmt, obs=obs, nav=(), systems=systems, signals=(),
                         elevation_mask_deg=r.num(t, "gnss.elevation_mask_deg", 0.0, lo=-90, hi=90),
-                        min_cn0_dbhz=r.num(t, "gnss.min_cn0_dbhz", 0.0, lo=0), doppler=False)
+                        min_cn0_dbhz=r.num(t, "gnss.min_cn0_dbhz", 0.0, lo=0), doppler=False,
+                        sigma_model=sigma_model)
+    if sigma_model.name != "receiver" and _has(t, "gnss.sigma0_m"):
+        raise DatasetSpecError(r.path, "gnss.sigma0_m", f"applies to sigma_model 'receiver' only (the loader's "
+                                                        f"elevation model), not {sigma_model.name!r}")
     nav = t.get("nav")
     if isinstance(nav, str):
         nav = [nav]
@@ -352,7 +408,33 @@ def _gnss(r: "_Reader", t: dict) -> GnssSpec:
                     min_cn0_dbhz=r.num(t, "gnss.min_cn0_dbhz", 0.0, lo=0),
                     sigma0_m=r.num(t, "gnss.sigma0_m", 1.5, lo=0, lo_open=True), interval_s=interval,
                     doppler=r.bool(t, "gnss.doppler", True),
-                    doppler_sigma0_mps=r.num(t, "gnss.doppler_sigma0_mps", 0.1, lo=0, lo_open=True))
+                    doppler_sigma0_mps=r.num(t, "gnss.doppler_sigma0_mps", 0.1, lo=0, lo_open=True),
+                    sigma_model=sigma_model)
+
+
+def _sigma_model(r: "_Reader", t: dict) -> SigmaModel:
+    """``gnss.sigma_model``: a model name, or a table with ``name`` and the model's parameters
+    (:data:`envs.sim.sigma_models.MODEL_PARAMETERS`, numbers >= 0)."""
+    v = t.get("sigma_model", "receiver")
+    key = "gnss.sigma_model"
+    if isinstance(v, str):
+        v = {"name": v}
+    elif not isinstance(v, dict):
+        r.fail(key, f"must be a model name or a table {{ name = ..., <parameters> }}, got {v!r}")
+    elif "name" not in v:
+        r.fail(key + ".name", "missing: the model's name")
+    name = r.choice(v, key + ".name", SIGMA_MODELS)
+    known = MODEL_PARAMETERS[name]
+    for k in v:
+        if k != "name" and k not in known:
+            r.fail(f"{key}.{k}", f"not a parameter of the {name!r} model (its parameters: "
+                                 f"{', '.join(known) or 'none'})")
+    params = {k: r.num(v, f"{key}.{k}", None, lo=0) for k in known if k in v}
+    try:
+        return SigmaModel(name, **params)
+    except ValueError as exc:                     # "SigmaModel.<field>..." -> the spec's key
+        field_name = str(exc).split(":")[0].split()[0].split(".")[-1]
+        raise DatasetSpecError(r.path, f"{key}.{field_name}", str(exc)) from None
 
 
 def _truth(r: "_Reader", t: dict, gnss: GnssSpec) -> TruthSpec:
@@ -402,6 +484,26 @@ def _imu(r: "_Reader", t: dict) -> ImuSpec:
     opts.pop("file")
     return ImuSpec(source=src, grade=grade, rate_hz=rate, file=file,
                    options=tuple(sorted((k, _freeze(v)) for k, v in opts.items())))
+
+
+def _odometry(r: "_Reader", doc: dict, gnss: GnssSpec) -> OdometrySpec | None:
+    if "odometry" not in doc:
+        return None
+    t = r.table(doc, "odometry")
+    r.keys(t, "odometry", {"source", "speed_sigma_mps", "nhc_sigma_mps", "yaw_rate", "yaw_rate_sigma_dps"})
+    src = r.choice(t, "odometry.source", ODOMETRY_SOURCES, required=True)
+    if gnss.format != "smartloc":
+        r.fail("odometry.source", f"recorded odometry is read from smartLoc files only (their odom3 rows); "
+                                  f"gnss.format is {gnss.format!r}")
+    d = OdometrySpec()
+    yaw = r.bool(t, "odometry.yaw_rate", d.yaw_rate)
+    if not yaw and _has(t, "odometry.yaw_rate_sigma_dps"):
+        r.fail("odometry.yaw_rate_sigma_dps", "applies with yaw_rate = true only")
+    return OdometrySpec(source=src, yaw_rate=yaw,
+                        speed_sigma_mps=r.num(t, "odometry.speed_sigma_mps", d.speed_sigma_mps, lo=0, lo_open=True),
+                        nhc_sigma_mps=r.num(t, "odometry.nhc_sigma_mps", d.nhc_sigma_mps, lo=0, lo_open=True),
+                        yaw_rate_sigma_dps=r.num(t, "odometry.yaw_rate_sigma_dps", d.yaw_rate_sigma_dps, lo=0,
+                                                 lo_open=True))
 
 
 def _has(t: dict, dotted: str) -> bool:

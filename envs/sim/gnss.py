@@ -49,7 +49,9 @@ atmospheric residuals::
     prr_sigma   = prr_sigma_mps / sin el
 
 both times the :class:`~envs.sim.events.SigmaMismatch` factor when one is
-configured. The oracle truth :attr:`GnssData.pr_var_true` is the same sum
+configured. A :attr:`ReceiverConfig.sigma_model` other than ``'receiver'``
+replaces the first line by its model of the channel's elevation and reported
+C/N0 (:mod:`envs.sim.sigma_models`). The oracle truth :attr:`GnssData.pr_var_true` is the same sum
 with the true (multiplied) white sigma and the NLOS bias squared added.
 
 Satellite clock and ephemeris errors are assumed corrected (residuals of a few
@@ -75,6 +77,7 @@ from earth.wgs84 import C_LIGHT, OMEGA_IE, ecef_to_geodetic
 from . import events as ev
 from .constellation import Constellation, _check_int, _check_pair, _check_real
 from .events import NoiseRegimes, RandomBursts, Reacquisition, SigmaMismatch, UrbanZones
+from .sigma_models import SigmaModel
 
 __all__ = [
     "Constellation", "ClockModel", "ReceiverConfig", "NlosConfig", "UrbanCanyon", "GnssEvents",
@@ -382,6 +385,12 @@ class ReceiverConfig:
         Correlation time of the ionospheric residual [s], > 0.
     clock : ClockModel
         Receiver clock (default TCXO).
+    sigma_model : SigmaModel
+        The model of the reported pseudorange sigma (:mod:`envs.sim.sigma_models`); the default
+        ``'receiver'`` keeps the nominal model of the module docstring. Another model replaces the nominal
+        ``pr_sigma`` by its value at the channel's elevation and reported C/N0 (``cn0_dbhz``: NLOS and zone
+        attenuation included); a :class:`~envs.sim.events.SigmaMismatch` factor still multiplies it. The true
+        errors do not depend on it.
     """
 
     n_channels: int = 16
@@ -393,6 +402,7 @@ class ReceiverConfig:
     iono_zenith_sigma_m: float = 0.7
     iono_tau_s: float = 1800.0
     clock: ClockModel = field(default_factory=ClockModel)
+    sigma_model: SigmaModel = field(default_factory=SigmaModel)
 
     def __post_init__(self):
         o = "ReceiverConfig"
@@ -404,6 +414,8 @@ class ReceiverConfig:
             _check_real(o, name, getattr(self, name), lo=0.0, lo_open=True)
         if not isinstance(self.clock, ClockModel):
             raise ValueError(f"{o}.clock must be a ClockModel, got {type(self.clock).__name__}")
+        if not isinstance(self.sigma_model, SigmaModel):
+            raise ValueError(f"{o}.sigma_model must be a SigmaModel, got {type(self.sigma_model).__name__}")
 
     @classmethod
     def dual_frequency(cls, **kw) -> "ReceiverConfig":
@@ -1292,6 +1304,9 @@ def simulate_gnss(t, r_e, v_e, heading, constellation: Constellation, receiver: 
     atm_var = (m_t * receiver.tropo_zenith_sigma_m) ** 2 + (f_i * receiver.iono_zenith_sigma_m) ** 2
     pr_sigma = np.sqrt(sig_pr_code**2 + (m_t * receiver.tropo_zenith_sigma_m) ** 2
                        + (f_i * receiver.iono_zenith_sigma_m) ** 2)
+    if receiver.sigma_model.name != "receiver":             # a variance model replaces the nominal sigma
+        with np.errstate(over="ignore"):
+            pr_sigma = np.sqrt(receiver.sigma_model.variance(el, cn0))
     pr_var_true = np.where(mask, pr_white**2 + atm_var + pr_bias**2, 1.0)
     prr_var_true = np.where(mask, prr_white**2 + prr_bias**2, 1.0)
     if events.mismatch is not None:

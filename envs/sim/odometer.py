@@ -29,27 +29,35 @@ class OdometerModel:
 
     Attributes
     ----------
-    scale_error : true odometer scale-factor error (seed 003 Table 1: 0.05 % -> 5e-4).
-    noise_mps : true white noise of a speed reading [m/s].
+    scale_error : true odometer scale-factor error (seed 003 Table 1: 0.05 % -> 5e-4); simulated odometers only.
+    noise_mps : true white noise of a speed reading [m/s]; simulated odometers only.
     sigma_mps : odometer standard deviation the filter assumes [m/s] (covers noise and scale error).
     nhc_sigma_mps : lateral / vertical NHC standard deviation the filter assumes [m/s].
+    yaw_rate_sigma_rps : standard deviation [rad/s] the filter assumes for a yaw-rate reading
+        (:func:`nav_filters.constraints.yaw_rate`; the gyro's white noise over the interval is added), or None:
+        no yaw-rate row. Only recorded odometry reads a yaw rate (``World.odometer_yaw_rate``; a replay world
+        of a dataset spec with ``[odometry]``); a simulated odometer reads the forward speed only.
     """
 
     scale_error: float = 5e-4
     noise_mps: float = 0.05
     sigma_mps: float = 0.1
     nhc_sigma_mps: float = 0.1
+    yaw_rate_sigma_rps: float | None = None
 
     def __post_init__(self):
-        for name in ("scale_error", "noise_mps", "sigma_mps", "nhc_sigma_mps"):
+        for name in ("scale_error", "noise_mps", "sigma_mps", "nhc_sigma_mps", "yaw_rate_sigma_rps"):
             v = getattr(self, name)
+            if name == "yaw_rate_sigma_rps" and v is None:
+                continue
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
                 raise ValueError(f"OdometerModel.{name} must be a finite number, got {v!r}")
         if self.noise_mps < 0:
             raise ValueError(f"OdometerModel.noise_mps must be >= 0, got {self.noise_mps!r}")
-        for name in ("sigma_mps", "nhc_sigma_mps"):
-            if getattr(self, name) <= 0:
-                raise ValueError(f"OdometerModel.{name} must be > 0, got {getattr(self, name)!r}")
+        for name in ("sigma_mps", "nhc_sigma_mps", "yaw_rate_sigma_rps"):
+            v = getattr(self, name)
+            if v is not None and v <= 0:
+                raise ValueError(f"OdometerModel.{name} must be > 0, got {v!r}")
 
 
 SEED003_ODOMETER = OdometerModel()

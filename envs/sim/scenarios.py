@@ -30,6 +30,13 @@ name               length  IMU        world
                                       dwell times (60 / 40 / 20 s); small-atmosphere receiver
 =================  ======  =========  ==================================================================
 
+Every preset reports the receiver's nominal pseudorange sigma; another variance
+model of it (RTKLIB elevation, SIGMA-epsilon, Groves' elevation + C/N0;
+:mod:`envs.sim.sigma_models`) is the receiver's ``sigma_model``::
+
+    base = get_scenario("urban")
+    scen = base.replace(receiver=dataclasses.replace(base.receiver, sigma_model=SigmaModel("elevation-cn0")))
+
 The issue-16 scenarios (``urban-transition``, ``noise-mismatch``,
 ``regime-switch``) draw every event at random times from the episode seed
 (:mod:`envs.sim.events`): no event sits at a fixed clock time. Their

@@ -58,6 +58,10 @@ class World:
     init : the navigator's initial estimate at t = 0.
     odometer : (B, M) odometer forward-speed readings at the GNSS epochs [m/s] when the scenario has an
         odometer (:mod:`envs.sim.odometer`), else None.
+    odometer_yaw_rate : (B, M) yaw-rate readings about body z (FRD: down, positive turning right) [rad/s], each
+        the mean over the IMU interval that ends at its epoch (samples ``epoch_idx[j-1] + 1 .. epoch_idx[j]``,
+        from sample 1 for the first epoch; NaN where that interval is empty), when the odometer reads one
+        (recorded odometry, :mod:`envs.datasets.replay`), else None.
     """
 
     scenario: Scenario
@@ -68,6 +72,7 @@ class World:
     epoch_idx: np.ndarray
     init: InitialEstimate
     odometer: np.ndarray | None = None
+    odometer_yaw_rate: np.ndarray | None = None
 
     @property
     def batch_size(self) -> int:
@@ -145,6 +150,9 @@ def generate_world(scenario, seeds, dtype=np.float64) -> World:
     if getattr(scen, "dataset", None) is not None:   # envs.datasets.spec.ReplayScenario: never simulate it
         raise ValueError(f"scenario {scen.name!r} replays a recorded data set: build its world with "
                          f"envs.worlds.make_world, not generate_world")
+    if scen.odometer is not None and scen.odometer.yaw_rate_sigma_rps is not None:
+        raise ValueError(f"Scenario.odometer.yaw_rate_sigma_rps: a simulated odometer reads the forward speed "
+                         f"only (the yaw rate comes with recorded odometry); set it to None for {scen.name!r}")
     seeds = as_seeds(seeds)
     motions = scen.motions(row_generators(seeds, "trajectory"))
     truth = generate_truth(motions, scen.duration_s, scen.imu_rate_hz)

@@ -43,3 +43,24 @@ def test_check_fails_clearly(tmp_path, capsys):
     assert "o.23O: recorded-data file does not exist" in capsys.readouterr().err
     assert main(["check", "no-such-set"]) == 1
     assert "neither a dataset spec path" in capsys.readouterr().err
+
+
+@pytest.mark.skipif(not (DATA / "smartloc" / "Berlin_Potsdamer_Platz_GT.txt").is_file(),
+                    reason=f"smartLoc data not found in {DATA} (absent in a fresh clone)")
+def test_check_odometry_and_sigma_model(tmp_path, capsys):
+    """The odometry spec's summary names the recorded odom3 rows and what is fused; a C/N0 sigma model is named
+    and weights the SPP (a different p50 than the recorded variances give)."""
+    from envs.datasets.spec import SPEC_DIR
+    assert main(["check", "smartloc-potsdamer-platz-odometry"]) == 0
+    out = capsys.readouterr().out
+    assert "IMU: synthesized from the truth, consumer grade at 100 Hz" in out
+    assert ("odometry: recorded odom3: 1372 rows over 282.8 s, covers 1372 of 1372 epochs; fused: speed + NHC + "
+            "yaw rate (sigma 0.3 deg/s), speed sigma 0.1 m/s, NHC 0.1 m/s") in out
+    assert "pseudorange sigma" not in out                                      # the default: not printed
+    p = tmp_path / "s.toml"
+    p.write_text((SPEC_DIR / "smartloc-potsdamer-platz.toml").read_text().replace(
+        "[gnss]\n", '[gnss]\nsigma_model = "elevation-cn0"\n'))
+    assert main(["check", str(p)]) == 0
+    out = capsys.readouterr().out
+    assert "pseudorange sigma: elevation-cn0 model" in out and "odometry:" not in out
+    assert "horizontal p50 27.77 m" not in out

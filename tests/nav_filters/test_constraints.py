@@ -12,7 +12,8 @@ import pytest
 
 from earth import OMEGA_IE_E, geodetic_to_ecef
 from earth.rotations import exp_so3
-from nav_filters.constraints import nhc, odometer, odometer_nhc, stack_measurements, zero_heading_rate, zupt
+from nav_filters.constraints import (nhc, odometer, odometer_nhc, stack_measurements, yaw_rate, zero_heading_rate,
+                                    zupt)
 from nav_filters.error_model import ATT, BG, N_STATES, VEL
 from nav_filters.forms import KalmanFilter
 from nav_filters.ins import ned_attitude_to_ecef
@@ -176,6 +177,48 @@ def test_zero_heading_rate_is_zero_for_a_true_stationary_reading():
     r3 = geodetic_to_ecef(lat, lon, np.full(B, 3000.0))
     Hbg = zero_heading_rate(Cl, wb, r3, 1e-4, np.ones(B, bool))[1][:, 0, BG]
     assert np.abs(Hbg - np.array([0.0, 0.0, 1.0])).max() < 0.00669438 * 3000.0 / (2 * 6378137.0) * 1.01
+
+
+def test_yaw_rate_H_matches_perturbed_truth():
+    """A moving, turning body: the sensor reads the true Earth-referenced rate about body z; the row's dz
+    against the corrected gyro of a perturbed truth is H x to first order (attitude), exactly in the bias."""
+    B = 6
+    r, v, C, *_ = _estimate(B, seed=6)
+    rng = np.random.default_rng(6)
+    w_eb = rng.normal(0.0, 0.3, (B, 3))                 # true body rate w.r.t. the Earth [rad/s]
+    on = np.ones(B, bool)
+
+    def delta(xx):  # truth: C_true = exp(psi) C, corrected gyro = omega_ib_true + b; sensor: w_eb_z exactly
+        Ct = exp_so3(xx[:, ATT]) @ C
+        w = w_eb + np.swapaxes(Ct, 1, 2) @ OMEGA_IE_E + xx[:, BG]
+        return yaw_rate(C, w, w_eb[:, 2], 1e-3, on)[0]
+
+    H = yaw_rate(C, np.zeros((B, 3)), np.zeros(B), 1e-3, on)[1]
+    assert H.shape == (B, 1, 17) and np.all(H[:, :, 3:9] == 0) and np.all(H[:, :, 12:] == 0)
+    np.testing.assert_array_equal(H[:, 0, BG], np.broadcast_to([0.0, 0.0, -1.0], (B, 3)))
+    x = _correction(B, 6, att=0.05, vel=0.0, bg=0.0)
+    psi = np.linalg.norm(x[:, ATT], axis=1)
+    bound = (0.5 * psi**2 * np.linalg.norm(OMEGA_IE_E))[:, None] * 1.01 + 1e-18
+    _assert_second_order(delta, H, x, bound)
+    xb = _correction(B, 7, att=0.0, vel=0.0, bg=1e-3)
+    np.testing.assert_allclose(delta(xb), _Hx(H, xb), atol=1e-17)
+
+
+def test_yaw_rate_sign_and_masking():
+    """Level vehicle turning right at 0.1 rad/s (FRD: +z): a perfect gyro gives dz = 0, a +1e-3 rad/s z-gyro bias
+    residual dz = -1e-3; rows without a reading (NaN) are neutral."""
+    B = 3
+    _, _, _, lat, lon = _estimate(B, seed=8)
+    Cl = ned_attitude_to_ecef(np.zeros(B), np.zeros(B), np.array([0.3, 2.0, -1.0]), lat, lon)
+    w = np.swapaxes(Cl, 1, 2) @ OMEGA_IE_E + np.array([0.0, 0.0, 0.1])
+    z = np.array([0.1, 0.1, np.nan])
+    have = np.isfinite(z)
+    dz, H, R, rm = yaw_rate(Cl, w, np.where(have, z, 0.0), 2e-3, have)
+    np.testing.assert_allclose(dz[:2, 0], 0.0, atol=1e-15)
+    assert rm[:, 0].tolist() == [True, True, False] and dz[2, 0] == 0 and R[2, 0] == 1 and np.all(H[2] == 0)
+    np.testing.assert_allclose(R[:2, 0], 4e-6)
+    dz_b = yaw_rate(Cl, w + np.array([0.0, 0.0, 1e-3]), np.where(have, z, 0.0), 2e-3, have)[0]
+    np.testing.assert_allclose(dz_b[:2, 0], -1e-3, rtol=1e-9)
 
 
 # --------------------------------------------------------------------------------------
@@ -403,6 +446,9 @@ def _bad_calls():
         ("w_b_corrected", lambda: zero_heading_rate(C, np.full((B, 3), np.nan), r, 1e-4, on)),
         ("w_b_corrected", lambda: zero_heading_rate(C, w[:1], r, 1e-4, on)),
         ("sigma_rps", lambda: zero_heading_rate(C, w, r, -1e-4, on)),
+        ("yaw_rate_rps", lambda: yaw_rate(C, w, np.array([0.1, np.nan]), 1e-3, on)),
+        ("sigma_rps", lambda: yaw_rate(C, w, np.zeros(B), 0.0, on)),
+        ("w_b_corrected", lambda: yaw_rate(C, w[:1], np.zeros(B), 1e-3, on)),
         ("blocks", lambda: stack_measurements()),
         ("blocks", lambda: stack_measurements(None)),
         (r"blocks\[0\]", lambda: stack_measurements(zupt(v, C, 0.1, on) + (None,))),
