@@ -83,16 +83,24 @@ def oracle_r_world(world: World, exclude_nlos: bool = False) -> World:
     or, with ``exclude_nlos``, the reported sigmas with every NLOS channel removed. A filter run on it is the
     floor of any measurement-noise adaptation; it knows the truth and is never a method a receiver could run.
 
+    A recorded world has no simulator truth of its errors: there the oracle is
+    :func:`envs.datasets.truth_check.recorded_oracle_world` (each pseudorange's error against the recording's
+    reference trajectory and a robust clock: its variance, or with ``exclude_nlos`` the exclusion of the
+    pseudoranges more than 3 m off).
+
     Raises
     ------
     ValueError
-        for a recorded world (no simulator truth), naming the scenario.
+        for a world with neither (no simulator variances, no truth residuals), naming the scenario.
     """
     import dataclasses
     g = world.gnss
     if g.pr_var_true is None or (g.prr is not None and g.prr_var_true is None):
+        if g.pr_error_m is not None and g.pr_var_true is None:
+            from .datasets.truth_check import recorded_oracle_world
+            return recorded_oracle_world(world, exclude=exclude_nlos)
         raise ValueError(f"oracle R needs the simulator's true variances; scenario {world.scenario.name!r} is a "
-                         "recorded data set (no truth of its measurement errors)")
+                         "recorded data set without them")
     if exclude_nlos:
         gnss = dataclasses.replace(g, mask=g.mask & ~g.nlos)
     else:
