@@ -27,7 +27,8 @@ import numpy as np
 
 from nav_filters.measurements import SYSTEMS
 
-RECORDINGS = ("smartloc-potsdamer-platz", "smartloc-potsdamer-platz-odometry", "instinct-reach-static")
+RECORDINGS = ("smartloc-potsdamer-platz", "smartloc-potsdamer-platz-nhc", "smartloc-potsdamer-platz-odometry",
+              "instinct-reach-static")
 """The shipped recordings, by scenario name."""
 ROBUST = ("kf-fde", "kf-igg3", "kf-huber")
 LAWS = ("sage-husa", "svd-akf", "svd-asrkf", "sage-husa-r", "sage-husa-group", "stkf", "ma-stkf", "vb-akf")

@@ -14,7 +14,8 @@ import numpy as np
 from .sim.scenarios import SCENARIOS, Scenario
 from .sim.world import World, generate_world
 
-REPLAY_SCENARIOS = ("smartloc-potsdamer-platz", "instinct-reach-static", "smartloc-potsdamer-platz-odometry")
+REPLAY_SCENARIOS = ("smartloc-potsdamer-platz", "instinct-reach-static", "smartloc-potsdamer-platz-odometry",
+                    "smartloc-potsdamer-platz-nhc")
 """Recorded data sets usable by name: the shipped dataset specs (:data:`envs.datasets.spec.SHIPPED_SPECS`;
 they need ../shared/data or $NAVGYM_DATA_DIR; see README). Any other spec is usable by its ``.toml`` path."""
 

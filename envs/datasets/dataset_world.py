@@ -65,7 +65,8 @@ def world_from_spec(scenario: ReplayScenario, seeds, dtype=np.float64) -> World:
     if not isinstance(scenario, ReplayScenario):
         raise ValueError(f"scenario must be a ReplayScenario, got {type(scenario).__name__}")
     spec = scenario.dataset
-    if scenario.odometer is not None and spec.gnss.format != "smartloc":
+    nhc_only = spec.odometry is not None and spec.odometry.source == "nhc"
+    if scenario.odometer is not None and spec.gnss.format != "smartloc" and not nhc_only:
         raise ValueError(f"{spec.path}: recorded odometry (scenario.odometer) needs gnss.format = 'smartloc' "
                          f"(its odom3 rows); this data set is {spec.gnss.format!r}")
     if spec.gnss.format == "smartloc":
@@ -75,6 +76,8 @@ def world_from_spec(scenario: ReplayScenario, seeds, dtype=np.float64) -> World:
         world = _smartloc_world(scenario, seeds, dtype)
     else:
         world = _rinex_world(scenario, seeds, dtype)
+    if nhc_only:  # no odometer reading (NaN: its row masked), the NHC rows at every epoch
+        world = dataclasses.replace(world, odometer=np.full((world.batch_size, world.epoch_idx.size), np.nan))
     r0 = world.truth.r_e[0, 0] if world.truth.r_e.ndim == 3 else world.truth.r_e[0]
     lat, lon, h = ecef_to_geodetic(np.asarray(r0, np.float64))
     scen = dataclasses.replace(scenario, duration_s=float(world.scenario.duration_s),
@@ -84,14 +87,15 @@ def world_from_spec(scenario: ReplayScenario, seeds, dtype=np.float64) -> World:
 
 def _smartloc_world(scenario: ReplayScenario, seeds, dtype) -> World:
     from .replay import load_smartloc_world
-    g = scenario.dataset.gnss
+    g, odo = scenario.dataset.gnss, scenario.dataset.odometry
     return load_smartloc_world(seeds, imu_grade=scenario.imu_grade, imu_rate_hz=scenario.imu_rate_hz,
                                folder=g.obs.parent, name=g.obs.name[:-len("_Input.txt")],
                                systems=tuple(SYSTEM_LETTERS[s] for s in g.systems),
                                min_elevation_deg=g.elevation_mask_deg, min_cn0_dbhz=g.min_cn0_dbhz,
                                vibration=scenario.vibration, initial=scenario.initial,
                                duration_s=scenario.duration_s, dtype=dtype,
-                               sigma_model=scenario.receiver.sigma_model, odometer=scenario.odometer)
+                               sigma_model=scenario.receiver.sigma_model,
+                               odometer=scenario.odometer if odo is not None and odo.source == "recorded" else None)
 
 
 def _rinex_world(scenario: ReplayScenario, seeds, dtype) -> World:

@@ -84,11 +84,12 @@ SPEC_DIR = Path(__file__).resolve().parent / "specs"
 """Folder of the shipped specs."""
 SHIPPED_SPECS = {"smartloc-potsdamer-platz": "smartloc-potsdamer-platz.toml",
                  "instinct-reach-static": "instinct-reach-static.toml",
-                 "smartloc-potsdamer-platz-odometry": "smartloc-potsdamer-platz-odometry.toml"}
+                 "smartloc-potsdamer-platz-odometry": "smartloc-potsdamer-platz-odometry.toml",
+                 "smartloc-potsdamer-platz-nhc": "smartloc-potsdamer-platz-nhc.toml"}
 """Scenario name -> shipped spec file in :data:`SPEC_DIR`."""
 GNSS_FORMATS = ("rinex", "smartloc")
 IMU_SOURCES = ("synthesized", "recorded")
-ODOMETRY_SOURCES = ("recorded",)
+ODOMETRY_SOURCES = ("recorded", "nhc")
 """Sources of ``[odometry]``: the recording's own wheel odometry (smartLoc ``odom3`` rows)."""
 RINEX_SYSTEMS = ("G", "E", "C")
 """Systems with broadcast Keplerian ephemerides (GLONASS state vectors are not supported)."""
@@ -200,11 +201,14 @@ class ImuSpec:
 
 @dataclass(frozen=True)
 class OdometrySpec:
-    """The ``[odometry]`` section: the recording's wheel odometry as aiding (smartLoc only).
+    """The ``[odometry]`` section: the vehicle's motion constraints as aiding.
 
     Attributes
     ----------
-    source : ``'recorded'``.
+    source : ``'recorded'``: the recording's wheel odometry (smartLoc only: its ``odom3`` rows), forward speed and
+        yaw rate, with the non-holonomic constraint; ``'nhc'``: no odometer, the non-holonomic constraint alone
+        (a land vehicle's lateral and vertical body velocity are zero: knowledge of the vehicle, no sensor; any
+        recording). ``speed_sigma_mps`` and the yaw-rate keys apply to ``'recorded'`` only.
     speed_sigma_mps : forward-speed sigma the filter assumes [m/s] (default 0.1: on Potsdamer Platz the
         recorded speed differs from the SPAN truth's by 0.04 m/s median, 0.18 m/s p95; scale 1.0044).
     nhc_sigma_mps : lateral / vertical NHC sigma [m/s] (default 0.1, as :data:`envs.sim.odometer.SEED003_ODOMETER`).
@@ -224,7 +228,8 @@ class OdometrySpec:
         ``scale_error`` and ``noise_mps``, are 0: nothing is simulated)."""
         return OdometerModel(scale_error=0.0, noise_mps=0.0, sigma_mps=self.speed_sigma_mps,
                              nhc_sigma_mps=self.nhc_sigma_mps,
-                             yaw_rate_sigma_rps=math.radians(self.yaw_rate_sigma_dps) if self.yaw_rate else None)
+                             yaw_rate_sigma_rps=(math.radians(self.yaw_rate_sigma_dps)
+                                                 if self.yaw_rate and self.source == "recorded" else None))
 
 
 @dataclass(frozen=True)
@@ -492,6 +497,13 @@ def _odometry(r: "_Reader", doc: dict, gnss: GnssSpec) -> OdometrySpec | None:
     t = r.table(doc, "odometry")
     r.keys(t, "odometry", {"source", "speed_sigma_mps", "nhc_sigma_mps", "yaw_rate", "yaw_rate_sigma_dps"})
     src = r.choice(t, "odometry.source", ODOMETRY_SOURCES, required=True)
+    if src == "nhc":
+        for key in ("speed_sigma_mps", "yaw_rate", "yaw_rate_sigma_dps"):
+            if _has(t, f"odometry.{key}"):
+                r.fail(f"odometry.{key}", "applies with source = 'recorded' only (source = 'nhc' has no odometer)")
+        d = OdometrySpec()
+        return OdometrySpec(source=src, yaw_rate=False, nhc_sigma_mps=r.num(t, "odometry.nhc_sigma_mps",
+                                                                            d.nhc_sigma_mps, lo=0, lo_open=True))
     if gnss.format != "smartloc":
         r.fail("odometry.source", f"recorded odometry is read from smartLoc files only (their odom3 rows); "
                                   f"gnss.format is {gnss.format!r}")

@@ -186,3 +186,31 @@ def test_env_core_fuses_the_recorded_odometry_like_run_episodes():
     world = cfg.make_world(seeds)
     log = run_episodes(world, "stkf", params=params)
     np.testing.assert_allclose(log.horizontal_error, np.array(h_core).T, rtol=1e-9, atol=1e-9)
+
+
+# ------------------------------------------------------------------------------------------------ NHC alone
+NHC = "smartloc-potsdamer-platz-nhc"
+
+
+def test_nhc_only_spec_and_its_errors(tmp_path):
+    s = dataset_spec_of(NHC)
+    assert s.odometry == OdometrySpec("nhc", OdometrySpec().speed_sigma_mps, 0.1, False, OdometrySpec().yaw_rate_sigma_dps)
+    assert s.imu.grade == "industrial" and s.scenario().odometer.yaw_rate_sigma_rps is None
+    for key in ("speed_sigma_mps = 0.2", "yaw_rate = true", "yaw_rate_sigma_dps = 0.3"):
+        p = _odometry_spec(tmp_path, f'[odometry]\nsource = "nhc"\n{key}\n')
+        with pytest.raises(DatasetSpecError, match="source = 'recorded' only"):
+            load_dataset_spec(p)
+
+
+@needs_smartloc
+def test_nhc_only_world_has_no_odometer_reading_and_fuses_the_two_nhc_rows():
+    """source = 'nhc': every epoch's odometer reading is missing (its row masked) and the two NHC rows are used,
+    in run_episodes as for a simulated odometer."""
+    from envs.episodes import run_episodes
+    from envs.worlds import make_world
+    w = make_world(NHC, [0], duration_s=20.0)
+    assert w.odometer is not None and np.isnan(w.odometer).all() and w.odometer_yaw_rate is None
+    assert w.scenario.odometer is not None
+    plain = make_world("smartloc-potsdamer-platz", [0], duration_s=20.0)
+    a, b = run_episodes(w, "kf"), run_episodes(plain, "kf")
+    np.testing.assert_array_equal(a.n_used - b.n_used, 2)
