@@ -110,7 +110,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=int, default=None, metavar="N",
                    help="--backend ray: batches in flight at once (a local Ray gets N CPUs; default: all cores)")
     p.add_argument("--experiment", default=None, metavar="NAME",
-                   help="run a seed-paper reproduction instead: seed000, seed001 or seed003")
+                   help="run a seed-paper reproduction instead: seed000, seed001 or seed003 (its verdicts and "
+                        "CIs only from 10 episodes, as the tables' CIs)")
     return p
 
 
