@@ -18,10 +18,12 @@ drawn from the episode seeds ``seed * 1_000_003 + k``).
 
 ``--headroom`` adds, per scenario, the optimized fixed parameter (the ``tuned:`` method, required) against
 each oracle: headroom = (fixed - oracle) / fixed, the knob headroom net of the open-sky placebo (when
-``open-sky`` is among the scenarios), and the share of the (net) knob headroom every other method closed,
-(fixed - method) / (fixed - oracle), with paired bootstrap 95% CIs (none below
-:data:`envs.metrics.MIN_CI_EPISODES` episodes). It prints the table and writes ``OUT/headroom.md`` and
-the ``"headroom"`` key of results.json (schema in :func:`compute_headroom`).
+``open-sky`` is among the scenarios), the share of the (net) knob headroom every other method closed,
+(fixed - method) / (fixed - oracle), and each oracle's headroom from the best hand-designed method of the
+scenario (the lowest horizontal RMSE among the rows that are neither oracles nor learned policies: filters,
+robust screens, adaptive laws, ``tuned:`` and ``rule:`` rows), (best - oracle) / best, with paired bootstrap
+95% CIs (none below :data:`envs.metrics.MIN_CI_EPISODES` episodes). It prints the table and writes
+``OUT/headroom.md`` and the ``"headroom"`` key of results.json (schema in :func:`compute_headroom`).
 
 Prints a table and writes ``OUT/results.json`` (schema of DESIGN.md plus the paired difference to the
 reference method), ``results.csv``, ``results.md`` and PNG plots per scenario (:mod:`plots`): error vs time
@@ -97,8 +99,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "scenario (repeatable)")
     p.add_argument("--headroom", action="store_true",
                    help="also report the headroom: the optimized fixed parameter (a 'tuned:' method, required) "
-                        "against each oracle, net of the open-sky placebo, and the share of it each method "
-                        "closed (OUT/headroom.md, results.json 'headroom')")
+                        "against each oracle, net of the open-sky placebo, the share of it each method "
+                        "closed, and each oracle's headroom from the best hand-designed method of the scenario "
+                        "(OUT/headroom.md, results.json 'headroom')")
     p.add_argument("--backend", default="local", choices=("local", "ray"),
                    help="where the paired episode batches run: local (this process, default) or ray (Ray tasks "
                         "on a local Ray started here, or on a cluster with --address); same numbers on both")
@@ -107,7 +110,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=int, default=None, metavar="N",
                    help="--backend ray: batches in flight at once (a local Ray gets N CPUs; default: all cores)")
     p.add_argument("--experiment", default=None, metavar="NAME",
-                   help="run a seed-paper reproduction instead: seed000, seed001 or seed003")
+                   help="run a seed-paper reproduction instead: seed000, seed001 or seed003 (its verdicts and "
+                        "CIs only from 10 episodes, as the tables' CIs)")
     return p
 
 
@@ -535,9 +539,12 @@ PLACEBO_SCENARIO = "open-sky"
 HEADROOM_INTRO = ("Headroom = (optimized fixed - oracle) / optimized fixed, from the pooled horizontal RMSEs of "
                   "the paired episodes; the knob oracle's (`oracle-schedule`) net of the open-sky placebo (its "
                   "headroom on open-sky subtracted) where open-sky was run. Share closed = (fixed - method) / "
-                  "(fixed - oracle) of the (net) knob headroom. Paired bootstrap 95% CIs over episodes (the "
-                  "placebo's episodes resampled independently). Oracles know the truth: they bound what a "
-                  "policy could reach, they are not methods a user could run.")
+                  "(fixed - oracle) of the (net) knob headroom. Headroom from the best hand-designed = (best - "
+                  "oracle) / best, where best is the scenario's row with the lowest horizontal RMSE among the "
+                  "methods that are neither oracles nor learned policies (filters, robust screens, adaptive "
+                  "laws, tuned fixed parameters, hand-designed rules; not net of the placebo). Paired bootstrap "
+                  "95% CIs over episodes (the placebo's episodes resampled independently). Oracles know the "
+                  "truth: they bound what a policy could reach, they are not methods a user could run.")
 
 
 def _oracle_kind(label: str) -> str:
@@ -558,9 +565,11 @@ def compute_headroom(results: dict, curves: dict, plan: dict, fixed_spec: str) -
             "note": "placebo: open-sky" | "placebo not measured ..." | "this is the placebo scenario ...",
             "fixed": {"label", "rmse_h_m", "episodes"},
             "knob_oracle": "<label of the oracle-schedule row>" or null,
+            "best_hand_designed": {"label", "rmse_h_m", "episodes", "diverged", "candidates": [labels]} or null,
             "oracles": {"<label>": {"kind", "rmse_h_m", "episodes", "headroom", "headroom_ci95",
                                     "placebo_headroom", "placebo_episodes", "net_headroom",
-                                    "net_headroom_ci95", "ci_note"}},
+                                    "net_headroom_ci95", "ci_note",
+                                    "from_best": {"episodes", "headroom", "headroom_ci95", "ci_note"}}},
             "methods": {"<label>": {"learned", "pooled", "rmse_h_m", "episodes", "share", "share_ci95",
                                     "gap_m", "gap_ci95_m", "net", "note"}}}}}
 
@@ -570,6 +579,16 @@ def compute_headroom(results: dict, curves: dict, plan: dict, fixed_spec: str) -
     seed and the pooled row of a seed group, and the filters) with the share of the knob oracle's (net)
     headroom it closed (:func:`envs.metrics.headroom_share`; on the placebo scenario itself the gross
     headroom). Episodes where a compared method diverged leave that comparison.
+
+    ``best_hand_designed`` is the scenario's best hand-designed method (:func:`best_hand_designed`): of the
+    ``candidates``, every method row that is neither an oracle nor a learned policy (filters, robust screens,
+    adaptive laws, ``tuned:`` fixed parameters, each member of a seed group of them, ``rule:`` rows), the one
+    with the lowest pooled horizontal RMSE of the results table (``rmse_h_m``: diverged episodes left out and
+    counted in ``diverged``, as :func:`envs.metrics.summarize` does); null when none has a finite RMSE. Each
+    oracle's ``from_best`` is :func:`envs.metrics.headroom` from that method to the oracle, ``(R_best -
+    R_oracle) / R_best`` over the episodes where neither diverged, gross (no placebo), with its CI only from
+    ``min_ci_episodes`` episodes (``ci_note`` says so below). ``headroom`` beside it stays the headroom over
+    the optimized fixed parameter.
     """
     from agents.methods import PolicyMethod, is_oracle_label
     from envs.metrics import MIN_CI_EPISODES, episode_mse, headroom, headroom_share
@@ -600,15 +619,27 @@ def compute_headroom(results: dict, curves: dict, plan: dict, fixed_spec: str) -
         note = (f"this is the placebo scenario (no events): an oracle's headroom here is luck" if s == placebo
                 else f"placebo: {placebo}" if placebo else
                 f"placebo not measured (add --scenario {PLACEBO_SCENARIO})")
+        best = best_hand_designed(plan[s], summ)
         entry = {"note": note, "fixed": {"label": fixed_label, "rmse_h_m": summ[fixed_label]["rmse_h_m"],
                                          "episodes": int(F.size)},
-                 "knob_oracle": knob, "oracles": {}, "methods": {}}
+                 "knob_oracle": knob, "best_hand_designed": best, "oracles": {}, "methods": {}}
         for lab in oracle_labels:
             O, dO = mse(per[lab])
             ok = ~(dF | dO)
             h = (headroom(F[ok], O[ok], placebo=placebo_pair(s, lab)) if ok.any() else
                  {"episodes": 0, "headroom": None, "ci_note": "no episode without a divergence"})
             entry["oracles"][lab] = {"kind": _oracle_kind(lab), "rmse_h_m": summ[lab]["rmse_h_m"], **h}
+            if best is None:
+                fb = {"episodes": 0, "headroom": None, "headroom_ci95": None,
+                      "ci_note": "no hand-designed method with a finite RMSE"}
+            else:
+                B, dB = mse(per[best["label"]])
+                ok = ~(dB | dO)
+                fb = ({k: v for k, v in headroom(B[ok], O[ok]).items()
+                       if k in ("episodes", "headroom", "headroom_ci95", "ci_note")} if ok.any() else
+                      {"episodes": 0, "headroom": None, "headroom_ci95": None,
+                       "ci_note": "no episode without a divergence"})
+            entry["oracles"][lab]["from_best"] = fb
         rows = []
         for spec, ms in plan[s]:
             for m in ms:
@@ -642,6 +673,37 @@ def compute_headroom(results: dict, curves: dict, plan: dict, fixed_spec: str) -
     return out
 
 
+def best_hand_designed(plan_s: list, summ: dict) -> dict | None:
+    """The best hand-designed method of one scenario, for :func:`compute_headroom`.
+
+    Parameters
+    ----------
+    plan_s : ``[(spec, [methods])]`` of the scenario (eval.py's plan).
+    summ : ``{label: metrics}`` of the scenario in results.json (:func:`envs.metrics.summarize`).
+
+    Returns
+    -------
+    ``{"label", "rmse_h_m", "episodes", "diverged", "candidates"}`` of the candidate row with the lowest
+    ``rmse_h_m`` (the first of equals, in ``--methods`` order), or None when no candidate has a finite RMSE.
+    The candidates are the method rows that are neither oracles (:func:`agents.methods.is_oracle_label`) nor
+    learned policies (:class:`agents.methods.PolicyMethod`); each member of a seed group counts as a row (the
+    group's pooled row is their average, not a method of its own). ``rmse_h_m`` leaves diverged episodes out,
+    as the results table does; ``diverged`` says how many there were.
+    """
+    from agents.methods import PolicyMethod, is_oracle_label
+    cands = [m.label for _, ms in plan_s for m in ms if not (is_oracle_label(m.label) or getattr(m, "is_oracle", False)
+                                                             or isinstance(m, PolicyMethod))]
+    best = None
+    for lab in cands:
+        r = summ[lab]["rmse_h_m"]
+        if r is not None and np.isfinite(r) and (best is None or r < summ[best]["rmse_h_m"]):
+            best = lab
+    if best is None:
+        return None
+    return {"label": best, "rmse_h_m": summ[best]["rmse_h_m"], "episodes": summ[best]["episodes"],
+            "diverged": summ[best]["diverged"], "candidates": cands}
+
+
 def _pct(x, signed=True):
     return "n/a" if x is None else (f"{100 * x:+.1f}%" if signed else f"{100 * x:.1f}%")
 
@@ -655,27 +717,42 @@ def _pct_ci(v, ci, note):
 def format_headroom(h: dict) -> str:
     """Markdown table of the ``"headroom"`` section (:func:`compute_headroom`) and its notes per scenario."""
     head = ("| scenario | row | episodes | RMSE h [m] | headroom (95% CI) | net of placebo (95% CI) | "
-            "share of the knob headroom closed (95% CI) |")
-    rows = [head, "|" + "---|" * 7]
+            "share of the knob headroom closed (95% CI) | headroom from the best hand-designed (95% CI) |")
+    rows = [head, "|" + "---|" * 8]
     notes = []
     for s, e in h["scenarios"].items():
         f = e["fixed"]
-        rows.append(f"| {s} | optimized fixed: {f['label']} | {f['episodes']} | {f['rmse_h_m']:.3f} | - | - | - |")
+        rows.append(f"| {s} | optimized fixed: {f['label']} | {f['episodes']} | {f['rmse_h_m']:.3f} | - | - | - | - |")
         for lab, o in e["oracles"].items():
             net = ("placebo" if s == h["placebo"] else "not measured" if o.get("net_headroom") is None
                    else _pct_ci(o["net_headroom"], o["net_headroom_ci95"], o["ci_note"]))
             knob = " (knob)" if lab == e["knob_oracle"] else ""
+            fb = o.get("from_best")
+            from_best = "-" if fb is None else _pct_ci(fb["headroom"], fb["headroom_ci95"], fb["ci_note"])
             rows.append(f"| {s} | {lab}{knob} | {o['episodes']} | {o['rmse_h_m']:.3f} | "
-                        f"{_pct_ci(o['headroom'], o.get('headroom_ci95'), o['ci_note'])} | {net} | - |")
+                        f"{_pct_ci(o['headroom'], o.get('headroom_ci95'), o['ci_note'])} | {net} | - | {from_best} |")
         for lab, m in e["methods"].items():
             share = _pct_ci(m["share"], m["share_ci95"], m.get("note"))
             if m["share"] is not None and m.get("note") and m["share_ci95"] is not None:
                 share += f" ({m['note']})"
             kind = " (learned)" if m["learned"] else ""
-            rows.append(f"| {s} | {lab}{kind} | {m['episodes']} | {m['rmse_h_m']:.3f} | - | - | {share} |")
+            rows.append(f"| {s} | {lab}{kind} | {m['episodes']} | {m['rmse_h_m']:.3f} | - | - | {share} | - |")
         notes.append(f"- `{s}`: {e['note']}" + ("" if e["knob_oracle"] else
                                                  "; no knob oracle ('oracle-schedule:<env id>') in --methods"))
+        if "best_hand_designed" in e:
+            notes.append(f"- `{s}`: {_best_note(e['best_hand_designed'])}")
     return "\n".join(rows + [""] + notes)
+
+
+def _best_note(b: dict | None) -> str:
+    """The note's sentence naming a scenario's best hand-designed method (:func:`best_hand_designed`)."""
+    if b is None:
+        return "best hand-designed method: none (no hand-designed row with a finite RMSE)"
+    div = (f"; diverged in {b['diverged']} of {b['episodes']} episodes, left out of its RMSE as in the results "
+           "table" if b["diverged"] else "")
+    return (f"best hand-designed method: {b['label']} (RMSE h {b['rmse_h_m']:.3f} m, the lowest of "
+            f"{len(b['candidates'])} hand-designed row{'s' if len(b['candidates']) != 1 else ''}{div}); the "
+            "oracles' headroom from it is the last column")
 
 
 def _ref_label(results: dict, s: str) -> str:

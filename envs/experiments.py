@@ -32,13 +32,18 @@ entirely on the paper's side of zero and our change is at least half the
 paper's, ``direction only`` when the CI is on the paper's side but the change is
 smaller, ``not reproduced`` otherwise; a bound ("degradation below 2%") is
 reproduced when the upper end of our CI is below it; a time saving when ours is
-at least the paper's minus 10 points.
+at least the paper's minus 10 points. Below :data:`envs.metrics.MIN_CI_EPISODES`
+episodes behind a claim (paired episodes without a divergence; all episodes for
+a time claim) there is no verdict and no CI, as in eval.py's tables: the claim's
+``verdict`` and ``ci95`` are null, its ``why`` and the report's verdict column
+say :func:`envs.metrics.no_ci_text` (:func:`make_claim`), and seed001's
+degradation CIs are null too.
 
 ``results`` layout (every experiment)::
 
     {"experiment": name, "episodes": E, "seed": s, "episode_seeds": [...], "wall_time_s": t,
      "setup": {...}, "ours": {...}, "paper": {...},
-     "claims": [{"id", "claim", "source", "paper", "ours", "ci95", "verdict", "why"}, ...]}
+     "claims": [{"id", "claim", "source", "paper", "ours", "ci95", "verdict", "why", "episodes"}, ...]}
 
 ``ours`` per experiment: see :func:`run_seed000`, :func:`run_seed001`, :func:`run_seed003`.
 With ``out_dir`` the results and report are also written to
@@ -67,6 +72,7 @@ from earth.wgs84 import C_en
 from .aiding import odometer_rows
 from .episodes import EpisodeLog, navigator_for, run_episodes, satellite_keys
 from .json_io import jsonable
+from .metrics import MIN_CI_EPISODES, no_ci_text
 from .sim.gnss import GnssEvents
 from .sim.odometer import SEED003_ODOMETER, OdometerModel
 from .sim.odometer import simulate_odometer as _simulate_odometer
@@ -336,7 +342,8 @@ def paired_change(a: np.ndarray, b: np.ndarray, stat: str = "rms", n_boot: int =
 
 VERDICTS = ("reproduced", "direction only", "not reproduced")
 """Claim verdicts: the paper's effect with at least half its size / significant in the paper's direction but
-less than half its size / not significant in the paper's direction (or opposite)."""
+less than half its size / not significant in the paper's direction (or opposite). A claim behind fewer than
+:data:`envs.metrics.MIN_CI_EPISODES` episodes has none (``None``, :func:`make_claim`)."""
 
 
 def verdict(paper_change: float, point: float, ci=None, magnitude: bool = True) -> str:
@@ -386,12 +393,41 @@ def _pct(x, digits=1) -> str:
 
 
 def _ci_pct(ci, digits=1) -> str:
+    """``[lo, hi]`` in percent; a missing CI (below the minimum episodes) says so."""
+    if ci is None:
+        return f"({no_ci_text()})"
     return f"[{_pct(ci[0], digits)}, {_pct(ci[1], digits)}]"
 
 
-def _claim(cid, text, source, paper, ours, ci, verdict, why="") -> dict:
+def _ci_or_none(ci, episodes: int):
+    """A paired CI as a list, or None below :data:`envs.metrics.MIN_CI_EPISODES` episodes (or without one)."""
+    return None if ci is None or episodes < MIN_CI_EPISODES else list(ci)
+
+
+def make_claim(cid, text, source, paper, ours, ci, verdict, why="", *, episodes: int) -> dict:
+    """One entry of ``results["claims"]`` (module docstring).
+
+    Parameters
+    ----------
+    cid, text, source : the claim's id, its sentence and where the paper makes it.
+    paper, ours : the paper's figure and ours (a fraction, or a string).
+    ci : our 95% CI ``(lo, hi)`` or None; verdict : one of :data:`VERDICTS`; why : why not reproduced.
+    episodes : the episodes behind ``ours`` (the paired episodes without a divergence; all episodes for a
+        time claim).
+
+    Returns
+    -------
+    dict with ``id``, ``claim``, ``source``, ``paper``, ``ours``, ``ci95``, ``verdict``, ``why``,
+    ``episodes``. Below :data:`envs.metrics.MIN_CI_EPISODES` episodes there is no verdict and no CI
+    (``verdict`` and ``ci95`` None, ``why`` :func:`envs.metrics.no_ci_text`), as eval.py's tables; from it on,
+    the given ones (``why`` empty for a reproduced claim).
+    """
+    episodes = int(episodes)
+    if episodes < MIN_CI_EPISODES:
+        ci, verdict, why = None, None, no_ci_text()
     return {"id": cid, "claim": text, "source": source, "paper": paper, "ours": ours,
-            "ci95": list(ci) if ci is not None else None, "verdict": verdict, "why": why if verdict != "reproduced" else ""}
+            "ci95": list(ci) if ci is not None else None, "verdict": verdict,
+            "why": why if verdict != "reproduced" else "", "episodes": episodes}
 
 
 def _claims_table(claims) -> list[str]:
@@ -401,7 +437,10 @@ def _claims_table(claims) -> list[str]:
         if c["ci95"] is not None and not isinstance(c["ours"], str):
             ours += " " + _ci_pct(c["ci95"])
         paper = c["paper"] if isinstance(c["paper"], str) else _pct(c["paper"])
-        out.append(f"| {c['claim']} | {c['source']} | {paper} | {ours} | **{c['verdict']}** | {c['why']} |")
+        if c["verdict"] is None:  # below the minimum episodes: no verdict (why: no_ci_text())
+            out.append(f"| {c['claim']} | {c['source']} | {paper} | {ours} | {c['why']} | |")
+        else:
+            out.append(f"| {c['claim']} | {c['source']} | {paper} | {ours} | **{c['verdict']}** | {c['why']} |")
     return out
 
 
@@ -474,8 +513,8 @@ def run_seed000(seeds, batch_size=50, progress=None, duration_s=None) -> tuple[d
         ch, ci = paired_change(a, b)
         v = verdict(-1.0, ch, ci, magnitude=False)
         why = _why_forms(ours, m, "kf") if v != "reproduced" else ""
-        claims.append(_claim(f"{m}<kf", f"{m} 3D RMSE below kf (float32)", "000 sec 5.1.2, Fig. 3",
-                             "lower (figure only)", ch, ci, v, why))
+        claims.append(make_claim(f"{m}<kf", f"{m} 3D RMSE below kf (float32)", "000 sec 5.1.2, Fig. 3",
+                                 "lower (figure only)", ch, ci, v, why, episodes=ok.sum()))
     # (2) adaptive / SVD-IF per ECEF axis vs their base (Table 2)
     T = SEED000_TABLE2_RMSE_M
     for a_m, b_m in (("svd-asrkf", "svd-srkf"), ("svd-akf", "svd-kf"), ("svd-if", "if")):
@@ -489,8 +528,8 @@ def run_seed000(seeds, batch_size=50, progress=None, duration_s=None) -> tuple[d
                 why = _smaller(ch, paper)
             elif v != "reproduced":
                 why = (_why_adaptive(ours, a_m, b_m) if a_m != "svd-if" else _why_forms(ours, a_m, b_m))
-            claims.append(_claim(f"{a_m}<{b_m}:{ax}", f"{a_m} vs {b_m}, RMSE {ax} (ECEF)", "000 Table 2",
-                                 paper, ch, ci, v, why))
+            claims.append(make_claim(f"{a_m}<{b_m}:{ax}", f"{a_m} vs {b_m}, RMSE {ax} (ECEF)", "000 Table 2",
+                                     paper, ch, ci, v, why, episodes=ok.sum()))
     # (3) maximum error (sec 5.2.2)
     M = SEED000_MAX_ERROR_M
     for a_m, b_m in (("svd-akf", "svd-kf"), ("svd-asrkf", "svd-srkf")):
@@ -500,8 +539,8 @@ def run_seed000(seeds, batch_size=50, progress=None, duration_s=None) -> tuple[d
         why = {"reproduced": "", "direction only": _smaller(ch, paper)}.get(v) if v != "not reproduced" else (
             _why_adaptive(ours, a_m, b_m)
             + f"; max 3D error {ours[a_m]['max_3d_m']:.2f} m vs {ours[b_m]['max_3d_m']:.2f} m")
-        claims.append(_claim(f"max:{a_m}<{b_m}", f"{a_m} vs {b_m}, max error", "000 sec 5.2.2",
-                             paper, ch, None, v, why))
+        claims.append(make_claim(f"max:{a_m}<{b_m}", f"{a_m} vs {b_m}, max error", "000 sec 5.2.2",
+                                 paper, ch, None, v, why, episodes=_ok(runs[a_m], runs[b_m]).sum()))
 
     # (4) the same maximum-error claim in the setting of the paper's dynamic experiment: a city drive with
     # open sky, tree cover and buildings (sec 5.2.2), which is urban-transition; float32 as in the paper
@@ -518,14 +557,16 @@ def run_seed000(seeds, batch_size=50, progress=None, duration_s=None) -> tuple[d
         v = verdict(paper_ch, ch)
         why = "" if v == "reproduced" else (_smaller(ch, paper_ch) if v == "direction only" else
                                             f"max 3D error {oa['max_3d_m']:.2f} m vs {ob['max_3d_m']:.2f} m")
-        claims.append(_claim(f"max-urban:{a_m}<{b_m}", f"{a_m} vs {b_m}, max error on urban-transition",
-                             "000 sec 5.2.2 (its setting)", paper_ch, ch, None, v, why))
+        claims.append(make_claim(f"max-urban:{a_m}<{b_m}", f"{a_m} vs {b_m}, max error on urban-transition",
+                                 "000 sec 5.2.2 (its setting)", paper_ch, ch, None, v, why,
+                                 episodes=_ok(u_runs[a_m], u_runs[b_m]).sum()))
 
     paper = {"table2_rmse_xyz_m": {k: list(v) for k, v in T.items()}, "max_error_m": dict(M)}
     setup = {"scenario": "seed000-sim", "events": {"noise_scale": [list(x) for x in SEED000_EVENTS.noise_scale]},
              "dtype": "float32 (filter arithmetic); 'kf (float64)' is the reference row", "frames": "ENU and ECEF",
              "verdicts": "reproduced: CI on the paper's side of zero and at least half the paper's change; direction "
-                         "only: CI on the paper's side, smaller change; max error: point estimate (no CI)"}
+                         "only: CI on the paper's side, smaller change; max error: point estimate (no CI); none "
+                         f"below {MIN_CI_EPISODES} episodes ({no_ci_text()})"}
     lines = [f"## seed000: SVD, adaptive and information forms in float32 (seed paper 000)", "",
              f"Setup: `seed000-sim` (60 s, 20 m/s, 90-deg turns at 15 s and 45 s, IMU 100 Hz, GNSS 2 Hz, Table 1 "
              f"biases and initial errors) with a fluctuating GNSS quality: true code/Doppler noise x5 during "
@@ -649,7 +690,9 @@ def run_seed001(seeds, batch_size=50, progress=None, duration_s=None, per_sample
                 ms_s, ms_e = (hs ** 2 * w).sum(1) / cnt, (he ** 2 * w).sum(1) / cnt
                 keep = w.sum(1) > 0
                 deg["rmse_h_outage"] = paired_change(np.sqrt(ms_s[keep])[:, None], np.sqrt(ms_e[keep])[:, None])
-            o["degradation"] = {k: {"change": v[0], "ci95": None if v[1] is None else list(v[1])} for k, v in deg.items()}
+            n_deg = {k: int(keep.sum()) if k == "rmse_h_outage" else int(ok.sum()) for k in deg}
+            o["degradation"] = {k: {"change": v[0], "ci95": _ci_or_none(v[1], n_deg[k]), "episodes": n_deg[k]}
+                                for k, v in deg.items()}
             if "per-sample" in runs:
                 ps = runs["per-sample"]
                 okp = _ok(ps, e)
@@ -663,26 +706,29 @@ def run_seed001(seeds, batch_size=50, progress=None, duration_s=None, per_sample
             ch = o["time_saving"][f"vs_{ref}"]
             v = "reproduced" if ch >= paper_save - 0.10 else "not reproduced"
             why = "" if v == "reproduced" else _why_time(o, m)
-            claims.append(_claim(f"time:{scen}:{m}", f"{m} on {scen}: total filter time saving vs {ref}",
-                                 "001 Table 6", f"-{100 * paper_save:.1f}% time", f"{-100 * ch:+.1f}% time", None, v, why))
+            claims.append(make_claim(f"time:{scen}:{m}", f"{m} on {scen}: total filter time saving vs {ref}",
+                                     "001 Table 6", f"-{100 * paper_save:.1f}% time", f"{-100 * ch:+.1f}% time", None,
+                                     v, why, episodes=len(seeds)))
             if "epoch" != ref:
                 che = o["time_saving"]["vs_epoch"]
-                claims.append(_claim(f"time-epoch:{scen}:{m}", f"{m} on {scen}: total filter time saving vs our exact "
-                                     f"epoch composition (navigator default)", "001 Table 6",
-                                     f"-{100 * paper_save:.1f}% time", f"{-100 * che:+.1f}% time", None,
-                                     "reproduced" if che >= paper_save - 0.10 else "not reproduced",
-                                     "" if che >= paper_save - 0.10 else _why_time(o, m)))
+                claims.append(make_claim(f"time-epoch:{scen}:{m}", f"{m} on {scen}: total filter time saving vs our "
+                                         f"exact epoch composition (navigator default)", "001 Table 6",
+                                         f"-{100 * paper_save:.1f}% time", f"{-100 * che:+.1f}% time", None,
+                                         "reproduced" if che >= paper_save - 0.10 else "not reproduced",
+                                         "" if che >= paper_save - 0.10 else _why_time(o, m), episodes=len(seeds)))
             chd, cid = deg["rmse_h"]
             v = "reproduced" if cid[1] < SEED001_POSITION_BOUND_PCT / 100 else "not reproduced"
-            claims.append(_claim(f"acc:{scen}:{m}", f"{m} on {scen}: horizontal RMSE degradation < 2%",
-                                 "001 Table 3, sec 3.2", "< +2% (N, E RMS +0.00%)", chd, cid, v,
-                                 "" if v == "reproduced" else "the upper CI bound of the degradation exceeds 2%"))
+            claims.append(make_claim(f"acc:{scen}:{m}", f"{m} on {scen}: horizontal RMSE degradation < 2%",
+                                     "001 Table 3, sec 3.2", "< +2% (N, E RMS +0.00%)", chd, cid, v,
+                                     "" if v == "reproduced" else "the upper CI bound of the degradation exceeds 2%",
+                                     episodes=n_deg["rmse_h"]))
             if "rmse_h_outage" in deg:
                 chd, cid = deg["rmse_h_outage"]
                 v = "reproduced" if max(abs(cid[0]), abs(cid[1])) < SEED001_OUTAGE_BOUND_PCT / 100 else "not reproduced"
-                claims.append(_claim(f"drift:{scen}:{m}", f"{m} on {scen}: RMS drift during outages within 1%",
-                                     "001 Table 4", f"{SEED001_TABLE4_OUTAGE_DEGRADATION_PCT['rms']:+.2f}%", chd, cid, v,
-                                     "" if v == "reproduced" else "the CI of the drift change leaves +-1%"))
+                claims.append(make_claim(f"drift:{scen}:{m}", f"{m} on {scen}: RMS drift during outages within 1%",
+                                         "001 Table 4", f"{SEED001_TABLE4_OUTAGE_DEGRADATION_PCT['rms']:+.2f}%", chd,
+                                         cid, v, "" if v == "reproduced" else "the CI of the drift change leaves +-1%",
+                                         episodes=n_deg["rmse_h_outage"]))
     paper = {"table6_time_s": {k: list(v) for k, v in SEED001_TABLE6_TIME_S.items()},
              "table1_operand_saving_pct": SEED001_TABLE1_OPERAND_SAVING_PCT,
              "table3_degradation_pct": {k: list(v) for k, v in SEED001_TABLE3_DEGRADATION_PCT.items()},
@@ -803,8 +849,9 @@ def run_seed003(seeds, batch_size=25, progress=None, duration_s=None) -> tuple[d
                     vd = verdict(paper, ch, ci)
                     why = {"reproduced": "", "direction only": _smaller(ch, paper)}.get(vd) \
                         if vd != "not reproduced" else _why_stkf(ours[v], a_m, b_m, ch)
-                    claims.append(_claim(f"{v}:{a_m}<{b_m}:{key}:{qn}", f"[{v}] {a_m} vs {b_m}, {key.upper()} {qn}",
-                                         "003 Table 2", paper, ch, ci, vd, why))
+                    claims.append(make_claim(f"{v}:{a_m}<{b_m}:{key}:{qn}",
+                                             f"[{v}] {a_m} vs {b_m}, {key.upper()} {qn}", "003 Table 2", paper, ch,
+                                             ci, vd, why, episodes=ok.sum()))
     paper = {"table2": {m: {k: dict(zip(SEED003_QUANTITIES, v)) for k, v in d.items()}
                         for m, d in SEED003_TABLE2.items()}}
     o = SEED003_ODOMETER
@@ -864,6 +911,19 @@ def _say(progress, msg):
 _RUNNERS = {"seed000": run_seed000, "seed001": run_seed001, "seed003": run_seed003}
 
 
+def verdict_summary(claims: list[dict]) -> str:
+    """The report's closing count of verdicts: how many claims were reproduced of those judged, and how many
+    have no verdict (fewer than :data:`envs.metrics.MIN_CI_EPISODES` episodes, :func:`make_claim`)."""
+    judged = [c for c in claims if c["verdict"] is not None]
+    none = len(claims) - len(judged)
+    if not judged:
+        return (f"No verdicts: {no_ci_text()} (every claim has fewer than {MIN_CI_EPISODES} episodes behind it; "
+                f"run at least {MIN_CI_EPISODES}).")
+    n_rep = sum(c["verdict"] == "reproduced" for c in judged)
+    tail = f"; {none} without a verdict ({no_ci_text()})" if none else ""
+    return f"{n_rep} of {len(judged)} claims reproduced{tail}."
+
+
 def run_experiment(name: str, episodes: int | None = None, seed: int = 0, out_dir=None, progress=None,
                    batch_size: int | None = None, duration_s: float | None = None) -> tuple[dict, str]:
     """Run one reproduction experiment.
@@ -905,11 +965,9 @@ def run_experiment(name: str, episodes: int | None = None, seed: int = 0, out_di
     wall = time.perf_counter() - t0
     results = {"experiment": name, "episodes": int(episodes), "seed": int(seed), "episode_seeds": seeds,
                "wall_time_s": wall, "duration_s": None if duration_s is None else float(duration_s), **body}
-    n_rep = sum(c["verdict"] == "reproduced" for c in body["claims"])
     cut = "" if duration_s is None else f"**Smoke run: every scenario cut to {duration_s:g} s; not a comparison.**\n\n"
     report = (f"# Reproduction `{name}`: paper figures beside ours\n\n{cut}{report}\n\n"
-              f"{n_rep} of {len(body['claims'])} claims reproduced. {episodes} episodes, seed {seed}, "
-              f"wall time {wall:.1f} s.\n")
+              f"{verdict_summary(body['claims'])} {episodes} episodes, seed {seed}, wall time {wall:.1f} s.\n")
     if out_dir is not None:
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
@@ -919,6 +977,7 @@ def run_experiment(name: str, episodes: int | None = None, seed: int = 0, out_di
 
 
 __all__ = ["EXPERIMENTS", "DEFAULT_EPISODES", "run_experiment", "run_seed000", "run_seed001", "run_seed003",
-           "run_navigation", "simulate_odometer", "paired_change", "episode_seeds", "Run", "OdometerModel",
+           "run_navigation", "simulate_odometer", "paired_change", "verdict", "make_claim", "verdict_summary",
+           "episode_seeds", "Run", "OdometerModel",
            "SEED000_TABLE2_RMSE_M", "SEED000_MAX_ERROR_M", "SEED000_EVENTS", "SEED001_TABLE6_TIME_S",
            "SEED003_TABLE2", "SEED003_ODOMETER"]

@@ -14,12 +14,13 @@ import pytest
 
 from envs import experiments as X
 from envs.episodes import run_episodes
+from envs.metrics import MIN_CI_EPISODES, no_ci_text
 from envs.sim.scenarios import get_scenario
 from envs.sim.world import generate_world
 
 TOP_KEYS = {"experiment", "episodes", "seed", "episode_seeds", "wall_time_s", "duration_s", "setup", "ours", "paper",
             "claims"}
-CLAIM_KEYS = {"id", "claim", "source", "paper", "ours", "ci95", "verdict", "why"}
+CLAIM_KEYS = {"id", "claim", "source", "paper", "ours", "ci95", "verdict", "why", "episodes"}
 # one figure typed from each paper table (it must appear in the report as printed there)
 PAPER_FIGURE = {"seed000": "18.38", "seed001": "108.01", "seed003": "4.2576"}
 
@@ -57,8 +58,13 @@ def test_experiment_structure_and_report(small_runs, name):
     assert res["claims"], "every experiment states claims"
     for c in res["claims"]:
         assert set(c) == CLAIM_KEYS
-        assert c["verdict"] in X.VERDICTS
-        assert (c["why"] == "") == (c["verdict"] == "reproduced"), c  # a claim not reproduced says why
+        # 2 episodes: below the minimum, no verdict and no CI, in the words of eval.py's tables
+        assert c["verdict"] is None and c["ci95"] is None and c["why"] == no_ci_text(), c
+        assert c["episodes"] <= 2
+    for v in X.VERDICTS:
+        assert f"**{v}**" not in report
+    assert f"| {no_ci_text()} | |" in report and "No verdicts: n < 10: no CI" in report
+    assert "claims reproduced" not in report
     # the report prints the paper's figures and ours side by side
     low = report.lower()
     assert "paper" in low and "ours" in low
@@ -67,6 +73,7 @@ def test_experiment_structure_and_report(small_runs, name):
     # files written, JSON loads and equals the returned structure (NaN-free)
     js = json.loads((out / f"{name}.json").read_text())
     assert set(js) == TOP_KEYS and len(js["claims"]) == len(res["claims"])
+    assert all(c["verdict"] is None and c["ci95"] is None for c in js["claims"])
     assert (out / f"{name}.md").read_text() == report
 
 
@@ -93,6 +100,8 @@ def test_ours_are_computed_and_printed(small_runs):
             assert {"per-sample", "epoch", "onestep", "degradation", "time_saving"} <= set(o)
             assert f"{o['onestep']['rmse_h_m']:.4f}" in rep1
             assert o["per_sample_vs_epoch_max_dev_m"] < 1e-6  # same estimate, different cost
+            assert all(d["ci95"] is None for d in o["degradation"].values())  # 2 episodes: no CI
+            assert "n < 10: no CI" in rep1
     r3, rep3 = runs["seed003"]
     assert set(r3["ours"]) == {"gnss+odo+nhc", "gnss-only"}
     for per in r3["ours"].values():
@@ -167,6 +176,43 @@ def test_paired_change_and_verdicts():
     assert X.verdict(0.3, 0.3, (0.1, 0.5)) == "reproduced"
     assert X.verdict(-0.5, -0.01, (-0.02, -0.005), magnitude=False) == "reproduced"
     assert X.verdict(-0.5, float("nan")) == "not reproduced"
+
+
+def test_no_verdict_below_the_minimum_episodes():
+    """make_claim: from MIN_CI_EPISODES (paired) episodes on, the verdict and CI as given; below, none, with
+    eval.py's words (no_ci_text); the report's claims table and closing count say the same."""
+    n = MIN_CI_EPISODES
+    args = ("c", "svd-kf vs kf", "000 Table 2", -0.2, -0.15, (-0.2, -0.1))
+    keep = X.make_claim(*args, X.verdict(-0.2, -0.15, (-0.2, -0.1)), episodes=n)
+    assert keep["verdict"] == "reproduced" and keep["ci95"] == [-0.2, -0.1] and keep["why"] == ""
+    assert keep["episodes"] == n
+    miss = X.make_claim(*args[:5], (0.1, 0.2), "not reproduced", "opposite", episodes=np.int64(n))
+    assert miss["verdict"] == "not reproduced" and miss["why"] == "opposite" and miss["ci95"] == [0.1, 0.2]
+    few = X.make_claim(*args, "reproduced", episodes=n - 1)
+    assert few["verdict"] is None and few["ci95"] is None and few["why"] == no_ci_text() == "n < 10: no CI"
+    pt = X.make_claim("m", "max error", "000 sec 5.2.2", -0.4, -0.3, None, "reproduced", episodes=2)
+    assert pt["verdict"] is None and pt["why"] == no_ci_text()  # a point-estimate claim too
+    table = "\n".join(X._claims_table([keep, few]))
+    assert "| -15.0% [-20.0%, -10.0%] | **reproduced** |" in table
+    assert "| -15.0% | n < 10: no CI | |" in table and table.count("**") == 2  # one verdict, in bold
+    assert X.verdict_summary([keep, miss]) == "1 of 2 claims reproduced."
+    assert X.verdict_summary([keep, few]) == "1 of 1 claims reproduced; 1 without a verdict (n < 10: no CI)."
+    assert X.verdict_summary([few, pt]).startswith("No verdicts: n < 10: no CI")
+
+
+def test_verdicts_from_the_minimum_episodes_on():
+    """seed000 (scenarios cut to 12 s) with MIN_CI_EPISODES episodes: every claim has its verdict, the paired
+    ones their CI, a claim not reproduced says why, and the report counts them."""
+    res, report = X.run_experiment("seed000", episodes=MIN_CI_EPISODES, seed=3, duration_s=12.0)
+    for c in res["claims"]:
+        assert c["episodes"] == MIN_CI_EPISODES and c["verdict"] in X.VERDICTS, c
+        assert (c["why"] == "") == (c["verdict"] == "reproduced"), c
+        if not c["id"].startswith("max"):  # the maximum-error claims are point estimates
+            lo, hi = c["ci95"]
+            assert lo <= c["ours"] <= hi
+            assert f"{X._ci_pct(c['ci95'])} | **{c['verdict']}** |" in report
+    n_rep = sum(c["verdict"] == "reproduced" for c in res["claims"])
+    assert f"{n_rep} of {len(res['claims'])} claims reproduced." in report and no_ci_text() not in report
 
 
 def test_bad_input():

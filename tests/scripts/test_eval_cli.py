@@ -162,8 +162,16 @@ def test_headroom_table_and_json(tmp_path):
     hr = {}
     for s in ("seed000-sim", "open-sky"):
         e = h["scenarios"][s]
-        assert set(e) == {"note", "fixed", "knob_oracle", "oracles", "methods"}
+        assert set(e) == {"note", "fixed", "knob_oracle", "best_hand_designed", "oracles", "methods"}
         assert e["knob_oracle"] == ko and e["fixed"]["label"] == f"tuned:{fixed}"
+        # the best hand-designed row: the lowest RMSE of the rows that are not oracles (whatever theirs)
+        hand = {m: r for m, r in rmse[s].items() if not m.startswith("oracle")}
+        b = e["best_hand_designed"]
+        assert b["label"] == min(hand, key=hand.get) and set(b["candidates"]) == set(hand)
+        for lab, o in e["oracles"].items():
+            R = rmse[s][b["label"]]
+            assert o["from_best"]["headroom"] == pytest.approx((R - rmse[s][lab]) / R, rel=1e-9)
+            assert o["from_best"]["headroom_ci95"] is None and o["from_best"]["ci_note"] == "n < 10: no CI"
         assert set(e["oracles"]) == {ko, "oracle: best-per-episode:GnssIns/SageHusa-v0[n=2]"}
         o = e["oracles"][ko]
         F, O = rmse[s][f"tuned:{fixed}"], rmse[s][ko]
@@ -191,6 +199,9 @@ def test_headroom_table_and_json(tmp_path):
     table = (out / "headroom.md").read_text()
     assert f"| seed000-sim | {ko} (knob) | 2 |" in table and f"| open-sky | optimized fixed: tuned:{fixed} |" in table
     assert "n < 10: no CI" in table and "- `seed000-sim`: placebo: open-sky" in table
+    assert "headroom from the best hand-designed (95% CI)" in table
+    best = h["scenarios"]["seed000-sim"]["best_hand_designed"]["label"]
+    assert f"- `seed000-sim`: best hand-designed method: {best} (RMSE h" in table
     assert table.strip() in p.stdout
     note = (out / "NOTE.md").read_text()
     assert "## Headroom" in note and table.strip() in note
@@ -303,3 +314,97 @@ def test_skip_missing_leaves_a_method_out_where_it_has_no_file(tmp_path):
     assert p.returncode == 2 and "no file matches" in p.stderr
     p = run_eval(*common, "--methods", f"kf,{tuned}", "--skip-missing", "--headroom", "--out", str(tmp_path / "d"))
     assert p.returncode == 2 and "matches no file on 'open-sky'" in p.stderr and "Traceback" not in p.stderr
+
+
+def _headroom_inputs(rows, E=12, M=20, seed=0):
+    """compute_headroom's inputs for one scenario 'urban' from ``rows``: ``[(method object, scale, diverged)]``;
+    a method's horizontal errors are ``scale`` times one shared (E, M) draw, so every pooled RMSE ratio (and
+    every paired bootstrap resample of it) is the ratio of the scales."""
+    import numpy as np
+
+    from envs.episodes import EpisodeLog
+    from envs.metrics import summarize
+    base = np.random.default_rng(seed).gamma(2.0, 1.0, (E, M))
+    curves, plan, summ = {}, [], {}
+    for m, scale, div in rows:
+        pos = np.zeros((E, M, 3))
+        pos[..., 1] = scale * base
+        z = np.zeros((E, M))
+        log = EpisodeLog(t=np.arange(M, dtype=float), pos_err_ned=pos, vel_err_ned=np.zeros((E, M, 3)), nees_pv=z,
+                         nis=z, n_used=z.astype(int), n_sats=z.astype(int), gdop=z, zupt=z.astype(bool),
+                         diverged=np.zeros(E, bool) if div is None else np.asarray(div), filter_time_s=1.0)
+        curves[m.label] = log
+        summ[m.label] = summarize(log)
+        plan.append((m.label.removeprefix("oracle: "), [m]))
+    return {"scenarios": {"urban": summ}, "seed_groups": {}}, {"urban": curves}, {"urban": plan}, base
+
+
+def _methods():
+    from agents.methods import FilterMethod, OracleMethod, OracleRMethod, PolicyMethod, RuleMethod
+    return {"fixed": FilterMethod("tuned:runs/t/tuning.json", "sage-husa", {"b": 0.98}),
+            "kf": FilterMethod("kf", "kf"), "fde": FilterMethod("kf-fde", "kf-fde"),
+            "vb": FilterMethod("vb-akf", "vb-akf"),
+            "rule": RuleMethod("rule:GnssIns/SageHusa-v0", "GnssIns/SageHusa-v0"),
+            "ppo": PolicyMethod("ppo:runs/p/model.zip", "ppo", "runs/p/model.zip", None),
+            "knob": OracleMethod("oracle: oracle-schedule:GnssIns/SageHusa-v0", "oracle-schedule",
+                                 "GnssIns/SageHusa-v0"),
+            "oracle-r": OracleRMethod("oracle-r")}
+
+
+def test_headroom_from_the_best_hand_designed_method():
+    """compute_headroom picks the lowest-RMSE row among the methods that are neither oracles nor learned (a
+    learned policy and the oracles below it are not picked), reports each oracle's headroom from it, (best -
+    oracle) / best, with the analytic value and CI on known errors, and keeps the columns against the fixed
+    parameter; format_headroom shows the column and names the method in a note line."""
+    import eval as ev
+    M = _methods()
+    rows = [(M["fixed"], 2.0, None), (M["kf"], 3.0, None), (M["fde"], 1.5, None), (M["vb"], 1.7, None),
+            (M["rule"], 1.6, None), (M["ppo"], 1.0, None), (M["knob"], 1.2, None), (M["oracle-r"], 0.5, None)]
+    results, curves, plan, _ = _headroom_inputs(rows)
+    h = ev.compute_headroom(results, curves, plan, "tuned:runs/t/tuning.json")
+    e = h["scenarios"]["urban"]
+    b = e["best_hand_designed"]
+    assert b["label"] == "kf-fde" and b["rmse_h_m"] == results["scenarios"]["urban"]["kf-fde"]["rmse_h_m"]
+    assert set(b["candidates"]) == {"tuned:runs/t/tuning.json", "kf", "kf-fde", "vb-akf", "rule:GnssIns/SageHusa-v0"}
+    assert b["episodes"] == 12 and b["diverged"] == 0
+    for lab, o_scale in (("oracle: oracle-schedule:GnssIns/SageHusa-v0", 1.2), ("oracle-r", 0.5)):
+        o = e["oracles"][lab]
+        fb = o["from_best"]
+        assert fb["headroom"] == pytest.approx(1 - o_scale / 1.5, rel=1e-12) and fb["episodes"] == 12
+        assert fb["headroom_ci95"] == pytest.approx([1 - o_scale / 1.5] * 2, rel=1e-9) and fb["ci_note"] is None
+        assert o["headroom"] == pytest.approx(1 - o_scale / 2.0, rel=1e-12)  # today's column: from the fixed row
+    assert e["methods"]["ppo:runs/p/model.zip"]["share"] == pytest.approx((2.0 - 1.0) / (2.0 - 1.2), rel=1e-9)
+    table = ev.format_headroom(h)
+    lines = table.splitlines()
+    assert lines[0].endswith("| headroom from the best hand-designed (95% CI) |") and lines[1] == "|" + "---|" * 8
+    assert "| urban | oracle-r | 12 |" in table
+    assert next(x for x in lines if x.startswith("| urban | oracle-r |")).endswith("| - | +66.7% [+66.7%, +66.7%] |")
+    assert "- `urban`: best hand-designed method: kf-fde (RMSE h" in table
+    assert "the lowest of 5 hand-designed rows" in table
+
+
+def test_headroom_from_the_best_below_the_minimum_episodes_and_with_divergences():
+    """Below MIN_CI_EPISODES paired episodes: the re-based headroom has its point value but no CI (the tables'
+    words); a hand-designed row's diverged episodes are left out of its RMSE (as in the results table) and of
+    the paired comparison with the oracle."""
+    import numpy as np
+
+    import eval as ev
+    from envs.metrics import MIN_CI_EPISODES, no_ci_text
+    M = _methods()
+    E = MIN_CI_EPISODES
+    div = np.zeros(E, bool)
+    div[0] = True  # 9 episodes left: below the minimum
+    rows = [(M["fixed"], 2.0, None), (M["vb"], 1.5, div), (M["ppo"], 0.9, None), (M["knob"], 1.2, None)]
+    results, curves, plan, base = _headroom_inputs(rows, E=E)
+    e = ev.compute_headroom(results, curves, plan, "tuned:runs/t/tuning.json")["scenarios"]["urban"]
+    b = e["best_hand_designed"]
+    assert b["label"] == "vb-akf" and b["diverged"] == 1
+    assert b["rmse_h_m"] == pytest.approx(1.5 * np.sqrt(np.mean(base[1:] ** 2)), rel=1e-12)
+    o = e["oracles"]["oracle: oracle-schedule:GnssIns/SageHusa-v0"]
+    fb = o["from_best"]
+    assert fb["episodes"] == E - 1 and fb["headroom"] == pytest.approx(0.2, rel=1e-12)
+    assert fb["headroom_ci95"] is None and fb["ci_note"] == no_ci_text()
+    assert o["episodes"] == E and o["headroom_ci95"] is not None  # the column against the fixed row: all 10
+    table = ev.format_headroom({"placebo": None, "scenarios": {"urban": e}})
+    assert "| +20.0% (n < 10: no CI) |" in table and "diverged in 1 of 10 episodes" in table
