@@ -19,7 +19,9 @@ spec                           meaning
                                the satellites look degraded); options ``[b_low=0.5,b_high=0.9999,nis=9,ema=3,
                                hold=5]``
 ``oracle-schedule:<env id>``   an oracle (:mod:`agents.oracles`): the hindsight-greedy schedule of the env's
-                               parameters; options ``[segment_s=10,lookahead_s=20,n=7]``
+                               parameters; options ``[segment_s=10,lookahead_s=20,n=7]`` (and
+                               ``method=<m>`` for every oracle of the env's knob: its filter method, e.g.
+                               ``sage-husa+fde``)
 ``best-per-episode:<env id>``  an oracle: the best constant action of each episode; option ``[n=7]``
 ``crossfit-schedule:<env id>`` an oracle: one shared schedule fitted on the other half of the episodes;
                                options ``[segment_s=10,lookahead_s=20,n=7]``
@@ -88,9 +90,10 @@ class PolicyMethod:
         return run_policy_episodes(self.policy.env_id, kw, self.policy, world.seeds)
 
 
-ORACLE_KINDS = {"oracle-schedule": ("segment_s", "lookahead_s", "n"), "best-per-episode": ("n",),
-                "crossfit-schedule": ("segment_s", "lookahead_s", "n")}
-"""Oracle spec prefixes and the options each accepts."""
+ORACLE_KINDS = {"oracle-schedule": ("segment_s", "lookahead_s", "n", "method"), "best-per-episode": ("n", "method"),
+                "crossfit-schedule": ("segment_s", "lookahead_s", "n", "method")}
+"""Oracle spec prefixes and the options each accepts (``method``: the env's filter method, e.g. ``sage-husa+fde``:
+the knob's oracle on top of fault exclusion; default the env's)."""
 ORACLE_LABEL_PREFIX = "oracle: "
 _ORACLE_SPEC = re.compile(r"^(?P<env>[^\[\]]+?)(?:\[(?P<p>[^\]]*)\])?$")
 
@@ -121,6 +124,8 @@ class OracleMethod:
         opts = dict(self.options)
         if "n" in opts:
             opts["grid"] = opts.pop("n")
+        if "method" in opts:
+            kw["method"] = opts.pop("method")
         scen = world.scenario.name
 
         def report(msg, done=False):
@@ -206,6 +211,14 @@ def parse_oracle_spec(spec: str) -> OracleMethod:
         k, v = (x.strip() for x in item.split("=", 1))
         if k not in known:
             raise ValueError(f"unknown option {k!r} in {spec!r}; {kind} takes {', '.join(known)}")
+        if k == "method":
+            from envs.core import check_method_has_params
+            try:
+                check_method_has_params(v, env_class(env_id).PARAMS)
+            except ValueError as e:
+                raise ValueError(f"{spec}: {e}") from None
+            opts[k] = v
+            continue
         try:
             val = int(v) if k == "n" else float(v)
         except ValueError:

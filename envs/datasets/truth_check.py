@@ -45,19 +45,21 @@ ORACLE_THRESHOLD_M = 3.0
 """``|e|`` above which the excluding recorded oracle drops a pseudorange [m]."""
 
 
-def _row0(a):
-    """The recording's (M, C...) arrays: replay worlds hold one recording broadcast over the rows."""
-    return np.asarray(a)[0]
+def _rows(world: World) -> list:
+    """The batch rows that hold distinct recordings: ``[0]`` for a replay world (one recording broadcast over
+    the rows: a zero stride), every row otherwise."""
+    pr = np.asarray(world.gnss.pr_error_m)
+    return [0] if pr.shape[0] == 1 or pr.strides[0] == 0 else list(range(pr.shape[0]))
 
 
-def _channels(world: World):
-    """``(t (M,), d (M, C) = pr - rho(truth) [m], mask (M, C), system index (M, C))`` of a replay world."""
+def _channels(world: World, b: int = 0):
+    """``(t (M,), d (M, C) = pr - rho(truth) [m], mask (M, C), system index (M, C))`` of row ``b``."""
     g = world.gnss
     if g.pr_error_m is None or g.clock_bias_m is None:
         raise ValueError(f"scenario {world.scenario.name!r}: no truth residuals (not a replay world)")
-    mask = _row0(g.mask)
-    d = np.where(mask, _row0(g.pr_error_m) + _row0(g.clock_bias_m)[:, None], np.nan)
-    system = np.where(mask, (_row0(g.prn) - 1) // 64, -1)
+    mask = np.asarray(g.mask[b])
+    d = np.where(mask, np.asarray(g.pr_error_m[b]) + np.asarray(g.clock_bias_m[b])[:, None], np.nan)
+    system = np.where(mask, (np.asarray(g.prn[b]) - 1) // 64, -1)
     return np.asarray(g.t, np.float64), d, mask, system
 
 
@@ -92,10 +94,10 @@ def system_clocks(t, d, system, lam: float = 10.0, window_m: float = 3.0) -> dic
     return out
 
 
-def truth_errors(world: World) -> tuple[np.ndarray, np.ndarray]:
-    """``(e, mask)``: (M, C) each recorded pseudorange's error against the truth and its system's clock
-    (:func:`system_clocks`) [m], NaN where not used (or its system has too few epochs for a clock)."""
-    t, d, mask, system = _channels(world)
+def truth_errors(world: World, b: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """``(e, mask)``: (M, C) each pseudorange's error against the truth and its system's clock
+    (:func:`system_clocks`) [m] in row ``b``, NaN where not used (or its system has too few epochs for a clock)."""
+    t, d, mask, system = _channels(world, b)
     clocks = system_clocks(t, d, system)
     e = np.full(d.shape, np.nan)
     for s, c in clocks.items():
@@ -108,18 +110,22 @@ def recorded_oracle_world(world: World, exclude: bool = False, floor_m: float = 
                           threshold_m: float = ORACLE_THRESHOLD_M) -> World:
     """The replay world with each pseudorange's truth error as its variance (``floor^2 + e^2``), or with
     ``exclude`` only the pseudoranges with ``|e| <= threshold_m`` (module docstring). An oracle."""
-    e, ok = truth_errors(world)
     g = world.gnss
     B = np.shape(g.mask)[0]
-    if exclude:
-        mask = ok & (np.abs(np.nan_to_num(e)) <= threshold_m)
-        return dataclasses.replace(world, gnss=dataclasses.replace(g, mask=np.broadcast_to(mask, (B,) + mask.shape)))
-    sigma = np.where(ok, np.sqrt(floor_m ** 2 + np.nan_to_num(e) ** 2), _row0(g.pr_sigma))
-    return dataclasses.replace(world, gnss=dataclasses.replace(g, pr_sigma=np.broadcast_to(sigma, (B,) + sigma.shape)))
+    rows = _rows(world)
+    out = []
+    for b in rows:
+        e, ok = truth_errors(world, b)
+        if exclude:
+            out.append(ok & (np.abs(np.nan_to_num(e)) <= threshold_m))
+        else:
+            out.append(np.where(ok, np.sqrt(floor_m ** 2 + np.nan_to_num(e) ** 2), np.asarray(g.pr_sigma[b])))
+    a = np.broadcast_to(out[0], (B,) + out[0].shape) if len(rows) == 1 else np.stack(out)
+    return dataclasses.replace(world, gnss=dataclasses.replace(g, **{"mask" if exclude else "pr_sigma": a}))
 
 
 def replay_consistency(world: World, k_m: float = 2.0, iterations: int = 60) -> dict:
-    """The replay consistency check (module docstring).
+    """The replay consistency check (module docstring), of the world's first row (a replay world's recording).
 
     A robust fit (Cauchy weights, scale ``k_m``) of the truth residuals ``d`` by a clock per epoch, one constant
     offset per system against the first (the inter-system bias) and, in a second fit, also a constant
@@ -135,7 +141,7 @@ def replay_consistency(world: World, k_m: float = 2.0, iterations: int = 60) -> 
     """
     t, d, mask, system = _channels(world)
     g = world.gnss
-    el, az = _row0(g.elevation), _row0(g.azimuth)
+    el, az = np.asarray(g.elevation[0]), np.asarray(g.azimuth[0])
     u = np.stack([np.cos(el) * np.sin(az), np.cos(el) * np.cos(az), np.sin(el)], -1)   # local east, north, up
     systems = [int(s) for s in np.unique(system[mask])]
     e, ok = truth_errors(world)

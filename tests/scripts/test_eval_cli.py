@@ -236,11 +236,16 @@ def test_oracle_method_specs():
     [e] = expand_method_spec("best-per-episode:GnssIns/MASTKF-v0[n=3]", "urban")
     assert (e.kind, e.env_id, e.options) == ("best-per-episode", "GnssIns/MASTKF-v0", {"n": 3})
     assert parse_method_spec("crossfit-schedule:GnssIns/STKF-v0").options == {}
+    # the knob's oracle on top of fault exclusion: the env's filter method as an option, checked up front
+    m = parse_method_spec("oracle-schedule:GnssIns/SageHusa-v0[n=3,method=sage-husa+fde]")
+    assert m.options == {"n": 3, "method": "sage-husa+fde"}
+    with pytest.raises(ValueError, match="does not take the parameter"):
+        parse_method_spec("oracle-schedule:GnssIns/SageHusa-v0[method=kf-fde]")
 
 
-def test_oracle_r_beats_kf_on_urban_and_refuses_recorded_worlds():
+def test_oracle_r_beats_kf_on_urban_and_refuses_worlds_without_a_truth():
     """oracle-r: kf given the simulator's true per-satellite variance (NLOS bias^2 included) is far below kf on
-    urban; NLOS exclusion too; a world without that truth (a recording) gets a clear error."""
+    urban; NLOS exclusion too; a recording gets the truth-error oracle, a world without either a clear error."""
     import dataclasses
 
     import numpy as np
@@ -256,9 +261,12 @@ def test_oracle_r_beats_kf_on_urban_and_refuses_recorded_worlds():
     assert isinstance(parse_method_spec("oracle-r"), OracleRMethod) and is_oracle_label("oracle-nlos-excluded")
     assert rmse["oracle-r"] < 0.7 * rmse["kf"] and rmse["oracle-nlos-excluded"] < rmse["kf"], rmse
     assert abs(rmse["oracle-r:svd-srkf"] / rmse["oracle-r"] - 1) < 1e-6  # the same filter in another form
-    recorded = dataclasses.replace(world, gnss=dataclasses.replace(world.gnss, pr_var_true=None))
+    # without the simulator's variances the oracle is the real-data one (truth errors: envs.datasets.truth_check)
+    recorded = dataclasses.replace(world, gnss=dataclasses.replace(world.gnss, pr_var_true=None, prr_var_true=None))
+    assert np.isfinite(parse_method_spec("oracle-r").run(recorded).horizontal_error).all()
+    bare = dataclasses.replace(recorded, gnss=dataclasses.replace(recorded.gnss, pr_error_m=None))
     with pytest.raises(ValueError, match="recorded data set"):
-        parse_method_spec("oracle-r").run(recorded)
+        parse_method_spec("oracle-r").run(bare)
     with pytest.raises(ValueError, match="unknown filter method"):
         parse_method_spec("oracle-r:nope")
 
