@@ -73,7 +73,7 @@ class RobustConfig:
     k1: float = 3.0
     c: float = 1.345
     max_iter: int = 10
-    tol: float = 1e-3
+    tol: float = 1e-2
     min_rows: int = 4
 
     def __post_init__(self):

@@ -24,6 +24,8 @@ Choices (navgym's; the paper's model has one fixed measurement vector):
   receiver reports (``R_ii`` changes with elevation and C/N0 from epoch to epoch): ``Sigma_ii = (beta_i /
   alpha_i) R_ii``, and the residual terms enter ``beta`` divided by ``R_ii``. The prior of a new satellite is
   ``alpha = beta = alpha0`` (scale 1: the reported variance).
+* **Early stop.** The fixed-point iterations stop once no satellite's scale changes by more than ``tol``
+  (1e-3) of itself, at most ``n_iter``: a clean epoch needs two or three.
 * **Bounds.** The scale handed to the update is clipped to ``[scale_min, scale_max]``; ``scale_min = 1`` (the
   default) trusts no satellite more than its reported variance, as the registered Sage-Husa laws do.
 
@@ -57,7 +59,9 @@ class VbConfig:
     Attributes
     ----------
     rho : initial forgetting factor (per-row settable), (0, 1] (default 0.95: a memory of ~20 epochs).
-    n_iter : fixed-point iterations per epoch (>= 1; default 5).
+    n_iter : fixed-point iterations per epoch at most (>= 1; default 5).
+    tol : the iterations stop once no scale changes by more than this fraction (>= 0; default 1e-3; 0 runs all
+        ``n_iter``).
     alpha0 : prior shape of a new satellite's scale (> 0; its prior scale is 1).
     scale_min, scale_max : bounds of the scale handed to the update (0 < min <= 1 <= max).
     forget_after_epochs : epochs unseen after which a satellite restarts from the prior (>= 1).
@@ -65,6 +69,7 @@ class VbConfig:
 
     rho: float = 0.95
     n_iter: int = 5
+    tol: float = 1e-3
     alpha0: float = 1.0
     scale_min: float = 1.0
     scale_max: float = 1e4
@@ -74,6 +79,7 @@ class VbConfig:
         o = type(self).__name__
         RHO_SPEC.check(self.rho, owner=o)
         check_option(o, "alpha0", self.alpha0, low=0.0, low_closed=False)
+        check_option(o, "tol", self.tol, low=0.0)
         check_option(o, "scale_min", self.scale_min, low=0.0, high=1.0, low_closed=False)
         check_option(o, "scale_max", self.scale_max, low=1.0)
         for name in ("n_iter", "forget_after_epochs"):
@@ -84,7 +90,7 @@ class VbConfig:
 
 @nb.njit(cache=True)
 def _vb_row(r, H, Rd, mask, keys, Pm, work, var, ad, bm, rho, epoch, a_tab, b_tab, last_tab, forget, alpha0, smin,
-            smax, n_iter, scale, a_rows, b_rows):
+            smax, n_iter, tol, scale, a_rows, b_rows):
     """The update of one batch row (module docstring): ``scale`` (m,) the variance scales handed to the update
     (1 on rows not adapted), ``a_rows`` / ``b_rows`` (m,) the alpha and beta to commit (0 on rows not adapted).
     ``ad`` (m,) bool and ``bm`` (m,) scratch."""
@@ -115,14 +121,18 @@ def _vb_row(r, H, Rd, mask, keys, Pm, work, var, ad, bm, rho, epoch, a_tab, b_ta
                 scale[i] = min(max(b_rows[i] / a_rows[i], smin), smax)
                 var[i] = scale[i] * np.float64(Rd[i])
         fit_row(r, nzc, nzv, cnt, Pm, var, mask, post, v, red)
+        change = 0.0
         for i in range(m):
             if ad[i] and red[i] > 0:
                 hph = var[i] * (1.0 - red[i])
                 b_rows[i] = bm[i] + 0.5 * (v[i] * v[i] + hph) / np.float64(Rd[i])
+                change = max(change, abs(min(max(b_rows[i] / a_rows[i], smin), smax) / scale[i] - 1.0))
+        if change < tol:
+            break
 
 
 def _vb_rows(r, H, prior, Q, add_q, Rd, mask, keys, rho, epoch, a_tab, b_tab, last_tab, forget, alpha0, smin, smax,
-             n_iter, scale, a_rows, b_rows, nchunk):
+             n_iter, tol, scale, a_rows, b_rows, nchunk):
     """:func:`_vb_row` over every batch row in ``nchunk`` chunks (parallel in the parallel variant)."""
     B, m, n = H.shape
     for ch in nb.prange(nchunk):
@@ -134,7 +144,7 @@ def _vb_rows(r, H, prior, Q, add_q, Rd, mask, keys, rho, epoch, a_tab, b_tab, la
         for b in range(ch * B // nchunk, (ch + 1) * B // nchunk):
             load_prior(prior, Q, add_q, b, Pm)
             _vb_row(r[b], H[b], Rd[b], mask[b], keys[b], Pm, work, var, ad, bm, rho[b], epoch[b], a_tab[b], b_tab[b],
-                    last_tab[b], forget, alpha0, smin, smax, n_iter, scale[b], a_rows[b], b_rows[b])
+                    last_tab[b], forget, alpha0, smin, smax, n_iter, tol, scale[b], a_rows[b], b_rows[b])
 
 
 _vb_serial, _vb_parallel = serial_and_parallel(_vb_rows)
@@ -177,7 +187,8 @@ class VariationalR(AdaptiveLaw):
         kern(c(r), c(H), P, c(ctx.Q) if ctx.pending else P, bool(ctx.pending),
              c(np.diagonal(R, axis1=1, axis2=2), np.float64), c(mask, bool), keys, self._params["rho"], epoch,
              self._alpha, self._beta, self._last, int(cfg.forget_after_epochs), float(cfg.alpha0),
-             float(cfg.scale_min), float(cfg.scale_max), int(cfg.n_iter), scale, a_rows, b_rows, nchunk)
+             float(cfg.scale_min), float(cfg.scale_max), int(cfg.n_iter), float(cfg.tol), scale, a_rows, b_rows,
+             nchunk)
         s = np.sqrt(scale).astype(self.dtype)
         return UpdatePlan(fade=np.ones(B), R=R * s[:, :, None] * s[:, None, :], mask=mask,
                           pending=dict(keys=keys, epoch=epoch, scale=scale, alpha=a_rows, beta=b_rows))
@@ -228,7 +239,11 @@ class VariationalR(AdaptiveLaw):
                 s = np.where(ad, np.clip(beta / alpha, cfg.scale_min, cfg.scale_max), 1.0)
                 var = s * Rd[b]
                 _, v, red, _ = fit_reference(r[b], H[b], P_minus[b], var, mask[b])
-                beta = np.where(ad & (red > 0), bm + 0.5 * (v ** 2 + var * (1 - red)) / Rd[b], beta)
+                upd = ad & (red > 0)
+                beta = np.where(upd, bm + 0.5 * (v ** 2 + var * (1 - red)) / Rd[b], beta)
+                new = np.clip(beta / alpha, cfg.scale_min, cfg.scale_max)
+                if not np.any(upd) or np.max(np.abs(new[upd] / s[upd] - 1.0)) < cfg.tol:
+                    break
             scale[b] = s
             a_rows[b] = np.where(ad, alpha, 0.0)
             b_rows[b] = np.where(ad, beta, 0.0)
