@@ -258,6 +258,7 @@ def main(argv=None) -> dict:
 
     from envs.json_io import dumps
     from envs.metrics import paired_difference, summarize, summarize_seeds
+    from envs.outputs import write_atomic
 
     check_out(out)
     seeds = episode_seeds(args.seed, args.episodes)
@@ -296,17 +297,17 @@ def main(argv=None) -> dict:
                 for spec, ms in groups.items()}
     if args.headroom:
         results["headroom"] = compute_headroom(results, curves, plan, fixed_spec)
-    (out / "results.json").write_text(dumps(results, indent=2) + "\n")
+    write_atomic(out / "results.json", dumps(results, indent=2) + "\n")
     timing["scenarios"] = {s: {"methods": {label: {k: r[k] for k in TIMING_KEYS if k in r} for label, r in per.items()}}
                            for s, per in results["scenarios"].items()}
-    (out / "timing.json").write_text(dumps(timing, indent=2) + "\n")
+    write_atomic(out / "timing.json", dumps(timing, indent=2) + "\n")
     table = format_table(results)
     print(table)
-    (out / "results.md").write_text(table + "\n")
+    write_atomic(out / "results.md", table + "\n")
     if args.headroom:
         htable = format_headroom(results["headroom"])
         print("\nHeadroom\n\n" + htable)
-        (out / "headroom.md").write_text(htable + "\n")
+        write_atomic(out / "headroom.md", htable + "\n")
     write_csv(results, out / "results.csv")
     plots = [] if args.no_plots else write_all_plots(out, results, curves, tracks, events, plan)
     written = [out / "results.json", out / "timing.json", out / "results.md", out / "results.csv"]
@@ -445,7 +446,8 @@ def write_csv(results: dict, path: Path) -> None:
             vals += ([f"{p['diff_rmse_h_m']:.6g}", f"{p['diff_rmse_h_ci95_m'][0]:.6g}",
                       f"{p['diff_rmse_h_ci95_m'][1]:.6g}"] if p else ["0", "0", "0"])
             lines.append(f"\"{s}\",\"{m}\",{r['episodes']}," + ",".join(vals))
-    path.write_text("\n".join(lines) + "\n")
+    from envs.outputs import write_atomic
+    write_atomic(path, "\n".join(lines) + "\n")
 
 
 def _verdict(p: dict) -> str:
@@ -792,7 +794,8 @@ def write_note(results: dict, path: Path, out: Path, cmd: str) -> None:
              *(["## Headroom", "", HEADROOM_INTRO, "", format_headroom(results["headroom"]), ""]
                if "headroom" in results else []),
              f"Plots and raw numbers: `{out}` (results.json, results.csv, *.png).", ""]
-    path.write_text("\n".join(lines))
+    from envs.outputs import write_atomic
+    write_atomic(path, "\n".join(lines))
 
 
 if __name__ == "__main__":

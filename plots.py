@@ -51,8 +51,12 @@ def _mpl():
 
 def _save(plt, fig, path: Path) -> None:
     """Write and close a figure (``bbox_inches='tight'`` keeps the outside legend)."""
-    fig.savefig(path, bbox_inches="tight")
-    plt.close(fig)
+    from envs.outputs import atomic_path
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, bbox_inches="tight", format=Path(path).suffix.lstrip(".") or None)
+    finally:
+        plt.close(fig)
 
 
 def event_windows(t, event_mask, min_share: float = MIN_SHARE) -> list[tuple[str, list, bool]]:

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from envs.outputs import write_atomic
 from nav_filters.measurements import SYSTEMS
 
 RECORDINGS = ("smartloc-potsdamer-platz", "smartloc-potsdamer-platz-nhc", "smartloc-potsdamer-platz-odometry",
@@ -67,7 +68,7 @@ def gps_only_spec(scenario: str, folder: Path) -> Path:
     text = re.sub(r'^systems = .*$', 'systems = ["G"]', text, count=1, flags=re.M)
     text = re.sub(r'^name = .*$', f'name = "{scenario}-gps"', text, count=1, flags=re.M)
     path = folder / f"{scenario}-gps.toml"
-    path.write_text(text)
+    write_atomic(path, text)
     return path
 
 
@@ -176,9 +177,7 @@ def main(argv=None):
         (" --quick" if a.quick else "")
     text = format_note(results, episodes, a.seed, time.perf_counter() - t0, command)
     out = Path(a.out)
-    tmp_out = out.with_suffix(out.suffix + ".tmp")
-    tmp_out.write_text(text)
-    tmp_out.replace(out)
+    write_atomic(out, text)
     print(f"wrote {out}", file=sys.stderr)
 
 

@@ -44,6 +44,7 @@ the best trial per environment x scenario x algorithm group, the eval.py command
 from __future__ import annotations
 
 import csv
+import io
 import itertools
 import json
 import math
@@ -55,6 +56,8 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
+
+from envs.outputs import write_atomic
 
 METRIC = "eval_mean_reward_last"
 """The trial metric: the mean reward of the last held-out evaluation during training (higher is better)."""
@@ -441,10 +444,10 @@ def run_trial(trial: Trial) -> dict:
     out = Path(trial.out)
     out.mkdir(parents=True, exist_ok=True)
     rec = {"status": "running", "trial": asdict(trial), "command": trial.command(), "started": time.time()}
-    (out / "trial.json").write_text(json.dumps(rec, indent=2, default=str))
+    write_atomic(out / "trial.json", json.dumps(rec, indent=2, default=str))
     try:
         from agents.training import train_rl
-        (out / "hyperparams.yml").write_text(yaml.safe_dump({trial.env: dict(trial.hyperparams)}, sort_keys=False))
+        write_atomic(out / "hyperparams.yml", yaml.safe_dump({trial.env: dict(trial.hyperparams)}, sort_keys=False))
         cfg = train_rl(trial.env, trial.algo, out, timesteps=trial.timesteps, seed=trial.seed, n_envs=trial.n_envs,
                        env_kwargs=dict(trial.env_kwargs), config_file=out / "hyperparams.yml", progress=False)
         if METRIC not in cfg:
@@ -452,10 +455,10 @@ def run_trial(trial: Trial) -> dict:
         result = _result(cfg)
     except Exception as e:
         rec.update(status="error", error=f"{type(e).__name__}: {e}", traceback=traceback.format_exc())
-        (out / "trial.json").write_text(json.dumps(rec, indent=2, default=str))
+        write_atomic(out / "trial.json", json.dumps(rec, indent=2, default=str))
         raise
     rec.update(status="done", result=result)
-    (out / "trial.json").write_text(json.dumps(rec, indent=2, default=str))
+    write_atomic(out / "trial.json", json.dumps(rec, indent=2, default=str))
     return result
 
 
@@ -554,10 +557,11 @@ def write_tables(cfg: SweepConfig, root, rows: list[TrialRow]) -> None:
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
     dicts = [_row_dict(r) for r in rows]
-    with open(root / "sweep.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=FIELDS)
-        w.writeheader()
-        w.writerows(dicts)
+    buf = io.StringIO(newline="")
+    w = csv.DictWriter(buf, fieldnames=FIELDS)
+    w.writeheader()
+    w.writerows(dicts)
+    write_atomic(root / "sweep.csv", buf.getvalue())
     best = best_per_group(rows, cfg.direction)
     cmds = eval_commands(cfg, root, rows)
 
@@ -582,8 +586,8 @@ def write_tables(cfg: SweepConfig, root, rows: list[TrialRow]) -> None:
         lines += ["", "## Failed trials", ""]
         lines += [f"- `{r.trial.run_dir}`: {r.error} (traceback: `{r.trial.run_dir}/trial.json`)"
                   for r in rows if r.status == "error"]
-    (root / "sweep.md").write_text("\n".join(lines) + "\n")
-    (root / "sweep.json").write_text(json.dumps(
+    write_atomic(root / "sweep.md", "\n".join(lines) + "\n")
+    write_atomic(root / "sweep.json", json.dumps(
         {"source": cfg.source, "metric": METRIC, "trials": dicts, "eval_commands": cmds,
          "best": [{"group": list(g), "run_dir": r.trial.run_dir, METRIC: r.metric} for g, r in best.items()]},
         indent=2, default=str))

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from envs.json_io import dumps
+from envs.outputs import atomic_path, write_atomic
 
 from .policies import ALGOS, algo_class
 
@@ -158,7 +159,8 @@ class _SaveNormalization:
             def _on_step(self):
                 vn = self.model.get_vec_normalize_env()
                 if vn is not None:
-                    vn.save(str(path))
+                    with atomic_path(path) as tmp:
+                        vn.save(str(tmp))
                 return True
 
         return Save()
@@ -266,7 +268,7 @@ def train_rl(env_id: str, algo: str, out, timesteps: int | None = None, seed: in
     config = {"env": env_id, "algo": algo, "seed": seed, "env_kwargs": ekw, "policy": policy,
               "hyperparameters": hyper, **{k: v for k, v in settings.items() if k != "env_kwargs"},
               "train_seed_base": seed * 10_007, "eval_seed_base": EVAL_SEED_OFFSET + 1000 * seed}
-    (out / "config.json").write_text(dumps(config, indent=2, default=str))
+    write_atomic(out / "config.json", dumps(config, indent=2, default=str))
     t0 = time.perf_counter()
     try:
         model.learn(total_timesteps=settings["n_timesteps"], callback=CallbackList(callbacks))
@@ -274,9 +276,11 @@ def train_rl(env_id: str, algo: str, out, timesteps: int | None = None, seed: in
         wall = time.perf_counter() - t0
         venv.close()  # stops the world prefetch process (a sweep runs many of these in one process)
         eval_env.close()
-    model.save(str(out / "model.zip"))
+    with atomic_path(out / "model.zip") as tmp:
+        model.save(str(tmp))
     if settings["normalize"]:
-        venv.save(str(out / "vecnormalize.pkl"))
+        with atomic_path(out / "vecnormalize.pkl") as tmp:
+            venv.save(str(tmp))
     config["wall_time_s"] = wall
     config["env_steps_per_s"] = settings["n_timesteps"] / wall
     ev = out / "eval" / "evaluations.npz"
@@ -284,5 +288,5 @@ def train_rl(env_id: str, algo: str, out, timesteps: int | None = None, seed: in
         d = np.load(ev)
         config["eval_mean_reward_last"] = float(d["results"][-1].mean())
         config["eval_mean_reward_best"] = float(d["results"].mean(1).max())
-    (out / "config.json").write_text(dumps(config, indent=2, default=str))
+    write_atomic(out / "config.json", dumps(config, indent=2, default=str))
     return config

@@ -81,7 +81,8 @@ def tune_fixed_parameter(env_id: str, env_kwargs: dict | None = None, param: str
 def save_tuning(result: dict, path) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(dumps(result, indent=2))
+    from envs.outputs import write_atomic
+    write_atomic(path, dumps(result, indent=2))
     return path
 
 

@@ -49,6 +49,7 @@ import numpy as np
 
 from earth.rotations import dcm_from_euler
 from envs.json_io import jsonable
+from envs.outputs import atomic_path, write_atomic
 from envs.sim.imu import IMU_GRADES, Vibration, simulate_imu
 from envs.sim.rng import row_generators
 from envs.sim.trajectory import Cruise, Motion, SegmentPlan, Static, Turn, generate_truth
@@ -729,8 +730,9 @@ def train_zupt_detector(model: str, seed: int, out: Path, quick: bool = False, p
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     net, lc, hist = train_learned(lc, cfg, int(seed), progress=progress)
-    weights = save_weights(out / f"zupt_{model}.pt", lc, net,
-                           extra={"seed": int(seed), "train_config": jsonable(cfg.to_dict())})
+    weights = out / f"zupt_{model}.pt"
+    with atomic_path(weights) as tmp:
+        save_weights(tmp, lc, net, extra={"seed": int(seed), "train_config": jsonable(cfg.to_dict())})
     t1 = time.perf_counter()
     tuned = tune_classical(training_drives(cfg, seed, 10 ** 3 - 1, cfg.tune_drives), cfg)
     tune_s = time.perf_counter() - t1
@@ -762,7 +764,7 @@ def train_zupt_detector(model: str, seed: int, out: Path, quick: bool = False, p
         "wall_seconds": time.perf_counter() - t0,
     }
     metrics = jsonable(metrics)
-    (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    write_atomic(out / "metrics.json", json.dumps(metrics, indent=2))
     return metrics
 
 
@@ -833,7 +835,7 @@ if __name__ == "__main__":  # pragma: no cover - convenience; the CLI is `python
     if a.evaluate_shipped:
         a.out.mkdir(parents=True, exist_ok=True)
         m = evaluate_shipped(a.seed)
-        (a.out / "metrics_shipped.json").write_text(json.dumps(m, indent=2))
+        write_atomic(a.out / "metrics_shipped.json", json.dumps(m, indent=2))
         print(format_table(m))
         print("VN-310 static samples declared stationary: "
               + ", ".join(f"{k} {v:.4f}" for k, v in m["vn310_stationary_fraction"].items() if v is not None))

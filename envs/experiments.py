@@ -971,8 +971,9 @@ def run_experiment(name: str, episodes: int | None = None, seed: int = 0, out_di
     if out_dir is not None:
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
-        (out / f"{name}.json").write_text(json.dumps(jsonable(results), indent=2))
-        (out / f"{name}.md").write_text(report)
+        from .outputs import write_atomic
+        write_atomic(out / f"{name}.json", json.dumps(jsonable(results), indent=2))
+        write_atomic(out / f"{name}.md", report)
     return results, report
 
 

@@ -106,5 +106,5 @@ def write_truth_csv(path, gps_week, tow_s, r_e, comment: str | None = None) -> N
     out.append(TRUTH_CSV_HEADER)
     for w, t, r in zip(gps_week, np.asarray(tow_s, np.float64), r_e):
         out.append(f"{int(w)},{t:.6f},{r[0]:.4f},{r[1]:.4f},{r[2]:.4f}")
-    with open(path, "w", encoding="ascii") as fh:
-        fh.write("\n".join(out) + "\n")
+    from ..outputs import write_atomic
+    write_atomic(path, ("\n".join(out) + "\n").encode("ascii"))
