@@ -62,7 +62,8 @@ def ray_available() -> bool:
 
 def check_backend_args(backend: str, address: str | None = None, workers: int | None = None) -> None:
     """``ValueError`` naming the argument for an unknown backend, ``--address`` / ``--workers`` without
-    ``--backend ray`` or ``workers < 1``; :class:`BackendUnavailable` for ``ray`` without Ray installed."""
+    ``--backend ray`` or ``workers < 1``; :class:`BackendUnavailable` for ``ray`` without Ray installed, or an
+    ``address`` where no cluster answers (:func:`probe_ray_address`, within :data:`RAY_PROBE_TIMEOUT_S`)."""
     if backend not in BACKENDS:
         raise ValueError(f"--backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
     if workers is not None and workers < 1:
@@ -76,6 +77,8 @@ def check_backend_args(backend: str, address: str | None = None, workers: int | 
         if address is not None and not address.strip():
             raise ValueError("--address is empty (give 'auto' or HOST:PORT of the Ray head node)")
         require_ray()
+        if address is not None:
+            probe_ray_address(address)
 
 
 @dataclass(frozen=True)
@@ -172,6 +175,7 @@ class RayBackend:
             if address is None:
                 ray.init(num_cpus=workers or os.cpu_count(), **kw)
             else:
+                probe_ray_address(address)
                 try:
                     ray.init(address=address, **kw)
                 except (ConnectionError, RuntimeError, ValueError) as e:
@@ -305,6 +309,43 @@ def _tune_bookkeeping(key: str) -> bool:
 def _metrics(result) -> dict:
     """The dict a Tune trial function returned, from its ``ray.tune.Result`` (Tune's bookkeeping left out)."""
     return {k: v for k, v in (result.metrics or {}).items() if not _tune_bookkeeping(k)}
+
+
+RAY_PROBE_TIMEOUT_S = 10.0
+"""How long :func:`probe_ray_address` waits for a TCP connection to the cluster's address [s]."""
+
+
+def probe_ray_address(address: str, timeout_s: float = RAY_PROBE_TIMEOUT_S) -> None:
+    """:class:`BackendUnavailable` within ``timeout_s`` when nothing accepts a connection at the address
+    ``ray.init(address=...)`` would connect to.
+
+    ``ray.init`` retries an address where no cluster answers for minutes without a word (``127.0.0.1:1``: over
+    400 s); a TCP connection to the same host and port (Ray's own resolution of ``'auto'`` and of a local
+    address, :func:`ray._private.services.canonicalize_bootstrap_address`; ``ray://HOST:PORT`` as given)
+    fails at once when nothing listens, or after ``timeout_s`` when the host does not answer. A port that
+    accepts connections but is not a Ray cluster is not told apart here (``ray.init`` then reports it).
+    ``'auto'`` without a running cluster is left to ``ray.init``, which says so at once."""
+    import socket
+    target = address.strip()
+    if target.startswith("ray://"):
+        target = target[len("ray://"):].split("/", 1)[0]
+    else:
+        try:
+            from ray._private.services import canonicalize_bootstrap_address
+            target = canonicalize_bootstrap_address(target)
+        except Exception:  # noqa: BLE001 - Ray's own errors for this address come from ray.init, in one line
+            return
+        if target is None:
+            return
+    host, sep, port = target.rpartition(":")
+    if not sep or not port.isdigit():
+        raise BackendUnavailable(f"--address {address!r}: expected 'auto', HOST:PORT or ray://HOST:PORT")
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=timeout_s).close()
+    except OSError as e:
+        why = "no answer within {:g} s".format(timeout_s) if isinstance(e, TimeoutError) else (e.strerror or str(e))
+        raise BackendUnavailable(f"--address {address!r}: no Ray cluster answers at {host}:{port} ({why}); start "
+                                 "one with 'ray start --head' and give the address it prints") from None
 
 
 def make_backend(backend: str = "local", address: str | None = None, workers: int | None = None):

@@ -1,11 +1,14 @@
 """Backends without Ray: argument errors and the one-line install hint when Ray is missing; the local trial
 runner reports a failing trial and goes on."""
 import sys
+from pathlib import Path
 
 import pytest
 
 import eval as eval_cli
 from agents.backends import LocalBackend, TrialOutcome, check_backend_args
+
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _no_ray(monkeypatch):
@@ -59,3 +62,29 @@ def test_local_trials_report_a_failure_and_go_on(tmp_path):
     assert out == [TrialOutcome({"x": 1}, {"y": 2}, None),
                    TrialOutcome({"x": -1}, None, "ValueError: x must be >= 0, got -1"),
                    TrialOutcome({"x": 3}, {"y": 6}, None)]
+
+
+def _closed_port() -> int:
+    import socket
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]  # nothing listens there once the socket is closed
+
+
+@pytest.mark.parametrize("script", ["eval", "train"])
+def test_ray_address_where_no_cluster_answers_is_one_line_within_seconds(script, capsys, tmp_path):
+    """``ray.init`` retried such an address for over 400 s without a word; the address is probed up front."""
+    import time
+    pytest.importorskip("ray", reason="Ray is not installed (pip install 'navgym[distributed]')")
+    import train as train_cli
+    addr = f"127.0.0.1:{_closed_port()}"
+    out = tmp_path / "out"
+    argv = (["--scenario", "seed000-sim", "--methods", "kf", "--episodes", "1"] if script == "eval" else
+            ["sweep", "--config", str(ROOT / "configs" / "sweep.yml")]) + ["--backend", "ray", "--address", addr, "--out", str(out)]
+    t0 = time.perf_counter()
+    with pytest.raises(SystemExit) as e:
+        (eval_cli if script == "eval" else train_cli).main(argv)
+    assert e.value.code == 2 and time.perf_counter() - t0 < 30
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"{script}.py: error: --address '{addr}': no Ray cluster answers")
+    assert not out.exists()  # refused before anything was created
