@@ -124,13 +124,44 @@ def fail(msg: str):
     raise SystemExit(2)
 
 
-def check_out(out: Path) -> None:
+_MADE: list = []
+"""Output folders this run created (removed again when the run ends by an error or Ctrl-C and left them empty)."""
+
+
+def check_out(out: Path, owner: str = "--out") -> None:
     """Create the output folder, or exit with one line when it cannot be written (before any work)."""
     from envs.outputs import check_output_dir
+    existed = Path(out).exists()
     try:
-        check_output_dir(out)
+        check_output_dir(out, owner)
     except ValueError as e:
         fail(str(e))
+    if not existed:
+        _MADE.append(Path(out))
+
+
+def check_note(path: Path) -> None:
+    """``--note PATH`` before any work: one line when PATH is a folder or its folder cannot be created or
+    written (a parent is a file, no permission); the folder is created (removed again if the run fails)."""
+    if path.is_dir():
+        fail(f"--note {str(path)!r} is a directory; give the note's file name (e.g. {str(path / 'results.md')!r})")
+    check_out(path.parent, owner="--note's folder")
+
+
+def _preflight(sources: dict, seeds: list) -> None:
+    """Load every recorded scenario of ``sources`` ({result key: --scenario value}) once before any work, its
+    world for the first batch's ``seeds`` (kept for that batch, :func:`agents.eval_batches.world_for`): a data
+    problem (a damaged or implausible file, truth that does not overlap the observations, ...) is one line
+    naming the file, not a traceback after the simulated scenarios ran."""
+    from agents.eval_batches import world_for
+    from envs.datasets.spec import dataset_spec_of
+    for key, src in sources.items():
+        try:
+            if dataset_spec_of(src) is None:
+                continue
+            world_for(src, seeds)
+        except (ValueError, FileNotFoundError) as e:
+            fail(f"scenario {key!r}: {e}")
 
 
 def _split_methods(text: str) -> list[str]:
@@ -193,6 +224,25 @@ def _expand(specs: list[str], scenario: str, ref: str, skipped: list | None = No
 
 
 def main(argv=None) -> dict:
+    """The command line (module docstring); returns results.json's dict. Ctrl-C ends it with one line and exit
+    status 130; an output folder this run created and left empty is removed (after an error too)."""
+    from envs.outputs import remove_if_empty
+    _MADE.clear()
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:
+        gone = [d for d in _MADE if remove_if_empty(d)]
+        left = [d for d in _MADE if d not in gone and d.is_dir()]
+        print("eval.py: interrupted (Ctrl-C)" + (f"; {', '.join(map(str, left))} holds only the files written "
+                                                 "before it" if left else "; no results written"), file=sys.stderr)
+        raise SystemExit(130) from None
+    except BaseException:
+        for d in _MADE:
+            remove_if_empty(d)
+        raise
+
+
+def _main(argv=None) -> dict:
     args = build_parser().parse_args(argv)
     if args.episodes is not None and args.episodes < 1:
         fail("--episodes must be >= 1")
@@ -260,8 +310,11 @@ def main(argv=None) -> dict:
     from envs.metrics import paired_difference, summarize, summarize_seeds
     from envs.outputs import write_atomic
 
-    check_out(out)
     seeds = episode_seeds(args.seed, args.episodes)
+    _preflight(sources, seeds[:args.batch_size])
+    if args.note:
+        check_note(Path(args.note))
+    check_out(out)
     results = {"scenarios": {}, "seed_groups": {},
                "config": {"episodes": args.episodes, "seed": args.seed, "dtype": args.dtype, "zupt": args.zupt,
                           "goal": _parse_goals(args.goal),

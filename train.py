@@ -8,7 +8,9 @@
 
 ``rl`` writes ``runs/DIR/model.zip`` (stable-baselines3), ``config.json`` (the exact settings),
 ``vecnormalize.pkl`` (when observations are normalized), ``best/best_model.zip`` (best held-out
-evaluation; with its ``best/vecnormalize.pkl``), ``checkpoints/`` and ``logs/`` (CSV + tensorboard); eval.py takes
+evaluation; with its ``best/vecnormalize.pkl``), ``checkpoints/`` and ``logs/`` (CSV + tensorboard), and
+``INCOMPLETE`` while the training has not finished (after a Ctrl-C it says at which step it stopped and what was
+kept; Ctrl-C ends any subcommand with one line and exit status 130); eval.py takes
 any of the three models (``ppo:runs/DIR/best/best_model.zip``) with the statistics saved with it. ``tune`` writes ``runs/DIR/tuning.json``
 for ``eval.py --methods tuned:runs/DIR/tuning.json``. ``zupt`` writes the detector's weights and
 ``metrics.json``. ``sweep`` runs a grid / random or Optuna search of ``rl`` runs (:mod:`agents.sweep`; on Ray Tune with
@@ -48,9 +50,12 @@ def parse_env_kwargs(items) -> dict:
 def check_env_kwargs(env_id: str, kwargs: dict):
     """Validate env kwargs by building the env's config (one-line error, exit 2)."""
     from agents.rollout import env_class
+    from envs.core import check_method_has_params
     from envs.gnss_ins_env import make_config
+    cls = env_class(env_id)
     try:
-        make_config(env_class(env_id).DEFAULTS, kwargs)
+        cfg = make_config(cls.DEFAULTS, kwargs)
+        check_method_has_params(cfg.method, cls.PARAMS, cls.DEFAULTS["method"])
     except ValueError as e:
         fail(str(e))
 
@@ -121,8 +126,12 @@ def check_common(args) -> None:
     if Path(args.out).is_file():
         fail(f"--out {args.out!r} is a file, not a directory")
     if getattr(args, "timesteps", None) is not None:
+        from agents.training import MAX_TIMESTEPS
         if not (math.isfinite(args.timesteps) and args.timesteps >= 1):
             fail(f"--timesteps must be a finite number >= 1, got {args.timesteps!r}")
+        if args.timesteps > MAX_TIMESTEPS or args.timesteps != int(args.timesteps):
+            fail(f"--timesteps must be a whole number of steps <= {MAX_TIMESTEPS:.0e} (about 23 days at 5000 "
+                 f"env-steps/s), got {args.timesteps:g}")
     if getattr(args, "n_envs", None) is not None and args.n_envs < 1:
         fail(f"--n-envs must be >= 1, got {args.n_envs}")
     for name in ("n_train", "grid_size"):
@@ -131,16 +140,42 @@ def check_common(args) -> None:
             fail(f"--{name.replace('_', '-')} must be >= {2 if name == 'grid_size' else 1}, got {v}")
 
 
+_MADE: list = []
+"""Output folders this run created (removed again when the run ends by an error or Ctrl-C and left them empty)."""
+
+
 def check_out(out) -> None:
     """Create the output folder, or exit with one line when it cannot be written (before any work)."""
     from envs.outputs import check_output_dir
+    existed = Path(out).exists()
     try:
         check_output_dir(out)
     except ValueError as e:
         fail(str(e))
+    if not existed:
+        _MADE.append(Path(out))
 
 
 def main(argv=None):
+    """The command line (module docstring). Ctrl-C ends it with one line and exit status 130: ``rl`` marks its
+    run folder incomplete (:data:`agents.training.INCOMPLETE`; ``best/`` and ``checkpoints/`` are kept); an
+    output folder this run created and left empty is removed, after an error too."""
+    from envs.outputs import remove_if_empty
+    _MADE.clear()
+    try:
+        return _main(argv)
+    except KeyboardInterrupt as e:
+        for d in _MADE:
+            remove_if_empty(d)
+        print(f"train.py: interrupted{': ' + str(e) if str(e) else ' (Ctrl-C)'}", file=sys.stderr)
+        raise SystemExit(130) from None
+    except BaseException:
+        for d in _MADE:
+            remove_if_empty(d)
+        raise
+
+
+def _main(argv=None):
     args = build_parser().parse_args(argv)
     if args.cmd == "sweep":
         rows = sweep_cli(args)

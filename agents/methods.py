@@ -214,7 +214,7 @@ def parse_oracle_spec(spec: str) -> OracleMethod:
         if k == "method":
             from envs.core import check_method_has_params
             try:
-                check_method_has_params(v, env_class(env_id).PARAMS)
+                check_method_has_params(v, env_class(env_id).PARAMS, env_class(env_id).DEFAULTS["method"])
             except ValueError as e:
                 raise ValueError(f"{spec}: {e}") from None
             opts[k] = v

@@ -148,6 +148,8 @@ def _setup(env_id, env_kwargs, seeds, grid):
     cls = env_class(env_id)
     env_kwargs = dict(env_kwargs or {})
     cfg = make_config(cls.DEFAULTS, env_kwargs)
+    from envs.core import check_method_has_params
+    check_method_has_params(cfg.method, cls.PARAMS, cls.DEFAULTS["method"])
     if cfg.zupt not in ("none", "truth"):
         raise ValueError(f"the oracles branch the filter state, which the {cfg.zupt!r} zero-velocity detector's "
                          "stream state does not allow: use zupt='none' (or 'truth')")

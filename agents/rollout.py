@@ -43,7 +43,7 @@ def run_policy_episodes(env_id: str, env_kwargs: dict, policy, seeds, progress=N
     cfg = make_config(cls.DEFAULTS, env_kwargs)
     seeds = [int(s) for s in seeds]
     B = len(seeds)
-    core = TuningCore(cfg, cls.PARAMS, B)
+    core = TuningCore(cfg, cls.PARAMS, B, cls.DEFAULTS["method"])
     obs = core.reset_rows(np.arange(B), seeds)
     policy.reset(B)
     nis = np.zeros((B, core.M))

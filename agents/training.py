@@ -100,25 +100,93 @@ def load_zoo_config(path, env_id: str) -> dict:
     return dict(data[env_id])
 
 
+MAX_TIMESTEPS = 10 ** 10
+"""Most environment steps of one ``train.py rl`` run (``--timesteps``, ``n_timesteps``): about 23 days at the
+~5000 env-steps/s of PPO here; more is a typo (``1e30``), not a run."""
+
+HYPER_LIMITS = {
+    "n_steps": (1, None), "batch_size": (1, None), "n_epochs": (1, None), "buffer_size": (1, None),
+    "learning_starts": (0, None), "train_freq": (1, None), "policy_delay": (1, None),
+    "target_update_interval": (1, None), "stats_window_size": (1, None), "gamma": (0.0, 1.0),
+    "gae_lambda": (0.0, 1.0), "tau": (0.0, 1.0), "ent_coef": (0.0, None), "vf_coef": (0.0, None),
+    "target_policy_noise": (0.0, None), "target_noise_clip": (0.0, None), "learning_rate": (0.0, None),
+    "clip_range": (0.0, None), "clip_range_vf": (0.0, None), "max_grad_norm": (0.0, None), "target_kl": (0.0, None),
+    "gradient_steps": (-1, None), "sde_sample_freq": (-1, None)}
+"""Numeric hyperparameters of the SB3 algorithms and their ranges ``(low, high)`` (None: open), checked when the
+value is a number: counts >= 1, discounts and ``gae_lambda`` / ``tau`` in [0, 1], coefficients >= 0
+(``gradient_steps`` and ``sde_sample_freq`` take -1: "as many as steps" / "only at the start")."""
+
+
+def _type_name(ann) -> str:
+    """A readable form of a signature annotation (``int``, ``float | Callable[[float], float]``)."""
+    import re
+    return ann.__name__ if isinstance(ann, type) else re.sub(r"\b(?:[A-Za-z_]\w*\.)+(\w+)", r"\1", str(ann))
+
+
+def _accepts(v, ann) -> bool:
+    """Whether the YAML value ``v`` fits the annotation ``ann`` of an SB3 argument (unknown kinds: True)."""
+    import collections.abc
+    import inspect
+    import types
+    import typing
+    if ann is inspect.Parameter.empty or ann is typing.Any or isinstance(ann, (str, typing.ForwardRef)):
+        return True
+    origin = typing.get_origin(ann)
+    if origin in (typing.Union, types.UnionType):
+        return any(_accepts(v, a) for a in typing.get_args(ann))
+    simple = {type(None): v is None, bool: isinstance(v, bool), str: isinstance(v, str),
+              int: isinstance(v, int) and not isinstance(v, bool),
+              float: isinstance(v, (int, float)) and not isinstance(v, bool)}
+    if ann in simple:
+        return simple[ann]
+    if ann is dict or origin is dict:
+        return isinstance(v, dict)
+    if ann is tuple or origin is tuple:
+        return isinstance(v, (tuple, list))
+    if origin is type:
+        return isinstance(v, type)
+    if ann is collections.abc.Callable or origin is collections.abc.Callable:
+        return callable(v)
+    return isinstance(v, ann) if isinstance(ann, type) else True
+
+
 def check_hyperparameters(algo: str, hyper: dict, settings: dict, config_file=None) -> None:
-    """Before any work: every hyperparameter must be an argument of the algorithm's class, and the run
-    settings numbers; ``ValueError`` naming the config file (or the defaults) and the key otherwise."""
+    """Before any work: every hyperparameter must be an argument of the algorithm's class, of the type its
+    signature declares (``n_steps: 64.5`` or ``gamma: "high"`` are refused here, not by SB3's assertions after
+    the envs are built) and within :data:`HYPER_LIMITS`; the run settings whole numbers >= 1 (``n_timesteps`` at
+    most :data:`MAX_TIMESTEPS`); ``ValueError`` naming the config file (or the defaults) and the key otherwise."""
     import inspect
     src = f"{config_file}: " if config_file is not None else ""
-    known = {p for p in inspect.signature(algo_class(algo).__init__).parameters if not p.startswith("_")} - {"self", "env"}
+    sig = inspect.signature(algo_class(algo).__init__).parameters
+    known = {p for p in sig if not p.startswith("_")} - {"self", "env"}
     bad = sorted(set(hyper) - known)
     if bad:
         raise ValueError(f"{src}unknown hyperparameter(s) {', '.join(map(repr, bad))} for {algo}; known: "
                          f"{', '.join(sorted(known))} and the run settings n_timesteps, n_envs, normalize, "
                          "eval_freq, eval_episodes, env_kwargs, torch_threads, prefetch_worlds")
+    for k, v in hyper.items():
+        if not _accepts(v, sig[k].annotation):
+            raise ValueError(f"{src}{k} must be {_type_name(sig[k].annotation)} for {algo} (stable-baselines3's "
+                             f"signature), got {v!r}")
+        lo, hi = HYPER_LIMITS.get(k, (None, None))
+        if isinstance(v, (int, float)) and not isinstance(v, bool) and (
+                (lo is not None and v < lo) or (hi is not None and v > hi) or v != v):
+            raise ValueError(f"{src}{k} must be " + (f"in [{lo}, {hi}]" if hi is not None else f">= {lo}")
+                             + f", got {v!r}")
+    if algo in ("ppo", "recurrentppo") and hyper.get("normalize_advantage", True) and hyper.get("batch_size") == 1:
+        raise ValueError(f"{src}batch_size must be >= 2 for {algo} with normalize_advantage (the advantages of "
+                         "one sample cannot be normalized), got 1")
     for k in ("n_timesteps", "n_envs", "eval_freq", "eval_episodes"):
         v = settings[k]
         try:
             ok = not isinstance(v, bool) and float(v) >= 1 and float(v) == int(float(v))
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             ok = False
         if not ok:
             raise ValueError(f"{src}{k} must be a whole number >= 1, got {v!r}")
+    if float(settings["n_timesteps"]) > MAX_TIMESTEPS:
+        raise ValueError(f"{src}n_timesteps must be at most {MAX_TIMESTEPS:.0e} (about 23 days at 5000 env-steps/s), "
+                         f"got {settings['n_timesteps']!r}")
     if not isinstance(settings["normalize"], bool):
         raise ValueError(f"{src}normalize must be true or false, got {settings['normalize']!r}")
 
@@ -171,7 +239,7 @@ def train_rl(env_id: str, algo: str, out, timesteps: int | None = None, seed: in
              progress: bool = True, eval_episodes: int | None = None) -> dict:
     """Train ``algo`` on ``env_id``; writes ``out/model.zip`` and ``out/config.json``; returns the config."""
     import envs  # noqa: F401
-    from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback, EvalCallback
+    from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
     from stable_baselines3.common.logger import configure
     from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
 
@@ -240,7 +308,13 @@ def train_rl(env_id: str, algo: str, out, timesteps: int | None = None, seed: in
     set_torch_threads(settings["torch_threads"])
     cls = algo_class(algo)
     policy = hyper.pop("policy")
-    model = cls(policy, venv, seed=seed, device="cpu", verbose=0, **hyper)
+    try:
+        model = cls(policy, venv, seed=seed, device="cpu", verbose=0, **hyper)
+    except (AssertionError, ValueError, TypeError) as e:  # what the checks above cannot see (combinations)
+        venv.close()
+        eval_env.close()
+        raise ValueError(f"{config_file or 'hyperparameters'}: stable-baselines3 refused the {algo} hyperparameters "
+                         f"({type(e).__name__}: {' '.join(str(e).split())})") from None
     # SB3 seeds the env it is given with the algorithm's seed (BaseAlgorithm.set_random_seed: env.seed(seed)), which
     # made the training worlds of seed s + 1 those of seed s shifted by one row: the training env keeps its own base
     venv.seed(seed * 10_007)
@@ -269,9 +343,11 @@ def train_rl(env_id: str, algo: str, out, timesteps: int | None = None, seed: in
               "hyperparameters": hyper, **{k: v for k, v in settings.items() if k != "env_kwargs"},
               "train_seed_base": seed * 10_007, "eval_seed_base": EVAL_SEED_OFFSET + 1000 * seed}
     write_atomic(out / "config.json", dumps(config, indent=2, default=str))
+    write_atomic(out / INCOMPLETE, f"training started {time.strftime('%Y-%m-%d %H:%M:%S')} and has not finished "
+                                   "(this file is removed when it does)\n")
     t0 = time.perf_counter()
     try:
-        model.learn(total_timesteps=settings["n_timesteps"], callback=CallbackList(callbacks))
+        _learn(model, settings["n_timesteps"], callbacks, out, config)
     finally:
         wall = time.perf_counter() - t0
         venv.close()  # stops the world prefetch process (a sweep runs many of these in one process)
@@ -288,5 +364,40 @@ def train_rl(env_id: str, algo: str, out, timesteps: int | None = None, seed: in
         d = np.load(ev)
         config["eval_mean_reward_last"] = float(d["results"][-1].mean())
         config["eval_mean_reward_best"] = float(d["results"].mean(1).max())
+    config["status"] = "complete"
     write_atomic(out / "config.json", dumps(config, indent=2, default=str))
+    (out / INCOMPLETE).unlink(missing_ok=True)
     return config
+
+
+INCOMPLETE = "INCOMPLETE"
+"""The file in a run folder whose training has not finished: written when the training starts, its text replaced
+by what was kept at a Ctrl-C (:class:`TrainingInterrupted`), removed when the training ends normally."""
+
+
+class TrainingInterrupted(KeyboardInterrupt):
+    """Ctrl-C during :func:`train_rl`: the run folder is marked incomplete (its ``INCOMPLETE`` file and
+    ``config.json``'s ``status``); the message names the folder, the step reached and what was kept."""
+
+
+def _learn(model, n_timesteps: int, callbacks: list, out: Path, config: dict) -> None:
+    """``model.learn`` with the callbacks; at a Ctrl-C the progress bar is closed, ``config.json`` gets
+    ``status: interrupted`` and ``completed_timesteps``, ``INCOMPLETE`` says what is kept (``best/``,
+    ``checkpoints/``: written by the callbacks as the training went) and :class:`TrainingInterrupted` is raised."""
+    from stable_baselines3.common.callbacks import CallbackList
+    try:
+        model.learn(total_timesteps=n_timesteps, callback=CallbackList(callbacks))
+    except KeyboardInterrupt:
+        for cb in callbacks:
+            bar = getattr(cb, "bar", None)
+            if bar is not None:
+                bar.close()
+        done = int(model.num_timesteps)
+        kept = [f"{d}/" for d in ("best", "checkpoints") if (out / d).is_dir() and any((out / d).iterdir())]
+        stale = " (the model.zip here is an earlier run's)" if (out / "model.zip").exists() else ""
+        text = (f"training interrupted (Ctrl-C) at step {done} of {n_timesteps}: model.zip not written{stale}; "
+                f"kept: {', '.join(kept) or 'nothing trained yet'}")
+        config.update(status="interrupted", completed_timesteps=done)
+        write_atomic(out / "config.json", dumps(config, indent=2, default=str))
+        write_atomic(out / INCOMPLETE, text + "\n")
+        raise TrainingInterrupted(f"{out} is incomplete: {text}") from None

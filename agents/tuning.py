@@ -50,6 +50,8 @@ def tune_fixed_parameter(env_id: str, env_kwargs: dict | None = None, param: str
     env_kwargs = dict(env_kwargs or {})
     cls = env_class(env_id)
     cfg = make_config(cls.DEFAULTS, env_kwargs)
+    from envs.core import check_method_has_params
+    check_method_has_params(cfg.method, cls.PARAMS, cls.DEFAULTS["method"])
     specs = {s.name: s for s in cls.PARAMS}
     param = param or cls.PARAMS[0].name
     if param not in specs:

@@ -37,6 +37,10 @@ WORLD_BYTES_PER_IMU_SAMPLE = 400
 1 Hz; ``open-sky`` and ``urban``, 60 s), plus the env core's copies of the IMU samples and the truth."""
 MAX_HISTORY = 64
 """Most stacked observation frames (64 x 25 floats per row)."""
+MIN_DIVERGENCE_BOUND_M = 50.0
+"""Smallest ``divergence_bound_m`` [m]: above the initial position errors of every scenario (``seed000-sim``
+starts 10 m off on each ECEF axis, about 14 m horizontally) and the tens of metres a code-based filter wanders in a
+street canyon; a bound below it ends healthy episodes at their first epochs as "diverged"."""
 
 
 @dataclass(frozen=True)
@@ -139,7 +143,8 @@ class EnvConfig:
     fused_update : ``True`` (default): the fused compiled predict + Joseph update of ``kf`` and the adaptive
         laws' fast kernels (same equations, different rounding); ``False``: the form computes as the
         navigator's default does. The defaults of the two make the fastest configuration (issue 11).
-    divergence_bound_m : horizontal error [m] beyond which an episode terminates as diverged.
+    divergence_bound_m : horizontal error [m] beyond which an episode terminates as diverged (at least
+        :data:`MIN_DIVERGENCE_BOUND_M`).
     """
 
     scenario: object = "noise-burst"
@@ -175,6 +180,9 @@ class EnvConfig:
                 continue
             if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"EnvConfig.{f} must be a positive finite number, got {v!r}")
+        if self.divergence_bound_m < MIN_DIVERGENCE_BOUND_M:
+            raise ValueError(f"EnvConfig.divergence_bound_m must be >= {MIN_DIVERGENCE_BOUND_M:g} m (a smaller bound "
+                             f"ends healthy episodes at their first epochs as diverged), got {self.divergence_bound_m!r}")
         if not isinstance(self.method, str):
             raise ValueError(f"EnvConfig.method must be a string, got {self.method!r}")
         scen = self.resolve_scenario()  # validates scenario, imu_grade, gnss_rate_hz

@@ -49,21 +49,48 @@ def check_batch_size(n, name: str = "num_envs") -> int:
     return int(n)
 
 
-def check_method_has_params(method: str, specs) -> None:
+def check_method_has_params(method: str, specs, env_method: str | None = None) -> None:
     """``ValueError`` at construction when the filter ``method`` cannot take the parameters ``specs`` the env's
-    action sets (``kf`` in the Sage-Husa env, ``stkf`` in the MA-STKF env, ...), naming the methods that can."""
-    from nav_filters.registry import FORMS, law_params
+    action sets (``kf`` in the Sage-Husa env, ``stkf`` in the MA-STKF env, ...), naming the methods that can;
+    with ``env_method`` (the env's own method, its ``DEFAULTS``) also when ``method`` runs another adaptive law
+    (:func:`check_method_law`)."""
+    from nav_filters.registry import FORMS, law_class, law_params
     need = {s.name for s in specs}
 
     def params(name):
         return {p.name for p in law_params(name)}
 
     if not need <= params(method):
-        fits = [m for m in sorted(FORMS) if need <= params(m)]
+        fits = [m for m in sorted(FORMS) if need <= params(m)
+                and (env_method is None or law_class(m) is law_class(env_method))]
         have = sorted(params(method))
         raise ValueError(f"method {method!r} does not take the parameter(s) {', '.join(sorted(need))} this env sets "
                          f"({'its parameters: ' + ', '.join(have) if have else 'it has no adjustable parameters'}); "
                          f"methods that do: {', '.join(fits)} (optionally with '+onestep')")
+    if env_method is not None:
+        check_method_law(method, env_method)
+
+
+def check_method_law(method: str, env_method: str) -> None:
+    """``ValueError`` when ``method`` runs another adaptive law than ``env_method``, the env's own method.
+
+    A parameter of the same name means another thing in another law: ``GnssIns/STKF-v0`` sets the strong-tracking
+    softening of ``stkf``; ``ma-stkf`` takes a ``softening`` too, but there it scales the fading factor beside its
+    own ``b`` and ``fading_scale``, which the env would leave at their defaults while calling the result
+    tuned. The methods of the env's law (its forms, ``+fde``, ``+onestep``) are accepted."""
+    from nav_filters.registry import FORMS, law_class
+    own, law = law_class(env_method), law_class(method)
+    if own is None or law is own:
+        return
+    import envs
+    from . import gnss_ins_env
+    home = [i for i, (single, _) in envs.ENV_IDS.items()
+            if law is not None and law_class(getattr(gnss_ins_env, single).DEFAULTS["method"]) is law]
+    fits = [m for m in sorted(FORMS) if law_class(m) is own]
+    raise ValueError(f"method {method!r} runs another adaptive law ({getattr(law, '__name__', 'none')}) than this "
+                     f"env's {env_method!r} ({own.__name__}), whose parameters its action sets; methods of this env: "
+                     f"{', '.join(fits)} (optionally with '+fde' and/or '+onestep')"
+                     + (f"; {method!r} has its own env: {', '.join(home)}" if home else ""))
 
 
 def draw_world_seed(rng: np.random.Generator) -> int:
@@ -332,15 +359,18 @@ class TuningCore:
     config : EnvConfig
     specs : the filter parameters the action sets (one action component each).
     batch_size : B.
+    env_method : the env's own method (its ``DEFAULTS``): ``config.method`` must run the same adaptive law
+        (:func:`check_method_law`); None: any method that takes ``specs``.
     """
 
-    def __init__(self, config: EnvConfig, specs: tuple[ParamSpec, ...], batch_size: int):
+    def __init__(self, config: EnvConfig, specs: tuple[ParamSpec, ...], batch_size: int,
+                 env_method: str | None = None):
         check_batch_size(batch_size, "batch_size")
         self.config = config
         self.specs = tuple(specs)
         self.B = int(batch_size)
         self.scenario = config.resolve_scenario()
-        check_method_has_params(config.method, self.specs)
+        check_method_has_params(config.method, self.specs, env_method)
         self.k = len(self.specs)
         self.frame_dim = self.k + len(OBS_FEATURES)
         self.obs_dim = self.frame_dim * config.history

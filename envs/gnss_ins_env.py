@@ -94,7 +94,9 @@ resets ahead in a background process at the lowest CPU priority (the same episod
 Limits (a ``ValueError`` naming the argument at construction): ``episode_length_s`` at most
 :data:`envs.config.MAX_EPISODE_S` (3600 s: the world is generated whole at reset), ``history`` at most
 :data:`envs.config.MAX_HISTORY` (64), the vector env's ``num_envs`` an int in [1, :data:`envs.core.MAX_BATCH`]
-(16384), ``prefetch_worlds`` an int >= 0; numbers must not be bools; ``method`` must take this env's parameters. Actions must be real numbers
+(16384), ``prefetch_worlds`` an int >= 0, ``divergence_bound_m`` at least :data:`envs.config.MIN_DIVERGENCE_BOUND_M`
+(50 m); numbers must not be bools; ``method`` must run this env's adaptive law (its forms, ``+fde``, ``+onestep``:
+``ma-stkf`` takes a ``softening`` too, but it is not the STKF env's; :func:`envs.core.check_method_law`). Actions must be real numbers
 (complex, string, bool or object arrays are refused); a NaN or inf action names the first rows and the count.
 
 ## Version History
@@ -171,7 +173,7 @@ class GnssInsTuningEnv(gym.Env):
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
         self.config = make_config(self.DEFAULTS, kwargs)
         self.render_mode = render_mode
-        self.core = TuningCore(self.config, self.PARAMS, 1)
+        self.core = TuningCore(self.config, self.PARAMS, 1, self.DEFAULTS["method"])
         k = self.core.k
         self.action_space = spaces.Box(-1.0, 1.0, shape=(k,), dtype=np.float32)
         self.observation_space = spaces.Box(self.core.obs_low, self.core.obs_high, dtype=np.float32)

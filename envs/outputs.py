@@ -80,3 +80,14 @@ def write_atomic(path, data) -> Path:
         with open(tmp, "wb") as fh:
             fh.write(raw)
     return path
+
+
+def remove_if_empty(path) -> bool:
+    """Remove the folder ``path`` if it exists and is empty (a run's output folder that ended with nothing in
+    it); whether it was removed."""
+    p = Path(path)
+    try:
+        p.rmdir()  # only an empty folder
+    except OSError:
+        return False
+    return True

@@ -15,7 +15,8 @@ imports only navgym's envs and loads the compiled kernels from numba's cache, a 
 resets draw their own worlds. It talks pickles over its stdin / stdout (the results as pickle protocol 5 with
 out-of-band buffers: the arrays' bytes go through the pipe once, into receive buffers reused from one reset
 to the next, which the reset copies out), and exits when its stdin closes (this process closing it or
-ending). It holds up to ``depth`` prepared worlds, about a fifth of a world each
+ending). It ignores SIGINT and runs in a session of its own: a Ctrl-C reaches the main process only, which
+decides what to say (no traceback from the worker). It holds up to ``depth`` prepared worlds, about a fifth of a world each
 (:class:`~envs.prepared.PreparedWorld`; ~0.4 MB per row of a 60 s episode at 100 Hz). POSIX only (it polls
 the pipe with ``select``).
 
@@ -122,11 +123,14 @@ def _worker() -> None:  # pragma: no cover - runs in the worker process (covered
     out: queue.Queue = queue.Queue()
 
     def write():  # results leave while the next world is drawn (the main process reads at its resets)
-        while True:
-            for obj in out.get():
-                for part in _frame(obj):
-                    fout.write(part)
-            fout.flush()
+        try:
+            while True:
+                for obj in out.get():
+                    for part in _frame(obj):
+                        fout.write(part)
+                fout.flush()
+        except OSError:  # the main process is gone (closed its end): nothing to report, nobody to read it
+            os._exit(0)
 
     threading.Thread(target=write, daemon=True).start()
     out.put([("ready",)])
@@ -181,8 +185,13 @@ class WorldPrefetcher:
             raise ValueError(f"prefetch_worlds: the env's config cannot be sent to the worker process ({exc}); "
                              f"use prefetch_worlds=0 with this scenario") from exc
         env = dict(os.environ, PYTHONPATH=os.pathsep.join([_ROOT] + [p for p in [os.environ.get("PYTHONPATH")] if p]))
-        cmd = [sys.executable, "-c", "from envs.prefetch import _worker; _worker()", os.getcwd()]
-        self._proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env, cwd=_ROOT, bufsize=0)
+        # Ctrl-C is the main process's to handle: the worker runs in a session of its own (the terminal's SIGINT
+        # goes to the foreground process group only) and ignores SIGINT from its first line (a traceback per
+        # worker otherwise); it ends when the main process closes its input or dies
+        cmd = [sys.executable, "-c", "import signal; signal.signal(signal.SIGINT, signal.SIG_IGN); "
+               "from envs.prefetch import _worker; _worker()", os.getcwd()]
+        self._proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env, cwd=_ROOT, bufsize=0,
+                                      start_new_session=True)
         try:  # Linux: a 1 MB pipe instead of 64 KB, fewer wake-ups of the (nice 19) writer per world
             import fcntl
             fcntl.fcntl(self._proc.stdout.fileno(), getattr(fcntl, "F_SETPIPE_SZ", 1031), 1 << 20)

@@ -47,7 +47,7 @@ class GnssInsTuningVectorEnv(VectorEnv):
             raise ValueError(f"prefetch_worlds must be an int >= 0 (worlds drawn ahead; 0: off), got "
                              f"{prefetch_worlds!r}")
         self.config = make_config(self.DEFAULTS, kwargs)
-        self.core = TuningCore(self.config, self.PARAMS, self.num_envs)
+        self.core = TuningCore(self.config, self.PARAMS, self.num_envs, self.DEFAULTS["method"])
         self._ahead = [deque() for _ in range(self.num_envs)]  # each row's next world seeds, drawn early
         self._prefetch = None
         if prefetch_worlds:

@@ -105,6 +105,15 @@ def make_form(method: str, P0, x0=None, dtype=None) -> FilterForm:
     return method_factory(base)(P0, x0=x0, dtype=dtype)
 
 
+def law_class(method: str):
+    """The adaptive law class a method runs (for ``+fde``, the wrapped method's; ``+onestep`` ignored), or None
+    for a plain form or a robust screen without a law of parameters."""
+    f = method_factory(parse_method(method)[0])
+    while getattr(f, "law", None) is FaultExclusion:
+        f = f.inner
+    return getattr(f, "law", None)
+
+
 def law_params(method: str) -> tuple:
     """The adaptive parameters (:class:`~nav_filters.adaptive.ParamSpec`) a method takes through
     ``form.set_params``: its law's (for ``+fde``, the wrapped method's), ``()`` for a plain form."""
@@ -116,4 +125,4 @@ def law_params(method: str) -> tuple:
 
 
 __all__ = ["FORMS", "PLAIN_FORMS", "ADAPTIVE_METHODS", "ROBUST_METHODS", "FDE_SUFFIX", "ONESTEP_SUFFIX", "parse_method", "method_factory",
-           "make_form", "law_params"]
+           "make_form", "law_params", "law_class"]

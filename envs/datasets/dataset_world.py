@@ -28,6 +28,7 @@ from earth import ecef_to_geodetic
 
 from ..sim.world import World
 from .epochs import SYSTEM_LETTERS, SYSTEM_NAMES, GnssEpochs
+from .errors import DatasetFormatError
 from .spec import DatasetSpec, ReplayScenario
 from .spline_truth import fit_positions
 from .truth_readers import TruthTrack, read_truth
@@ -222,9 +223,9 @@ def _prepare_rinex_cached(spec: DatasetSpec, stamp) -> PreparedRecording:
     t_rel = truth.t - ep.t0_gps
     inside = (ep.t >= t_rel[0]) & (ep.t <= t_rel[-1])
     if not inside.any():
-        raise ValueError(f"{spec.truth.file or spec.path}: the truth spans GPS time of week "
-                         f"[{truth.t[0]:.1f}, {truth.t[-1]:.1f}] s, the observations "
-                         f"[{ep.t0_gps:.1f}, {ep.t0_gps + ep.t[-1]:.1f}] s: no overlap")
+        raise DatasetFormatError(spec.truth.file or spec.path, None, f"the truth spans GPS time of week "
+                                 f"[{truth.t[0]:.1f}, {truth.t[-1]:.1f}] s, the observations "
+                                 f"[{ep.t0_gps:.1f}, {ep.t0_gps + ep.t[-1]:.1f}] s: no overlap")
     if not inside.all():
         note(f"{int((~inside).sum())} of {ep.n_epochs} observation epochs lie outside the truth's span "
              f"(GPS time of week [{truth.t[0]:.1f}, {truth.t[-1]:.1f}] s): not replayed")

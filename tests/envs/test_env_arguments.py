@@ -1,5 +1,7 @@
 """Environment arguments and actions that a demanding user gets wrong (issue 13): each is a ValueError at
 construction (or at the step) naming the argument, never a hang, a silent conversion or a late failure."""
+import re
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -22,7 +24,11 @@ FAST = dict(episode_length_s=5.0)
     (dict(history=10**6), f"history must be an int in [1, {MAX_HISTORY}] (stacked frames), got 1000000"),
     (dict(history=2.0), "history must be an int"),
     (dict(method="kf"), "method 'kf' does not take the parameter(s) b this env sets (it has no adjustable "
-                        "parameters); methods that do: ma-stkf, sage-husa"),
+                        "parameters); methods that do: sage-husa, sage-husa-group, sage-husa-r, svd-akf, svd-asrkf"),
+    (dict(method="ma-stkf"), "method 'ma-stkf' runs another adaptive law (MeasurementAdaptiveSTKF) than this env's "
+                             "'sage-husa' (SageHusa)"),
+    (dict(divergence_bound_m=1e-9), "EnvConfig.divergence_bound_m must be >= 50 m (a smaller bound ends healthy "
+                                    "episodes at their first epochs as diverged), got 1e-09"),
     (dict(method="stkf+onestep"), "method 'stkf+onestep' does not take the parameter(s) b this env sets (its "
                                   "parameters: rho, softening)"),
     (dict(scenario="mars"), "unknown scenario 'mars'; known: " + ", ".join(scenario_names())),
@@ -42,6 +48,18 @@ def test_method_of_another_env_fails_at_construction_not_at_reset():
     with pytest.raises(ValueError, match="methods that do: ma-stkf"):
         gym.make_vec("GnssIns/MASTKF-v0", num_envs=2, vectorization_mode="vector_entry_point", method="sage-husa")
     gym.make("GnssIns/MASTKF-v0", method="ma-stkf+onestep", **FAST)  # its own method, with the suffix, is fine
+
+
+@pytest.mark.parametrize("env_id, method", [("GnssIns/STKF-v0", "ma-stkf"), ("GnssIns/SageHusa-v0", "ma-stkf+fde")])
+def test_a_method_of_another_law_is_refused_even_when_it_has_a_parameter_of_that_name(env_id, method):
+    """ma-stkf takes a 'softening' and a 'b' too, with another meaning: the env would tune the wrong knob."""
+    for make in (lambda: gym.make(env_id, method=method, **FAST),
+                 lambda: gym.make_vec(env_id, num_envs=2, vectorization_mode="vector_entry_point", method=method)):
+        with pytest.raises(ValueError, match=rf"method '{re.escape(method)}' runs another adaptive law "
+                                             r"\(MeasurementAdaptiveSTKF\).*has its own env: GnssIns/MASTKF-v0"):
+            make()
+    gym.make("GnssIns/STKF-v0", method="stkf+fde", **FAST)                 # the env's own law, with suffixes
+    gym.make("GnssIns/SageHusa-v0", method="svd-asrkf+onestep", **FAST)
 
 
 @pytest.mark.parametrize("n", [2.7, "3", 10**7, MAX_BATCH + 1, True, 0, -1, None])

@@ -118,10 +118,10 @@ def test_sweep_writes_run_folders_and_tables(sweep):
 def test_failing_trial_is_reported_and_the_sweep_goes_on(sweep):
     d, rows = sweep
     bad = rows[2]
-    assert bad["eval_mean_reward_last"] == "" and "AssertionError" in bad["error"] and "batch_size" in bad["error"]
+    assert bad["eval_mean_reward_last"] == "" and "ValueError" in bad["error"] and "batch_size" in bad["error"]
     rec = json.loads((d / "out" / bad["run_dir"] / "trial.json").read_text())
     assert rec["status"] == "error" and "Traceback" in rec["traceback"]
-    assert f"`{bad['run_dir']}`: AssertionError" in (d / "out" / "sweep.md").read_text()
+    assert f"`{bad['run_dir']}`: ValueError" in (d / "out" / "sweep.md").read_text()
 
 
 def test_resume_does_not_redo_finished_trials(sweep):

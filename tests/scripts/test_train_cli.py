@@ -67,7 +67,7 @@ def test_tune_writes_a_tuning_file_that_eval_reads(tmp_path):
     (("tune", "--n-train", "0", "--out", "x"), "--n-train must be >= 1"),
     (("tune", "--grid-size", "0", "--out", "x"), "--grid-size must be >= 2"),
     (("tune", "--env-kwargs", "method=kf", "episode_length_s=5", "--n-train", "1", "--grid-size", "2", "--out", "x"),
-     "method 'kf' has no parameters to set"),
+     "method 'kf' does not take the parameter(s) b this env sets"),
     (("rl", "--out", "README.md"), "is a file, not a directory"),
 ])
 def test_train_cli_errors(args, msg):
