@@ -33,7 +33,9 @@ def fail(msg: str):
 
 
 def parse_env_kwargs(items) -> dict:
-    """``key=value`` strings -> dict; values parsed as YAML scalars (numbers, booleans, strings)."""
+    """``key=value`` strings -> dict; values parsed as YAML scalars (numbers, booleans, strings), and an exponent
+    number YAML 1.1 leaves a string (``1e-9``, ``5e3``) as a float."""
+    import re
     import yaml
     out = {}
     for item in items or []:
@@ -41,9 +43,12 @@ def parse_env_kwargs(items) -> dict:
             fail(f"--env-kwargs expects key=value, got {item!r}")
         k, v = item.split("=", 1)
         try:
-            out[k.strip()] = yaml.safe_load(v)
+            val = yaml.safe_load(v)
         except yaml.YAMLError:
             fail(f"--env-kwargs: cannot parse the value of {k!r}: {v!r}")
+        if isinstance(val, str) and re.fullmatch(r"[+-]?(\d+\.?\d*|\.\d+)[eE][+-]?\d+", val.strip()):
+            val = float(val)
+        out[k.strip()] = val
     return out
 
 

@@ -83,6 +83,23 @@ def files(tmp_path_factory):
     f["hp_kwargs"] = root / "hp_kwargs.yml"
     (root / "hp_steps.yml").write_text("GnssIns/SageHusa-v0:\n  n_timesteps: lots\n")
     f["hp_steps"] = root / "hp_steps.yml"
+    for name, text in (("hp_float_steps", "n_steps: 64.5"), ("hp_negative_steps", "n_steps: -5"),
+                       ("hp_gamma_text", "gamma: high"), ("hp_gamma_range", "gamma: 1.5"),
+                       ("hp_batch_one", "batch_size: 1"), ("hp_huge", "n_timesteps: 1.0e+30"),
+                       ("hp_kwargs_type", "policy_kwargs: [64, 64]")):
+        (root / f"{name}.yml").write_text(f"GnssIns/SageHusa-v0:\n  {text}\n")
+        f[name] = root / f"{name}.yml"
+    (root / "notedir").mkdir()
+    f["notedir"] = root / "notedir"
+    reach = shared_data_dir() / "instinct_tckf_static"
+    if (reach / "reach-m2-01_raw_202306291111.nav").is_file():
+        (root / "late_truth.csv").write_text("gps_week,tow_s,x_m,y_m,z_m\n" + "".join(
+            f"2268,{390000 + i}.0,4157198.0,671195.0,4774772.0\n" for i in range(10)))  # an hour after the recording
+        (root / "late.toml").write_text(
+            f'name = "late"\n[gnss]\nformat = "rinex"\nobs = "{reach / "reach-m2-01_raw_202306291111.23O"}"\n'
+            f'nav = ["{reach / "reach-m2-01_raw_202306291111.nav"}"]\nsystems = ["G"]\ninterval_s = 1.0\n'
+            f'[truth]\nformat = "navgym-csv"\nfile = "{root / "late_truth.csv"}"\n[imu]\nsource = "synthesized"\n')
+        f["late_spec"], f["late_truth"] = root / "late.toml", root / "late_truth.csv"
     src = shared_data_dir() / "smartloc"
     if src.is_dir():
         dd = root / "damaged_data" / "smartloc"
@@ -133,6 +150,30 @@ PROBES = [
     ("train", ["tune", "--n-train", "1", "--grid-size", "2", "--out", "{afile}/sub"], "afile", "cannot write there"),
     ("train", ["zupt", "--model", "mlp", "--out", "{afile}/sub"], "afile", "cannot write there"),
     ("train", ["zupt", "--model", "mlp", "--seed", "-1"], None, "--seed must be >= 0"),
+    # the "front door" probes: checked up front, one line (SB3's AssertionError, a traceback after the run, or
+    # silently accepted before)
+    ("train", ["rl", "--config", "{hp_float_steps}", "--timesteps", "32"], "hp_float_steps",
+     "n_steps must be int for ppo (stable-baselines3's signature), got 64.5"),
+    ("train", ["rl", "--config", "{hp_negative_steps}", "--timesteps", "32"], "hp_negative_steps",
+     "n_steps must be >= 1, got -5"),
+    ("train", ["rl", "--config", "{hp_gamma_text}", "--timesteps", "32"], "hp_gamma_text", "gamma must be float"),
+    ("train", ["rl", "--config", "{hp_gamma_range}", "--timesteps", "32"], "hp_gamma_range",
+     "gamma must be in [0.0, 1.0], got 1.5"),
+    ("train", ["rl", "--config", "{hp_batch_one}", "--timesteps", "32"], "hp_batch_one", "batch_size must be >= 2"),
+    ("train", ["rl", "--config", "{hp_kwargs_type}", "--timesteps", "32"], "hp_kwargs_type",
+     "policy_kwargs must be dict"),
+    ("train", ["rl", "--config", "{hp_huge}"], "hp_huge", "n_timesteps must be at most 1e+10"),
+    ("train", ["rl", "--timesteps", "1e30"], None, "--timesteps must be a whole number of steps <= 1e+10"),
+    ("train", ["rl", "--timesteps", "100.5"], None, "--timesteps must be a whole number of steps"),
+    ("train", ["rl", "--env", "GnssIns/STKF-v0", "--env-kwargs", "method=ma-stkf"], None,
+     "method 'ma-stkf' runs another adaptive law (MeasurementAdaptiveSTKF) than this env's 'stkf'"),
+    ("train", ["tune", "--env", "GnssIns/STKF-v0", "--env-kwargs", "method=ma-stkf"], None,
+     "'ma-stkf' has its own env: GnssIns/MASTKF-v0"),
+    ("train", ["rl", "--env-kwargs", "divergence_bound_m=1e-9"], None, "divergence_bound_m must be >= 50 m"),
+    ("eval", ["--methods", "kf", *E, "--note", "{afile}/note.md"], "afile", "is a file, not a directory"),
+    ("eval", ["--methods", "kf", *E, "--note", "{notedir}"], "notedir", "is a directory; give the note's file name"),
+    ("eval", ["--methods", "kf", "--scenario", "{late_spec}", "--episodes", "1", "--no-plots"], "late_truth",
+     "no overlap"),
 ]
 
 
@@ -143,6 +184,8 @@ def test_bad_file_one_line_naming_it_exit_2(files, script, argv, culprit, msg, c
         if "damaged_data" not in files:
             pytest.skip(f"no smartLoc data under {shared_data_dir()}")
         monkeypatch.setenv("NAVGYM_DATA_DIR", str(files["damaged_data"]))
+    if any("{late" in a for a in argv) and "late_spec" not in files:
+        pytest.skip(f"no Reach M2 RINEX data under {shared_data_dir()}")
     args = [a.format(**{k: v for k, v in files.items() if v is not None}) for a in argv]
     if "--out" not in args:
         args += ["--out", str(files["out"] / f"{script}{len(os.listdir(files['out'].parent))}")]
