@@ -31,7 +31,7 @@ key, with examples, is ``docs/datasets.md``; in short::
     format = "navgym-csv"                 # a reader of envs.datasets.truth_readers (TRUTH_FORMATS)
     file = "truth.csv"
 
-    [imu]
+    [imu]                                 # optional: without it, the defaults below, said in one printed line
     source = "synthesized"                # from the truth with a named grade, or "recorded": a CSV with its
     grade = "industrial"                  #   column map, units and mounting (envs.datasets.recorded_imu)
     rate_hz = 100.0
@@ -349,9 +349,27 @@ def load_dataset_spec(path) -> DatasetSpec:
                            tropo=r.bool(corr_t, "corrections.tropo", True))
     truth = _truth(r, r.table(doc, "truth", required=True), gnss)
     imu = _imu(r, r.table(doc, "imu"))
+    if "imu" not in doc:
+        _tell_imu_default(path, name, imu)
     odometry = _odometry(r, doc, gnss)
     return DatasetSpec(name=name, path=path, gnss=gnss, truth=truth, imu=imu, corrections=corr,
                        description=r.str(doc, "description", default=""), odometry=odometry)
+
+
+_IMU_DEFAULT_TOLD: set = set()
+"""Spec files whose missing ``[imu]`` section was reported in this process (once each)."""
+
+
+def _tell_imu_default(path: Path, name: str, imu: ImuSpec) -> None:
+    """One line on stderr, once per spec file and process: a spec without ``[imu]`` gets the documented default
+    IMU (:class:`ImuSpec`'s defaults), which decides the filter's process noise and the synthesized sensor."""
+    if path in _IMU_DEFAULT_TOLD:
+        return
+    _IMU_DEFAULT_TOLD.add(path)
+    import sys
+    print(f"navgym dataset {name}: {path} has no [imu] section: the IMU is synthesized from the truth, "
+          f"{imu.grade} grade at {imu.rate_hz:g} Hz (the documented default; add an [imu] section to choose)",
+          file=sys.stderr, flush=True)
 
 
 def _gnss(r: "_Reader", t: dict) -> GnssSpec:

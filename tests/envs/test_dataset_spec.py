@@ -282,3 +282,20 @@ def test_galileo_with_its_own_nav_file_and_every_drop_rule(tmp_path, capsys):
     with pytest.raises(ValueError, match="no GPS satellite with a C1W observation"):
         prepare_rinex(nosig)
     assert "GPS: 11 satellites observed without C1W: dropped" in capsys.readouterr().err
+
+
+def test_a_spec_without_imu_section_says_the_default_it_takes_once(tmp_path, capsys):
+    """The [imu] section decides the filter's process noise: its absence is a documented default, said in one line
+    (once per spec file and process), never taken silently; a spec with the section says nothing."""
+    from envs.datasets.spec import ImuSpec
+    p = tmp_path / "noimu.toml"
+    p.write_text(BASE.format(gnss="", rest=""))
+    s = load_dataset_spec(p)
+    load_dataset_spec(p)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert s.imu == ImuSpec() and len(err) == 1, err
+    assert err[0] == (f"navgym dataset x: {p.resolve()} has no [imu] section: the IMU is synthesized from the truth, "
+                      "industrial grade at 100 Hz (the documented default; add an [imu] section to choose)")
+    q = tmp_path / "withimu.toml"
+    q.write_text(BASE.format(gnss="", rest='[imu]\ngrade = "industrial"\n'))
+    assert load_dataset_spec(q).imu == s.imu and capsys.readouterr().err == ""
