@@ -26,7 +26,7 @@ from .rinex import NavData, ObsData, load_nav, load_obs
 
 __all__ = ["CACHE_VERSION", "cache_dir", "file_digest", "cached_obs", "cached_nav"]
 
-CACHE_VERSION = 1
+CACHE_VERSION = 2
 """Bumped whenever the loaders' output for the same input changes."""
 
 

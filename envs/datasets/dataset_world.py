@@ -226,6 +226,7 @@ def _prepare_rinex_cached(spec: DatasetSpec, stamp) -> PreparedRecording:
         raise DatasetFormatError(spec.truth.file or spec.path, None, f"the truth spans GPS time of week "
                                  f"[{truth.t[0]:.1f}, {truth.t[-1]:.1f}] s, the observations "
                                  f"[{ep.t0_gps:.1f}, {ep.t0_gps + ep.t[-1]:.1f}] s: no overlap")
+    _check_truth_near_spp(spec, ep, truth)
     if not inside.all():
         note(f"{int((~inside).sum())} of {ep.n_epochs} observation epochs lie outside the truth's span "
              f"(GPS time of week [{truth.t[0]:.1f}, {truth.t[-1]:.1f}] s): not replayed")
@@ -234,6 +235,32 @@ def _prepare_rinex_cached(spec: DatasetSpec, stamp) -> PreparedRecording:
         note(f"{int(empty.sum())} of {int(inside.sum())} epochs have no usable satellite (mask, signals, "
              f"ephemerides)")
     return PreparedRecording(epochs=ep, truth=truth, week_ref=obs.week_ref, notes=tuple(notes))
+
+
+def _check_truth_near_spp(spec: DatasetSpec, ep: GnssEpochs, truth: TruthTrack) -> None:
+    """The truth against the recording's own single-point solution
+    (:func:`envs.datasets.plausibility.check_truth_near_spp`), naming the truth file and its first row, or for a
+    static truth the spec file's line of its position key."""
+    from .plausibility import check_truth_near_spp
+    opts = dict(spec.truth.options)
+    if spec.truth.file is None:
+        key = next(k for k in ("position_llh", "position_ecef") if k in opts)
+        where, line = spec.path, _key_line(spec.path, key)
+        value = f"truth.{key} = {list(opts[key])}"
+    else:
+        where, line = spec.truth.file, None if truth.lines is None else int(truth.lines[0])
+        value = f"the truth rows from ({', '.join(f'{x:.3f}' for x in truth.r_e[0])}) m"
+    check_truth_near_spp(ep, truth.t - ep.t0_gps, truth.r_e, where, line, value)
+
+
+def _key_line(path, key: str) -> int | None:
+    """The 1-based line of the first ``key = ...`` of a TOML file (None when not found)."""
+    import re
+    try:
+        text = path.read_text(encoding="utf-8").splitlines()
+    except (OSError, UnicodeDecodeError):
+        return None
+    return next((i for i, ln in enumerate(text, start=1) if re.match(rf"\s*{re.escape(key)}\s*=", ln)), None)
 
 
 def _check_doppler(obs, spec, note) -> None:

@@ -62,6 +62,12 @@ GYRO_UNITS = {"rad/s": 1.0, "deg/s": math.pi / 180.0}
 """Gyro unit -> its size [rad/s]."""
 
 
+ACCEL_MAX_MPS2 = 50 * 9.80665
+"""Largest specific force a recorded IMU sample may hold [m/s^2] (50 g; navigation IMUs measure up to 16-30 g)."""
+GYRO_MAX_RPS = 35.0
+"""Largest angular rate a recorded IMU sample may hold [rad/s] (2000 deg/s, the widest MEMS gyro range)."""
+
+
 def check_imu_options(opts: dict) -> None:
     """Validate the recorded-IMU keys (module docstring, without ``file``'s existence); ``ValueError('<key>:
     <message>')`` with the key relative to ``[imu]``."""
@@ -141,6 +147,15 @@ def read_imu_csv(spec, week_ref: int):
     C_bs = mounting_dcm(opts)
     f_s = np.stack([num["fx"], num["fy"], num["fz"]], -1) * ACCEL_UNITS[opts.get("accel_unit", "m/s^2")]
     w_s = np.stack([num["wx"], num["wy"], num["wz"]], -1) * GYRO_UNITS[opts.get("gyro_unit", "rad/s")]
+    for roles, x, limit, unit in ((("fx", "fy", "fz"), f_s, ACCEL_MAX_MPS2, "m/s^2"),
+                                  (("wx", "wy", "wz"), w_s, GYRO_MAX_RPS, "rad/s")):
+        over = np.abs(x) > limit
+        if over.any():
+            i, k = np.unravel_index(int(np.argmax(over)), over.shape)
+            raise DatasetFormatError(path, where[i], f"{cols[roles[k]]!r}: {float(num[roles[k]][i])!r} ({x[i, k]:.6g} {unit}) is "
+                                                     f"beyond any navigation IMU's range ({limit:g} {unit}): "
+                                                     f"check {'accel_unit' if unit == 'm/s^2' else 'gyro_unit'} or "
+                                                     f"the file")
     return t, f_s @ C_bs.T, w_s @ C_bs.T
 
 

@@ -149,7 +149,8 @@ def load_obs(path, systems=("G", "E", "C"), interval_s: float | None = None, tli
     path = require_file(path)
     systems = _check_systems(systems)
     sig = {s: tuple((signals or {}).get(s, SIGNALS[s][0])) for s in systems}
-    layout = scan_rinex_obs(path)  # the file's structure, before a parser may skip damage (issue 13)
+    # the file's structure, before a parser may skip damage (issue 13), and the plausibility of the codes used
+    layout = scan_rinex_obs(path, codes=sig, doppler=doppler)
     gr = _georinex()
     meas = sorted({p + c[1:] for s in systems for c in sig[s] for p in ("CSD" if doppler else "CS")})
     kw = {}

@@ -40,7 +40,11 @@ A missing file raises ``FileNotFoundError`` naming it; a truncated file (last
 line without its line end), a corrupted line (wrong column count, a token that
 is not a finite number, a value out of its range, time going backwards) or an
 unknown row type raise :class:`~envs.datasets.errors.DatasetFormatError`
-naming the file and the line.
+naming the file and the line. So does a physically impossible value
+(:mod:`envs.datasets.plausibility`): a pseudorange no receiver clock common to
+its epoch explains, a satellite or the ground truth jumping faster than it can
+move, an odometry speed no vehicle reaches, a C/N0 above 80 dB-Hz, or a ground
+truth more than 1 km from the recording's own single-point solution.
 """
 from __future__ import annotations
 
@@ -53,6 +57,9 @@ import numpy as np
 from .epochs import SYS_BEIDOU, SYS_GALILEO, SYS_GLONASS, SYS_GPS, SYS_QZSS, SYS_SBAS, GnssEpochs, pack_epochs, \
     satellite_velocities
 from .errors import DatasetFormatError, require_file, shared_data_dir
+from .plausibility import (CLOCK_MAX_M, CN0_MAX_DBHZ, INTER_SYSTEM_MARGIN_M, RECEIVER_SPEED_MAX_MPS, SAT_SPEED_MAX_MPS,
+                           TRUTH_SPEED_MAX_MPS, check_track_speed, check_truth_near_spp, common_offset_outliers,
+                           range_window)
 from .validate import check_smartloc
 
 __all__ = ["SmartLocPseudoranges", "SmartLocOdometry", "SmartLocGroundTruth", "SmartLocData", "load_smartloc",
@@ -65,6 +72,8 @@ _N_NUMBERS = {"pseudorange3": 10, "odom3": 13, "point3": 13}
 _INPUT_TYPES = ("pseudorange3", "odom3")
 _GT_TYPES = ("point3",)
 _SYSTEMS = (SYS_GPS, SYS_SBAS, SYS_GLONASS, SYS_GALILEO, SYS_QZSS, SYS_BEIDOU)
+ODOMETRY_TURN_RATE_MAX_RPS = 10.0
+"""Largest recorded turn rate of the vehicle [rad/s] (a car turns below 1 rad/s)."""
 
 
 @dataclass(frozen=True)
@@ -260,10 +269,40 @@ def _read_rows(path: Path, types: tuple) -> dict:
     return out
 
 
-def _check(path, a, ln, cond, what):
+def _check(path, a, ln, cond, what, col=None):
+    """``DatasetFormatError`` at the first row where ``cond`` is False (with ``col``: naming its value)."""
     if not np.all(cond):
         j = int(np.argmin(cond))
-        raise DatasetFormatError(path, ln[j], what)
+        raise DatasetFormatError(path, ln[j], what if col is None else f"{what}, got {float(a[j, col])!r}")
+
+
+def _plausible_pseudoranges(path, a, ln, rs) -> None:
+    """Each epoch's pseudoranges against what the orbits and one common receiver clock allow
+    (:mod:`envs.datasets.plausibility`): the first row that no clock of its epoch explains is named."""
+    lo, hi = range_window(rs)
+    b_lo, b_hi = a[:, 1] - hi, a[:, 1] - lo                     # the receiver clock bias each row allows [m]
+    bad, clock = common_offset_outliers(a[:, 0], b_lo - INTER_SYSTEM_MARGIN_M, b_hi + INTER_SYSTEM_MARGIN_M)
+    far = (b_lo > CLOCK_MAX_M) | (b_hi < -CLOCK_MAX_M)
+    if not (bad | far).any():
+        return
+    j = int(np.argmax(bad | far))
+    why = (f"a receiver clock bias beyond {CLOCK_MAX_M / 1e3:.0f} km (1 s)" if far[j] else
+           f"a receiver clock bias of {b_lo[j] / 1e3:.6g} to {b_hi[j] / 1e3:.6g} km, but the other pseudoranges of "
+           f"its epoch agree on {clock[j] / 1e3:.6g} km")
+    raise DatasetFormatError(path, ln[j], f"pseudorange3: pseudorange {float(a[j, 1])!r} m of satellite {int(a[j, 6])} "
+                                          f"(system {int(a[j, 7])}) is impossible: its satellite, {rs[j] / 1e3:.0f} km "
+                                          f"from the Earth's centre, lies {lo[j] / 1e3:.0f}-{hi[j] / 1e3:.0f} km from "
+                                          f"any receiver on the Earth, which leaves {why}")
+
+
+def _plausible_satellite_tracks(path, a, ln) -> None:
+    """Each satellite's recorded positions move at most :data:`SAT_SPEED_MAX_MPS` between its rows."""
+    key = a[:, 7] * 1000 + a[:, 6]
+    for k in np.unique(key):
+        rows = np.flatnonzero(key == k)
+        check_track_speed(path, a[rows, 0], a[rows, 3:6], ln[rows],
+                          f"pseudorange3: satellite {int(a[rows[0], 6])} (system {int(a[rows[0], 7])})",
+                          SAT_SPEED_MAX_MPS)
 
 
 def _pseudoranges(path, a, ln) -> SmartLocPseudoranges:
@@ -277,6 +316,10 @@ def _pseudoranges(path, a, ln) -> SmartLocPseudoranges:
     _check(path, a, ln, np.isin(a[:, 7], _SYSTEMS), f"pseudorange3: system must be one of {list(_SYSTEMS)}")
     _check(path, a, ln, np.abs(a[:, 8]) <= 90.0, "pseudorange3: elevation must be within [-90, 90] deg")
     _check(path, a, ln, a[:, 9] >= 0, "pseudorange3: C/N0 must be >= 0")
+    _check(path, a, ln, a[:, 9] <= CN0_MAX_DBHZ, f"pseudorange3: C/N0 must be <= {CN0_MAX_DBHZ:g} dB-Hz (GNSS signals "
+                                                f"arrive below 55 dB-Hz)", col=9)
+    _plausible_pseudoranges(path, a, ln, rs)
+    _plausible_satellite_tracks(path, a, ln)
     return SmartLocPseudoranges(t=a[:, 0].copy(), pr=a[:, 1].copy(), pr_var=a[:, 2].copy(), sat_pos=a[:, 3:6].copy(),
                                 sat_id=a[:, 6].astype(np.int64), system=a[:, 7].astype(np.int64),
                                 elevation_deg=a[:, 8].copy(), cn0_dbhz=a[:, 9].copy(), line=ln)
@@ -284,6 +327,11 @@ def _pseudoranges(path, a, ln) -> SmartLocPseudoranges:
 
 def _odometry(path, a, ln) -> SmartLocOdometry:
     _check(path, a, ln, np.all(a[:, 7:13] >= 0, axis=1), "odom3: variances must be >= 0")
+    speed = np.linalg.norm(a[:, 1:4], axis=1)
+    _check(path, a, ln, speed <= RECEIVER_SPEED_MAX_MPS, f"odom3: velocity must be at most {RECEIVER_SPEED_MAX_MPS:g} "
+                                                         f"m/s (a vehicle)", col=1)
+    _check(path, a, ln, np.linalg.norm(a[:, 4:7], axis=1) <= ODOMETRY_TURN_RATE_MAX_RPS,
+           f"odom3: turn rate must be at most {ODOMETRY_TURN_RATE_MAX_RPS:g} rad/s (a vehicle)", col=6)
     return SmartLocOdometry(t=a[:, 0].copy(), velocity=a[:, 1:4].copy(), turn_rate=a[:, 4:7].copy(),
                             velocity_var=a[:, 7:10].copy(), turn_rate_var=a[:, 10:13].copy(), line=ln)
 
@@ -293,6 +341,7 @@ def _ground_truth(path, a, ln) -> SmartLocGroundTruth:
     _check(path, a, ln, (rr > 6.2e6) & (rr < 6.5e6), "point3: position is not near the Earth's surface")
     if a.shape[0] > 1:
         _check(path, a[1:], ln[1:], np.diff(a[:, 0]) > 0, "point3: time stamps must be strictly increasing")
+    check_track_speed(path, a[:, 0], a[:, 1:4], ln, "point3: the ground truth", TRUTH_SPEED_MAX_MPS)
     return SmartLocGroundTruth(t=a[:, 0].copy(), r_e=a[:, 1:4].copy(), line=ln)
 
 
@@ -327,4 +376,7 @@ def load_smartloc(folder=None, name: str = POTSDAMER_PLATZ) -> SmartLocData:
     if pr.t[0] < gt.t[0] or pr.t[-1] > gt.t[-1]:
         raise DatasetFormatError(gtp, None, f"ground truth spans [{gt.t[0]}, {gt.t[-1]}] s but the pseudoranges "
                                             f"span [{pr.t[0]}, {pr.t[-1]}] s: truncated ground truth")
-    return SmartLocData(name=name, input_path=inp, gt_path=gtp, pseudoranges=pr, odometry=od, ground_truth=gt)
+    data = SmartLocData(name=name, input_path=inp, gt_path=gtp, pseudoranges=pr, odometry=od, ground_truth=gt)
+    check_truth_near_spp(data.epochs(systems=tuple(int(s) for s in np.unique(pr.system))), gt.t, gt.r_e, gtp,
+                         int(gt.line[0]), f"point3 rows from ({', '.join(f'{x:.3f}' for x in gt.r_e[0])}) m")
+    return data

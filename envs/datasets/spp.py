@@ -160,6 +160,21 @@ def _ranges(sat_pos, r):
         return range_and_rate(sat_pos, np.zeros_like(sat_pos), r, np.zeros_like(r))
 
 
+def _solve(A, b, solvable):
+    """``A^-1 b`` per epoch; an epoch whose ``A`` is singular (degenerate geometry) gets a zero step and leaves
+    ``solvable`` (in place) instead of failing every epoch with ``LinAlgError``."""
+    try:
+        return np.linalg.solve(A, b[..., None])[..., 0]
+    except np.linalg.LinAlgError:
+        dx = np.zeros_like(b)
+        for n in np.flatnonzero(solvable):
+            try:
+                dx[n] = np.linalg.solve(A[n], b[n])
+            except np.linalg.LinAlgError:
+                solvable[n] = False
+        return dx
+
+
 def _gauss_newton(sat_pos, pr, used, sigma, onehot, r, max_iter, tol_m):
     """Gauss-Newton iterations of the weighted least squares (Groves eqs 9.30-9.35, weighted)."""
     N, C, S = onehot.shape
@@ -177,10 +192,11 @@ def _gauss_newton(sat_pos, pr, used, sigma, onehot, r, max_iter, tol_m):
         H = np.where(used[..., None], np.concatenate([-u, onehot], -1), 0.0)  # (N, C, 3 + S)
         Hw = H * w[..., None]
         A = Hw.mT @ H + np.eye(3 + S) * pin[:, None, :]
-        A[~solvable] = np.eye(3 + S)
         b = (Hw.mT @ np.where(used, dz, 0.0)[..., None])[..., 0]
+        solvable &= np.isfinite(A).all((-2, -1)) & np.isfinite(b).all(-1)   # an epoch whose iterates diverged
+        A[~solvable] = np.eye(3 + S)
         b[~solvable] = 0.0
-        dx = np.linalg.solve(A, b[..., None])[..., 0]
+        dx = _solve(A, b, solvable)
         r = r + dx[:, :3]
         clk = clk + dx[:, 3:]
         step = np.linalg.norm(dx[:, :3], axis=-1)

@@ -26,7 +26,7 @@ import numpy as np
 from .ephemeris import WEEK_S
 from .errors import DatasetFormatError, require_file
 
-__all__ = ["TRUTH_CSV_HEADER", "load_truth_csv", "write_truth_csv"]
+__all__ = ["TRUTH_CSV_HEADER", "load_truth_csv", "read_truth_csv_rows", "write_truth_csv"]
 
 TRUTH_CSV_HEADER = "gps_week,tow_s,x_m,y_m,z_m"
 
@@ -43,6 +43,12 @@ def load_truth_csv(path, week_ref: int):
     -------
     t : (G,) GPS seconds since the start of week ``week_ref``; r_e : (G, 3) ECEF [m].
     """
+    t, r, _ = read_truth_csv_rows(path, week_ref)
+    return t, r
+
+
+def read_truth_csv_rows(path, week_ref: int):
+    """:func:`load_truth_csv` and the 1-based line of each row: ``(t, r_e, lines (G,) int64)``."""
     path = require_file(path)
     text = path.read_text(encoding="ascii", errors="replace")
     lines = text.split("\n")
@@ -87,7 +93,7 @@ def load_truth_csv(path, week_ref: int):
     if back.any():
         j = int(np.argmax(back)) + 1
         raise DatasetFormatError(path, where[j], "time does not increase")
-    return t, a[:, 2:5].copy()
+    return t, a[:, 2:5].copy(), np.asarray(where, np.int64)
 
 
 def _is_float(x: str) -> bool:

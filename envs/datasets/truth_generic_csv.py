@@ -256,4 +256,4 @@ def read_csv_truth(spec, week_ref: int, span):
         v_n = np.stack([num["vn"], num["ve"], num["vd"]], -1)
         v = (C_en(lat, lon) @ v_n[..., None])[..., 0]
     rpy = np.stack([num["roll"], num["pitch"], num["yaw"]], -1) * ang if "roll" in num else None
-    return TruthTrack(t=t, r_e=np.asarray(r, np.float64), v_e=v, rpy=rpy, source=str(path))
+    return TruthTrack(t=t, r_e=np.asarray(r, np.float64), v_e=v, rpy=rpy, source=str(path), lines=where)

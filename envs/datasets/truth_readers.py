@@ -44,6 +44,7 @@ class TruthTrack:
     v_e : (G, 3) ECEF velocity [m/s] or None.
     rpy : (G, 3) roll, pitch, yaw of the body in NED [rad] or None.
     source : str, the file or description.
+    lines : (G,) int64 1-based line of each row in its file, or None (no file, or a reader that does not say).
     """
 
     t: np.ndarray
@@ -51,6 +52,7 @@ class TruthTrack:
     v_e: np.ndarray | None = None
     rpy: np.ndarray | None = None
     source: str = ""
+    lines: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -71,9 +73,9 @@ def _no_options(opts: dict) -> None:
 
 
 def _read_navgym_csv(spec, week_ref: int, span) -> TruthTrack:
-    from .truth_csv import load_truth_csv
-    t, r = load_truth_csv(spec.file, week_ref)
-    return TruthTrack(t=t, r_e=r, source=str(spec.file))
+    from .truth_csv import read_truth_csv_rows
+    t, r, lines = read_truth_csv_rows(spec.file, week_ref)
+    return TruthTrack(t=t, r_e=r, source=str(spec.file), lines=lines)
 
 
 def _static_attitude(opts: dict):
@@ -127,7 +129,7 @@ def _read_smartloc(spec, week_ref: int, span) -> TruthTrack:
     from .smartloc import load_smartloc
     folder, name = spec.file.parent, spec.file.name[:-len("_GT.txt")]
     gt = load_smartloc(folder, name).ground_truth
-    return TruthTrack(t=gt.t, r_e=gt.r_e, source=str(spec.file))
+    return TruthTrack(t=gt.t, r_e=gt.r_e, source=str(spec.file), lines=gt.line)
 
 
 def _read_csv(spec, week_ref: int, span) -> TruthTrack:
@@ -163,5 +165,12 @@ def read_truth(spec, week_ref: int, span) -> TruthTrack:
     spec : TruthSpec. week_ref : GPS week the returned times count from.
     span : (t_first, t_last) GPS times of the observations [s since the start of ``week_ref``] (the static
         truth spans them; other readers use it to resolve a 10-bit GPS week).
+
+    A truth read from a file moves at most :data:`~envs.datasets.plausibility.TRUTH_SPEED_MAX_MPS` between its
+    rows (``DatasetFormatError`` naming the file and the line otherwise).
     """
-    return TRUTH_FORMATS[spec.format].read(spec, int(week_ref), span)
+    from .plausibility import TRUTH_SPEED_MAX_MPS, check_track_speed
+    track = TRUTH_FORMATS[spec.format].read(spec, int(week_ref), span)
+    if spec.file is not None:
+        check_track_speed(spec.file, track.t, track.r_e, track.lines, "the truth", TRUTH_SPEED_MAX_MPS)
+    return track

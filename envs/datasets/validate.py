@@ -10,6 +10,9 @@ checked against the file:
   file with its satellite lines and well-formed observation fields, epochs in time order; every navigation
   record with the line count of its system and numeric fields) and return what the parser must then deliver;
   :func:`check_obs_parsed` / :func:`check_nav_parsed` compare (epochs, records).
+* the values: the pseudoranges (and Doppler) of the signals a loader uses against what the orbits and one
+  receiver clock per epoch allow, and every GPS / Galileo / BeiDou broadcast parameter against the range of its
+  ICD field (:mod:`envs.datasets.plausibility`): a physically impossible value names its line too;
 * :func:`check_smartloc` cross-checks the smartLoc files: the pseudorange, odometry and ground-truth spans
   agree both ways (a file cut at a line end is shorter), and no pseudorange or odometry row is repeated.
 
@@ -31,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import DatasetFormatError
+from .plausibility import NAV_FIELDS, check_rinex_epochs, icd_violation
 
 __all__ = ["RinexObsLayout", "RinexNavLayout", "scan_rinex_obs", "scan_rinex_nav", "check_obs_parsed",
            "check_nav_parsed", "check_smartloc", "SPAN_TOLERANCE_S"]
@@ -134,15 +138,48 @@ def _obs_types(path: Path, labels: dict) -> dict:
     return out
 
 
-def scan_rinex_obs(path) -> RinexObsLayout:
+def _obs_type_names(labels: dict) -> dict:
+    """System letter -> its observation type names in file order (``SYS / # / OBS TYPES``, continuation lines
+    included; the counts are :func:`_obs_types`')."""
+    out, cur = {}, None
+    for _, ln in labels.get("SYS / # / OBS TYPES", []):
+        if ln[0] != " ":
+            cur = ln[0]
+            out[cur] = []
+        if cur is not None:
+            out[cur] += ln[7:60].split()
+    return out
+
+
+def _plausibility_fields(labels: dict, codes: dict | None, doppler: bool) -> dict:
+    """System letter -> [(index, observable)] of the code observations ``codes`` ({letter: (code, ...)}) and, with
+    ``doppler``, their Doppler observations, to be checked for plausibility."""
+    if not codes:
+        return {}
+    names = _obs_type_names(labels)
+    out = {}
+    for letter, cs in codes.items():
+        have = names.get(letter, [])
+        want = list(cs) + (["D" + c[1:] for c in cs] if doppler else [])
+        out[letter] = [(have.index(o), o) for o in want if o in have]
+    return out
+
+
+def scan_rinex_obs(path, codes: dict | None = None, doppler: bool = False) -> RinexObsLayout:
     """Read the structure of a RINEX 3 observation file (module docstring); ``DatasetFormatError`` naming the
-    file and line at the first flaw. RINEX 2 files get the header checks only (their epoch layout differs)."""
+    file and line at the first flaw. RINEX 2 files get the header checks only (their epoch layout differs).
+
+    With ``codes`` ({system letter: code observables}, what the loader uses) those pseudoranges, and with
+    ``doppler`` their Doppler, are also checked against what the orbits and one receiver clock per epoch allow
+    (:func:`envs.datasets.plausibility.check_rinex_epochs`)."""
     path = Path(path)
     lines = _lines(path)
     labels, end = _header(path, lines, "O")
     if float(lines[0][:9]) < 3:
         return RinexObsLayout(epochs=np.zeros(0), systems=np.zeros(0, str), header_end=end)
     ntypes = _obs_types(path, labels)
+    fields = _plausibility_fields(labels, codes, doppler)
+    values: list = []  # (epoch index, line, satellite, observable, value) for the plausibility check
     epochs, present = [], []
     i, n = end, len(lines)  # i: 0-based index of the next line
     while i < n:
@@ -159,6 +196,8 @@ def scan_rinex_obs(path) -> RinexObsLayout:
                     raise DatasetFormatError(path, i + 1, f"epoch record announces {count} satellites, the file ends "
                                                           f"after {k}: truncated")
                 _check_sat_line(path, j + 1, lines[j], ntypes)
+                if flag <= 1:
+                    _collect(values, len(epochs), j + 1, lines[j], fields)
             if flag <= 1:
                 t = _epoch_seconds(*m.groups()[:6])
                 if epochs and t <= epochs[-1]:
@@ -171,7 +210,17 @@ def scan_rinex_obs(path) -> RinexObsLayout:
         i += 1 + count
     if not epochs:
         raise DatasetFormatError(path, None, "no observation epoch after the header")
+    check_rinex_epochs(path, values)
     return RinexObsLayout(epochs=np.asarray(epochs), systems=np.asarray(present), header_end=end)
+
+
+def _collect(values: list, epoch: int, lineno: int, ln: str, fields: dict) -> None:
+    """Append the checked observations of a satellite line (:func:`_plausibility_fields`) to ``values``."""
+    sat = ln[:3].replace(" ", "0")
+    for k, o in fields.get(ln[0], ()):
+        f = ln[3 + 16 * k:3 + 16 * k + 14].strip()
+        if f and float(f) != 0.0:  # RINEX 3.04 5.7: a missing observation is blank or 0.0
+            values.append((epoch, lineno, sat, o, float(f)))
 
 
 def _check_sat_line(path, lineno, ln, ntypes):
@@ -194,19 +243,28 @@ def _check_sat_line(path, lineno, ln, ntypes):
             raise DatasetFormatError(path, lineno, f"{sat} observation {k + 1}: LLI/SSI {flags!r} are not digits")
 
 
-def _nav_number(path, lineno, field):
+def _nav_number(path, lineno, field, sv: str = "", place: tuple | None = None):
+    """The number in a navigation field (None when blank); ``DatasetFormatError`` when it is not one, or when the
+    broadcast parameter at ``place`` (line of the record, field: :data:`~envs.datasets.plausibility.NAV_FIELDS`)
+    of satellite ``sv`` is outside its ICD range."""
     s = field.strip()
     if not s:
-        return
+        return None
     try:
-        float(s.replace("D", "E").replace("d", "e"))
+        v = float(s.replace("D", "E").replace("d", "e"))
     except ValueError:
         raise DatasetFormatError(path, lineno, f"{s!r} is not a number") from None
+    name = NAV_FIELDS.get(place) if place is not None else None
+    msg = icd_violation(sv[:1], name, v) if name is not None else None
+    if msg is not None:
+        raise DatasetFormatError(path, lineno, f"{sv} record: {msg}")
+    return v
 
 
 def scan_rinex_nav(path) -> RinexNavLayout:
     """Read the structure of a RINEX 3 navigation file (module docstring); ``DatasetFormatError`` naming the
-    file and line at the first flaw."""
+    file and line at the first flaw, or at a GPS / Galileo / BeiDou broadcast parameter outside the range of its
+    ICD field (:data:`envs.datasets.plausibility.ICD_RANGES`)."""
     path = Path(path)
     lines = _lines(path)
     _, end = _header(path, lines, "N")
@@ -220,8 +278,9 @@ def scan_rinex_nav(path) -> RinexNavLayout:
         if not m or ln[0] not in NAV_CONTINUATION_LINES:
             raise DatasetFormatError(path, i + 1, f"expected the first line of a navigation record "
                                                   f"('G01 yyyy mm dd hh mm ss ...'), got {ln[:40]!r}")
+        sv = m.group(1).replace(" ", "0")
         for k in range(3):
-            _nav_number(path, i + 1, ln[23 + 19 * k:42 + 19 * k])
+            _nav_number(path, i + 1, ln[23 + 19 * k:42 + 19 * k], sv, (0, k))
         if len(ln.rstrip()) > 80:
             raise DatasetFormatError(path, i + 1, f"navigation line has {len(ln.rstrip())} characters, at most 80")
         cont = NAV_CONTINUATION_LINES[ln[0]]
@@ -235,7 +294,7 @@ def scan_rinex_nav(path) -> RinexNavLayout:
                 raise DatasetFormatError(path, j + 1, f"expected continuation line {k} of the {m.group(1)} record "
                                                       f"(4 spaces, then up to 4 numbers), got {c[:40]!r}")
             for f in range(4):
-                _nav_number(path, j + 1, c[4 + 19 * f:23 + 19 * f])
+                _nav_number(path, j + 1, c[4 + 19 * f:23 + 19 * f], sv, (k, f))
         seen.setdefault(ln[0], set()).add((m.group(1), m.groups()[1:]))
         i += 1 + cont
     if not seen:

@@ -109,6 +109,17 @@ def files(tmp_path_factory):
         inp.write_bytes(b[: len(b) // 2] + b"\x07\x00garbage" + b[len(b) // 2:])
         f["damaged_data"] = root / "damaged_data"
         f["damaged_input"] = inp
+        dd = root / "implausible_data" / "smartloc"  # well-formed, one pseudorange 1e7 times too long
+        shutil.copytree(src, dd)
+        inp = dd / "Berlin_Potsdamer_Platz_Input.txt"
+        lines = inp.read_text().split("\n")
+        i = [j for j, ln in enumerate(lines) if ln.startswith("pseudorange3")][5000]
+        t = lines[i].split()
+        t[2] = repr(float(t[2]) * 1e7)
+        lines[i] = " ".join(t)
+        inp.write_text("\n".join(lines))
+        f["implausible_data"] = root / "implausible_data"
+        f["implausible_input"] = inp
     f["out"] = root / "out"
     return f
 
@@ -174,6 +185,8 @@ PROBES = [
     ("eval", ["--methods", "kf", *E, "--note", "{notedir}"], "notedir", "is a directory; give the note's file name"),
     ("eval", ["--methods", "kf", "--scenario", "{late_spec}", "--episodes", "1", "--no-plots"], "late_truth",
      "no overlap"),
+    ("eval", ["--methods", "kf", "--scenario", "smartloc-potsdamer-platz", "--episodes", "1", "--no-plots"],
+     "implausible_input", "is impossible: its satellite"),
 ]
 
 
@@ -183,7 +196,8 @@ def test_bad_file_one_line_naming_it_exit_2(files, script, argv, culprit, msg, c
     if "smartloc" in " ".join(argv):
         if "damaged_data" not in files:
             pytest.skip(f"no smartLoc data under {shared_data_dir()}")
-        monkeypatch.setenv("NAVGYM_DATA_DIR", str(files["damaged_data"]))
+        data = "implausible_data" if culprit == "implausible_input" else "damaged_data"
+        monkeypatch.setenv("NAVGYM_DATA_DIR", str(files[data]))
     if any("{late" in a for a in argv) and "late_spec" not in files:
         pytest.skip(f"no Reach M2 RINEX data under {shared_data_dir()}")
     args = [a.format(**{k: v for k, v in files.items() if v is not None}) for a in argv]
