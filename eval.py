@@ -140,6 +140,21 @@ def check_out(out: Path, owner: str = "--out") -> None:
         _MADE.append(Path(out))
 
 
+def _headroom_fixed_spec(specs: list, scenarios: list, plan: dict) -> str:
+    """The ``tuned:`` spec ``--headroom`` measures from: exactly one method on every scenario (one line otherwise)."""
+    fixed_spec = next((sp for sp in specs if sp.startswith("tuned:")), None)
+    if fixed_spec is None:
+        fail("--headroom needs the optimized fixed parameter: add a 'tuned:<tuning.json>' method to --methods")
+    for s in scenarios:
+        if fixed_spec not in dict(plan[s]):
+            fail(f"--headroom: {fixed_spec!r} matches no file on {s!r} (the optimized fixed parameter is "
+                 "needed on every scenario)")
+        n = len(dict(plan[s])[fixed_spec])
+        if n != 1:
+            fail(f"--headroom: {fixed_spec!r} must be one method; it matches {n} files on {s!r}")
+    return fixed_spec
+
+
 def check_note(path: Path) -> None:
     """``--note PATH`` before any work: one line when PATH is a folder or its folder cannot be created or
     written (a parent is a file, no permission); the folder is created (removed again if the run fails)."""
@@ -293,18 +308,7 @@ def _main(argv=None) -> dict:
                                                   for _, ms in plan[first] for m in ms):
         fail(f"the oracle methods branch the filter state, which the {args.zupt!r} detector's stream state does "
              "not allow: use --zupt none or truth")
-    fixed_spec = None
-    if args.headroom:
-        fixed_spec = next((sp for sp in specs if sp.startswith("tuned:")), None)
-        if fixed_spec is None:
-            fail("--headroom needs the optimized fixed parameter: add a 'tuned:<tuning.json>' method to --methods")
-        for s in scenarios:
-            if fixed_spec not in dict(plan[s]):
-                fail(f"--headroom: {fixed_spec!r} matches no file on {s!r} (the optimized fixed parameter is "
-                     "needed on every scenario)")
-            n = len(dict(plan[s])[fixed_spec])
-            if n != 1:
-                fail(f"--headroom: {fixed_spec!r} must be one method; it matches {n} files on {s!r}")
+    fixed_spec = _headroom_fixed_spec(specs, scenarios, plan) if args.headroom else None
 
     from envs.json_io import dumps
     from envs.metrics import paired_difference, summarize, summarize_seeds

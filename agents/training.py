@@ -234,23 +234,15 @@ class _SaveNormalization:
         return Save()
 
 
-def train_rl(env_id: str, algo: str, out, timesteps: int | None = None, seed: int = 0, n_envs: int | None = None,
-             env_kwargs: dict | None = None, config_file=None, quick: bool = False, normalize: bool | None = None,
-             progress: bool = True, eval_episodes: int | None = None) -> dict:
-    """Train ``algo`` on ``env_id``; writes ``out/model.zip`` and ``out/config.json``; returns the config."""
-    import envs  # noqa: F401
-    from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
-    from stable_baselines3.common.logger import configure
-    from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
-
+def resolve_settings(env_id: str, algo: str, timesteps=None, n_envs=None, env_kwargs=None, config_file=None,
+                     quick: bool = False, normalize=None, eval_episodes=None) -> tuple[dict, dict]:
+    """``(hyperparameters, run settings)`` of :func:`train_rl` (module docstring: defaults, ``--quick``, the
+    config file, the arguments; later wins), every one checked (:func:`check_hyperparameters`, the env's
+    arguments and method) before any work; ``ValueError`` naming the config file and the key."""
+    from envs.core import check_method_has_params
     from envs.gnss_ins_env import make_config
-    from envs.sb3 import make_sb3_vec_env
     from .rollout import env_class
 
-    algo = algo.lower()
-    if algo not in ALGOS:
-        raise ValueError(f"unknown algorithm {algo!r}; known: {', '.join(ALGOS)}")
-    env_class(env_id)
     hyper = dict(DEFAULT_HYPERPARAMS[algo])
     settings = {**DEFAULT_SETTINGS, "env_kwargs": dict(DEFAULT_SETTINGS["env_kwargs"])}
     if quick:
@@ -278,8 +270,10 @@ def train_rl(env_id: str, algo: str, out, timesteps: int | None = None, seed: in
         settings["eval_episodes"] = int(eval_episodes)
     settings["env_kwargs"].update(env_kwargs or {})
     check_hyperparameters(algo, hyper, settings, config_file)
+    cls = env_class(env_id)
     try:
-        make_config(env_class(env_id).DEFAULTS, settings["env_kwargs"])
+        cfg = make_config(cls.DEFAULTS, settings["env_kwargs"])
+        check_method_has_params(cfg.method, cls.PARAMS, cls.DEFAULTS["method"])
     except ValueError as e:
         raise ValueError(f"{config_file or 'env_kwargs'}: {e}") from None
     settings["n_timesteps"] = int(float(settings["n_timesteps"]))
@@ -291,6 +285,28 @@ def train_rl(env_id: str, algo: str, out, timesteps: int | None = None, seed: in
     if isinstance(pf, bool) or not isinstance(pf, int) or pf < 0:
         raise ValueError(f"{config_file or 'settings'}: prefetch_worlds must be an int >= 0 (worlds drawn ahead; "
                          f"0: off), got {pf!r}")
+    return hyper, settings
+
+
+def train_rl(env_id: str, algo: str, out, timesteps: int | None = None, seed: int = 0, n_envs: int | None = None,
+             env_kwargs: dict | None = None, config_file=None, quick: bool = False, normalize: bool | None = None,
+             progress: bool = True, eval_episodes: int | None = None) -> dict:
+    """Train ``algo`` on ``env_id``; writes ``out/model.zip`` and ``out/config.json``; returns the config."""
+    import envs  # noqa: F401
+    from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
+    from stable_baselines3.common.logger import configure
+    from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
+
+    from envs.sb3 import make_sb3_vec_env
+    from .rollout import env_class
+
+    algo = algo.lower()
+    if algo not in ALGOS:
+        raise ValueError(f"unknown algorithm {algo!r}; known: {', '.join(ALGOS)}")
+    env_class(env_id)
+    hyper, settings = resolve_settings(env_id, algo, timesteps=timesteps, n_envs=n_envs, env_kwargs=env_kwargs,
+                                       config_file=config_file, quick=quick, normalize=normalize,
+                                       eval_episodes=eval_episodes)
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
