@@ -175,7 +175,9 @@ def _preflight(sources: dict, seeds: list) -> None:
             if dataset_spec_of(src) is None:
                 continue
             world_for(src, seeds)
-        except (ValueError, FileNotFoundError) as e:
+        except FileNotFoundError as e:  # world_for names the scenario
+            fail(str(e))
+        except ValueError as e:
             fail(f"scenario {key!r}: {e}")
 
 
