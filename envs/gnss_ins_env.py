@@ -120,6 +120,10 @@ Limits (a ``ValueError`` naming the argument at construction): ``episode_length_
   noisier than reported) and MA-STKF's measurement factor is per measurement type, from the snapshot-fit
   residuals (:mod:`nav_filters.adaptive.strong_tracking`). The actions keep their ranges and meanings
   (softening scales the noise term, fading_scale the ratio); policies trained before see another law.
+* v0, revised with the issue "adaptive laws that never lose badly" (a version bump is due: the same seed and
+  actions give other episodes): the Sage-Husa Q law of ``sage-husa`` / ``svd-akf`` / ``svd-asrkf`` keeps the
+  applied Q at or above the nominal one (``q_lower='nominal'``, :class:`nav_filters.adaptive.SageHusa`), so
+  ``GnssIns/SageHusa-v0``'s ``q_scale`` feature no longer falls below ~1. Action ranges and meanings unchanged.
 """
 from __future__ import annotations
 

@@ -75,10 +75,14 @@ _SATELLITE_R = dict(adapt_r=True, r_mode="satellite", d_freeze_tol=0.0, r_sample
 of the deleted residual against the filter's own prior and the snapshot-fit residual) and no satellite
 trusted more than its reported variance (see :class:`SageHusa`)."""
 
+_Q_ABOVE_NOMINAL = dict(q_lower="nominal")
+"""The Q law only adds process noise to the nominal model (the applied epoch Q at least the nominal one; see
+:class:`SageHusa`, 'Q never below the nominal model')."""
+
 ADAPTIVE_METHODS = {
-    "sage-husa": law_factory(SageHusa, "kf", diagonal_q=False, **_SATELLITE_R),
-    "svd-akf": law_factory(SageHusa, "svd-kf", diagonal_q=False, **_SATELLITE_R),
-    "svd-asrkf": law_factory(SageHusa, "svd-srkf", diagonal_q=True, **_SATELLITE_R),
+    "sage-husa": law_factory(SageHusa, "kf", diagonal_q=False, **_Q_ABOVE_NOMINAL, **_SATELLITE_R),
+    "svd-akf": law_factory(SageHusa, "svd-kf", diagonal_q=False, **_Q_ABOVE_NOMINAL, **_SATELLITE_R),
+    "svd-asrkf": law_factory(SageHusa, "svd-srkf", diagonal_q=True, **_Q_ABOVE_NOMINAL, **_SATELLITE_R),
     "sage-husa-r": law_factory(SageHusa, "kf", adapt_q=False, **_SATELLITE_R),
     "sage-husa-group": law_factory(SageHusa, "kf", diagonal_q=False, adapt_r=True),
     "stkf": law_factory(StrongTracking, "kf"),
