@@ -123,7 +123,9 @@ Limits (a ``ValueError`` naming the argument at construction): ``episode_length_
 * v0, revised with the issue "adaptive laws that never lose badly" (a version bump is due: the same seed and
   actions give other episodes): the Sage-Husa Q law of ``sage-husa`` / ``svd-akf`` / ``svd-asrkf`` keeps the
   applied Q at or above the nominal one (``q_lower='nominal'``, :class:`nav_filters.adaptive.SageHusa`), so
-  ``GnssIns/SageHusa-v0``'s ``q_scale`` feature no longer falls below ~1. Action ranges and meanings unchanged.
+  ``GnssIns/SageHusa-v0``'s ``q_scale`` feature no longer falls below ~1; the per-satellite R law of those and
+  ``sage-husa-r`` divides each deleted-residual sample by its epoch's median (``median_guard``), which changes
+  the per-satellite health features. Action ranges and meanings unchanged.
 """
 from __future__ import annotations
 

@@ -70,10 +70,10 @@ def law_factory(law: type, inner="kf", **config):
 
 
 _SATELLITE_R = dict(adapt_r=True, r_mode="satellite", d_freeze_tol=0.0, r_sample="consensus", prior_inflation=1.0,
-                    sat_scale_min=1.0)
+                    sat_scale_min=1.0, median_guard=True)
 """Per-satellite measurement-noise adaptation without the freezing of d, with the consensus sample (the smaller
-of the deleted residual against the filter's own prior and the snapshot-fit residual) and no satellite
-trusted more than its reported variance (see :class:`SageHusa`)."""
+of the deleted residual against the filter's own prior, relative to its epoch's median, and the snapshot-fit
+residual) and no satellite trusted more than its reported variance (see :class:`SageHusa`)."""
 
 _Q_ABOVE_NOMINAL = dict(q_lower="nominal")
 """The Q law only adds process noise to the nominal model (the applied epoch Q at least the nominal one; see

@@ -197,7 +197,7 @@ def _count_rows_kernel(active, has, pending, adapt_q, b, b_used_prev, step_prev,
 @nb.njit(cache=True)
 def satellite_epoch(r, H, R, mask, keys, prior, Q, Phi, P, x_inner, x_law, seen, step, jcap, b, d_prev, warmup,
                     epoch, s_tab, n_tab, last_tab, forget, smin, smax, sat_min, sample, min_red, k_prior, n_iter,
-                    common, r_scale, adapt_q, b_used_prev, e_prev, q_init, q_ref, Q_raw, Q_law, Q_base, jump_ratio,
+                    common, guard, r_scale, adapt_q, b_used_prev, e_prev, q_init, q_ref, Q_raw, Q_law, Q_base, jump_ratio,
                     b_min, b_jump_factor, diagonal, floor, ceiling, above, n_pr_keys, rose_factor, nchunk,
                     has, active, d, s_rows, n_rows, s_prev, s_group, R_used, no_fade, unit, s, Pn, xn, r_out, Sd,
                     nis, ok, n_used, summary, rows, b_used, step_new, seen_new, x_new):
@@ -219,7 +219,7 @@ def satellite_epoch(r, H, R, mask, keys, prior, Q, Phi, P, x_inner, x_law, seen,
     epoch's process noise; Phi : (B, n, n); P, x_inner : the inner form's covariance and state; x_law : (B, n)
     the law's state. The law's row state (``seen``, ``step``, ``jcap``, ``b``, ``d_prev``, ``warmup``), its
     satellite tables (``epoch`` the epoch counter after this one; ``s_tab``, ``n_tab``, ``last_tab`` updated in
-    place on success) and settings (``forget`` ... ``r_scale``), and its Q-law state (``b_used_prev``,
+    place on success) and settings (``forget`` ... ``guard``, ``r_scale``), and its Q-law state (``b_used_prev``,
     ``e_prev``, ``q_init``, ``q_ref``, ``Q_raw``, ``Q_law``, ``Q_base`` updated in place on success) and settings.
     The rest are outputs (new arrays of the shapes of the Python path's); ``no_fade`` (B, 0) and ``unit`` (B,)
     ones are the plan's fading (none: ``lambda = 1``), ``s`` (B, n) scratch of the filter dtype.
@@ -232,12 +232,12 @@ def satellite_epoch(r, H, R, mask, keys, prior, Q, Phi, P, x_inner, x_law, seen,
     _epoch_rows_kernel(mask, seen, warmup, step, jcap, b, d_prev, has, active, d)
     if nchunk > 1:
         _r_sat_parallel(nchunk, r, H, prior, Q, True, R, mask, keys, b, jcap, d, active, epoch, s_tab, n_tab,
-                        last_tab, forget, smin, smax, sat_min, sample, min_red, k_prior, n_iter, common, r_scale,
+                        last_tab, forget, smin, smax, sat_min, sample, min_red, k_prior, n_iter, common, guard, r_scale,
                         s_rows, n_rows, s_prev, s_group, R_used)
     else:
         _r_sat_kernel(r, H, prior, Q, True, R, mask, keys, b, jcap, d, active, epoch, s_tab, n_tab, last_tab,
-                      forget, smin, smax, sat_min, sample, min_red, k_prior, n_iter, common, r_scale, s_rows, n_rows,
-                      s_prev, s_group, R_used)
+                      forget, smin, smax, sat_min, sample, min_red, k_prior, n_iter, common, guard, r_scale, s_rows,
+                      n_rows, s_prev, s_group, R_used)
     if not fused_law_update(P, x_inner, Phi, Q, prior, H, R_used, r, mask, no_fade, unit, s, Pn, xn, r_out, Sd, nis,
                             ok, x_law, x_new, n_used, nchunk):
         return False

@@ -505,6 +505,7 @@ def test_other_bad_inputs():
     for cfg, field in ((lambda: SageHusaConfig(q_floor=0.0), "q_floor"),
                        (lambda: SageHusaConfig(warmup_epochs=-1), "warmup_epochs"),
                        (lambda: SageHusaConfig(q_lower="above"), "q_lower"),
+                       (lambda: SageHusaConfig(median_guard=1), "median_guard"),
                        (lambda: StrongTrackingConfig(lambda_max=0.5), "lambda_max"),
                        (lambda: MeasurementAdaptiveSTKFConfig(alpha_min=float("nan")), "alpha_min"),
                        (lambda: MeasurementAdaptiveSTKFConfig(fading_cap=0.0), "fading_cap")):
