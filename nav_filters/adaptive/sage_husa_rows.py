@@ -197,8 +197,8 @@ def _count_rows_kernel(active, has, pending, adapt_q, b, b_used_prev, step_prev,
 @nb.njit(cache=True)
 def satellite_epoch(r, H, R, mask, keys, prior, Q, Phi, P, x_inner, x_law, seen, step, jcap, b, d_prev, warmup,
                     epoch, s_tab, n_tab, last_tab, forget, smin, smax, sat_min, sample, min_red, k_prior, n_iter,
-                    common, guard, r_scale, adapt_q, b_used_prev, e_prev, q_init, q_ref, Q_raw, Q_law, Q_base, jump_ratio,
-                    b_min, b_jump_factor, diagonal, floor, ceiling, above, n_pr_keys, rose_factor, nchunk,
+                    common, guard, r_scale, adapt_q, b_used_prev, e_prev, q_init, q_ref, Q_raw, Q_law, Q_base,
+                    jump_ratio, b_min, b_jump_factor, diagonal, floor, ceiling, above, n_pr_keys, rose_factor, nchunk,
                     has, active, d, s_rows, n_rows, s_prev, s_group, R_used, no_fade, unit, s, Pn, xn, r_out, Sd,
                     nis, ok, n_used, summary, rows, b_used, step_new, seen_new, x_new):
     """One fused update of :class:`~.sage_husa.SageHusa` with ``r_mode='satellite'`` on an epoch with a
