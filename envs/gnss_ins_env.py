@@ -122,6 +122,12 @@ Limits (a ``ValueError`` naming the argument at construction): ``episode_length_
   noisier than reported) and MA-STKF's measurement factor is per measurement type, from the snapshot-fit
   residuals (:mod:`nav_filters.adaptive.strong_tracking`). The actions keep their ranges and meanings
   (softening scales the noise term, fading_scale the ratio); policies trained before see another law.
+* v0, revised with the issue "adaptive laws that never lose badly" (a version bump is due: the same seed and
+  actions give other episodes): the Sage-Husa Q law of ``sage-husa`` / ``svd-akf`` / ``svd-asrkf`` keeps the
+  applied Q at or above the nominal one (``q_lower='nominal'``, :class:`nav_filters.adaptive.SageHusa`), so
+  ``GnssIns/SageHusa-v0``'s ``q_scale`` feature no longer falls below ~1; the per-satellite R law of those and
+  ``sage-husa-r`` divides each deleted-residual sample by its epoch's median (``median_guard``), which changes
+  the per-satellite health features. Action ranges and meanings unchanged.
 """
 from __future__ import annotations
 

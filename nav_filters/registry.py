@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import functools
 
-from .adaptive import (SATELLITE_R, FaultExclusion, MeasurementAdaptiveSTKF, RobustUpdate, SageHusa, StrongTracking,
+from .adaptive import (Q_ABOVE_NOMINAL, SATELLITE_R, FaultExclusion, MeasurementAdaptiveSTKF, RobustUpdate, SageHusa, StrongTracking,
                        VariationalR, law_factory)
 from .forms import (FilterForm, InformationFilter, KalmanFilter, SquareRootInformationFilter, SvdInformationFilter,
                     SvdKalmanFilter, SvdSquareRootKF)
@@ -48,9 +48,9 @@ def _register(table: dict, name: str, law: type, inner: str, **config) -> None:
     FORMS[name].inner_name = inner
 
 
-_register(ADAPTIVE_METHODS, "sage-husa", SageHusa, "kf", diagonal_q=False, **SATELLITE_R)
-_register(ADAPTIVE_METHODS, "svd-akf", SageHusa, "svd-kf", diagonal_q=False, **SATELLITE_R)
-_register(ADAPTIVE_METHODS, "svd-asrkf", SageHusa, "svd-srkf", diagonal_q=True, **SATELLITE_R)
+_register(ADAPTIVE_METHODS, "sage-husa", SageHusa, "kf", diagonal_q=False, **Q_ABOVE_NOMINAL, **SATELLITE_R)
+_register(ADAPTIVE_METHODS, "svd-akf", SageHusa, "svd-kf", diagonal_q=False, **Q_ABOVE_NOMINAL, **SATELLITE_R)
+_register(ADAPTIVE_METHODS, "svd-asrkf", SageHusa, "svd-srkf", diagonal_q=True, **Q_ABOVE_NOMINAL, **SATELLITE_R)
 _register(ADAPTIVE_METHODS, "sage-husa-r", SageHusa, "kf", adapt_q=False, **SATELLITE_R)
 _register(ADAPTIVE_METHODS, "sage-husa-group", SageHusa, "kf", diagonal_q=False, adapt_r=True)
 _register(ADAPTIVE_METHODS, "stkf", StrongTracking, "kf")

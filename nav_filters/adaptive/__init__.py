@@ -89,17 +89,21 @@ def law_factory(law: type, inner=KalmanFilter, **config):
 
 
 SATELLITE_R = dict(adapt_r=True, r_mode="satellite", d_freeze_tol=0.0, r_sample="consensus", prior_inflation=1.0,
-                   sat_scale_min=1.0)
+                   sat_scale_min=1.0, median_guard=True)
 """Per-satellite measurement-noise adaptation without the freezing of d, with the consensus sample (the smaller
-of the deleted residual against the filter's own prior and the snapshot-fit residual) and no satellite
-trusted more than its reported variance (see :class:`SageHusa`): the configuration of the registered
-per-satellite Sage-Husa methods (:data:`nav_filters.registry.ADAPTIVE_METHODS`)."""
+of the deleted residual against the filter's own prior, relative to its epoch's median, and the snapshot-fit
+residual) and no satellite trusted more than its reported variance (see :class:`SageHusa`): the configuration
+of the registered per-satellite Sage-Husa methods (:data:`nav_filters.registry.ADAPTIVE_METHODS`)."""
+
+Q_ABOVE_NOMINAL = dict(q_lower="nominal")
+"""The Q law only adds process noise to the nominal model (the applied epoch Q at least the nominal one; see
+:class:`SageHusa`, 'Q never below the nominal model'): the registered Sage-Husa methods that adapt Q."""
 
 __all__ = [
     "AdaptiveLaw", "EpochContext", "UpdatePlan", "resolve_inner", "ParamSpec",
     "GROUP_NAMES", "InnovationTraces", "innovation_traces", "measurement_groups",
     "SageHusa", "SageHusaConfig", "sage_husa_weight", "clip_relative_eigenvalues",
     "StrongTracking", "StrongTrackingConfig", "MeasurementAdaptiveSTKF", "MeasurementAdaptiveSTKFConfig",
-    "fading_factor", "law_factory", "SATELLITE_R", "FaultExclusion", "FdeConfig", "RobustUpdate", "RobustConfig",
+    "fading_factor", "law_factory", "SATELLITE_R", "Q_ABOVE_NOMINAL", "FaultExclusion", "FdeConfig", "RobustUpdate", "RobustConfig",
     "VariationalR", "VbConfig",
 ]

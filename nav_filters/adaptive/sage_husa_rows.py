@@ -21,8 +21,8 @@ from .compiled_epoch import fused_law_update
 from .satellite_r import _commit_parallel, _commit_serial, _r_sat_kernel, _r_sat_parallel, _weight_one
 
 
-def _adapt_q_rows(rows, d, dx, P_post, prior, Q_nom, b, step, e_prev, b_used, q_init, q_ref, Q_raw, Q,
-                  jump_ratio, b_min, b_jump_factor, diagonal, floor, ceiling, own_eig=False, nchunk=1):
+def _adapt_q_rows(rows, d, dx, P_post, prior, Q_nom, b, step, e_prev, b_used, q_init, q_ref, Q_raw, Q, Q_base,
+                  jump_ratio, b_min, b_jump_factor, diagonal, floor, ceiling, above, own_eig=False, nchunk=1):
     """Seed 000 eqs 18-22 and 24 (with the choices of :class:`SageHusa`) on the rows flagged in ``rows``.
 
     ``own_eig`` (the fused fast path): the projection's eigen-decomposition by
@@ -33,9 +33,11 @@ def _adapt_q_rows(rows, d, dx, P_post, prior, Q_nom, b, step, e_prev, b_used, q_
 
     Per row: ``Q_hat = sym(dx dx^T + P_post - prior)`` (eq 18, sign of eq 20); ``e = sum Q_hat^2`` and the
     eq 24 jump test lowering b for this correction; on the first adaptation ``q_ref`` and ``Q_raw`` from
-    the nominal epoch Q; ``Q_raw <- (1 - d) Q_raw + d Q_hat`` (eq 22; eq 21 with ``diagonal``); ``Q`` the
-    projection of ``Q_raw`` onto ``floor <= eig(W Q W) <= ceiling`` (:func:`clip_relative_eigenvalues`).
-    Updates ``e_prev``, ``b_used``, ``q_init``, ``q_ref``, ``Q_raw``, ``Q`` in place. The rows run in
+    the nominal epoch Q (and, with ``above``, ``Q_base``); ``Q_raw <- (1 - d) Q_raw + d Q_hat`` (eq 22; eq 21
+    with ``diagonal``); ``Q`` the projection of ``Q_raw`` onto ``floor <= eig(W Q W) <= ceiling``
+    (:func:`clip_relative_eigenvalues`), or with ``above`` (``q_lower='nominal'``, ``floor`` 0) ``Q_base`` plus
+    that projection of ``Q_raw - Q_base``. Updates ``e_prev``, ``b_used``, ``q_init``, ``q_ref``, ``Q_raw``,
+    ``Q_base``, ``Q`` in place. The rows run in
     ``nchunk`` chunks (parallel in the parallel variant), each allocating its scratch once.
     """
     B, n = dx.shape
@@ -52,15 +54,18 @@ def _adapt_q_rows(rows, d, dx, P_post, prior, Q_nom, b, step, e_prev, b_used, q_
         for r in range(ch * B // nchunk, (ch + 1) * B // nchunk):
             if rows[r]:
                 _adapt_q_row(r, d, dx, P_post, prior, Q_nom, b, step, e_prev, b_used, q_init, q_ref, Q_raw, Q,
-                             jump_ratio, b_min, b_jump_factor, diagonal, floor, ceiling, own_eig,
-                             X, Qh, w, Qw, A, vals, Vt, sc)
+                             Q_base, jump_ratio, b_min, b_jump_factor, diagonal, floor, ceiling, above, own_eig,
+                             (X, Qh, w, Qw, A, vals, Vt, sc))
 
 
 @nb.njit(cache=True, inline="always")
-def _adapt_q_row(r, d, dx, P_post, prior, Q_nom, b, step, e_prev, b_used, q_init, q_ref, Q_raw, Q,
-                 jump_ratio, b_min, b_jump_factor, diagonal, floor, ceiling, own_eig, X, Qh, w, Qw, A, vals, Vt, sc):
-    """Row ``r`` of :func:`_adapt_q_rows`, in the scratch ``X``, ``Qh``, ``Qw`` (n, n), ``A``, ``Vt`` (n, W) (W the
-    padded width of :func:`~nav_filters.kernels.sym_eig_inplace`, zero padding), ``w``, ``vals`` (n,), ``sc`` (3, W)."""
+def _adapt_q_row(r, d, dx, P_post, prior, Q_nom, b, step, e_prev, b_used, q_init, q_ref, Q_raw, Q, Q_base,
+                 jump_ratio, b_min, b_jump_factor, diagonal, floor, ceiling, above, own_eig, work):
+    """Row ``r`` of :func:`_adapt_q_rows`, in the scratch ``work = (X, Qh, w, Qw, A, vals, Vt, sc)``: ``X``, ``Qh``,
+    ``Qw`` (n, n), ``A``, ``Vt`` (n, W) (W the padded width of :func:`~nav_filters.kernels.sym_eig_inplace`, zero
+    padding), ``w``, ``vals`` (n,), ``sc`` (3, W). (One tuple: a call of more than 30 arguments is compiled by
+    CPython as ``f(*args)``, which numba cannot inline.)"""
+    X, Qh, w, Qw, A, vals, Vt, sc = work
     n = dx.shape[1]
     for i in range(n):
         for j in range(n):
@@ -85,6 +90,8 @@ def _adapt_q_row(r, d, dx, P_post, prior, Q_nom, b, step, e_prev, b_used, q_init
             q_ref[r, i] = max(np.float64(Q_nom[r, i, i]), 1e-12 * top) if top > 0 else 1.0
             for j in range(n):
                 Q_raw[r, i, j] = Q_nom[r, i, j]
+                if above:
+                    Q_base[r, i, j] = Q_nom[r, i, j]
     for i in range(n):
         w[i] = 1.0 / np.sqrt(q_ref[r, i])
     dd = Q_raw.dtype.type(dr)
@@ -93,6 +100,10 @@ def _adapt_q_row(r, d, dx, P_post, prior, Q_nom, b, step, e_prev, b_used, q_init
             c = Qh[i, j] if (not diagonal or i == j) else 0.0
             X[i, j] = (1 - dd) * Q_raw[r, i, j] + dd * c
             Q_raw[r, i, j] = X[i, j]
+    if above:  # the excess over the nominal Q is projected (in the filter dtype, as the numpy lines)
+        for i in range(n):
+            for j in range(n):
+                X[i, j] = X[i, j] - Q_base[r, i, j]
     for i in range(n):
         for j in range(n):
             Qw[i, j] = 0.5 * (np.float64(X[i, j]) * w[i] * w[j] + np.float64(X[j, i]) * w[j] * w[i])
@@ -141,6 +152,8 @@ def _adapt_q_row(r, d, dx, P_post, prior, Q_nom, b, step, e_prev, b_used, q_init
     for i in range(n):
         for j in range(i, n):
             q = Qw[i, j] * w[i] * w[j]
+            if above:
+                q += np.float64(Q_base[r, i, j])
             Q[r, i, j] = q
             Q[r, j, i] = q
     q_init[r] = True
@@ -184,8 +197,8 @@ def _count_rows_kernel(active, has, pending, adapt_q, b, b_used_prev, step_prev,
 @nb.njit(cache=True)
 def satellite_epoch(r, H, R, mask, keys, prior, Q, Phi, P, x_inner, x_law, seen, step, jcap, b, d_prev, warmup,
                     epoch, s_tab, n_tab, last_tab, forget, smin, smax, sat_min, sample, min_red, k_prior, n_iter,
-                    common, r_scale, adapt_q, b_used_prev, e_prev, q_init, q_ref, Q_raw, Q_law, jump_ratio, b_min,
-                    b_jump_factor, diagonal, floor, ceiling, n_pr_keys, rose_factor, nchunk,
+                    common, guard, r_scale, adapt_q, b_used_prev, e_prev, q_init, q_ref, Q_raw, Q_law, Q_base,
+                    jump_ratio, b_min, b_jump_factor, diagonal, floor, ceiling, above, n_pr_keys, rose_factor, nchunk,
                     has, active, d, s_rows, n_rows, s_prev, s_group, R_used, no_fade, unit, s, Pn, xn, r_out, Sd,
                     nis, ok, n_used, summary, rows, b_used, step_new, seen_new, x_new):
     """One fused update of :class:`~.sage_husa.SageHusa` with ``r_mode='satellite'`` on an epoch with a
@@ -206,8 +219,8 @@ def satellite_epoch(r, H, R, mask, keys, prior, Q, Phi, P, x_inner, x_law, seen,
     epoch's process noise; Phi : (B, n, n); P, x_inner : the inner form's covariance and state; x_law : (B, n)
     the law's state. The law's row state (``seen``, ``step``, ``jcap``, ``b``, ``d_prev``, ``warmup``), its
     satellite tables (``epoch`` the epoch counter after this one; ``s_tab``, ``n_tab``, ``last_tab`` updated in
-    place on success) and settings (``forget`` ... ``r_scale``), and its Q-law state (``b_used_prev``,
-    ``e_prev``, ``q_init``, ``q_ref``, ``Q_raw``, ``Q_law`` updated in place on success) and settings.
+    place on success) and settings (``forget`` ... ``guard``, ``r_scale``), and its Q-law state (``b_used_prev``,
+    ``e_prev``, ``q_init``, ``q_ref``, ``Q_raw``, ``Q_law``, ``Q_base`` updated in place on success) and settings.
     The rest are outputs (new arrays of the shapes of the Python path's); ``no_fade`` (B, 0) and ``unit`` (B,)
     ones are the plan's fading (none: ``lambda = 1``), ``s`` (B, n) scratch of the filter dtype.
 
@@ -219,12 +232,12 @@ def satellite_epoch(r, H, R, mask, keys, prior, Q, Phi, P, x_inner, x_law, seen,
     _epoch_rows_kernel(mask, seen, warmup, step, jcap, b, d_prev, has, active, d)
     if nchunk > 1:
         _r_sat_parallel(nchunk, r, H, prior, Q, True, R, mask, keys, b, jcap, d, active, epoch, s_tab, n_tab,
-                        last_tab, forget, smin, smax, sat_min, sample, min_red, k_prior, n_iter, common, r_scale,
+                        last_tab, forget, smin, smax, sat_min, sample, min_red, k_prior, n_iter, common, guard, r_scale,
                         s_rows, n_rows, s_prev, s_group, R_used)
     else:
         _r_sat_kernel(r, H, prior, Q, True, R, mask, keys, b, jcap, d, active, epoch, s_tab, n_tab, last_tab,
-                      forget, smin, smax, sat_min, sample, min_red, k_prior, n_iter, common, r_scale, s_rows, n_rows,
-                      s_prev, s_group, R_used)
+                      forget, smin, smax, sat_min, sample, min_red, k_prior, n_iter, common, guard, r_scale, s_rows,
+                      n_rows, s_prev, s_group, R_used)
     if not fused_law_update(P, x_inner, Phi, Q, prior, H, R_used, r, mask, no_fade, unit, s, Pn, xn, r_out, Sd, nis,
                             ok, x_law, x_new, n_used, nchunk):
         return False
@@ -239,8 +252,8 @@ def satellite_epoch(r, H, R, mask, keys, prior, Q, Phi, P, x_inner, x_law, seen,
         # the Q law reads the counts before this epoch's (step) and the b_used just formed
         if nchunk > 1:
             _adapt_q_parallel(rows, d, xn, Pn, prior, Q, b, step, e_prev, b_used, q_init, q_ref, Q_raw, Q_law,
-                              jump_ratio, b_min, b_jump_factor, diagonal, floor, ceiling, True, nchunk)
+                              Q_base, jump_ratio, b_min, b_jump_factor, diagonal, floor, ceiling, above, True, nchunk)
         else:
             _adapt_q_serial(rows, d, xn, Pn, prior, Q, b, step, e_prev, b_used, q_init, q_ref, Q_raw, Q_law,
-                            jump_ratio, b_min, b_jump_factor, diagonal, floor, ceiling, True, 1)
+                            Q_base, jump_ratio, b_min, b_jump_factor, diagonal, floor, ceiling, above, True, 1)
     return True

@@ -10,8 +10,8 @@ counted per satellite), aged towards the reported variance over short gaps and f
 ones, with the per-satellite sample ``x`` of ``r_sample``.
 
 A law using :class:`SatelliteNoise` provides ``self.config`` with the fields ``r_sample``,
-``min_redundancy``, ``prior_inflation``, ``sample_iterations``, ``common_scale``, ``sat_scale_min`` and
-``forget_after_epochs`` (checked by :func:`check_satellite_options`), per-row group scales
+``min_redundancy``, ``prior_inflation``, ``sample_iterations``, ``common_scale``, ``median_guard``,
+``sat_scale_min`` and ``forget_after_epochs`` (checked by :func:`check_satellite_options`), per-row group scales
 ``self._r_scale`` (B, 3) for rows without a key, and the hooks :meth:`SatelliteNoise._sat_b`,
 :meth:`SatelliteNoise._sat_jcap`, :meth:`SatelliteNoise._sat_bounds` and
 :meth:`SatelliteNoise._sat_enabled`.
@@ -56,8 +56,9 @@ def check_satellite_options(owner: str, cfg) -> None:
     f = cfg.forget_after_epochs
     if isinstance(f, bool) or not isinstance(f, (int, np.integer)) or f < 1:
         raise ValueError(f"{owner}.forget_after_epochs must be an int >= 1, got {f!r}")
-    if not isinstance(cfg.common_scale, (bool, np.bool_)):
-        raise ValueError(f"{owner}.common_scale must be a bool, got {cfg.common_scale!r}")
+    for name in ("common_scale", "median_guard"):
+        if not isinstance(getattr(cfg, name), (bool, np.bool_)):
+            raise ValueError(f"{owner}.{name} must be a bool, got {getattr(cfg, name)!r}")
 
 
 @nb.njit(cache=True)
@@ -85,8 +86,8 @@ def _row_group(H, b, i, n):
 
 @nb.njit(cache=True)
 def _r_sat_kernel(r, H, prior, Q, add_q, R, mask, keys, bf, jcap, d_row, active, epoch, s_tab, n_tab, last_tab,
-                  forget, smin, smax, sat_min, sample, min_red, k_prior, n_iter, common, r_scale, s_rows, n_rows, s_prev,
-                  s_group, R_out):
+                  forget, smin, smax, sat_min, sample, min_red, k_prior, n_iter, common, guard, r_scale, s_rows, n_rows,
+                  s_prev, s_group, R_out):
     """The Sage-Husa measurement-noise law per satellite and measurement type (``r_mode='satellite'``).
 
     Per batch row b and used measurement row i with key k = keys[b, i] >= 0 (numpy specification:
@@ -100,7 +101,9 @@ def _r_sat_kernel(r, H, prior, Q, add_q, R, mask, keys, bf, jcap, d_row, active,
                                                           residual (sample 2): post-fit residual against
                                                           the prior inflated k_prior times
         x  = (e_i^2 - c_i) / R_ii                         loo (sample 3): deleted residual e_i = v_i / red_i
-                                                          of the posterior fit, c_i = var_i / red_i - var_i
+                                                          of the posterior fit, c_i = var_i / red_i - var_i;
+                                                          with ``guard`` divided by max(1, its median over the
+                                                          epoch's rows of the type, :func:`_median_guard`)
         x  = min(geometry x, loo x)                       consensus (sample 4; either alone where the other
                                                           has no sample)
         x  = (dz_i^2 - (H P- H^T)_ii) / R_ii              innovation form (sample 0)
@@ -132,6 +135,9 @@ def _r_sat_kernel(r, H, prior, Q, add_q, R, mask, keys, bf, jcap, d_row, active,
     den = np.empty(G)
     cnt_g = np.empty(G, np.int64)
     sq = np.empty(m, R.dtype)
+    xl = np.zeros(m)  # the loo samples of a row, and which rows have one
+    hl = np.zeros(m, np.bool_)
+    srt = np.empty(m)
     # scratch of the row helpers, allocated once per call (not per batch row)
     nzc, nzv, cnt = _nonzeros_work(m, n, H.dtype)
     geo_work = _geometry_work(n)
@@ -202,13 +208,18 @@ def _r_sat_kernel(r, H, prior, Q, add_q, R, mask, keys, bf, jcap, d_row, active,
                 _posterior_residual_row(r[b], nzc, nzv, cnt, Pm, Pm, False, k_prior, var, use, v, red,
                                         post_work)
                 for i in range(m):
-                    if use[i] and red[i] >= min_red:
+                    hl[i] = use[i] and red[i] >= min_red
+                    if hl[i] and sample != 2:  # deleted residual e = v / red, its prediction's variance var/red - var
+                        e = v[i] / red[i]
+                        xl[i] = (e * e - (var[i] / red[i] - var[i])) / np.float64(R[b, i, i])
+                if guard and sample != 2:
+                    _median_guard(xl, hl, keys[b], srt)
+                for i in range(m):
+                    if hl[i]:
                         if sample == 2:
                             xs[i] = v[i] * v[i] / (red[i] * np.float64(R[b, i, i]))
-                        else:  # deleted residual e = v / red, its prediction's variance var / red - var
-                            e = v[i] / red[i]
-                            xl = (e * e - (var[i] / red[i] - var[i])) / np.float64(R[b, i, i])
-                            xs[i] = min(xs[i], xl) if (sample == 4 and has_x[i]) else xl
+                        else:
+                            xs[i] = min(xs[i], xl[i]) if (sample == 4 and has_x[i]) else xl[i]
                         has_x[i] = True
             for i in range(m):
                 if not mask[b, i] or keys[b, i] < 0:
@@ -250,10 +261,34 @@ def _r_sat_kernel(r, H, prior, Q, add_q, R, mask, keys, bf, jcap, d_row, active,
                 R_out[b, i, j] = R[b, i, j] * sq[i] * sq[j]
 
 
+@nb.njit(cache=True)
+def _median_guard(x, has, keys, srt):
+    """The epoch guard of the deleted-residual samples (``median_guard``): per measurement type (pseudoranges: keys
+    below :data:`~nav_filters.measurements.N_SAT_KEYS`, rates: the others), the samples ``x`` (m,) of the rows
+    flagged in ``has`` (used, keyed, with a sample) divided by ``max(1, c)``, ``c`` their median (``np.median``'s:
+    the middle value, or the mean of the two). ``srt`` (m,) scratch."""
+    m = x.shape[0]
+    for t in range(2):
+        k = 0
+        for i in range(m):
+            if has[i] and ((keys[i] >= _NK) == (t == 1)):
+                srt[k] = x[i]
+                k += 1
+        if k == 0:
+            continue
+        v = srt[:k]
+        v.sort()
+        c = v[k // 2] if k % 2 == 1 else (v[k // 2 - 1] + v[k // 2]) / 2.0
+        if c > 1.0:
+            for i in range(m):
+                if has[i] and ((keys[i] >= _NK) == (t == 1)):
+                    x[i] = x[i] / c
+
+
 @nb.njit(cache=True, parallel=True)
 def _r_sat_parallel(nchunk, r, H, prior, Q, add_q, R, mask, keys, bf, jcap, d_row, active, epoch, s_tab, n_tab,
-                    last_tab, forget, smin, smax, sat_min, sample, min_red, k_prior, n_iter, common, r_scale, s_rows,
-                    n_rows, s_prev, s_group, R_out):
+                    last_tab, forget, smin, smax, sat_min, sample, min_red, k_prior, n_iter, common, guard, r_scale,
+                    s_rows, n_rows, s_prev, s_group, R_out):
     """:func:`_r_sat_kernel` on ``nchunk`` chunks of rows in parallel (the fused fast path): each chunk runs the
     serial kernel itself on its slice of every per-row array, so every row gets the same bits."""
     B = r.shape[0]
@@ -262,7 +297,7 @@ def _r_sat_parallel(nchunk, r, H, prior, Q, add_q, R, mask, keys, bf, jcap, d_ro
         hi = (c + 1) * B // nchunk
         _r_sat_kernel(r[lo:hi], H[lo:hi], prior[lo:hi], Q[lo:hi], add_q, R[lo:hi], mask[lo:hi], keys[lo:hi],
                       bf[lo:hi], jcap[lo:hi], d_row[lo:hi], active[lo:hi], epoch[lo:hi], s_tab[lo:hi], n_tab[lo:hi],
-                      last_tab[lo:hi], forget, smin, smax, sat_min, sample, min_red, k_prior, n_iter, common,
+                      last_tab[lo:hi], forget, smin, smax, sat_min, sample, min_red, k_prior, n_iter, common, guard,
                       r_scale[lo:hi], s_rows[lo:hi], n_rows[lo:hi], s_prev[lo:hi], s_group[lo:hi], R_out[lo:hi])
 
 
@@ -336,6 +371,19 @@ def sage_husa_weight(b, j):
     return np.where(one, 1.0 / (j + 1.0), d)
 
 
+def _median_guard_reference(x, has, keys):
+    """Numpy specification of :func:`_median_guard`: ``x`` (B, m) divided, per batch row and measurement type, by
+    ``max(1, median)`` of the entries flagged in ``has`` (B, m)."""
+    x = np.array(x, np.float64)
+    for t in range(2):
+        sel = has & ((keys >= N_SAT_KEYS) == (t == 1))
+        for b in np.flatnonzero(sel.any(1)):
+            c = np.median(x[b, sel[b]])
+            if c > 1.0:
+                x[b, sel[b]] /= c
+    return x
+
+
 class SatelliteNoise:
     """Mixin of an :class:`~.base.AdaptiveLaw`: measurement noise per satellite and measurement type
     (module docstring). The law calls :meth:`_init_satellite_tables` from its ``_init_state``,
@@ -358,12 +406,12 @@ class SatelliteNoise:
         return self.config.r_scale_min, self.config.r_scale_max
 
     def _sat_settings(self) -> tuple:
-        """The R law's settings in the order :func:`_r_sat_kernel` takes them (``forget`` ... ``common``)."""
+        """The R law's settings in the order :func:`_r_sat_kernel` takes them (``forget`` ... ``guard``)."""
         cfg = self.config
         smin, smax = self._sat_bounds()
         return (int(cfg.forget_after_epochs), float(smin), float(smax), float(cfg.sat_scale_min),
                 _SAMPLE_CODE[cfg.r_sample], float(cfg.min_redundancy), float(cfg.prior_inflation),
-                int(cfg.sample_iterations), bool(cfg.common_scale))
+                int(cfg.sample_iterations), bool(cfg.common_scale), bool(cfg.median_guard))
 
     def _init_satellite_tables(self):
         """Per (satellite key, type) scale, adaptation count and last epoch used (-1 never); the epoch
@@ -459,6 +507,8 @@ class SatelliteNoise:
                         x = np.where(has, v ** 2 / (rs * Rdiag), 0.0)
                     else:  # deleted residual e = v / red, its prediction's variance var / red - var
                         x = np.where(has, ((v / rs) ** 2 - (var / rs - var)) / Rdiag, 0.0)
+                        if cfg.median_guard:
+                            x = _median_guard_reference(x, has, keys)
                         x = np.where(has & has_g, np.minimum(x, x_g), np.where(has, x, x_g))
                     has = has | has_g
             s1 = np.clip((1 - dk) * s0 + dk * x, cfg.sat_scale_min, smax)

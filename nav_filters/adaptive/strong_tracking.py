@@ -442,7 +442,7 @@ class MeasurementAdaptiveSTKFConfig:
         law's ``b`` in every satellite's eq 11 weights, bounds ``[sat_scale_min, alpha_max]``; rows without
         a satellite key get a per-group factor).
     r_sample, min_redundancy, prior_inflation, sample_iterations, common_scale, sat_scale_min,
-    forget_after_epochs : ``r_mode='satellite'``: as in :class:`~.sage_husa.SageHusaConfig` (defaults:
+    forget_after_epochs, median_guard : ``r_mode='satellite'``: as in :class:`~.sage_husa.SageHusaConfig` (defaults:
         the registered ``sage-husa``'s).
     warmup_epochs : measurement epochs of a row that only feed ``C_k`` (eqs 10-11) before alpha,
         lambda and the fault test act (``alpha = lambda = 1``): the first ``C_k`` rest on one or two
@@ -472,6 +472,7 @@ class MeasurementAdaptiveSTKFConfig:
     common_scale: bool = False
     sat_scale_min: float = 1.0
     forget_after_epochs: int = 30
+    median_guard: bool = False
 
     def __post_init__(self):
         o = type(self).__name__

@@ -252,9 +252,10 @@ def test_sage_husa_r_law_compiled_matches_reference(dtype, groups):
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
 @pytest.mark.parametrize("diagonal,B", [(False, 6), (True, 6), (False, 70)])  # B = 70: the parallel kernel
 @pytest.mark.parametrize("fused", [False, True])  # True: the own eigen-decomposition (fused_update)
-def test_sage_husa_q_law_compiled_matches_reference(dtype, diagonal, B, fused):
+@pytest.mark.parametrize("q_lower", ["floor", "nominal"])
+def test_sage_husa_q_law_compiled_matches_reference(dtype, diagonal, B, fused, q_lower):
     rng = np.random.default_rng(9)
-    law = SageHusa(spd(rng, B, N), dtype=dtype, config=SageHusaConfig(diagonal_q=diagonal))
+    law = SageHusa(spd(rng, B, N), dtype=dtype, config=SageHusaConfig(diagonal_q=diagonal, q_lower=q_lower))
     assert law.set_fused(fused) is fused
     jumps = 0
     for it in range(4):
@@ -269,7 +270,7 @@ def test_sage_husa_q_law_compiled_matches_reference(dtype, diagonal, B, fused):
         ref._adapt_q_reference(rows, d, ctx, dx)
         jumps += int((ref._b_used != ref._params["b"]).sum())
         tol = 1e-12 if dtype == np.float64 else 1e-5
-        for k in ("_Q", "_Q_raw", "_q_ref", "_e_prev", "_b_used"):
+        for k in ("_Q", "_Q_raw", "_q_ref", "_e_prev", "_b_used") + (("_Q_nom",) if q_lower == "nominal" else ()):
             assert getattr(law, k).dtype == getattr(ref, k).dtype
             assert rel(getattr(law, k), getattr(ref, k)) < tol, k
         np.testing.assert_array_equal(law._q_init, ref._q_init)
