@@ -70,6 +70,11 @@ MISSES = {
     ("urban-transition", "ma-stkf"): f"episode 3: 9.24 m, 3.87x kf (2.38 m): {_UNCHANGED}",
     ("regime-switch", "ma-stkf"): f"episode 28: 22.5 m, 2.30x kf (9.77 m): {_UNCHANGED}",
     ("regime-switch", "sage-husa-group"): f"episode 28: 46.0 m, 4.71x kf (9.77 m): {_GROUP_R}",
+    ("open-sky", "vb-akf"): "1.228 m, 1.070x kf (1.147 m): the variational-Bayes R law inflates a satellite whose "
+                            "slowly varying atmosphere residual persists for minutes (scale 4-6 on a 22 deg "
+                            "satellite, measured on a development episode where it costs 2.1x kf); neither its "
+                            "floor (scale_min 1, 0.5, 0.25) nor a longer memory (rho 0.98, 0.99: 1.03x on 32 "
+                            "development episodes) removes it",
 }
 """``(scenario, law): what was measured`` for the misses on these episodes (``xfail(strict=True)``)."""
 
