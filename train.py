@@ -48,9 +48,8 @@ def parse_env_kwargs(items) -> dict:
 def check_env_kwargs(env_id: str, kwargs: dict):
     """Validate env kwargs by building the env's config (one-line error, exit 2)."""
     from agents.rollout import env_class
-    from envs.gnss_ins_env import make_config
     try:
-        make_config(env_class(env_id).DEFAULTS, kwargs)
+        env_class(env_id).config_from(kwargs)
     except ValueError as e:
         fail(str(e))
 
@@ -176,6 +175,8 @@ def main(argv=None):
         from agents.rollout import env_class
         from agents.tuning import default_grid, save_tuning, tune_fixed_parameter
         specs = {s.name: s for s in env_class(args.env).PARAMS}
+        if not specs:
+            fail(f"{args.env} acts per receiver channel: it has no scalar parameter to tune")
         param = args.param or next(iter(specs))
         if param not in specs:
             fail(f"{args.env} has no parameter {param!r}; known: {', '.join(specs)}")
