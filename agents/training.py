@@ -8,8 +8,8 @@ tensorboard + CSV logs, a progress bar, and ``runs/DIR/`` with ``model.zip``,
 ``vecnormalize.pkl`` (when used) and the exact ``config.json``.
 
 Hyperparameters come from (later wins): the algorithm's defaults in
-:data:`DEFAULT_HYPERPARAMS` (on the per-satellite envs with observations not normalized,
-:data:`SATELLITE_NORMALIZE`), the ``--quick`` preset, an RL Zoo style YAML file
+:data:`DEFAULT_HYPERPARAMS` (on the per-satellite envs with the set policies of :data:`SET_POLICY_HYPERPARAMS`
+and observations not normalized, :data:`SATELLITE_NORMALIZE`), the ``--quick`` preset, an RL Zoo style YAML file
 (``--config``: ``{env_id: {n_timesteps, policy, n_envs, normalize, env_kwargs, <algo kwargs>}}``),
 and the command line (``--timesteps``, ``--n-envs``, ``--env-kwargs``).
 """
@@ -41,14 +41,30 @@ DEFAULT_HYPERPARAMS = {
 torch's fused implementation (``optimizer_kwargs=dict(fused=True)``): the same update with the same learning
 rate, betas and epsilon, one kernel for all parameters instead of ~10 small tensor operations per parameter; it
 rounds differently, so a run is not bit for bit the one with the default per-tensor loop."""
+SET_POLICY_HYPERPARAMS = {
+    "ppo": dict(policy="agents.set_policy.ChannelSetPolicy",
+                policy_kwargs=dict(channel_net=[64, 64], context_net=[64], latent_dim=64,
+                                   optimizer_kwargs=dict(fused=True))),
+    "recurrentppo": dict(policy="agents.set_policy.ChannelSetRecurrentPolicy",
+                         policy_kwargs=dict(channel_net=[64, 64], context_net=[64], latent_dim=64,
+                                            lstm_hidden_size=32)),
+    "sac": dict(policy="agents.set_policy.ChannelSetSACPolicy",
+                policy_kwargs=dict(net_arch=[64, 64], channel_net=[64, 64], context_net=[64], latent_dim=64)),
+}
+"""What replaces :data:`DEFAULT_HYPERPARAMS` on the per-satellite envs (:data:`envs.SATELLITE_ENV_IDS`): the
+permutation-equivariant policies of :mod:`agents.set_policy` (TD3 keeps its dense MLP: no set policy for it)."""
 SATELLITE_NORMALIZE = dict(norm_obs=False, norm_reward=True)
 """``normalize`` of the per-satellite envs: rewards only (their features are scaled already, and a running
-normalization per observation slot would break the channels' symmetry)."""
+normalization per observation slot would break the channels' symmetry; :mod:`agents.set_policy`)."""
 
 
 def default_hyperparams(algo: str, env_id: str) -> dict:
     """The algorithm arguments ``train.py rl`` starts from for ``env_id`` (copies)."""
-    return {k: (dict(v) if isinstance(v, dict) else v) for k, v in DEFAULT_HYPERPARAMS[algo].items()}
+    import envs
+    hyper = {k: (dict(v) if isinstance(v, dict) else v) for k, v in DEFAULT_HYPERPARAMS[algo].items()}
+    if env_id in envs.SATELLITE_ENV_IDS and algo in SET_POLICY_HYPERPARAMS:
+        hyper.update({k: (dict(v) if isinstance(v, dict) else v) for k, v in SET_POLICY_HYPERPARAMS[algo].items()})
+    return hyper
 
 
 def default_settings(env_id: str) -> dict:

@@ -25,7 +25,8 @@ def test_hyperparameter_files_are_navgyms_own(algo):
             assert zoo.pop(k) == default_settings(env_id)[k], (env_id, k)
         assert zoo.pop("env_kwargs") == {"episode_length_s": EnvConfig().episode_length_s}
         assert zoo == default_hyperparams(algo, env_id), env_id
-    for env_id in envs.SATELLITE_ENV_IDS:  # observations not normalized
+    for env_id in envs.SATELLITE_ENV_IDS:  # the set policies, observations not normalized
+        assert load_zoo_config(path, env_id)["policy"].startswith("agents.set_policy.")
         assert load_zoo_config(path, env_id)["normalize"] == {"norm_obs": False, "norm_reward": True}
 
 
@@ -38,7 +39,8 @@ def _zoo(*args, cwd):
 
 @pytest.mark.parametrize("env_id", ["GnssIns/SageHusa-v0", "GnssIns/SatelliteR-v0"])
 def test_rl_zoo_trains_and_enjoys_with_the_shipped_file(tmp_path, env_id):
-    """RL Zoo with hyperparams/ppo.yml: the scalar env and a per-satellite env."""
+    """RL Zoo with hyperparams/ppo.yml: the scalar env, and a per-satellite env with its set policy (imported by
+    name from agents.set_policy)."""
     pytest.importorskip("rl_zoo3", reason="RL Zoo is the 'zoo' extra (scripts/setup.sh installs it)")
     logs = tmp_path / "logs"
     name = env_id.replace("/", "-")
