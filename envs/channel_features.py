@@ -21,7 +21,8 @@ zero on a channel without a satellite):
   ``z_pr``, ``z_prr``, ``w_pr``, ``w_prr``, ``log_scale``, ``cn0`` of that update (:data:`LAGGED_FEATURES`).
 
 Normalized innovation ``z = asinh(dz_i / sqrt(S_ii))``: the filter's innovation of the row against its own
-prior and the variance it used (``S = H P- H^T + R``). Deleted residual ``w = asinh(v_i / sqrt(var_i red_i))``
+prior and the variance it used (``S = H P- H^T + R``; 0 on a row the method excluded, as the update reports it).
+Deleted residual ``w = asinh(v_i / sqrt(var_i red_i))``
 of the epoch's snapshot weighted least-squares fit of the measurement type alone (4 unknowns: position and clock,
 or velocity and drift; weights the receiver's reported variances ``var_i``; redundancy ``red_i = 1 - h_ii``;
 Baarda's w-test statistic without the prior), computed on the filter's post-update residuals (a snapshot fit's
@@ -56,7 +57,8 @@ STATIC_FEATURES = (
                                "new one)"),
 )
 LAGGED_FEATURES = (
-    ("z_pr", -10.0, 10.0, "asinh of the pseudorange's normalized innovation dz_i / sqrt(S_ii) at that update"),
+    ("z_pr", -10.0, 10.0, "asinh of the pseudorange's normalized innovation dz_i / sqrt(S_ii) at that update (0 "
+                          "where the method excluded the row, kf-fde / +fde: its deleted residual still shows it)"),
     ("z_prr", -10.0, 10.0, "the same for the pseudorange rate (0 without Doppler)"),
     ("w_pr", -10.0, 10.0, "asinh of the pseudorange's normalized deleted residual of the epoch's snapshot fit "
                           "(0 with fewer than 5 satellites)"),

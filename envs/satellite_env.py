@@ -49,7 +49,7 @@ The 27 features of a channel (:mod:`envs.channel_features`):
 | 2-6 | sys_gps ... sys_other | 0-1 | one-hot system: GPS, GLONASS, Galileo, BeiDou, other (QZSS, SBAS) |
 | 7 | tracked | 0-5 | log10(1 + consecutive epochs the satellite was used up to the last update); 0: new or reacquired |
 | 8 | last_action | -1-1 | the action applied to this satellite at its last update (the default action for a new one) |
-| 9 + 6 l + 0 | z_pr_l | -10-10 | asinh(dz_i / sqrt(S_ii)), the pseudorange's normalized innovation l updates ago (l = 0, 1, 2) |
+| 9 + 6 l + 0 | z_pr_l | -10-10 | asinh(dz_i / sqrt(S_ii)), the pseudorange's normalized innovation l updates ago (l = 0, 1, 2; 0 where the method excluded the row) |
 | 9 + 6 l + 1 | z_prr_l | -10-10 | the same for the pseudorange rate (0 without Doppler) |
 | 9 + 6 l + 2 | w_pr_l | -10-10 | asinh of the pseudorange's normalized deleted residual of that epoch's snapshot fit (0 below 5 satellites) |
 | 9 + 6 l + 3 | w_prr_l | -10-10 | the same for the rate |
