@@ -56,11 +56,11 @@ def check_env_kwargs(env_id: str, kwargs: dict):
     """Validate env kwargs by building the env's config (one-line error, exit 2)."""
     from agents.rollout import env_class
     from envs.core import check_method_has_params
-    from envs.gnss_ins_env import make_config
     cls = env_class(env_id)
     try:
-        cfg = make_config(cls.DEFAULTS, kwargs)
-        check_method_has_params(cfg.method, cls.PARAMS, cls.DEFAULTS["method"])
+        cfg = cls.config_from(kwargs)
+        if cls.PARAMS:  # an env of an adaptive law's knob: the method must run that law
+            check_method_has_params(cfg.method, cls.PARAMS, cls.DEFAULTS["method"])
     except ValueError as e:
         fail(str(e))
 
@@ -216,6 +216,8 @@ def _main(argv=None):
         from agents.rollout import env_class
         from agents.tuning import default_grid, save_tuning, tune_fixed_parameter
         specs = {s.name: s for s in env_class(args.env).PARAMS}
+        if not specs:
+            fail(f"{args.env} acts per receiver channel: it has no scalar parameter to tune")
         param = args.param or next(iter(specs))
         if param not in specs:
             fail(f"{args.env} has no parameter {param!r}; known: {', '.join(specs)}")

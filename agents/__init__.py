@@ -8,6 +8,7 @@ baseline, and evaluation of policies on paired episodes.
   cross-fitted schedule): the headroom of a policy in that action space;
 * :mod:`agents.methods` -- method specifications of eval.py (filters, fixed parameters, tuned, learned);
 * :mod:`agents.training` -- ``train.py rl``;
+* :mod:`agents.set_policy` -- permutation-equivariant SB3 policies for the per-satellite envs (PPO, RecurrentPPO, SAC);
 * :mod:`agents.backends` -- where independent work runs: this process or Ray (tasks and Ray Tune trials);
 * :mod:`agents.eval_batches` -- eval.py's paired episode batches as units of work for a backend.
 """

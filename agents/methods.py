@@ -315,19 +315,16 @@ def check_policy_env(policy: Sb3Policy, path) -> None:
     ``ValueError`` naming the file otherwise."""
     from pathlib import Path
 
-    from envs.core import OBS_FEATURES
-    from envs.gnss_ins_env import make_config
-
     from .rollout import env_class
     cfg = Path(path).parent / "config.json"
     if policy.env_id is None:
         raise ValueError(f"{path}: no config.json beside the model naming its environment (train.py rl writes one)")
     try:
         cls = env_class(policy.env_id)
-        config = make_config(cls.DEFAULTS, policy.env_kwargs)
+        config = cls.config_from(policy.env_kwargs)
+        want = (cls.core_for(config, 1).obs_dim,)
     except ValueError as e:
         raise ValueError(f"{cfg}: {e}") from None
-    want = ((len(cls.PARAMS) + len(OBS_FEATURES)) * config.history,)
     got = tuple(policy.model.observation_space.shape)
     if got != want:
         raise ValueError(f"{path}: the model observes {got} values, {policy.env_id} with these env kwargs gives {want} "

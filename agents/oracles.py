@@ -146,6 +146,8 @@ def _epochs(seconds, rate_hz: float, name: str, minimum: int) -> int:
 
 def _setup(env_id, env_kwargs, seeds, grid):
     cls = env_class(env_id)
+    if not cls.PARAMS:
+        raise ValueError(f"{env_id} acts per receiver channel: its schedule oracle is not implemented")
     env_kwargs = dict(env_kwargs or {})
     cfg = make_config(cls.DEFAULTS, env_kwargs)
     from envs.core import check_method_has_params

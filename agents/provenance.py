@@ -43,9 +43,8 @@ def _env_defaults(env_id: str | None, env_kwargs: dict) -> tuple[str | None, flo
     if not env_id:
         return env_kwargs.get("scenario"), env_kwargs.get("episode_length_s")
     try:
-        from envs.gnss_ins_env import make_config
         from .rollout import env_class
-        cfg = make_config(env_class(env_id).DEFAULTS, dict(env_kwargs))
+        cfg = env_class(env_id).config_from(dict(env_kwargs))
     except (ValueError, TypeError):
         return env_kwargs.get("scenario"), env_kwargs.get("episode_length_s")
     scen = cfg.scenario if isinstance(cfg.scenario, str) else getattr(cfg.scenario, "name", str(cfg.scenario))

@@ -10,7 +10,6 @@ import numpy as np
 import envs  # noqa: F401  (registers the ids)
 from envs.core import TuningCore
 from envs.episodes import EpisodeLog
-from envs.gnss_ins_env import make_config
 
 
 def env_class(env_id: str):
@@ -40,10 +39,10 @@ def run_policy_episodes(env_id: str, env_kwargs: dict, policy, seeds, progress=N
     policy set at each epoch.
     """
     cls = env_class(env_id)
-    cfg = make_config(cls.DEFAULTS, env_kwargs)
+    cfg = cls.config_from(env_kwargs)
     seeds = [int(s) for s in seeds]
     B = len(seeds)
-    core = TuningCore(cfg, cls.PARAMS, B, cls.DEFAULTS["method"])
+    core = cls.core_for(cfg, B)
     obs = core.reset_rows(np.arange(B), seeds)
     policy.reset(B)
     nis = np.zeros((B, core.M))

@@ -141,7 +141,6 @@ class SweepConfig:
         import envs
         from agents.policies import ALGOS
         from agents.rollout import env_class
-        from envs.gnss_ins_env import make_config
         for name in ("envs", "algos", "seeds", "scenarios"):
             v = getattr(self, name)
             if not isinstance(v, tuple) or not v:
@@ -184,7 +183,7 @@ class SweepConfig:
             for s in self.scenarios:
                 kw = dict(self.env_kwargs, **({} if s is None else {"scenario": s}))
                 try:
-                    make_config(env_class(e).DEFAULTS, kw)
+                    env_class(e).config_from(kw)
                 except ValueError as err:
                     self._bad("scenarios" if s is not None else "env_kwargs", str(err))
         try:
@@ -526,10 +525,9 @@ def eval_commands(cfg: SweepConfig, root, rows: list[TrialRow]) -> list[str]:
     """One ``eval.py`` command per scenario: the baselines and each group's best model on held-out episodes
     (paths relative to the working directory where they lie under it)."""
     from agents.rollout import env_class
-    from envs.gnss_ins_env import make_config
     per_scen: dict = {}
     for (env, _, algo), r in best_per_group(rows, cfg.direction).items():
-        scen = r.trial.scenario or make_config(env_class(env).DEFAULTS, {}).scenario
+        scen = r.trial.scenario or env_class(env).config_from({}).scenario
         per_scen.setdefault(str(scen), []).append(f"{algo}:{_display(str(Path(r.trial.out) / 'model.zip'))}")
     script = _display(str(Path(__file__).resolve().parents[1] / "eval.py"))
     cmds = []

@@ -8,7 +8,8 @@ tensorboard + CSV logs, a progress bar, and ``runs/DIR/`` with ``model.zip``,
 ``vecnormalize.pkl`` (when used) and the exact ``config.json``.
 
 Hyperparameters come from (later wins): the algorithm's defaults in
-:data:`DEFAULT_HYPERPARAMS`, the ``--quick`` preset, an RL Zoo style YAML file
+:data:`DEFAULT_HYPERPARAMS` (on the per-satellite envs with the set policies of :data:`SET_POLICY_HYPERPARAMS`
+and observations not normalized, :data:`SATELLITE_NORMALIZE`), the ``--quick`` preset, an RL Zoo style YAML file
 (``--config``: ``{env_id: {n_timesteps, policy, n_envs, normalize, env_kwargs, <algo kwargs>}}``),
 and the command line (``--timesteps``, ``--n-envs``, ``--env-kwargs``).
 """
@@ -41,6 +42,68 @@ DEFAULT_HYPERPARAMS = {
 torch's fused implementation (``optimizer_kwargs=dict(fused=True)``): the same update with the same learning
 rate, betas and epsilon, one kernel for all parameters instead of ~10 small tensor operations per parameter; it
 rounds differently, so a run is not bit for bit the one with the default per-tensor loop."""
+SET_POLICY_HYPERPARAMS = {
+    "ppo": dict(policy="agents.set_policy.ChannelSetPolicy",
+                policy_kwargs=dict(channel_net=[64, 64], context_net=[64], latent_dim=64,
+                                   optimizer_kwargs=dict(fused=True))),
+    "recurrentppo": dict(policy="agents.set_policy.ChannelSetRecurrentPolicy",
+                         policy_kwargs=dict(channel_net=[64, 64], context_net=[64], latent_dim=64,
+                                            lstm_hidden_size=32)),
+    "sac": dict(policy="agents.set_policy.ChannelSetSACPolicy",
+                policy_kwargs=dict(net_arch=[64, 64], channel_net=[64, 64], context_net=[64], latent_dim=64)),
+}
+"""What replaces :data:`DEFAULT_HYPERPARAMS` on the per-satellite envs (:data:`envs.SATELLITE_ENV_IDS`): the
+permutation-equivariant policies of :mod:`agents.set_policy` (TD3 keeps its dense MLP: no set policy for it)."""
+SATELLITE_NORMALIZE = dict(norm_obs=False, norm_reward=True)
+"""``normalize`` of the per-satellite envs: rewards only (their features are scaled already, and a running
+normalization per observation slot would break the channels' symmetry; :mod:`agents.set_policy`)."""
+
+
+def default_hyperparams(algo: str, env_id: str) -> dict:
+    """The algorithm arguments ``train.py rl`` starts from for ``env_id`` (copies)."""
+    import envs
+    hyper = {k: (dict(v) if isinstance(v, dict) else v) for k, v in DEFAULT_HYPERPARAMS[algo].items()}
+    if env_id in envs.SATELLITE_ENV_IDS and algo in SET_POLICY_HYPERPARAMS:
+        hyper.update({k: (dict(v) if isinstance(v, dict) else v) for k, v in SET_POLICY_HYPERPARAMS[algo].items()})
+    return hyper
+
+
+def default_settings(env_id: str) -> dict:
+    """The run settings ``train.py rl`` starts from for ``env_id`` (:data:`DEFAULT_SETTINGS`, with
+    :data:`SATELLITE_NORMALIZE` on the per-satellite envs)."""
+    import envs
+    settings = {**DEFAULT_SETTINGS, "env_kwargs": dict(DEFAULT_SETTINGS["env_kwargs"])}
+    if env_id in envs.SATELLITE_ENV_IDS:
+        settings["normalize"] = dict(SATELLITE_NORMALIZE)
+    return settings
+
+
+def resolve_policy(policy):
+    """SB3's policy argument: an alias (``'MlpPolicy'``) as is, a dotted path (``'agents.set_policy.ChannelSetPolicy'``,
+    as RL Zoo takes it) imported; ``ValueError`` when it cannot be."""
+    if not isinstance(policy, str) or "." not in policy:
+        return policy
+    import importlib
+    mod, _, name = policy.rpartition(".")
+    try:
+        return getattr(importlib.import_module(mod), name)
+    except (ImportError, AttributeError) as e:
+        raise ValueError(f"policy {policy!r} cannot be imported: {e}") from None
+
+
+def normalize_kwargs(normalize) -> dict | None:
+    """``VecNormalize``'s ``norm_obs`` / ``norm_reward`` of a ``normalize`` setting (``true``, ``false`` or a mapping
+    of those two, as RL Zoo takes it), None for no normalization; ``ValueError`` otherwise."""
+    if isinstance(normalize, bool):
+        return dict(norm_obs=True, norm_reward=True) if normalize else None
+    if isinstance(normalize, dict) and set(normalize) <= {"norm_obs", "norm_reward"} and all(
+            isinstance(v, bool) for v in normalize.values()):
+        kw = {"norm_obs": True, "norm_reward": True, **normalize}
+        return kw if (kw["norm_obs"] or kw["norm_reward"]) else None
+    raise ValueError(f"normalize must be true, false or a mapping of norm_obs / norm_reward to true / false, got "
+                     f"{normalize!r}")
+
+
 DEFAULT_SETTINGS = dict(n_timesteps=100_000, n_envs=16, normalize=True, env_kwargs={}, eval_freq=10_000,
                         eval_episodes=16, torch_threads=1, prefetch_worlds=2)
 """Run settings of ``train.py rl`` without ``--quick`` or a config file (``hyperparams/*.yml`` repeat them for
@@ -160,6 +223,10 @@ def check_hyperparameters(algo: str, hyper: dict, settings: dict, config_file=No
     sig = inspect.signature(algo_class(algo).__init__).parameters
     known = {p for p in sig if not p.startswith("_")} - {"self", "env"}
     bad = sorted(set(hyper) - known)
+    try:
+        resolve_policy(hyper.get("policy"))
+    except ValueError as e:
+        raise ValueError(f"{src}{e}") from None
     if bad:
         raise ValueError(f"{src}unknown hyperparameter(s) {', '.join(map(repr, bad))} for {algo}; known: "
                          f"{', '.join(sorted(known))} and the run settings n_timesteps, n_envs, normalize, "
@@ -187,8 +254,10 @@ def check_hyperparameters(algo: str, hyper: dict, settings: dict, config_file=No
     if float(settings["n_timesteps"]) > MAX_TIMESTEPS:
         raise ValueError(f"{src}n_timesteps must be at most {MAX_TIMESTEPS:.0e} (about 23 days at 5000 env-steps/s), "
                          f"got {settings['n_timesteps']!r}")
-    if not isinstance(settings["normalize"], bool):
-        raise ValueError(f"{src}normalize must be true or false, got {settings['normalize']!r}")
+    try:
+        normalize_kwargs(settings["normalize"])
+    except ValueError as e:
+        raise ValueError(f"{src}{e}") from None
 
 
 class _ProgressBar:
@@ -240,11 +309,10 @@ def resolve_settings(env_id: str, algo: str, timesteps=None, n_envs=None, env_kw
     config file, the arguments; later wins), every one checked (:func:`check_hyperparameters`, the env's
     arguments and method) before any work; ``ValueError`` naming the config file and the key."""
     from envs.core import check_method_has_params
-    from envs.gnss_ins_env import make_config
     from .rollout import env_class
 
-    hyper = dict(DEFAULT_HYPERPARAMS[algo])
-    settings = {**DEFAULT_SETTINGS, "env_kwargs": dict(DEFAULT_SETTINGS["env_kwargs"])}
+    hyper = default_hyperparams(algo, env_id)
+    settings = default_settings(env_id)
     if quick:
         settings.update(n_timesteps=QUICK["n_timesteps"], n_envs=QUICK["n_envs"], eval_freq=QUICK["eval_freq"],
                         eval_episodes=QUICK["eval_episodes"], env_kwargs=dict(QUICK["env_kwargs"]))
@@ -272,8 +340,9 @@ def resolve_settings(env_id: str, algo: str, timesteps=None, n_envs=None, env_kw
     check_hyperparameters(algo, hyper, settings, config_file)
     cls = env_class(env_id)
     try:
-        cfg = make_config(cls.DEFAULTS, settings["env_kwargs"])
-        check_method_has_params(cfg.method, cls.PARAMS, cls.DEFAULTS["method"])
+        cfg = cls.config_from(settings["env_kwargs"])
+        if cls.PARAMS:  # an env of an adaptive law's knob: the method must run that law
+            check_method_has_params(cfg.method, cls.PARAMS, cls.DEFAULTS["method"])
     except ValueError as e:
         raise ValueError(f"{config_file or 'env_kwargs'}: {e}") from None
     settings["n_timesteps"] = int(float(settings["n_timesteps"]))
@@ -318,14 +387,15 @@ def train_rl(env_id: str, algo: str, out, timesteps: int | None = None, seed: in
     # too (a reset without a seed continues its rows' streams, envs.vector_env)
     eval_env = VecMonitor(make_sb3_vec_env(env_id, n_eval, seed=EVAL_SEED_OFFSET + 1000 * seed,
                                            prefetch_worlds=settings["prefetch_worlds"], **ekw))
-    if settings["normalize"]:
-        venv = VecNormalize(venv, norm_obs=True, norm_reward=True, gamma=hyper.get("gamma", 0.99))
-        eval_env = VecNormalize(eval_env, norm_obs=True, norm_reward=False, training=False)
+    norm = normalize_kwargs(settings["normalize"])
+    if norm is not None:
+        venv = VecNormalize(venv, **norm, gamma=hyper.get("gamma", 0.99))
+        eval_env = VecNormalize(eval_env, norm_obs=norm["norm_obs"], norm_reward=False, training=False)
     set_torch_threads(settings["torch_threads"])
     cls = algo_class(algo)
     policy = hyper.pop("policy")
     try:
-        model = cls(policy, venv, seed=seed, device="cpu", verbose=0, **hyper)
+        model = cls(resolve_policy(policy), venv, seed=seed, device="cpu", verbose=0, **hyper)
     except (AssertionError, ValueError, TypeError) as e:  # what the checks above cannot see (combinations)
         venv.close()
         eval_env.close()
@@ -351,7 +421,7 @@ def train_rl(env_id: str, algo: str, out, timesteps: int | None = None, seed: in
                      log_path=str(out / "eval"), deterministic=True, verbose=0,
                      callback_on_new_best=_SaveNormalization(out / "best" / "vecnormalize.pkl")),
         CheckpointCallback(save_freq=save_freq, save_path=str(out / "checkpoints"), name_prefix="model",
-                           save_vecnormalize=settings["normalize"]),
+                           save_vecnormalize=norm is not None),
     ]
     if progress:
         callbacks.append(_ProgressBar(settings["n_timesteps"]))
@@ -370,7 +440,7 @@ def train_rl(env_id: str, algo: str, out, timesteps: int | None = None, seed: in
         eval_env.close()
     with atomic_path(out / "model.zip") as tmp:
         model.save(str(tmp))
-    if settings["normalize"]:
+    if norm is not None:
         with atomic_path(out / "vecnormalize.pkl") as tmp:
             venv.save(str(tmp))
     config["wall_time_s"] = wall

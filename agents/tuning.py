@@ -15,7 +15,6 @@ from pathlib import Path
 import numpy as np
 
 from envs.episodes import run_episodes
-from envs.gnss_ins_env import make_config
 from envs.json_io import dumps
 
 from .rollout import env_class
@@ -49,7 +48,9 @@ def tune_fixed_parameter(env_id: str, env_kwargs: dict | None = None, param: str
     """
     env_kwargs = dict(env_kwargs or {})
     cls = env_class(env_id)
-    cfg = make_config(cls.DEFAULTS, env_kwargs)
+    cfg = cls.config_from(env_kwargs)
+    if not cls.PARAMS:
+        raise ValueError(f"{env_id} acts per receiver channel: it has no scalar parameter to tune")
     from envs.core import check_method_has_params
     check_method_has_params(cfg.method, cls.PARAMS, cls.DEFAULTS["method"])
     specs = {s.name: s for s in cls.PARAMS}

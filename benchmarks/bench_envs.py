@@ -7,7 +7,8 @@ Prints, in one run:
 
 * env steps/s of the single env (``gym.make``, B = 1) and of the native vector env
   (``gym.make_vec(..., vectorization_mode="vector_entry_point")``) at B = 16, 256, 1024, for the methods
-  ``sage-husa``, ``stkf``, ``ma-stkf`` and ``svd-akf`` (the Sage-Husa law around the SVD form). Vector
+  ``sage-husa``, ``stkf``, ``ma-stkf`` and ``svd-akf`` (the Sage-Husa law around the SVD form; ``--methods satellite-r
+satellite-sage-husa``: the per-satellite envs, ``kf`` and ``sage-husa`` with one action per channel). Vector
   figures are row-steps: B x steps / wall time. Reset (world generation + filter construction) is timed
   separately and excluded from the step rate; the timed steps stay inside one episode (no autoreset).
   ``cpu ms/step`` is the process CPU time (all threads) per batched step: on a shared machine the wall
@@ -88,8 +89,15 @@ METHOD_ENV = {
     "stkf": "GnssIns/STKF-v0",
     "ma-stkf": "GnssIns/MASTKF-v0",
     "svd-akf": "GnssIns/SageHusa-v0",
+    "satellite-r": "GnssIns/SatelliteR-v0",
+    "satellite-sage-husa": "GnssIns/SatelliteSageHusa-v0",
 }
 """Benchmarked method -> the env id whose action drives it."""
+SATELLITE_METHODS = {"satellite-r": "kf", "satellite-sage-husa": "sage-husa"}
+"""The per-satellite envs (one action per channel, :mod:`envs.satellite_env`) under their default filter method
+(``--methods satellite-r satellite-sage-husa``; not in the default list, which an earlier tree of ``--compare`` must
+also have)."""
+DEFAULT_METHODS = [m for m in METHOD_ENV if m not in SATELLITE_METHODS]
 
 WARMUP_STEPS = 12
 """Untimed steps before timing: past the adaptive laws' warm-up (10 epochs) so that every code path (and
@@ -119,7 +127,7 @@ def _label(method, transition):
 
 def _make(method, B, episode_s, scenario, transition="exact"):
     from envs.config import EnvConfig
-    kw = dict(method=method, episode_length_s=float(episode_s), scenario=scenario)
+    kw = dict(method=SATELLITE_METHODS.get(method, method), episode_length_s=float(episode_s), scenario=scenario)
     fields = EnvConfig.__dataclass_fields__  # an earlier tree (--compare) may lack the arguments (exact only)
     for name, value in (("exact_transition", transition == "exact"), ("fused_update", transition == "fused")):
         if name in fields:
@@ -402,7 +410,7 @@ def print_filterpy(batches, episode_s, scenario, steps_of):
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--quick", action="store_true", help="B up to 256, fewer steps")
-    p.add_argument("--methods", nargs="+", default=list(METHOD_ENV), choices=list(METHOD_ENV))
+    p.add_argument("--methods", nargs="+", default=DEFAULT_METHODS, choices=list(METHOD_ENV))
     p.add_argument("--batches", nargs="+", type=int, default=None,
                    help="batch sizes (1 = the single env via gym.make; default 1 16 256 1024)")
     p.add_argument("--steps", type=int, default=None, help="timed steps per measurement")

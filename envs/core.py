@@ -83,9 +83,9 @@ def check_method_law(method: str, env_method: str) -> None:
     if own is None or law is own:
         return
     import envs
-    from . import gnss_ins_env
-    home = [i for i, (single, _) in envs.ENV_IDS.items()
-            if law is not None and law_class(getattr(gnss_ins_env, single).DEFAULTS["method"]) is law]
+    from . import vector_env
+    home = [i for i, (_, vector) in envs.ENV_IDS.items()
+            if law is not None and law_class(getattr(vector_env, vector).DEFAULTS["method"]) is law]
     fits = [m for m in sorted(FORMS) if law_class(m) is own]
     raise ValueError(f"method {method!r} runs another adaptive law ({getattr(law, '__name__', 'none')}) than this "
                      f"env's {env_method!r} ({own.__name__}), whose parameters its action sets; methods of this env: "
@@ -372,6 +372,7 @@ class TuningCore:
         self.scenario = config.resolve_scenario()
         check_method_has_params(config.method, self.specs, env_method)
         self.k = len(self.specs)
+        self.action_dim = self.k  # components of one row's action (a subclass may act per channel)
         self.frame_dim = self.k + len(OBS_FEATURES)
         self.obs_dim = self.frame_dim * config.history
         lo = np.r_[-np.ones(self.k), [f[1] for f in OBS_FEATURES]]
@@ -448,7 +449,7 @@ class TuningCore:
             self.nav.replace_rows(rows, nav)
             if ref is not None:
                 self.ref.replace_rows(rows, ref)
-        for name in WORLD_ARRAY_NAMES:
+        for name in self.WORLD_ARRAYS:
             getattr(self, name)[rows] = prepared.arrays[name]
         del whole  # the world drawn here is freed after the copies (see above)
         self._zupt.reset(None if rows.size == self.B else rows)  # new streams on the reset rows
@@ -464,7 +465,18 @@ class TuningCore:
         self.est_track[rows] = np.nan
         frame = self._initial_frame(rows)
         self.frames[rows] = frame[:, None, :]
-        return self.frames[rows].reshape(rows.size, -1).copy()
+        self._reset_extra(rows)
+        return self._observation(rows)
+
+    def _reset_extra(self, rows) -> None:
+        """Reset a subclass's own per-row state on ``rows`` (called by :meth:`reset_rows` before the observation)."""
+
+    def _observation(self, rows=None) -> np.ndarray:
+        """The observations (len(rows), obs_dim) float32 of ``rows`` (None: every row, (B, obs_dim)), new arrays:
+        the stacked frames."""
+        if rows is None:
+            return self.frames.reshape(self.B, -1).copy()
+        return self.frames[rows].reshape(len(rows), -1).copy()
 
     def _alloc(self, prepared: PreparedWorld):
         B = self.B
@@ -524,10 +536,11 @@ class TuningCore:
             raise ValueError(f"action must be an array of real numbers, got dtype {raw.dtype}"
                              + (" (complex: the imaginary part would be dropped)" if raw.dtype.kind == "c" else ""))
         a = raw.astype(np.float64)
-        if a.shape == (self.k,) and self.B == 1:
+        k = self.action_dim
+        if a.shape == (k,) and self.B == 1:
             a = a[None]
-        if a.shape != (self.B, self.k):
-            raise ValueError(f"action must have shape ({self.k},) per env (batch {self.B}), got {np.shape(actions)}")
+        if a.shape != (self.B, k):
+            raise ValueError(f"action must have shape ({k},) per env (batch {self.B}), got {np.shape(actions)}")
         if not _clip_if_finite(a):  # one compiled pass instead of isfinite / all / maximum / minimum
             bad = np.flatnonzero(~np.isfinite(a).all(1))
             first = ", ".join(str(int(r)) for r in bad[:5]) + (", ..." if bad.size > 5 else "")
@@ -542,8 +555,7 @@ class TuningCore:
             raise RuntimeError("reset() must be called before step()")
         if (self.t[0] if self.B == 1 else self.t.max()) >= self.M:  # (a single row: no reduction call)
             raise RuntimeError("step() on a finished episode: reset those rows first")
-        self.action[:] = a
-        vals = self._set_params(self.nav, a)
+        vals = self._apply_action(a)
         j = self.t  # per-row epoch index (rows may be at different epochs after partial resets)
         h_err, e3, res, zflag = self._advance(self.nav, j)
         if self.ref is not None:
@@ -591,8 +603,14 @@ class TuningCore:
             self.excluded_sum += excluded
         if self.ref is not None:
             info["reference_horizontal_error_m"] = ref_h
-        return StepResult(obs=self.frames.reshape(self.B, -1).copy(), reward=reward, terminated=terminated,
-                          truncated=truncated, info=info)
+        return StepResult(obs=self._observation(), reward=reward, terminated=terminated, truncated=truncated,
+                          info=info)
+
+    def _apply_action(self, a) -> dict:
+        """Apply the checked (B, action_dim) actions ``a`` for the coming update; returns the parameter values set
+        (``{name: (B,)}``, reported in the step's info)."""
+        self.action[:] = a
+        return self._set_params(self.nav, a)
 
     def episode_metrics(self, rows) -> list[dict]:
         """Metrics of the episodes of ``rows`` so far (call at the end of an episode)."""
@@ -624,10 +642,7 @@ class TuningCore:
             sel = (rows[:, None], idx)
             nav.propagate_epoch(self.f[sel], self.w[sel], self.dt)
             jj = np.minimum(j, self.M - 1)
-        rate = self.has_rate
-        g = (self.sat_pos[rows, jj], self.sat_vel[rows, jj], self.pr[rows, jj],
-             self.prr[rows, jj] if rate else None, self.pr_sigma[rows, jj],
-             self.prr_sigma[rows, jj] if rate else None, self.gmask[rows, jj])
+        g = self._gnss_inputs(nav, rows, jj)
         zflag = np.zeros(B, bool)
         extra = None
         if self._zupt.enabled:
@@ -644,6 +659,15 @@ class TuningCore:
         if nav is self.nav:
             self._last_res, self._last_gdop, self._last_mask = res, gdop, g[6] & ~nav.diverged[:, None]
         return h, e3, res, zflag
+
+    def _gnss_inputs(self, nav, rows, jj) -> tuple:
+        """The epoch's arguments of :meth:`~nav_filters.navigator.Navigator.update_gnss` for ``nav`` (the agent's
+        navigator or the reference one): ``(sat_pos, sat_vel, pr, prr, pr_sigma, prr_sigma, mask)`` of rows
+        ``rows`` at their epochs ``jj`` (``prr`` and its sigma None without Doppler)."""
+        rate = self.has_rate
+        return (self.sat_pos[rows, jj], self.sat_vel[rows, jj], self.pr[rows, jj],
+                self.prr[rows, jj] if rate else None, self.pr_sigma[rows, jj],
+                self.prr_sigma[rows, jj] if rate else None, self.gmask[rows, jj])
 
     def _frame(self, res, zflag):
         """The observation frame of this epoch, written into ``self.frames[:, -1]`` and returned (compiled:

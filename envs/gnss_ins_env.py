@@ -146,13 +146,14 @@ MASTKF_PARAMS = (ParamSpec("b", 0.90, 0.9999, "log1m", 0.987, "MA-STKF asymptoti
                  ParamSpec("fading_scale", 0.01, 5.0, "log", 1.0, "scaling of the MA-STKF fading factor"))
 
 
-def make_config(defaults: dict, kwargs: dict) -> EnvConfig:
-    """An EnvConfig from an env's defaults and the user's kwargs (unknown kwargs -> ValueError naming them)."""
-    fields = set(EnvConfig.__dataclass_fields__)
+def make_config(defaults: dict, kwargs: dict, config_class: type = EnvConfig) -> EnvConfig:
+    """A ``config_class`` (an :class:`EnvConfig` or a subclass, an env class's ``CONFIG``) from an env's defaults
+    and the user's kwargs (unknown kwargs -> ValueError naming them)."""
+    fields = set(config_class.__dataclass_fields__)
     bad = set(kwargs) - fields
     if bad:
         raise ValueError(f"unknown environment argument(s) {sorted(bad)}; known: {sorted(fields)}")
-    return EnvConfig(**{**defaults, **kwargs})
+    return config_class(**{**defaults, **kwargs})
 
 
 def _scalar(x):
@@ -173,17 +174,31 @@ class GnssInsTuningEnv(gym.Env):
     metadata = {"render_modes": ["ansi", "rgb_array"], "render_fps": 4}
     PARAMS: tuple[ParamSpec, ...] = SAGE_HUSA_PARAMS
     DEFAULTS: dict = {"method": "sage-husa"}
+    CONFIG: type = EnvConfig
+    """The config class of the env's arguments (:func:`make_config`)."""
 
     def __init__(self, render_mode: str | None = None, **kwargs):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
-        self.config = make_config(self.DEFAULTS, kwargs)
+        self.config = make_config(self.DEFAULTS, kwargs, self.CONFIG)
         self.render_mode = render_mode
-        self.core = TuningCore(self.config, self.PARAMS, 1, self.DEFAULTS["method"])
-        k = self.core.k
-        self.action_space = spaces.Box(-1.0, 1.0, shape=(k,), dtype=np.float32)
+        self.core = self._make_core(1)
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(self.core.action_dim,), dtype=np.float32)
         self.observation_space = spaces.Box(self.core.obs_low, self.core.obs_high, dtype=np.float32)
         self._last = None
+
+    @classmethod
+    def config_from(cls, kwargs: dict) -> EnvConfig:
+        """This env's config from the user's ``kwargs`` (:func:`make_config` with the env's defaults and class)."""
+        return make_config(cls.DEFAULTS, kwargs, cls.CONFIG)
+
+    @classmethod
+    def core_for(cls, config: EnvConfig, batch_size: int) -> TuningCore:
+        """The batched core of this env for ``config`` and ``batch_size`` rows (a subclass may run another)."""
+        return TuningCore(config, cls.PARAMS, batch_size, cls.DEFAULTS["method"])
+
+    def _make_core(self, batch_size: int) -> TuningCore:
+        return self.core_for(self.config, batch_size)
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)

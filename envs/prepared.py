@@ -35,6 +35,11 @@ position at the epochs [m]; ``truth_Cne`` (B, M, 3, 3) ECEF-to-NED rotation ther
 ``odo_yaw`` (B, M) yaw-rate readings over each epoch's IMU interval [rad/s] (NaN without one).
 """
 
+CHANNEL_ARRAY_NAMES = ("sat_el", "sat_cn0")
+"""Per-channel receiver reports in :class:`PreparedWorld.arrays` beside :data:`WORLD_ARRAY_NAMES`, which only the
+per-satellite env cores store (:mod:`envs.satellite_env`): ``sat_el`` (B, M, C) elevation [rad] and ``sat_cn0``
+(B, M, C) C/N0 [dB-Hz] (0 on empty channels, and where a data set reports none)."""
+
 
 @dataclass(frozen=True)
 class PreparedWorld:
@@ -45,7 +50,7 @@ class PreparedWorld:
     seeds : the B world seeds.
     world : the :class:`~envs.sim.world.World` with ``truth``, ``imu`` and ``gnss`` set to None (scenario,
         seeds, epoch indices, initial estimate: what :func:`envs.episodes.navigator_for` reads).
-    arrays : ``{name: array}`` for every name of :data:`WORLD_ARRAY_NAMES`.
+    arrays : ``{name: array}`` for every name of :data:`WORLD_ARRAY_NAMES` and :data:`CHANNEL_ARRAY_NAMES`.
     has_rate : whether the world has pseudorange rates (a recording may have no Doppler).
     """
 
@@ -60,8 +65,8 @@ class PreparedWorld:
 
 
 def world_arrays(world: World) -> dict:
-    """The per-row arrays of :data:`WORLD_ARRAY_NAMES` from a whole world (float64 but the IMU samples, which
-    keep the world's IMU dtype until the core stores them)."""
+    """The per-row arrays of :data:`WORLD_ARRAY_NAMES` and :data:`CHANNEL_ARRAY_NAMES` from a whole world (float64
+    but the IMU samples, which keep the world's IMU dtype until the core stores them)."""
     g, tr = world.gnss, world.truth
     B, M = g.pr.shape[:2]
     ep = world.epoch_idx
@@ -85,6 +90,8 @@ def world_arrays(world: World) -> dict:
         "sat_keys": satellite_keys(g),
         "odo": np.full((B, M), np.nan) if world.odometer is None else world.odometer,
         "odo_yaw": np.full((B, M), np.nan) if world.odometer_yaw_rate is None else world.odometer_yaw_rate,
+        "sat_el": np.where(g.mask, g.elevation, 0.0),
+        "sat_cn0": np.zeros(g.pr.shape) if g.cn0_dbhz is None else np.where(g.mask, g.cn0_dbhz, 0.0),
     }
 
 
@@ -100,4 +107,4 @@ def prepare_world(config, seeds) -> PreparedWorld:
     return prepared_from(config.make_world([int(s) for s in seeds]))
 
 
-__all__ = ["WORLD_ARRAY_NAMES", "PreparedWorld", "prepare_world", "prepared_from", "world_arrays"]
+__all__ = ["WORLD_ARRAY_NAMES", "CHANNEL_ARRAY_NAMES", "PreparedWorld", "prepare_world", "prepared_from", "world_arrays"]

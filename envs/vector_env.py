@@ -28,8 +28,10 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from .config import EnvConfig
 from .core import TuningCore, check_batch_size, draw_world_seed
 from .gnss_ins_env import MASTKF_PARAMS, SAGE_HUSA_PARAMS, STKF_PARAMS, make_config
+from .satellite_env import SatelliteCore, SatelliteEnvConfig
 
 
 class GnssInsTuningVectorEnv(VectorEnv):
@@ -38,6 +40,11 @@ class GnssInsTuningVectorEnv(VectorEnv):
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
     PARAMS = SAGE_HUSA_PARAMS
     DEFAULTS = {"method": "sage-husa"}
+    CONFIG = EnvConfig
+
+    def _make_core(self, batch_size: int) -> TuningCore:
+        """The batched core of this env (a subclass may run another)."""
+        return TuningCore(self.config, self.PARAMS, batch_size, self.DEFAULTS["method"])
 
     def __init__(self, num_envs: int = 1, prefetch_worlds: int = 0, **kwargs):
         kwargs.pop("render_mode", None)
@@ -46,15 +53,14 @@ class GnssInsTuningVectorEnv(VectorEnv):
                 or prefetch_worlds < 0:
             raise ValueError(f"prefetch_worlds must be an int >= 0 (worlds drawn ahead; 0: off), got "
                              f"{prefetch_worlds!r}")
-        self.config = make_config(self.DEFAULTS, kwargs)
-        self.core = TuningCore(self.config, self.PARAMS, self.num_envs, self.DEFAULTS["method"])
+        self.config = make_config(self.DEFAULTS, kwargs, self.CONFIG)
+        self.core = self._make_core(self.num_envs)
         self._ahead = [deque() for _ in range(self.num_envs)]  # each row's next world seeds, drawn early
         self._prefetch = None
         if prefetch_worlds:
             from .prefetch import WorldPrefetcher
             self._prefetch = WorldPrefetcher(self.config, int(prefetch_worlds))
-        k = self.core.k
-        self.single_action_space = spaces.Box(-1.0, 1.0, shape=(k,), dtype=np.float32)
+        self.single_action_space = spaces.Box(-1.0, 1.0, shape=(self.core.action_dim,), dtype=np.float32)
         self.single_observation_space = spaces.Box(self.core.obs_low, self.core.obs_high, dtype=np.float32)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
@@ -159,3 +165,21 @@ class MaStkfVectorEnv(GnssInsTuningVectorEnv):
 
     PARAMS = MASTKF_PARAMS
     DEFAULTS = {"method": "ma-stkf"}
+
+
+class SatelliteRVectorEnv(GnssInsTuningVectorEnv):
+    """Vector ``GnssIns/SatelliteR-v0`` (:mod:`envs.satellite_env`)."""
+
+    DEFAULTS = {"method": "kf"}
+    CONFIG = SatelliteEnvConfig
+    KNOB = "inflation"
+
+    def _make_core(self, batch_size: int) -> SatelliteCore:
+        return SatelliteCore(self.config, self.KNOB, batch_size)
+
+
+class SatelliteSageHusaVectorEnv(SatelliteRVectorEnv):
+    """Vector ``GnssIns/SatelliteSageHusa-v0`` (:mod:`envs.satellite_env`)."""
+
+    DEFAULTS = {"method": "sage-husa"}
+    KNOB = "b"

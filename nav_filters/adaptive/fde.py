@@ -231,7 +231,8 @@ class FaultExclusion(AdaptiveLaw):
         form class or factory, plain or adaptive).
 
     The wrapped law's parameters are the wrapper's: :meth:`set_params`, :meth:`params`,
-    :meth:`adaptive_state` and :meth:`satellite_health` reach it.
+    :meth:`adaptive_state`, :meth:`satellite_health`, :meth:`set_satellite_params`, :meth:`satellite_params` and
+    :meth:`satellite_scales` reach it.
     """
 
     name = "fde"
@@ -285,6 +286,29 @@ class FaultExclusion(AdaptiveLaw):
     def satellite_health(self):
         law = self._inner_law()
         return None if law is None else law.satellite_health()
+
+    def set_satellite_params(self, keys, b) -> None:
+        """The wrapped law's per-satellite forgetting factors (:meth:`~.satellite_r.SatelliteNoise.
+        set_satellite_params`); ``ValueError`` when it takes none."""
+        law = self._inner_law()
+        if law is None or not hasattr(law, "set_satellite_params"):
+            raise ValueError(f"{type(self).__name__} around {type(self.inner).__name__} takes no per-satellite "
+                             "forgetting factor")
+        law.set_satellite_params(keys, b)
+
+    def satellite_params(self, keys) -> dict:
+        law = self._inner_law()
+        if law is None or not hasattr(law, "satellite_params"):
+            raise ValueError(f"{type(self).__name__} around {type(self.inner).__name__} takes no per-satellite "
+                             "forgetting factor")
+        return law.satellite_params(keys)
+
+    def satellite_scales(self, keys):
+        """The wrapped law's per-satellite R scales (``ValueError`` when it has none)."""
+        law = self._inner_law()
+        if law is None or not hasattr(law, "satellite_scales"):
+            raise ValueError(f"{type(self).__name__} around {type(self.inner).__name__} has no per-satellite R")
+        return law.satellite_scales(keys)
 
 
 __all__ = ["FdeConfig", "FaultExclusion", "fde_screen", "fde_screen_reference", "chi_square_thresholds",

@@ -466,7 +466,9 @@ class SageHusa(SatelliteNoise, AdaptiveLaw):
     P0, x0, dtype, inner : see :class:`~nav_filters.adaptive.base.AdaptiveLaw`.
     config : :class:`SageHusaConfig`.
 
-    Per-row parameters: ``b`` (forgetting factor, (0, 1]).
+    Per-row parameters: ``b`` (forgetting factor, (0, 1]). Per satellite (``r_mode='satellite'``):
+    :meth:`set_satellite_params` gives a measurement key its own ``b`` in its R recursion (aging and weight;
+    the freezing count, the group scales and the Q law keep the row's ``b``), the row's ``b`` by default.
     Adaptive state (:meth:`adaptive_state`): ``d`` (weight of the last adaptation, 1 before any),
     ``b_used`` (b of the last Q correction, lowered on an eq 24 jump), ``d_frozen`` (0/1),
     ``q_scale`` (``tr(W Q W)/n``: the applied epoch Q relative to the nominal, 1 before adapting),
@@ -476,6 +478,7 @@ class SageHusa(SatelliteNoise, AdaptiveLaw):
 
     name = "sage-husa"
     PARAMS = (B_SPEC,)
+    SATELLITE_PARAMS = ("b",)
     config_class = SageHusaConfig
 
     def _init_state(self):
@@ -520,7 +523,7 @@ class SageHusa(SatelliteNoise, AdaptiveLaw):
         ok = satellite_epoch(
             c(r), c(H), c(R), c(mask, bool), c(keys, np.int64), c(ctx.prior, dt), c(ctx.Q, dt), c(ctx.Phi, dt),
             c(self.inner.P, dt), c(self.inner.x, dt), self.x, self._seen, self._step, self._jcap, self._params["b"],
-            self._d, int(cfg.warmup_epochs), epoch, self._sat_scale, self._sat_count, self._sat_last,
+            self._sat_b_key, self._d, int(cfg.warmup_epochs), epoch, self._sat_scale, self._sat_count, self._sat_last,
             *sat_set, self._r_scale, bool(cfg.adapt_q), self._b_used, self._e_prev, self._q_init,
             self._q_ref, self._Q_raw, self._Q, self._Q_nom, *q_set, N_SAT_KEYS, float(ROSE_FACTOR), nchunk, has, active,
             d, s_rows, n_rows, s_prev, s_group, R_used, no_fade, unit, s,

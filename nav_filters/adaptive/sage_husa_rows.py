@@ -195,8 +195,8 @@ def _count_rows_kernel(active, has, pending, adapt_q, b, b_used_prev, step_prev,
 
 
 @nb.njit(cache=True)
-def satellite_epoch(r, H, R, mask, keys, prior, Q, Phi, P, x_inner, x_law, seen, step, jcap, b, d_prev, warmup,
-                    epoch, s_tab, n_tab, last_tab, forget, smin, smax, sat_min, sample, min_red, k_prior, n_iter,
+def satellite_epoch(r, H, R, mask, keys, prior, Q, Phi, P, x_inner, x_law, seen, step, jcap, b, b_key, d_prev,
+                    warmup, epoch, s_tab, n_tab, last_tab, forget, smin, smax, sat_min, sample, min_red, k_prior, n_iter,
                     common, guard, r_scale, adapt_q, b_used_prev, e_prev, q_init, q_ref, Q_raw, Q_law, Q_base,
                     jump_ratio, b_min, b_jump_factor, diagonal, floor, ceiling, above, n_pr_keys, rose_factor, nchunk,
                     has, active, d, s_rows, n_rows, s_prev, s_group, R_used, no_fade, unit, s, Pn, xn, r_out, Sd,
@@ -217,7 +217,8 @@ def satellite_epoch(r, H, R, mask, keys, prior, Q, Phi, P, x_inner, x_law, seen,
     r : (B, m) innovations ``dz - H x`` of the law's state; H : (B, m, n); R : (B, m, m); mask : (B, m) bool;
     keys : (B, m) int64 measurement keys (-1 none); prior : (B, n, n) ``sym(Phi P Phi^T)``; Q : (B, n, n) the
     epoch's process noise; Phi : (B, n, n); P, x_inner : the inner form's covariance and state; x_law : (B, n)
-    the law's state. The law's row state (``seen``, ``step``, ``jcap``, ``b``, ``d_prev``, ``warmup``), its
+    the law's state. The law's row state (``seen``, ``step``, ``jcap``, ``b``, ``d_prev``, ``warmup``; ``b_key``
+    (B, K) the per-key forgetting factors, NaN: the row's ``b``), its
     satellite tables (``epoch`` the epoch counter after this one; ``s_tab``, ``n_tab``, ``last_tab`` updated in
     place on success) and settings (``forget`` ... ``guard``, ``r_scale``), and its Q-law state (``b_used_prev``,
     ``e_prev``, ``q_init``, ``q_ref``, ``Q_raw``, ``Q_law``, ``Q_base`` updated in place on success) and settings.
@@ -231,11 +232,11 @@ def satellite_epoch(r, H, R, mask, keys, prior, Q, Phi, P, x_inner, x_law, seen,
     """
     _epoch_rows_kernel(mask, seen, warmup, step, jcap, b, d_prev, has, active, d)
     if nchunk > 1:
-        _r_sat_parallel(nchunk, r, H, prior, Q, True, R, mask, keys, b, jcap, d, active, epoch, s_tab, n_tab,
+        _r_sat_parallel(nchunk, r, H, prior, Q, True, R, mask, keys, b, b_key, jcap, d, active, epoch, s_tab, n_tab,
                         last_tab, forget, smin, smax, sat_min, sample, min_red, k_prior, n_iter, common, guard, r_scale,
                         s_rows, n_rows, s_prev, s_group, R_used)
     else:
-        _r_sat_kernel(r, H, prior, Q, True, R, mask, keys, b, jcap, d, active, epoch, s_tab, n_tab, last_tab,
+        _r_sat_kernel(r, H, prior, Q, True, R, mask, keys, b, b_key, jcap, d, active, epoch, s_tab, n_tab, last_tab,
                       forget, smin, smax, sat_min, sample, min_red, k_prior, n_iter, common, guard, r_scale, s_rows,
                       n_rows, s_prev, s_group, R_used)
     if not fused_law_update(P, x_inner, Phi, Q, prior, H, R_used, r, mask, no_fade, unit, s, Pn, xn, r_out, Sd, nis,

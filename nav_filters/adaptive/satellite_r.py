@@ -85,17 +85,18 @@ def _row_group(H, b, i, n):
 
 
 @nb.njit(cache=True)
-def _r_sat_kernel(r, H, prior, Q, add_q, R, mask, keys, bf, jcap, d_row, active, epoch, s_tab, n_tab, last_tab,
-                  forget, smin, smax, sat_min, sample, min_red, k_prior, n_iter, common, guard, r_scale, s_rows, n_rows,
-                  s_prev, s_group, R_out):
+def _r_sat_kernel(r, H, prior, Q, add_q, R, mask, keys, bf, b_key, jcap, d_row, active, epoch, s_tab, n_tab,
+                  last_tab, forget, smin, smax, sat_min, sample, min_red, k_prior, n_iter, common, guard, r_scale,
+                  s_rows, n_rows, s_prev, s_group, R_out):
     """The Sage-Husa measurement-noise law per satellite and measurement type (``r_mode='satellite'``).
 
     Per batch row b and used measurement row i with key k = keys[b, i] >= 0 (numpy specification:
     :meth:`SageHusa._r_sat_reference`)::
 
+        bk = b_key[b, k], or bf[b] where b_key[b, k] is NaN (the key's own forgetting factor, default the row's)
         u  = epoch[b] - last_tab[b, k]                    (epochs since the satellite was last used)
         s0 = 1, n0 = 0                                    if never seen or u > forget (reacquired)
-        s0 = 1 + (s_tab[b, k] - 1) bf^(u - 1), n0 = n_tab  otherwise (aged over the u - 1 missed epochs)
+        s0 = 1 + (s_tab[b, k] - 1) bk^(u - 1), n0 = n_tab  otherwise (aged over the u - 1 missed epochs)
         x  = v_i^2 / (red_i R_ii)                          geometry (sample 1): snapshot LS residual of the
                                                           type (variances s0 R_ii), if red_i >= min_red;
                                                           residual (sample 2): post-fit residual against
@@ -107,7 +108,7 @@ def _r_sat_kernel(r, H, prior, Q, add_q, R, mask, keys, bf, jcap, d_row, active,
         x  = min(geometry x, loo x)                       consensus (sample 4; either alone where the other
                                                           has no sample)
         x  = (dz_i^2 - (H P- H^T)_ii) / R_ii              innovation form (sample 0)
-        d  = (1 - bf) / (1 - bf^(min(n0 + 1, jcap) + 1))  (seed 000 eqs 21-23, the satellite's own count)
+        d  = (1 - bk) / (1 - bk^(min(n0 + 1, jcap) + 1))  (seed 000 eqs 21-23, the satellite's own count)
         s1 = clip((1 - d) s0 + d x, smin, smax), n1 = n0 + 1   on active rows with a sample (else s0, n0)
 
     Group scales (``d_row``, the row's own count): over the rows without a key, or with ``common`` over every
@@ -123,6 +124,7 @@ def _r_sat_kernel(r, H, prior, Q, add_q, R, mask, keys, bf, jcap, d_row, active,
     B, m, n = H.shape
     G = s_group.shape[1]
     xs = np.empty(m)
+    bks = np.empty(m)
     ex = np.empty(m)
     has_x = np.zeros(m, np.bool_)
     var = np.empty(m)
@@ -152,7 +154,8 @@ def _r_sat_kernel(r, H, prior, Q, add_q, R, mask, keys, bf, jcap, d_row, active,
         for i in range(n):
             for j in range(n):
                 Pm[i, j] = prior[b, i, j] + Q[b, i, j] if add_q else prior[b, i, j]
-        j_last = -1  # the last count whose weight was computed for this row (most satellites share one)
+        j_last = -1  # the last count and b whose weight was computed for this row (most satellites share them)
+        b_last = np.nan
         d_last = 0.0
         for i in range(m):
             s_rows[b, i] = 1.0
@@ -169,6 +172,10 @@ def _r_sat_kernel(r, H, prior, Q, add_q, R, mask, keys, bf, jcap, d_row, active,
             ex[i] = rr * rr - q
             key = keys[b, i]
             if key >= 0:
+                bk = b_key[b, key]
+                if bk != bk:  # NaN: the row's b
+                    bk = bf[b]
+                bks[i] = bk
                 last = last_tab[b, key]
                 u = epoch[b] - last
                 if last < 0 or u > forget:
@@ -178,7 +185,7 @@ def _r_sat_kernel(r, H, prior, Q, add_q, R, mask, keys, bf, jcap, d_row, active,
                     s0 = s_tab[b, key]
                     n0 = n_tab[b, key]
                     if u > 1:
-                        s0 = 1.0 + (s0 - 1.0) * bf[b] ** (u - 1)
+                        s0 = 1.0 + (s0 - 1.0) * bk ** (u - 1)
                 s_prev[b, i] = s0
                 n0s[i] = n0
                 var[i] = s0 * np.float64(R[b, i, i])
@@ -228,9 +235,10 @@ def _r_sat_kernel(r, H, prior, Q, add_q, R, mask, keys, bf, jcap, d_row, active,
                 n0 = n0s[i]
                 if active[b] and has_x[i]:
                     j = min(n0 + 1, jcap[b])
-                    if j != j_last:
-                        d_last = _weight_one(bf[b], j)
+                    if j != j_last or bks[i] != b_last:
+                        d_last = _weight_one(bks[i], j)
                         j_last = j
+                        b_last = bks[i]
                     d = d_last
                     s1 = (1.0 - d) * s0 + d * xs[i]
                     s_rows[b, i] = min(max(s1, sat_min), smax)
@@ -286,8 +294,9 @@ def _median_guard(x, has, keys, srt):
 
 
 @nb.njit(cache=True, parallel=True)
-def _r_sat_parallel(nchunk, r, H, prior, Q, add_q, R, mask, keys, bf, jcap, d_row, active, epoch, s_tab, n_tab,
-                    last_tab, forget, smin, smax, sat_min, sample, min_red, k_prior, n_iter, common, guard, r_scale,
+def _r_sat_parallel(nchunk, r, H, prior, Q, add_q, R, mask, keys, bf, b_key, jcap, d_row, active, epoch, s_tab,
+                    n_tab, last_tab, forget, smin, smax, sat_min, sample, min_red, k_prior, n_iter, common, guard,
+                    r_scale,
                     s_rows, n_rows, s_prev, s_group, R_out):
     """:func:`_r_sat_kernel` on ``nchunk`` chunks of rows in parallel (the fused fast path): each chunk runs the
     serial kernel itself on its slice of every per-row array, so every row gets the same bits."""
@@ -296,8 +305,9 @@ def _r_sat_parallel(nchunk, r, H, prior, Q, add_q, R, mask, keys, bf, jcap, d_ro
         lo = c * B // nchunk
         hi = (c + 1) * B // nchunk
         _r_sat_kernel(r[lo:hi], H[lo:hi], prior[lo:hi], Q[lo:hi], add_q, R[lo:hi], mask[lo:hi], keys[lo:hi],
-                      bf[lo:hi], jcap[lo:hi], d_row[lo:hi], active[lo:hi], epoch[lo:hi], s_tab[lo:hi], n_tab[lo:hi],
-                      last_tab[lo:hi], forget, smin, smax, sat_min, sample, min_red, k_prior, n_iter, common, guard,
+                      bf[lo:hi], b_key[lo:hi], jcap[lo:hi], d_row[lo:hi], active[lo:hi], epoch[lo:hi], s_tab[lo:hi],
+                      n_tab[lo:hi], last_tab[lo:hi], forget, smin, smax, sat_min, sample, min_red, k_prior, n_iter, common,
+                      guard,
                       r_scale[lo:hi], s_rows[lo:hi], n_rows[lo:hi], s_prev[lo:hi], s_group[lo:hi], R_out[lo:hi])
 
 
@@ -387,7 +397,15 @@ def _median_guard_reference(x, has, keys):
 class SatelliteNoise:
     """Mixin of an :class:`~.base.AdaptiveLaw`: measurement noise per satellite and measurement type
     (module docstring). The law calls :meth:`_init_satellite_tables` from its ``_init_state``,
-    :meth:`_plan_satellite` from its ``_plan`` and :meth:`_commit_satellites` from its ``_commit``."""
+    :meth:`_plan_satellite` from its ``_plan`` and :meth:`_commit_satellites` from its ``_commit``.
+
+    A law whose R recursion is :func:`_r_sat_kernel` (``SATELLITE_PARAMS = ('b',)``: :class:`~.sage_husa.SageHusa`)
+    also takes a forgetting factor per measurement key (:meth:`set_satellite_params`), NaN by default: the
+    row's ``b`` (so a law never given one computes as before, bit for bit).
+    """
+
+    SATELLITE_PARAMS: tuple = ()
+    """Names of the per-key parameters :meth:`set_satellite_params` takes (none unless the law declares them)."""
 
     def _sat_enabled(self) -> bool:
         """Whether the law adapts R per satellite (tables allocated)."""
@@ -423,6 +441,58 @@ class SatelliteNoise:
         self._sat_count = np.zeros((B, K), np.int64)
         self._sat_last = np.full((B, K), -1, np.int64)
         self._sat_summary = np.zeros((B, 4))
+        self._sat_b_key = np.full((B, K), np.nan)  # per-key forgetting factor, NaN: the row's b
+
+    def set_satellite_params(self, keys, b) -> None:
+        """Set the forgetting factor of individual satellites' recursions (per measurement key), per batch row.
+
+        Parameters
+        ----------
+        keys : (B, n) int measurement keys (:func:`~nav_filters.measurements.measurement_keys`: a satellite's
+            pseudorange key ``s``, its rate key ``N_SAT_KEYS + s``); -1 entries are skipped.
+        b : (B, n) forgetting factors in (0, 1] for those keys, or NaN (the key follows the row's ``b`` again,
+            the default). A key keeps its value until set again (or its row is reset).
+
+        Raises
+        ------
+        ValueError
+            the law takes no per-satellite parameter or does not adapt R per satellite, shapes that differ from
+            (B, n), a key outside ``-1 .. 2 N_SAT_KEYS - 1``, or a ``b`` outside (0, 1] that is not NaN. Nothing
+            is changed then.
+        """
+        name = type(self).__name__
+        if "b" not in self.SATELLITE_PARAMS or not self._sat_enabled():
+            raise ValueError(f"{name} takes no per-satellite forgetting factor (a Sage-Husa law with "
+                             "r_mode='satellite' and adapt_r does)")
+        if not getattr(self.config, "adapt_r", True):
+            raise ValueError(f"{name} does not adapt R (adapt_r=False): a per-satellite b would change nothing")
+        keys = np.asarray(keys)
+        b = np.asarray(b, np.float64)
+        B = self.batch_size
+        if keys.ndim != 2 or keys.shape[0] != B or b.shape != keys.shape:
+            raise ValueError(f"set_satellite_params: keys and b must have the same shape (B={B}, n), got "
+                             f"{keys.shape} and {b.shape}")
+        if keys.dtype.kind not in "iu":
+            raise ValueError(f"set_satellite_params: keys must be integers, got dtype {keys.dtype}")
+        K = self._sat_b_key.shape[1]
+        if keys.size and (keys.min() < -1 or keys.max() >= K):
+            raise ValueError(f"set_satellite_params: keys must lie in -1..{K - 1}, got {keys.min()}..{keys.max()}")
+        bad = (keys >= 0) & ~np.isnan(b) & ~((b > 0.0) & (b <= 1.0))
+        if bad.any():
+            raise ValueError(f"set_satellite_params: b must lie in (0, 1] (or be NaN: the row's b), got "
+                             f"{b[bad][0]!r} at {np.argwhere(bad)[0].tolist()}")
+        rows, cols = np.nonzero(keys >= 0)
+        self._sat_b_key[rows, keys[rows, cols]] = b[rows, cols]
+
+    def satellite_params(self, keys) -> dict:
+        """``{'b': (B, n)}``: the forgetting factor each measurement key of ``keys`` (B, n) uses (the row's ``b``
+        where none was set; NaN for -1 keys)."""
+        if "b" not in self.SATELLITE_PARAMS or not self._sat_enabled():
+            raise ValueError(f"{type(self).__name__} takes no per-satellite forgetting factor")
+        keys = np.asarray(keys, np.int64)
+        own = np.take_along_axis(self._sat_b_key, np.maximum(keys, 0), 1)
+        b = np.where(np.isnan(own), self._sat_b()[:, None], own)
+        return {"b": np.where(keys >= 0, b, np.nan)}
 
     def _satellite_state(self) -> dict:
         """The summary entries of ``adaptive_state`` (empty when the law does not adapt per satellite)."""
@@ -450,7 +520,8 @@ class SatelliteNoise:
         s_group = np.empty((B, len(GROUP_NAMES)))
         R_used = np.empty(R.shape, R.dtype)
         args = (c(r), c(H), c(ctx.prior), c(ctx.Q if ctx.pending else ctx.prior), bool(ctx.pending), c(R),
-                mask, c(keys, np.int64), self._sat_b(), self._sat_jcap(), d, active, epoch, self._sat_scale,
+                mask, c(keys, np.int64), self._sat_b(), self._sat_b_key, self._sat_jcap(), d, active, epoch,
+                self._sat_scale,
                 self._sat_count, self._sat_last, *self._sat_settings(), self._r_scale,
                 s_rows, n_rows, s_prev, s_group, R_used)
         nchunk = row_chunks(B)
@@ -480,13 +551,15 @@ class SatelliteNoise:
         Rdiag = np.diagonal(R, axis1=1, axis2=2).astype(np.float64)
         keyed = mask & (keys >= 0)
         kk = np.maximum(keys, 0)
+        bk = np.take_along_axis(self._sat_b_key, kk, 1)
+        bk = np.where(np.isnan(bk), b[:, None], bk)  # each key's own b, the row's by default
         last = np.take_along_axis(self._sat_last, kk, 1)
         u = epoch[:, None] - last
         fresh = (last < 0) | (u > cfg.forget_after_epochs)
-        aged = 1.0 + (np.take_along_axis(self._sat_scale, kk, 1) - 1.0) * b[:, None] ** np.maximum(u - 1, 0)
+        aged = 1.0 + (np.take_along_axis(self._sat_scale, kk, 1) - 1.0) * bk ** np.maximum(u - 1, 0)
         s0 = np.where(fresh, 1.0, aged)
         n0 = np.where(fresh, 0, np.take_along_axis(self._sat_count, kk, 1))
-        dk = sage_husa_weight(np.broadcast_to(b[:, None], (B, m)), np.minimum(n0 + 1, self._sat_jcap()[:, None]))
+        dk = sage_husa_weight(bk, np.minimum(n0 + 1, self._sat_jcap()[:, None]))
         act = active[:, None]
         scale_var = s0
         x, has = excess / Rdiag, keyed

@@ -83,7 +83,8 @@ def write_snapshot():
     SNAPSHOT.write_text(json.dumps(_snapshot_rollout(), indent=1))
 
 
-@pytest.mark.parametrize("env_id", ["GnssIns/SageHusa-v0", "GnssIns/MASTKF-v0"])
+@pytest.mark.parametrize("env_id", ["GnssIns/SageHusa-v0", "GnssIns/MASTKF-v0", "GnssIns/SatelliteR-v0",
+                                    "GnssIns/SatelliteSageHusa-v0"])
 def test_vector_rows_equal_single_envs_across_autoreset(env_id):
     n, seed = 3, 40
     kw = dict(episode_length_s=4.0)

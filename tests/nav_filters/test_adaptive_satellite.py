@@ -520,3 +520,106 @@ def test_common_scale_and_per_satellite_scales_share_a_common_increase():
         g = law.adaptive_state()["r_scale_pseudorange"] if common else np.ones(B)
         applied = g[:, None] * sc[-200:].mean(0)
         assert abs(np.median(applied) / 4.0 - 1) < 0.2, (common, np.median(applied))
+
+
+# ----------------------------------------------------------------------------- per-satellite forgetting factors
+def test_a_per_satellite_b_equal_to_the_rows_b_changes_nothing_bit_for_bit():
+    """The per-key table defaults to the row's b: a law given every key's b equal to its row's, and one given
+    NaN (the default restored), compute the same bits as one never given any."""
+    rng = np.random.default_rng(21)
+    B, C = 3, 9
+    H = static_problem(rng, B, C)
+    keys = np.broadcast_to(np.arange(C), (B, C)).copy()
+    var = lambda k: np.where((np.arange(C) == 4) & (k > 20), 25.0, 1.0)  # noqa: E731
+    ref = sat_law(B=B, b=0.9, r_sample="consensus")
+    same = sat_law(B=B, b=0.9, r_sample="consensus")
+    same.set_satellite_params(keys, np.full((B, C), 0.9))
+    nan = sat_law(B=B, b=0.9, r_sample="consensus")
+    nan.set_satellite_params(keys, np.full((B, C), 0.5))
+    nan.set_satellite_params(keys, np.full((B, C), np.nan))
+    out = [run_static(law, H, keys, var, 60, np.random.default_rng(3)) for law in (ref, same, nan)]
+    for law, (sc, _) in zip((same, nan), out[1:]):
+        np.testing.assert_array_equal(sc, out[0][0])
+        np.testing.assert_array_equal(law.x, ref.x)
+        np.testing.assert_array_equal(law.covariance, ref.covariance)
+    np.testing.assert_array_equal(same.satellite_params(keys)["b"], 0.9)
+
+
+def test_every_key_given_b_prime_is_the_law_whose_row_b_is_b_prime():
+    """With R adapted per satellite only (no Q law, every row keyed), a per-key b' on every satellite gives the
+    recursion of a row b = b' bit for bit: the key's b replaces the row's in the aging and the weights."""
+    rng = np.random.default_rng(22)
+    B, C = 2, 8
+    H = static_problem(rng, B, C)
+    keys = np.broadcast_to(np.arange(C), (B, C)).copy()
+    var = lambda k: np.where((np.arange(C) == 1) & (k > 10), 16.0, 1.0)  # noqa: E731
+    perm = [np.random.default_rng(k).permutation(C) for k in range(80)]
+    a = sat_law(B=B, b=0.6, forget_after_epochs=4)
+    b = sat_law(B=B, b=0.95, forget_after_epochs=4)
+    b.set_satellite_params(keys, np.full((B, C), 0.6))
+    sa, _ = run_static(a, H, keys, var, 80, np.random.default_rng(4), perm=lambda k: perm[k])
+    sb, _ = run_static(b, H, keys, var, 80, np.random.default_rng(4), perm=lambda k: perm[k])
+    np.testing.assert_array_equal(sa, sb)
+    np.testing.assert_array_equal(a.x, b.x)
+    np.testing.assert_array_equal(b.satellite_params(keys[:, :2])["b"], 0.6)
+
+
+@pytest.mark.parametrize("sample", ["geometry", "loo", "consensus"])
+def test_compiled_law_with_per_satellite_b_matches_its_numpy_specification(sample):
+    rng = np.random.default_rng(23)
+    B, C = 4, 9
+    H = static_problem(rng, B, C)
+    keys = np.broadcast_to(np.arange(C), (B, C)).copy()
+    law = sat_law(B=B, b=0.9, r_sample=sample, forget_after_epochs=3)
+    law.set_satellite_params(keys[:, :5], rng.uniform(0.3, 0.999, (B, 5)))  # keys 5.. keep the row's b
+    mask = np.ones((B, C), bool)
+    for k in range(20):
+        law.predict(np.broadcast_to(np.eye(4), (B, 4, 4)), np.broadcast_to(np.eye(4) * 1e-4, (B, 4, 4)))
+        m = mask.copy()
+        m[:, k % C] = k % 5 != 0  # gaps: aging with each key's b
+        dz = rng.normal(size=(B, C)) * np.where(np.arange(C) == 2, 5.0, 1.0)
+        if k == 19:
+            from nav_filters.forms.base import prepare_measurement
+            law._keys = keys
+            ctx = law._open_epoch()
+            active = m.any(-1)
+            d = law._weights(active)
+            dzp, Hp, Rp, mp = prepare_measurement(dz, H, np.ones((B, C)), m, np.float64)
+            r = dzp - (Hp @ law.x[..., None])[..., 0]
+            plan = law._plan_satellite(r, Hp, Rp, mp, ctx, d, active, {})
+            s_ref, n_ref, _, R_ref = law._r_sat_reference(r, Hp, Rp, mp, ctx, keys, d, active)
+            _, s_rows, n_rows, _ = plan.pending["sat"]
+            used = mp & (keys >= 0)
+            np.testing.assert_allclose(np.where(used, s_rows, 1.0), s_ref, rtol=1e-9)
+            np.testing.assert_array_equal(np.where(used, n_rows, 0), n_ref)
+            np.testing.assert_allclose(plan.R, R_ref, rtol=1e-9)
+            law._ctx = None
+            law._keys = None
+        else:
+            law.update(dz, H, np.ones((B, C)), m, keys=keys)
+
+
+def test_set_satellite_params_checks_its_arguments_and_the_law():
+    B, C = 2, 3
+    law = sat_law(B=B)
+    keys = np.array([[0, 1, -1], [2, N_SAT_KEYS + 2, 5]])
+    law.set_satellite_params(keys, np.full((B, C), 0.5))
+    np.testing.assert_array_equal(law.satellite_params(keys)["b"], [[0.5, 0.5, np.nan], [0.5, 0.5, 0.5]])
+    with pytest.raises(ValueError, match="same shape"):
+        law.set_satellite_params(keys, np.full((B, 2), 0.5))
+    with pytest.raises(ValueError, match=r"b must lie in \(0, 1\]"):
+        law.set_satellite_params(keys, np.full((B, C), 1.5))
+    with pytest.raises(ValueError, match="keys must lie in"):
+        law.set_satellite_params(np.full((B, C), 2 * N_SAT_KEYS), np.full((B, C), 0.5))
+    with pytest.raises(ValueError, match="keys must be integers"):
+        law.set_satellite_params(keys.astype(float), np.full((B, C), 0.5))
+    group = SageHusa(np.broadcast_to(np.eye(4), (B, 4, 4)).copy(), config=SageHusaConfig(r_mode="group"))
+    with pytest.raises(ValueError, match="no per-satellite forgetting factor"):
+        group.set_satellite_params(keys, np.full((B, C), 0.5))
+    P0 = np.broadcast_to(np.eye(17), (B, 17, 17)).copy()
+    fde = registry.make_form("sage-husa+fde", P0)
+    fde.set_satellite_params(keys, np.full((B, C), 0.7))  # reaches the wrapped law
+    np.testing.assert_array_equal(fde.satellite_params(keys[:, :2])["b"], 0.7)
+    for method in ("kf-fde", "ma-stkf"):
+        with pytest.raises(ValueError, match="no per-satellite forgetting factor"):
+            registry.make_form(method, P0).set_satellite_params(keys, np.full((B, C), 0.5))
