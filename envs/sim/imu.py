@@ -48,6 +48,7 @@ import math
 import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Sequence
 
 import numba as nb
@@ -906,6 +907,186 @@ class _SensorSpec:
         return self.scale_sigma > 0 or self.mis_sigma > 0
 
 
+@dataclass(frozen=True)
+class _RowJob:
+    """What one row of :func:`simulate_imu` reads and where it writes (row ``i`` of each output array).
+
+    Inputs: ``sensors`` (gyro, accel :class:`_SensorSpec`), ``truth`` (w_true, f_true) (B, N, 3), ``dt`` [s],
+    ``rngs`` / ``vibration_rngs`` (B generators or None), ``engine_on``, ``speed`` (B, N) or None,
+    ``vibration`` (None when off), ``events`` (:class:`ImuEvents` or None), ``step_rates`` (gyro, accel) [1/s].
+    Outputs: ``outs`` (gyro, accel) (B, N, 3) of the output dtype, ``bias_full`` (the time-varying biases or
+    None), ``bias_const`` (B, 3) per sensor, ``sm`` (B, 3, 3) per sensor, ``ev_rows`` (B,) list of the rows'
+    ``(steps, rough)``.
+    """
+
+    sensors: tuple
+    truth: tuple
+    dt: float
+    rngs: Sequence
+    vibration_rngs: Sequence | None
+    engine_on: np.ndarray | None
+    speed: np.ndarray | None
+    vibration: Vibration | None
+    events: ImuEvents | None
+    step_rates: tuple
+    outs: tuple
+    bias_full: tuple
+    bias_const: tuple
+    sm: tuple
+    ev_rows: list
+
+
+def _check_inputs(f_true, w_true, imu_rate_hz, grade, rngs, engine_on, speed, vibration, dtype, workers,
+                  vibration_rngs, events):
+    """The arguments of :func:`simulate_imu` checked and converted (``ValueError`` naming the argument).
+
+    Returns ``(grade, dtype, dt, f_true, w_true, engine_on, speed, vibration, workers)`` with ``vibration``
+    None when it is off and ``workers`` resolved.
+    """
+    grade = get_imu_grade(grade)
+    dtype = _check_dtype(dtype)
+    dt = 1.0 / _check_rate(imu_rate_hz)
+    f_true = np.asarray(f_true)
+    w_true = np.asarray(w_true)
+    if f_true.ndim != 3 or f_true.shape[-1] != 3:
+        raise ValueError(f"f_true must have shape (B, N, 3), got {f_true.shape}")
+    if w_true.shape != f_true.shape:
+        raise ValueError(f"w_true must have the shape of f_true {f_true.shape}, got {w_true.shape}")
+    for name, arr in (("f_true", f_true), ("w_true", w_true)):
+        if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
+            raise ValueError(f"{name} must be a real array, got dtype {arr.dtype}")
+        if not np.isfinite(arr).all():
+            raise ValueError(f"{name} must be finite")
+    b, n, _ = f_true.shape
+    if b == 0 or n == 0:
+        raise ValueError(f"f_true must hold at least one row and one sample, got shape {f_true.shape}")
+    _check_rngs(rngs, b)
+    speed, engine_on = _check_motion(speed, engine_on, b, n)
+    if vibration is not None and not isinstance(vibration, Vibration):
+        raise ValueError(f"vibration must be a Vibration or None, got {type(vibration).__name__}")
+    vib_on = vibration is not None and vibration.enabled
+    if vib_on and speed is None:
+        raise ValueError("speed (B, N) is required when vibration is enabled")
+    if vibration_rngs is not None:
+        try:
+            _check_rngs(vibration_rngs, b)
+        except ValueError as exc:
+            raise ValueError(f"vibration_rngs: {exc}") from None
+    if events is not None and not isinstance(events, ImuEvents):
+        raise ValueError(f"events must be an ImuEvents or None, got {type(events).__name__}")
+    if workers is None:
+        workers = max(1, min(b, os.cpu_count() or 1, 8))
+    elif not isinstance(workers, (int, np.integer)) or isinstance(workers, bool) or workers < 1:
+        raise ValueError(f"workers must be a positive int or None, got {workers!r}")
+    return grade, dtype, dt, f_true, w_true, engine_on, speed, (vibration if vib_on else None), workers
+
+
+def _sensor_specs(g: ImuGrade, dt: float) -> tuple[_SensorSpec, _SensorSpec]:
+    """The (gyro, accel) views of the grade ``g`` at the sample interval ``dt`` [s]: the white noise as the
+    per-sample sigma of an interval mean, ``ARW / sqrt(dt)`` and ``VRW / sqrt(dt)`` (IEEE Std 952-1997)."""
+    return (
+        _SensorSpec(g.gyro_bias_fixed, g.gyro_bias_turn_on_sigma, g.gyro_scale_sigma, g.gyro_misalignment_sigma,
+                    g.gyro_bias_instability, g.gyro_bias_tau_s, g.gyro_arw / math.sqrt(dt), "gyro_gm", "gyro_white"),
+        _SensorSpec(g.accel_bias_fixed, g.accel_bias_turn_on_sigma, g.accel_scale_sigma, g.accel_misalignment_sigma,
+                    g.accel_bias_instability, g.accel_bias_tau_s, g.accel_vrw / math.sqrt(dt), "accel_gm",
+                    "accel_white"),
+    )
+
+
+def _row_events(gen: np.random.Generator, events: ImuEvents, step_rates, dt: float, n: int, vib_row):
+    """Stage of one row: its :class:`ImuEvents` (bias steps, rough-road segments) drawn from ``gen``.
+
+    Returns ``(steps, rough)`` (:func:`_draw_imu_events`), the rough-road factor per sample (n,) or None, the
+    vibration ``vib_row`` scaled by it, and the step biases (gyro, accel) (n, 3) each, None where that
+    sensor's step rate is 0. Sample j covers ``(t_j-1, t_j]``, ``t_j = j dt``.
+    """
+    steps, rough = _draw_imu_events(gen, events, dt, n)
+    t_end = np.arange(n) * dt
+    rough_f = None
+    if rough:
+        rough_f = np.ones(n)
+        for t0, t1, fac in rough:
+            sel = (t_end > t0) & (t_end <= t1)
+            rough_f[sel] = np.maximum(rough_f[sel], fac)
+        if vib_row is not None:
+            vib_row = (vib_row[0] * rough_f[:, None], vib_row[1] * rough_f[:, None])
+    sb = [np.zeros((n, 3)) if r > 0 else None for r in step_rates]
+    for ts, sensor, axis, size in steps:
+        k = 0 if sensor == "gyro" else 1
+        sb[k][t_end > ts, axis] += size
+    return (steps, rough), rough_f, vib_row, tuple(sb)
+
+
+def _sensor_row(s: _SensorSpec, src, sm_row, const, step_bias, rough_f, ch: dict, dt: float, o, noise):
+    """Stage of one row: one sensor's measured output into ``o`` (n, 3) float64.
+
+    ``o = (I + S + M) src + bias + white``: ``src`` (n, 3) the sensed motion (truth plus vibration),
+    ``sm_row`` its ``S + M``, the bias the constant ``const`` (3,) plus the Gauss-Markov process (drawn from
+    the sensor's stream of ``ch``) and the ``step_bias`` (n, 3) or None, the white noise from its own stream
+    times ``rough_f`` (n,) or None. ``noise`` (n, 3) is scratch. Returns the time-varying bias (n, 3), or None
+    when it is constant.
+    """
+    n = o.shape[0]
+    if s.has_sm:
+        _apply_matrix(np.eye(3) + sm_row, src, o)
+    else:
+        o[...] = src
+    bias = None
+    if s.gm_sigma > 0:
+        bias = _gauss_markov_row(ch[s.gm_stream], s.gm_sigma, s.gm_tau, dt, n, noise)
+        bias += const
+        if step_bias is not None:
+            bias += step_bias
+        o += bias
+    elif step_bias is not None:
+        bias = step_bias + const
+        o += bias
+    elif np.any(const):
+        o += const
+    if s.white_sigma > 0:
+        ch[s.white_stream].standard_normal(out=noise)
+        noise *= s.white_sigma
+        if rough_f is not None:
+            noise *= rough_f[:, None]
+        o += noise
+    return bias
+
+
+def _imu_row(job: _RowJob, i: int) -> None:
+    """Row ``i`` of :func:`simulate_imu`: its per-run constants, vibration, events and both sensors, written into
+    the job's outputs. Draws only from ``job.rngs[i]`` (its component streams, :func:`_children`) and
+    ``job.vibration_rngs[i]``."""
+    ch = _children(job.rngs[i])
+    c = ch["constants"]
+    n = job.truth[0].shape[1]
+    # per-run constants, fixed order: turn-on gyro (3), turn-on accel (3), S+M gyro (9), S+M accel (9)
+    for k, s in enumerate(job.sensors):
+        job.bias_const[k][i] = s.fixed + c.standard_normal(3) * s.turn_on_sigma
+    for k, s in enumerate(job.sensors):
+        job.sm[k][i] = _error_matrix(c, s.scale_sigma, s.mis_sigma)
+    vib_row = None
+    if job.vibration is not None:
+        vgen = ch["vibration"] if job.vibration_rngs is None else job.vibration_rngs[i]
+        vib_row = _vibration_row(vgen, job.dt, None if job.engine_on is None else job.engine_on[i], job.speed[i],
+                                 job.vibration)
+    rough_f, step_bias = None, (None, None)
+    if job.events is not None:
+        job.ev_rows[i], rough_f, vib_row, step_bias = _row_events(ch["events"], job.events, job.step_rates, job.dt,
+                                                                  n, vib_row)
+    noise = np.empty((n, 3))
+    direct = job.outs[0].dtype == np.dtype(np.float64)
+    for k, s in enumerate(job.sensors):  # k = 0 gyro, 1 accel
+        o = job.outs[k][i] if direct else np.empty((n, 3))
+        src = job.truth[k][i]
+        if vib_row is not None:
+            src = np.add(vib_row[1 - k], src, out=vib_row[1 - k])  # vib_row = (f_vib, w_vib)
+        bias = _sensor_row(s, src, job.sm[k][i], job.bias_const[k][i], step_bias[k], rough_f, ch, job.dt, o, noise)
+        if bias is not None:
+            job.bias_full[k][i] = bias
+        if not direct:
+            job.outs[k][i] = o
+
+
 def simulate_imu(f_true, w_true, imu_rate_hz: float, grade, rngs: Sequence[np.random.Generator],
                  engine_on=None, speed=None, vibration: Vibration | None = None, dtype=np.float64,
                  workers: int | None = None, vibration_rngs: Sequence[np.random.Generator] | None = None,
@@ -959,147 +1140,50 @@ def simulate_imu(f_true, w_true, imu_rate_hz: float, grade, rngs: Sequence[np.ra
         Bad shapes (naming ``f_true``, ``w_true``, ``rngs``, ``engine_on``,
         ``speed``), non-finite truth, unknown grade, bad rate, dtype or workers.
     """
-    grade = get_imu_grade(grade)
-    dtype = _check_dtype(dtype)
-    rate = _check_rate(imu_rate_hz)
-    dt = 1.0 / rate
-    f_true = np.asarray(f_true)
-    w_true = np.asarray(w_true)
-    if f_true.ndim != 3 or f_true.shape[-1] != 3:
-        raise ValueError(f"f_true must have shape (B, N, 3), got {f_true.shape}")
-    if w_true.shape != f_true.shape:
-        raise ValueError(f"w_true must have the shape of f_true {f_true.shape}, got {w_true.shape}")
-    for name, arr in (("f_true", f_true), ("w_true", w_true)):
-        if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
-            raise ValueError(f"{name} must be a real array, got dtype {arr.dtype}")
-        if not np.isfinite(arr).all():
-            raise ValueError(f"{name} must be finite")
+    grade, dtype, dt, f_true, w_true, engine_on, speed, vibration, workers = _check_inputs(
+        f_true, w_true, imu_rate_hz, grade, rngs, engine_on, speed, vibration, dtype, workers, vibration_rngs, events)
     b, n, _ = f_true.shape
-    if b == 0 or n == 0:
-        raise ValueError(f"f_true must hold at least one row and one sample, got shape {f_true.shape}")
-    _check_rngs(rngs, b)
-    speed, engine_on = _check_motion(speed, engine_on, b, n)
-    if vibration is not None and not isinstance(vibration, Vibration):
-        raise ValueError(f"vibration must be a Vibration or None, got {type(vibration).__name__}")
-    vib_on = vibration is not None and vibration.enabled
-    if vib_on and speed is None:
-        raise ValueError("speed (B, N) is required when vibration is enabled")
-    if vibration_rngs is not None:
-        try:
-            _check_rngs(vibration_rngs, b)
-        except ValueError as exc:
-            raise ValueError(f"vibration_rngs: {exc}") from None
-    if events is not None and not isinstance(events, ImuEvents):
-        raise ValueError(f"events must be an ImuEvents or None, got {type(events).__name__}")
-    if workers is None:
-        workers = max(1, min(b, os.cpu_count() or 1, 8))
-    elif not isinstance(workers, (int, np.integer)) or isinstance(workers, bool) or workers < 1:
-        raise ValueError(f"workers must be a positive int or None, got {workers!r}")
-
-    g = grade
-    sensors = (
-        _SensorSpec(g.gyro_bias_fixed, g.gyro_bias_turn_on_sigma, g.gyro_scale_sigma, g.gyro_misalignment_sigma,
-                    g.gyro_bias_instability, g.gyro_bias_tau_s, g.gyro_arw / math.sqrt(dt), "gyro_gm", "gyro_white"),
-        _SensorSpec(g.accel_bias_fixed, g.accel_bias_turn_on_sigma, g.accel_scale_sigma, g.accel_misalignment_sigma,
-                    g.accel_bias_instability, g.accel_bias_tau_s, g.accel_vrw / math.sqrt(dt), "accel_gm", "accel_white"),
-    )
-    truth = (w_true, f_true)
-    outs = (np.empty((b, n, 3), dtype=dtype), np.empty((b, n, 3), dtype=dtype))
+    sensors = _sensor_specs(grade, dt)
     step_rates = (0.0, 0.0) if events is None else (events.gyro_step_rate_hz, events.accel_step_rate_hz)
-    bias_full = tuple(np.empty((b, n, 3), dtype=dtype) if (s.gm_sigma > 0 or r > 0) else None
-                      for s, r in zip(sensors, step_rates))
-    ev_rows = [None] * b
-    bias_const = (np.empty((b, 3)), np.empty((b, 3)))
-    sm = (np.zeros((b, 3, 3)), np.zeros((b, 3, 3)))
-    direct = dtype == np.dtype(np.float64)
-
-    def row(i: int) -> None:
-        ch = _children(rngs[i])
-        c = ch["constants"]
-        # per-run constants, fixed order: turn-on gyro (3), turn-on accel (3), S+M gyro (9), S+M accel (9)
-        for k, s in enumerate(sensors):
-            bias_const[k][i] = s.fixed + c.standard_normal(3) * s.turn_on_sigma
-        for k, s in enumerate(sensors):
-            sm[k][i] = _error_matrix(c, s.scale_sigma, s.mis_sigma)
-        vib_row = None
-        if vib_on:
-            vgen = ch["vibration"] if vibration_rngs is None else vibration_rngs[i]
-            vib_row = _vibration_row(vgen, dt, None if engine_on is None else engine_on[i], speed[i], vibration)
-        rough_f = None
-        step_bias = (None, None)
-        if events is not None:
-            steps, rough = _draw_imu_events(ch["events"], events, dt, n)
-            ev_rows[i] = (steps, rough)
-            t_end = np.arange(n) * dt                          # sample j covers (t_j-1, t_j], t_j = j dt
-            if rough:
-                rough_f = np.ones(n)
-                for t0, t1, fac in rough:
-                    sel = (t_end > t0) & (t_end <= t1)
-                    rough_f[sel] = np.maximum(rough_f[sel], fac)
-                if vib_row is not None:
-                    vib_row = (vib_row[0] * rough_f[:, None], vib_row[1] * rough_f[:, None])
-            sb = [np.zeros((n, 3)) if r > 0 else None for r in step_rates]
-            for ts, sensor, axis, size in steps:
-                k = 0 if sensor == "gyro" else 1
-                sb[k][t_end > ts, axis] += size
-            step_bias = tuple(sb)
-        noise = np.empty((n, 3))
-        for k, s in enumerate(sensors):  # k = 0 gyro, 1 accel
-            o = outs[k][i] if direct else np.empty((n, 3))
-            src = truth[k][i]
-            if vib_row is not None:
-                src = np.add(vib_row[1 - k], src, out=vib_row[1 - k])  # vib_row = (f_vib, w_vib)
-            if s.has_sm:
-                _apply_matrix(np.eye(3) + sm[k][i], src, o)
-            else:
-                o[...] = src
-            const = bias_const[k][i]
-            if s.gm_sigma > 0:
-                bias = _gauss_markov_row(ch[s.gm_stream], s.gm_sigma, s.gm_tau, dt, n, noise)
-                bias += const
-                if step_bias[k] is not None:
-                    bias += step_bias[k]
-                o += bias
-                bias_full[k][i] = bias
-            elif step_bias[k] is not None:
-                bias = step_bias[k] + const
-                o += bias
-                bias_full[k][i] = bias
-            elif np.any(const):
-                o += const
-            if s.white_sigma > 0:
-                ch[s.white_stream].standard_normal(out=noise)
-                noise *= s.white_sigma
-                if rough_f is not None:
-                    noise *= rough_f[:, None]
-                o += noise
-            if not direct:
-                outs[k][i] = o
-
+    job = _RowJob(sensors=sensors, truth=(w_true, f_true), dt=dt, rngs=rngs, vibration_rngs=vibration_rngs,
+                  engine_on=engine_on, speed=speed, vibration=vibration, events=events, step_rates=step_rates,
+                  outs=(np.empty((b, n, 3), dtype=dtype), np.empty((b, n, 3), dtype=dtype)),
+                  bias_full=tuple(np.empty((b, n, 3), dtype=dtype) if (s.gm_sigma > 0 or r > 0) else None
+                                  for s, r in zip(sensors, step_rates)),
+                  bias_const=(np.empty((b, 3)), np.empty((b, 3))), sm=(np.zeros((b, 3, 3)), np.zeros((b, 3, 3))),
+                  ev_rows=[None] * b)
     if workers == 1 or b == 1:
         for i in range(b):
-            row(i)
+            _imu_row(job, i)
     else:
         with ThreadPoolExecutor(max_workers=workers) as ex:
-            for _ in ex.map(row, range(b)):
+            for _ in ex.map(partial(_imu_row, job), range(b)):
                 pass
+    return _imu_data(job, grade)
+
+
+def _imu_data(job: _RowJob, grade: ImuGrade) -> ImuData:
+    """The rows' outputs as :class:`ImuData` (a constant bias as a read-only broadcast view)."""
+    b, n = job.truth[0].shape[:2]
+    dtype = job.outs[0].dtype
 
     def _bias(full, const):
         if full is not None:
             return full
         return np.broadcast_to(const.astype(dtype)[:, None, :], (b, n, 3))
 
+    with_events = job.events is not None
     return ImuData(
-        f_b=outs[1],
-        w_b=outs[0],
-        gyro_bias=_bias(bias_full[0], bias_const[0]),
-        accel_bias=_bias(bias_full[1], bias_const[1]),
-        gyro_scale_misalignment=sm[0].astype(dtype),
-        accel_scale_misalignment=sm[1].astype(dtype),
-        dt=dt,
+        f_b=job.outs[1],
+        w_b=job.outs[0],
+        gyro_bias=_bias(job.bias_full[0], job.bias_const[0]),
+        accel_bias=_bias(job.bias_full[1], job.bias_const[1]),
+        gyro_scale_misalignment=job.sm[0].astype(dtype),
+        accel_scale_misalignment=job.sm[1].astype(dtype),
+        dt=job.dt,
         grade=grade,
-        bias_steps=None if events is None else tuple(r[0] for r in ev_rows),
-        rough=None if events is None else tuple(r[1] for r in ev_rows),
+        bias_steps=tuple(r[0] for r in job.ev_rows) if with_events else None,
+        rough=tuple(r[1] for r in job.ev_rows) if with_events else None,
     )
 
 
