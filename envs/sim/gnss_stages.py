@@ -29,6 +29,8 @@ from earth.wgs84 import C_LIGHT, OMEGA_IE, ecef_to_geodetic
 from . import events as ev
 from .constellation import Constellation
 from .receiver import _MIN_EL_SIGMA, CN0_JITTER_DB, _gauss_markov, iono_obliquity, simulate_clock, tropo_mapping
+from .rng import ChildStreams
+from .rng import entropy_words as _entropy_words  # noqa: F401  (re-exported by envs.sim.gnss)
 
 GPS_WEEK_S = 604_800.0
 """Seconds in a GPS week: ``t0_gps`` is drawn uniformly in [0, GPS_WEEK_S)."""
@@ -55,59 +57,14 @@ def _in_intervals(t: np.ndarray, intervals) -> np.ndarray:
 
 
 
-class _RowChildren:
-    """The ``_N_SUB`` fixed child generators of one row, each built on first use.
-
-    Child ``k`` is ``np.random.default_rng(SeedSequence(entropy).spawn(_N_SUB)[k])``: a spawned child is
-    ``SeedSequence(entropy, spawn_key=(k,))``, so building only the children a run uses (a clean sky
-    needs 7 of the 16) gives the very same streams at a fraction of the cost (~10 us per child).
-    Indexing with an int or a slice returns generators, as a list of all children would.
-    """
-
-    __slots__ = ("_words", "_gens")
-
-    def __init__(self, entropy: list):
-        self._words = _entropy_words(entropy)
-        self._gens = [None] * _N_SUB
-
-    def __len__(self) -> int:
-        return _N_SUB
-
-    def __getitem__(self, k):
-        if isinstance(k, slice):
-            return [self[j] for j in range(*k.indices(_N_SUB))]
-        g = self._gens[k]
-        if g is None:
-            g = self._gens[k] = np.random.default_rng(
-                np.random.SeedSequence(self._words, spawn_key=(range(_N_SUB)[k],)))
-        return g
-
-
-def _entropy_words(entropy: list) -> np.ndarray:
-    """The uint32 words ``SeedSequence`` makes of a list of non-negative ints, as a uint32 array.
-
-    ``SeedSequence`` turns each int of its entropy into 32-bit words, least significant first, at
-    least one word (0 -> [0]), and takes a uint32 array word for word: ``SeedSequence(words)`` is
-    ``SeedSequence(entropy)`` (same pool, same streams; tested), and ~2.5x cheaper to build.
-    """
-    words = []
-    for e in entropy:
-        words.append(e & 0xFFFFFFFF)
-        e >>= 32
-        while e:
-            words.append(e & 0xFFFFFFFF)
-            e >>= 32
-    return np.array(words, dtype=np.uint32)
-
-
-def _row_children(rng: np.random.Generator) -> _RowChildren:
+def _row_children(rng: np.random.Generator) -> ChildStreams:
     """Fixed child generators of one row (one per component), drawn from that row's generator only.
 
     One draw of 4 integers from ``rng`` is the entropy; child ``k`` (``0 .. _N_SUB-1``) is the ``k``-th
-    child of ``SeedSequence(entropy)`` (built lazily, see :class:`_RowChildren`).
+    child of ``SeedSequence(entropy)`` (built lazily, see :class:`envs.sim.rng.ChildStreams`).
     """
     entropy = rng.integers(0, 2**63, size=4, dtype=np.int64)
-    return _RowChildren([int(x) for x in entropy])
+    return ChildStreams([int(x) for x in entropy], _N_SUB)
 
 
 def _geometry(t_rx: np.ndarray, r_e: np.ndarray, constellation: Constellation, lat: np.ndarray,

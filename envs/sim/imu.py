@@ -56,6 +56,8 @@ import numpy as np
 
 from earth.units import DEG, deg, dph, dpsh, mg, mpsph, ppm, ugpsh, ugpshz
 
+from .rng import ChildStreams
+
 __all__ = [
     "ImuGrade",
     "IMU_GRADES",
@@ -532,9 +534,29 @@ def _sum_of_products(basis: np.ndarray, coef: np.ndarray) -> np.ndarray:
     return out
 
 
+@nb.njit(cache=True, nogil=True)
+def _road_vibration(e, zi, a, level, scale, ridx, vib) -> None:
+    """The road samples of :func:`_vibration_row` into the rows ``ridx`` (m,) of ``vib`` (N, 6) (f_vib, w_vib).
+
+    ``y`` = :func:`_all_pole_filter` of the unit innovations ``e`` (m, 6) from the state ``zi`` (2, 6) (the
+    AR(2) resonance ``a``); the sample is ``(L_k y_k - L_(k-1) y_(k-1)) scale`` with the speed level ``L``
+    (m,) and ``L_(-1) y_(-1) = 0``: the operations of ``y *= level; np.diff(y, prepend=0); y *= scale`` in
+    their order (the same bits), in one pass.
+    """
+    y = _all_pole_filter(a, e, zi)
+    prev = np.zeros(6)
+    for k in range(ridx.shape[0]):
+        r = ridx[k]
+        for j in range(6):
+            yl = y[k, j] * level[k]
+            vib[r, j] = (yl - prev[j]) * scale[j]
+            prev[j] = yl
+
+
 def _vibration_row(gen: np.random.Generator, dt: float, engine_on: np.ndarray | None, speed: np.ndarray,
-                   vib: Vibration) -> tuple[np.ndarray, np.ndarray] | None:
-    """Vibration of one run: ``(f_vib, w_vib)``, each (N, 3) float64, or None if it is zero throughout.
+                   vib: Vibration) -> np.ndarray | None:
+    """Vibration of one run: (N, 6) float64, ``f_vib`` in columns 0-2 and ``w_vib`` in 3-5, or None if it is zero
+    throughout.
 
     Draw order (fixed, independent of the data): f_e, idle accel rms, idle gyro
     rms, 2 x 6 phases, road accel level, road gyro level, then (only if the run
@@ -552,13 +574,13 @@ def _vibration_row(gen: np.random.Generator, dt: float, engine_on: np.ndarray | 
     eng = np.ones(n, dtype=bool) if engine_on is None else engine_on
     idle = eng & ~moving
     road = eng & moving
-    if not idle.any() and not road.any():
+    any_idle, any_road = idle.any(), road.any()
+    if not any_idle and not any_road:
         return None
     weights = np.asarray(vib.axis_weights)
-    fv = np.zeros((n, 3))
-    wv = np.zeros((n, 3))
+    out = np.zeros((n, 6))
 
-    if idle.any():
+    if any_idle:
         # per-channel rms r -> fundamental amplitude sqrt(2) r / sqrt(1 + h^2), harmonic h times that
         rms = np.concatenate([a_rms * weights, g_rms * weights])
         h = vib.harmonic_ratio
@@ -574,11 +596,9 @@ def _vibration_row(gen: np.random.Generator, dt: float, engine_on: np.ndarray | 
             basis += [np.sin(th), np.cos(th)]
             # A sin(th + phi) = A cos(phi) sin(th) + A sin(phi) cos(th)
             coef += [amp * atten * np.cos(phases[j]), amp * atten * np.sin(phases[j])]
-        vals = _sum_of_products(np.stack(basis), np.stack(coef))  # (M, 4) x (4, 6)
-        fv[idx] = vals[:, :3]
-        wv[idx] = vals[:, 3:]
+        out[idx] = _sum_of_products(np.stack(basis), np.stack(coef))  # (M, 4) x (4, 6)
 
-    if road.any() and (road_a > 0.0 or road_g > 0.0):
+    if any_road and (road_a > 0.0 or road_g > 0.0):
         # The process runs only over the road samples (a stationary process
         # restarted from its carried-over state after a stop is still stationary).
         ridx = np.flatnonzero(road)
@@ -589,25 +609,20 @@ def _vibration_row(gen: np.random.Generator, dt: float, engine_on: np.ndarray | 
         y1 = z[0]
         y2 = rho1 * z[0] + math.sqrt(max(1.0 - rho1 * rho1, 0.0)) * z[1]
         zi = np.stack([a1 * y1 + a2 * y2, a2 * y1]) * math.sqrt(gamma0)  # state in the unscaled process
-        y = _all_pole_filter(np.array([1.0, -a1, -a2]), e, zi)  # stationary variance gamma0
         level = np.abs(speed[ridx]) * (1.0 / vib.road_ref_speed_mps)
         if vib.road_speed_exponent != 1.0:
             level **= vib.road_speed_exponent
-        # y is the vibration *displacement* (tilt angle, velocity) of the resonance; the IMU
-        # senses its rate, and the interval mean of a rate is the displacement increment over
-        # the interval divided by dt. So the sample is (L_k y_k - L_(k-1) y_(k-1)) / dt: its sum
-        # telescopes, the integrated vibration (attitude, velocity) stays bounded, and its
-        # spectrum is zero at DC, as for a physical oscillation (a rate with power at DC would
-        # integrate into an attitude random walk that no vehicle has).
-        # var(y_k - y_(k-1)) = 2 gamma0 (1 - rho1) for the unit-innovation process.
+        # y (stationary variance gamma0) is the vibration *displacement* (tilt angle, velocity) of the
+        # resonance; the IMU senses its rate, and the interval mean of a rate is the displacement increment
+        # over the interval divided by dt. So the sample is (L_k y_k - L_(k-1) y_(k-1)) / dt: its sum
+        # telescopes, the integrated vibration (attitude, velocity) stays bounded, and its spectrum is zero
+        # at DC, as for a physical oscillation (a rate with power at DC would integrate into an attitude
+        # random walk that no vehicle has). var(y_k - y_(k-1)) = 2 gamma0 (1 - rho1) for the unit-innovation
+        # process.
         unit = 1.0 / math.sqrt(2.0 * gamma0 * (1.0 - rho1))
         scale = np.concatenate([road_a * weights, road_g * weights]) * unit
-        y *= level[:, None]
-        y = np.diff(y, axis=0, prepend=np.zeros((1, 6)))
-        y *= scale
-        fv[ridx] = y[:, :3]
-        wv[ridx] = y[:, 3:]
-    return fv, wv
+        _road_vibration(e, zi, np.array([1.0, -a1, -a2]), level, scale, ridx, out)
+    return out
 
 
 def simulate_vibration(imu_rate_hz: float, rngs: Sequence[np.random.Generator], speed, engine_on=None,
@@ -648,7 +663,7 @@ def simulate_vibration(imu_rate_hz: float, rngs: Sequence[np.random.Generator], 
     for i in range(b):
         r = _vibration_row(rngs[i], 1.0 / rate, None if engine_on is None else engine_on[i], speed[i], vib)
         if r is not None:
-            f[i], w[i] = r
+            f[i], w[i] = r[:, :3], r[:, 3:]
     return f, w
 
 
@@ -831,14 +846,12 @@ def _check_motion(speed, engine_on, b: int, n: int):
 
 
 # --------------------------------------------------------------------------- simulation
-def _children(rng: np.random.Generator) -> dict[str, np.random.Generator]:
-    """Independent per-component streams of one row (2 draws from ``rng``)."""
+def _children(rng: np.random.Generator) -> ChildStreams:
+    """Independent per-component streams of one row (2 draws from ``rng``), by name (:data:`_COMPONENTS`): child
+    ``k`` is ``Generator(SFC64(SeedSequence(entropy, spawn_key=(k,))))``, each built on first use
+    (:class:`envs.sim.rng.ChildStreams`)."""
     words = rng.integers(0, _U64_MAX, size=2, dtype=np.uint64, endpoint=True)
-    entropy = [int(w) for w in words]
-    return {
-        c: np.random.Generator(np.random.SFC64(np.random.SeedSequence(entropy, spawn_key=(k,))))
-        for k, c in enumerate(_COMPONENTS)
-    }
+    return ChildStreams([int(w) for w in words], len(_COMPONENTS), np.random.SFC64, _COMPONENTS)
 
 
 def _error_matrix(gen: np.random.Generator, scale_sigma: float, mis_sigma: float) -> np.ndarray:
@@ -849,25 +862,53 @@ def _error_matrix(gen: np.random.Generator, scale_sigma: float, mis_sigma: float
     return e
 
 
-def _gauss_markov_row(gen: np.random.Generator, sigma: float, tau: float, dt: float, n: int,
-                      scratch: np.ndarray | None = None) -> np.ndarray:
-    """First-order Gauss-Markov sequence b_1..b_n on 3 axes, (n, 3), stationary from b_0.
+@nb.njit(cache=True, nogil=True)
+def _sensor_kernel(truth, vib, rough, a, has_sm, const, add_const, gm_z, gm_scale, zi, phi, has_gm, step, has_step,
+                   white_z, white_sigma, has_white, out, bias_out) -> None:
+    """One sensor's output of one row, in one pass: ``out = (I + S + M) src + bias + white`` (n, 3).
 
-    ``b_k = phi b_{k-1} + u_k``, ``phi = exp(-dt/tau)``,
-    ``var(u) = sigma^2 (1 - phi^2)``, ``b_0 ~ N(0, sigma^2)``
-    (exact discretization of the continuous first-order Markov process,
-    Groves 2013 sec. 4.4 / Brown & Hwang, *Introduction to Random Signals and
-    Applied Kalman Filtering*, first-order Gauss-Markov process). Computed with
-    :func:`_all_pole_filter` (``scipy.signal.lfilter``'s recursion) along time. Draws: 3 (b_0), then n x 3.
-    ``scratch`` is an optional (n, 3) float64 work array (overwritten).
+    ``src`` is ``truth`` (n, 3) plus, when ``vib`` (n, 3) is not empty, the vibration times ``rough`` (n,) (ones
+    off the rough-road segments: multiplying by 1 changes no bit). ``a = I + S + M`` applied when ``has_sm``
+    (:func:`_apply_matrix`'s sum order). The bias, written to ``bias_out`` when it varies in time:
+
+    * with ``has_gm`` the first-order Gauss-Markov process (Groves 2013 sec. 4.4; Brown & Hwang, first-order
+      Gauss-Markov process): ``b_k = phi b_(k-1) + u_k``, ``u = gm_scale gm_z`` (``gm_scale = sigma
+      sqrt(1 - phi^2)``), from the state ``zi = phi b_0`` (:func:`_all_pole_filter`'s recursion with
+      ``a = [1, -phi]``, ``b = [1, 0]``, its operations in its order), plus ``const`` (3,), plus ``step`` (n, 3)
+      when ``has_step``;
+    * else ``step + const`` when ``has_step``; else ``const`` when ``add_const`` (not at all when it is zero).
+
+    The white noise ``white_z white_sigma rough`` when ``has_white``. The operations of the numpy sequence
+    this replaces (``o = A src; o += bias; o += noise``), in its order: the same bits.
     """
-    phi = math.exp(-dt / tau)
-    b0 = gen.standard_normal(3) * sigma
-    u = np.empty((n, 3)) if scratch is None else scratch
-    gen.standard_normal(out=u)
-    u *= sigma * math.sqrt(-math.expm1(-2.0 * dt / tau))
-    y = _all_pole_filter(np.array([1.0, -phi]), u, (phi * b0)[None, :])
-    return y
+    n = truth.shape[0]
+    has_vib = vib.shape[0] > 0
+    z = zi.copy()
+    nphi = -phi
+    s = np.empty(3)
+    for k in range(n):
+        for j in range(3):
+            s[j] = vib[k, j] * rough[k] + truth[k, j] if has_vib else truth[k, j]
+        for j in range(3):
+            o = s[0] * a[j, 0] + s[1] * a[j, 1] + s[2] * a[j, 2] if has_sm else s[j]
+            if has_gm:
+                xn = gm_z[k, j] * gm_scale
+                yn = z[j] + 1.0 * xn
+                z[j] = xn * 0.0 - yn * nphi
+                bias = yn + const[j]
+                if has_step:
+                    bias += step[k, j]
+                o += bias
+                bias_out[k, j] = bias
+            elif has_step:
+                bias = step[k, j] + const[j]
+                o += bias
+                bias_out[k, j] = bias
+            elif add_const:
+                o += const[j]
+            if has_white:
+                o += white_z[k, j] * white_sigma * rough[k]
+            out[k, j] = o
 
 
 @nb.njit(cache=True, nogil=True)
@@ -993,12 +1034,12 @@ def _sensor_specs(g: ImuGrade, dt: float) -> tuple[_SensorSpec, _SensorSpec]:
     )
 
 
-def _row_events(gen: np.random.Generator, events: ImuEvents, step_rates, dt: float, n: int, vib_row):
+def _row_events(gen: np.random.Generator, events: ImuEvents, step_rates, dt: float, n: int):
     """Stage of one row: its :class:`ImuEvents` (bias steps, rough-road segments) drawn from ``gen``.
 
-    Returns ``(steps, rough)`` (:func:`_draw_imu_events`), the rough-road factor per sample (n,) or None, the
-    vibration ``vib_row`` scaled by it, and the step biases (gyro, accel) (n, 3) each, None where that
-    sensor's step rate is 0. Sample j covers ``(t_j-1, t_j]``, ``t_j = j dt``.
+    Returns ``(steps, rough)`` (:func:`_draw_imu_events`), the rough-road factor per sample (n,) or None
+    without a segment, and the step biases (gyro, accel) (n, 3) each, None where that sensor's step rate is 0.
+    Sample j covers ``(t_j-1, t_j]``, ``t_j = j dt``.
     """
     steps, rough = _draw_imu_events(gen, events, dt, n)
     t_end = np.arange(n) * dt
@@ -1008,48 +1049,41 @@ def _row_events(gen: np.random.Generator, events: ImuEvents, step_rates, dt: flo
         for t0, t1, fac in rough:
             sel = (t_end > t0) & (t_end <= t1)
             rough_f[sel] = np.maximum(rough_f[sel], fac)
-        if vib_row is not None:
-            vib_row = (vib_row[0] * rough_f[:, None], vib_row[1] * rough_f[:, None])
     sb = [np.zeros((n, 3)) if r > 0 else None for r in step_rates]
     for ts, sensor, axis, size in steps:
         k = 0 if sensor == "gyro" else 1
         sb[k][t_end > ts, axis] += size
-    return (steps, rough), rough_f, vib_row, tuple(sb)
+    return (steps, rough), rough_f, tuple(sb)
 
 
-def _sensor_row(s: _SensorSpec, src, sm_row, const, step_bias, rough_f, ch: dict, dt: float, o, noise):
-    """Stage of one row: one sensor's measured output into ``o`` (n, 3) float64.
+_NONE = np.empty((0, 3))
+"""An empty (0, 3) array: "no such input" (or output) for :func:`_sensor_kernel`."""
 
-    ``o = (I + S + M) src + bias + white``: ``src`` (n, 3) the sensed motion (truth plus vibration),
-    ``sm_row`` its ``S + M``, the bias the constant ``const`` (3,) plus the Gauss-Markov process (drawn from
-    the sensor's stream of ``ch``) and the ``step_bias`` (n, 3) or None, the white noise from its own stream
-    times ``rough_f`` (n,) or None. ``noise`` (n, 3) is scratch. Returns the time-varying bias (n, 3), or None
-    when it is constant.
+
+def _sensor_row(s: _SensorSpec, truth, vib, rough, sm_row, const, step_bias, ch, dt: float, out, bias_out) -> bool:
+    """Stage of one row: one sensor's measured output into ``out`` (n, 3) (any float dtype).
+
+    ``out = (I + S + M)(truth + vib rough) + bias + white`` (:func:`_sensor_kernel`): ``vib`` (n, 3) or None,
+    ``rough`` (n,) the rough-road factor (ones without), ``sm_row`` the row's ``S + M``, the bias the constant
+    ``const`` (3,) plus the Gauss-Markov process (drawn from the sensor's stream of ``ch``: 3 for its start,
+    then n x 3) and the ``step_bias`` (n, 3) or None; the white noise (n x 3 from its own stream of ``ch``).
+    ``bias_out`` (n, 3) receives the bias when it varies in time. Returns whether it does.
     """
-    n = o.shape[0]
-    if s.has_sm:
-        _apply_matrix(np.eye(3) + sm_row, src, o)
-    else:
-        o[...] = src
-    bias = None
-    if s.gm_sigma > 0:
-        bias = _gauss_markov_row(ch[s.gm_stream], s.gm_sigma, s.gm_tau, dt, n, noise)
-        bias += const
-        if step_bias is not None:
-            bias += step_bias
-        o += bias
-    elif step_bias is not None:
-        bias = step_bias + const
-        o += bias
-    elif np.any(const):
-        o += const
-    if s.white_sigma > 0:
-        ch[s.white_stream].standard_normal(out=noise)
-        noise *= s.white_sigma
-        if rough_f is not None:
-            noise *= rough_f[:, None]
-        o += noise
-    return bias
+    n = truth.shape[0]
+    has_gm = s.gm_sigma > 0
+    gm_z, zi, phi, gm_scale = _NONE, np.zeros(3), 0.0, 0.0
+    if has_gm:
+        phi = math.exp(-dt / s.gm_tau)
+        g = ch[s.gm_stream]
+        zi = phi * (g.standard_normal(3) * s.gm_sigma)        # phi b_0, b_0 ~ N(0, sigma^2)
+        gm_z = g.standard_normal((n, 3))
+        gm_scale = s.gm_sigma * math.sqrt(-math.expm1(-2.0 * dt / s.gm_tau))
+    white_z = ch[s.white_stream].standard_normal((n, 3)) if s.white_sigma > 0 else _NONE
+    has_step = step_bias is not None
+    _sensor_kernel(truth, _NONE if vib is None else vib, rough, np.eye(3) + sm_row, s.has_sm, const, bool(np.any(const)),
+                   gm_z, gm_scale, zi, phi, has_gm, _NONE if step_bias is None else step_bias, has_step, white_z,
+                   s.white_sigma, s.white_sigma > 0, out, bias_out)
+    return has_gm or has_step
 
 
 def _imu_row(job: _RowJob, i: int) -> None:
@@ -1064,27 +1098,32 @@ def _imu_row(job: _RowJob, i: int) -> None:
         job.bias_const[k][i] = s.fixed + c.standard_normal(3) * s.turn_on_sigma
     for k, s in enumerate(job.sensors):
         job.sm[k][i] = _error_matrix(c, s.scale_sigma, s.mis_sigma)
-    vib_row = None
+    vib = None
     if job.vibration is not None:
         vgen = ch["vibration"] if job.vibration_rngs is None else job.vibration_rngs[i]
-        vib_row = _vibration_row(vgen, job.dt, None if job.engine_on is None else job.engine_on[i], job.speed[i],
-                                 job.vibration)
+        vib = _vibration_row(vgen, job.dt, None if job.engine_on is None else job.engine_on[i], job.speed[i],
+                             job.vibration)
     rough_f, step_bias = None, (None, None)
     if job.events is not None:
-        job.ev_rows[i], rough_f, vib_row, step_bias = _row_events(ch["events"], job.events, job.step_rates, job.dt,
-                                                                  n, vib_row)
-    noise = np.empty((n, 3))
-    direct = job.outs[0].dtype == np.dtype(np.float64)
-    for k, s in enumerate(job.sensors):  # k = 0 gyro, 1 accel
-        o = job.outs[k][i] if direct else np.empty((n, 3))
-        src = job.truth[k][i]
-        if vib_row is not None:
-            src = np.add(vib_row[1 - k], src, out=vib_row[1 - k])  # vib_row = (f_vib, w_vib)
-        bias = _sensor_row(s, src, job.sm[k][i], job.bias_const[k][i], step_bias[k], rough_f, ch, job.dt, o, noise)
-        if bias is not None:
-            job.bias_full[k][i] = bias
-        if not direct:
-            job.outs[k][i] = o
+        job.ev_rows[i], rough_f, step_bias = _row_events(ch["events"], job.events, job.step_rates, job.dt, n)
+    rough = _ones(n) if rough_f is None else rough_f
+    for k, s in enumerate(job.sensors):  # k = 0 gyro (vibration columns 3-5), 1 accel (0-2)
+        bias_out = _NONE if job.bias_full[k] is None else job.bias_full[k][i]
+        _sensor_row(s, job.truth[k][i], None if vib is None else vib[:, 3 * (1 - k):3 * (2 - k)], rough,
+                    job.sm[k][i], job.bias_const[k][i], step_bias[k], ch, job.dt, job.outs[k][i], bias_out)
+
+
+def _ones(n: int) -> np.ndarray:
+    """A read-only (n,) array of ones (the rough-road factor of a row without a segment), shared per length."""
+    a = _ONES_CACHE.get(n)
+    if a is None:
+        a = np.ones(n)
+        a.setflags(write=False)
+        _ONES_CACHE[n] = a
+    return a
+
+
+_ONES_CACHE: dict = {}
 
 
 def simulate_imu(f_true, w_true, imu_rate_hz: float, grade, rngs: Sequence[np.random.Generator],

@@ -8,7 +8,7 @@ tests/envs/test_world_fingerprints.py's job.
 from __future__ import annotations
 
 import math
-from dataclasses import fields
+from dataclasses import fields, replace
 
 import numpy as np
 import pytest
@@ -16,7 +16,7 @@ import pytest
 import envs.sim.world as wmod
 from envs.sim import events as ev
 from envs.sim import gnss_stages as st
-from envs.sim.imu import IMU_GRADES, ImuEvents, _row_events, _sensor_row, _sensor_specs
+from envs.sim.imu import IMU_GRADES, ImuEvents, _children, _row_events, _sensor_row, _sensor_specs
 from envs.sim.rng import row_generators
 from envs.sim.scenarios import get_scenario
 
@@ -143,19 +143,35 @@ def test_channel_noise_and_receiver_errors_contract(monkeypatch):
 
 def test_imu_sensor_specs_and_sensor_row_contract():
     """_sensor_specs: the per-sample white sigma ARW / sqrt(dt); _sensor_row: an error-free sensor passes the
-    sensed motion through, a constant bias is added as it is (and reported as no time-varying bias)."""
+    sensed motion through, a constant bias is added as it is (and reported as no time-varying bias), the
+    vibration is added times the rough-road factor, and a Gauss-Markov bias is the exact recursion."""
     dt = 0.01
     g = IMU_GRADES["industrial"]
     gyro, accel = _sensor_specs(g, dt)
     assert gyro.white_sigma == g.gyro_arw / math.sqrt(dt) and accel.white_sigma == g.accel_vrw / math.sqrt(dt)
-    src = np.random.default_rng(0).normal(size=(50, 3))
+    rng = np.random.default_rng(0)
+    src, vib = rng.normal(size=(50, 3)), rng.normal(size=(50, 3))
+    rough = np.where(np.arange(50) < 20, 1.0, 3.0)
     ideal = _sensor_specs(IMU_GRADES["ideal"], dt)[0]
     o = np.empty((50, 3))
-    assert _sensor_row(ideal, src, np.zeros((3, 3)), np.zeros(3), None, None, {}, dt, o, np.empty((50, 3))) is None
+    none = np.empty((0, 3))
+    assert not _sensor_row(ideal, src, None, np.ones(50), np.zeros((3, 3)), np.zeros(3), None, None, dt, o, none)
     np.testing.assert_array_equal(o, src)
     const = np.array([1e-3, -2e-3, 5e-4])
-    assert _sensor_row(ideal, src, np.zeros((3, 3)), const, None, None, {}, dt, o, np.empty((50, 3))) is None
-    np.testing.assert_array_equal(o, src + const)
+    assert not _sensor_row(ideal, src, vib, rough, np.zeros((3, 3)), const, None, None, dt, o, none)
+    np.testing.assert_array_equal(o, (src + vib * rough[:, None]) + const)
+    gm = replace(ideal, gm_sigma=0.1, gm_tau=2.0)
+    bias = np.empty((50, 3))
+    ch = _children(np.random.default_rng(5))
+    assert _sensor_row(gm, src, None, np.ones(50), np.zeros((3, 3)), const, None, ch, dt, o, bias)
+    z = _children(np.random.default_rng(5))[gm.gm_stream]
+    phi = math.exp(-dt / 2.0)
+    b = z.standard_normal(3) * 0.1                       # b_0
+    u = z.standard_normal((50, 3)) * (0.1 * math.sqrt(1 - phi ** 2))
+    for k in range(50):
+        b = phi * b + u[k]
+        np.testing.assert_allclose(bias[k], b + const, rtol=1e-12, atol=1e-15)
+    np.testing.assert_array_equal(o, src + bias)
 
 
 def test_imu_row_events_contract():
@@ -164,9 +180,7 @@ def test_imu_row_events_contract():
     events = ImuEvents(gyro_step_rate_hz=0.05, accel_step_rate_hz=0.05, rough_rate_hz=0.05)
     dt, n = 0.01, 12001
     for seed in range(6):
-        (steps, rough), rough_f, vib, sb = _row_events(np.random.default_rng(seed), events, (0.05, 0.05), dt, n,
-                                                       None)
-        assert vib is None
+        (steps, rough), rough_f, sb = _row_events(np.random.default_rng(seed), events, (0.05, 0.05), dt, n)
         t_end = np.arange(n) * dt
         want = np.ones(n)
         for t0, t1, fac in rough:
