@@ -11,7 +11,7 @@ Method specs: a filter method (``kf``, ``svd-akf+onestep``, ...), an adaptive me
 (``sage-husa[b=0.995]``), the optimized fixed parameter (``tuned:<tuning.json>`` from ``train.py tune``),
 a learned policy (``<algo>:<model.zip>`` from ``train.py rl``), or an oracle of an env's knob
 (``oracle-schedule:<env id>``, ``best-per-episode:<env id>``, ``crossfit-schedule:<env id>``, options in
-brackets: ``oracle-schedule:GnssIns/SageHusa-v0[segment_s=10,lookahead_s=20,n=7]``; see
+brackets: ``oracle-schedule:GnssIns/SageHusa-v1[segment_s=10,lookahead_s=20,n=7]``; see
 :mod:`agents.methods`). Oracles know the truth: their rows are labelled ``oracle: ...`` and are never a
 method a user could run. Episode k of every method sees the same truth and sensor errors (the worlds are
 drawn from the episode seeds ``seed * 1_000_003 + k``).

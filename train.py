@@ -1,8 +1,8 @@
 """One entry point for training (DESIGN.md section 4).
 
-    python train.py rl   --env GnssIns/SageHusa-v0 --algo ppo --timesteps N --seed S --out runs/DIR
-    python train.py rl   --env GnssIns/SageHusa-v0 --algo ppo --quick --out runs/quick
-    python train.py tune --env GnssIns/SageHusa-v0 --out runs/DIR          # the optimized fixed parameter
+    python train.py rl   --env GnssIns/SageHusa-v1 --algo ppo --timesteps N --seed S --out runs/DIR
+    python train.py rl   --env GnssIns/SageHusa-v1 --algo ppo --quick --out runs/quick
+    python train.py tune --env GnssIns/SageHusa-v1 --out runs/DIR          # the optimized fixed parameter
     python train.py zupt --model lstm --seed S --out runs/DIR              # zero-velocity detector
     python train.py sweep --config configs/sweep.yml --out runs/sweep [--backend ray [--address ADDR]]
 
@@ -17,7 +17,7 @@ for ``eval.py --methods tuned:runs/DIR/tuning.json``. ``zupt`` writes the detect
 ``--backend ray``) and writes ``sweep.csv`` / ``sweep.md`` beside the trials' run folders.
 
 The environments also train unchanged under RL Zoo, with navgym's hyperparameters from ``hyperparams/``:
-``python -m rl_zoo3.train --gym-packages envs --env GnssIns/SageHusa-v0 --algo ppo --conf-file hyperparams/ppo.yml``.
+``python -m rl_zoo3.train --gym-packages envs --env GnssIns/SageHusa-v1 --algo ppo --conf-file hyperparams/ppo.yml``.
 """
 from __future__ import annotations
 
@@ -72,7 +72,7 @@ def build_parser():
                                 "parameter, and zero-velocity detectors.", formatter_class=HelpFormatter)
     sub = p.add_subparsers(dest="cmd", required=True)
     rl = sub.add_parser("rl", help="train an RL tuning policy (stable-baselines3)", formatter_class=HelpFormatter)
-    rl.add_argument("--env", default="GnssIns/SageHusa-v0", help="environment id")
+    rl.add_argument("--env", default="GnssIns/SageHusa-v1", help="environment id")
     rl.add_argument("--algo", default="ppo", help="ppo, sac, td3 or recurrentppo")
     rl.add_argument("--timesteps", type=float, default=None,
                     help=f"total environment steps (default: {D['n_timesteps']}; --quick: {Q['n_timesteps']}; or the "
@@ -96,7 +96,7 @@ def build_parser():
     rl.add_argument("--out", required=True, help="output directory runs/DIR (required)")
     tu = sub.add_parser("tune", help="the optimized fixed-parameter baseline (grid search on training seeds)",
                         formatter_class=HelpFormatter)
-    tu.add_argument("--env", default="GnssIns/SageHusa-v0", help="environment id whose parameter is tuned")
+    tu.add_argument("--env", default="GnssIns/SageHusa-v1", help="environment id whose parameter is tuned")
     tu.add_argument("--env-kwargs", nargs="*", metavar="KEY=VALUE",
                     help="environment arguments of the training episodes, e.g. scenario=urban "
                          "episode_length_s=300 (default: the env's)")
@@ -193,7 +193,7 @@ def _main(argv=None):
         if args.algo.lower() not in ALGOS:
             fail(f"unknown algorithm {args.algo!r}; known: {', '.join(ALGOS)}")
         import envs
-        if args.env not in envs.ENV_IDS:
+        if not envs.is_env_id(args.env):
             fail(f"unknown environment {args.env!r}; known: {', '.join(sorted(envs.ENV_IDS))}")
         ekw = parse_env_kwargs(args.env_kwargs)
         check_env_kwargs(args.env, ekw)
@@ -209,7 +209,7 @@ def _main(argv=None):
               f"({cfg['env_steps_per_s']:.0f} env-steps/s); model: {Path(args.out) / 'model.zip'}")
     elif args.cmd == "tune":
         import envs
-        if args.env not in envs.ENV_IDS:
+        if not envs.is_env_id(args.env):
             fail(f"unknown environment {args.env!r}; known: {', '.join(sorted(envs.ENV_IDS))}")
         ekw = parse_env_kwargs(args.env_kwargs)
         check_env_kwargs(args.env, ekw)

@@ -2,7 +2,7 @@
 
 A sweep file (YAML; every key but ``envs`` is optional; an example: ``configs/sweep.yml``)::
 
-    envs: [GnssIns/SageHusa-v0]        # environment ids
+    envs: [GnssIns/SageHusa-v1]        # environment ids
     scenarios: [urban-transition]      # scenario names (env kwarg 'scenario'); omitted: the env's default
     algos: [ppo]                       # ppo, recurrentppo, sac, td3
     seeds: [0, 1]                      # training seeds: replicates of every hyperparameter configuration
@@ -148,7 +148,7 @@ class SweepConfig:
             if len(set(v)) != len(v):
                 self._bad(name, f"lists a value twice: {list(v)}")
         for e in self.envs:
-            if e not in envs.ENV_IDS:
+            if not envs.is_env_id(e):
                 self._bad("envs", f"unknown environment {e!r}; known: {', '.join(sorted(envs.ENV_IDS))}")
         for a in self.algos:
             if not isinstance(a, str) or a.lower() not in ALGOS:

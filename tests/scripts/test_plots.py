@@ -119,21 +119,21 @@ def test_no_actions_plot_without_a_policy(tmp_path):
 def test_short_labels_and_training_records(tmp_path):
     (tmp_path / "urban").mkdir()
     (tmp_path / "urban" / "tuning.json").write_text(json.dumps({
-        "env": "GnssIns/SageHusa-v0", "env_kwargs": {"scenario": "urban", "episode_length_s": 300},
+        "env": "GnssIns/SageHusa-v1", "env_kwargs": {"scenario": "urban", "episode_length_s": 300},
         "method": "sage-husa", "param": "b", "best": 0.94444, "grid": [0.3, 0.9999], "train_seeds": [1, 2, 3]}))
     for s in (0, 1):
         d = tmp_path / f"ppo-s{s}"
         d.mkdir()
-        (d / "config.json").write_text(json.dumps({"env": "GnssIns/SageHusa-v0", "algo": "ppo", "seed": s,
+        (d / "config.json").write_text(json.dumps({"env": "GnssIns/SageHusa-v1", "algo": "ppo", "seed": s,
                                                    "env_kwargs": {"episode_length_s": 60.0},
                                                    "n_timesteps": 24576, "n_envs": 8}))
     tuned = f"tuned:{tmp_path}/{{scenario}}/tuning.json"
     assert short_label(tuned, "urban") == "tuned b=0.944"
     assert short_label(tuned, "open-sky") == "tuned (tuning.json)"  # no file for open-sky
     assert short_label("ppo:a/model.zip", "urban", n_seeds=3) == "ppo (3 seeds)"
-    assert short_label("oracle: oracle-schedule:GnssIns/SageHusa-v0[n=7]", "urban") == "oracle: schedule"
+    assert short_label("oracle: oracle-schedule:GnssIns/SageHusa-v1[n=7]", "urban") == "oracle: schedule"
     assert short_label("oracle-r", "urban") == "oracle: true R"
-    assert short_label("rule:GnssIns/SageHusa-v0[b_low=0.5]", "urban") == "rule b_low=0.5"
+    assert short_label("rule:GnssIns/SageHusa-v1[b_low=0.5]", "urban") == "rule b_low=0.5"
     assert short_label("sage-husa[b=0.995]", "urban") == "sage-husa[b=0.995]"
     assert len(short_label("svd-asrkf+onestep[zupt=lstm,zupt_weights=/very/long/path.pt]", "x")) <= 28
     members = [f"ppo:{tmp_path}/ppo-s{s}/model.zip" for s in (0, 1)]
@@ -172,7 +172,7 @@ def test_training_notes_state_and_warn(tmp_path):
     from agents.provenance import training_notes
     d = tmp_path / "p"
     d.mkdir()
-    (d / "config.json").write_text(json.dumps({"env": "GnssIns/SageHusa-v0", "algo": "ppo", "seed": 0,
+    (d / "config.json").write_text(json.dumps({"env": "GnssIns/SageHusa-v1", "algo": "ppo", "seed": 0,
                                                "env_kwargs": {"episode_length_s": 60.0}, "n_timesteps": 24576}))
     spec = f"ppo:{d}/model.zip"
     notes = training_notes({"noise-burst": ["kf", spec], "urban": ["kf", spec]},
@@ -192,7 +192,7 @@ def test_note_has_the_training_section(tmp_path):
     import eval
     d = tmp_path / "p"
     d.mkdir()
-    (d / "config.json").write_text(json.dumps({"env": "GnssIns/SageHusa-v0", "algo": "ppo", "seed": 2,
+    (d / "config.json").write_text(json.dumps({"env": "GnssIns/SageHusa-v1", "algo": "ppo", "seed": 2,
                                                "env_kwargs": {"episode_length_s": 60.0}, "n_timesteps": 512}))
     spec = f"ppo:{d}/model.zip"
     row = {"episodes": 3, "rmse_h_m": 1.0, "rmse_h_ci95_m": [0.9, 1.1], "rmse_3d_m": 1.2, "p95_h_m": 1.5,

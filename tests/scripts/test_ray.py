@@ -30,7 +30,7 @@ def local_ray():
 
 
 def test_eval_ray_equals_local(local_ray, tmp_path):
-    common = ["--scenario", "seed000-sim", "--methods", "kf,sage-husa[b=0.99],rule:GnssIns/SageHusa-v0",
+    common = ["--scenario", "seed000-sim", "--methods", "kf,sage-husa[b=0.99],rule:GnssIns/SageHusa-v1",
               "--episodes", "3", "--batch-size", "2", "--seed", "2", "--no-plots"]
     eval_cli.main([*common, "--out", str(tmp_path / "local")])
     eval_cli.main([*common, "--backend", "ray", "--workers", "2", "--out", str(tmp_path / "ray")])
@@ -38,7 +38,7 @@ def test_eval_ray_equals_local(local_ray, tmp_path):
     b = json.loads((tmp_path / "ray" / "results.json").read_text())
     assert without_timing(a) == without_timing(b)
     per = a["scenarios"]["seed000-sim"]
-    assert set(per) == {"kf", "sage-husa[b=0.99]", "rule:GnssIns/SageHusa-v0"}
+    assert set(per) == {"kf", "sage-husa[b=0.99]", "rule:GnssIns/SageHusa-v1"}
     assert all(r["episodes"] == 3 for r in per.values())
     assert ray.is_initialized()  # eval.py used the Ray it found and left it running
 
@@ -61,7 +61,7 @@ def test_map_runs_in_workers_and_reraises_the_task_error(local_ray):
         local_ray.map(_fail, [0, 1, 2, 3], progress=False)
 
 
-SWEEP = """envs: [GnssIns/SageHusa-v0]
+SWEEP = """envs: [GnssIns/SageHusa-v1]
 scenarios: [seed000-sim]
 timesteps: 256
 n_envs: 4
@@ -138,7 +138,7 @@ def test_resume_does_not_redo_finished_trials(sweep):
     assert again[0]["eval_mean_reward_last"] == rows[0]["eval_mean_reward_last"]
 
 
-OPTUNA_SWEEP = """envs: [GnssIns/SageHusa-v0]
+OPTUNA_SWEEP = """envs: [GnssIns/SageHusa-v1]
 scenarios: [seed000-sim]
 timesteps: 256
 n_envs: 4

@@ -7,7 +7,7 @@ import pytest
 import train
 from agents.sweep import configurations, expand_trials, load_sweep
 
-BASE = """envs: [GnssIns/SageHusa-v0]
+BASE = """envs: [GnssIns/SageHusa-v1]
 scenarios: [seed000-sim]
 timesteps: 256
 """

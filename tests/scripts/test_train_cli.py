@@ -19,11 +19,11 @@ def run(script, *args):
 
 def test_rl_smoke_writes_a_loadable_model_and_eval_runs_it(tmp_path):
     out = tmp_path / "run"
-    p = run("train.py", "rl", "--env", "GnssIns/SageHusa-v0", "--algo", "ppo", "--timesteps", "256",
+    p = run("train.py", "rl", "--env", "GnssIns/SageHusa-v1", "--algo", "ppo", "--timesteps", "256",
             "--n-envs", "4", "--env-kwargs", "episode_length_s=6", "--seed", "1", "--no-progress", "--out", str(out))
     assert p.returncode == 0, p.stderr[-2000:]
     cfg = json.loads((out / "config.json").read_text())
-    assert cfg["env"] == "GnssIns/SageHusa-v0" and cfg["n_timesteps"] == 256 and cfg["env_kwargs"]["episode_length_s"] == 6
+    assert cfg["env"] == "GnssIns/SageHusa-v1" and cfg["n_timesteps"] == 256 and cfg["env_kwargs"]["episode_length_s"] == 6
     for f in ("model.zip", "vecnormalize.pkl", "best/best_model.zip"):
         assert (out / f).stat().st_size > 0
     assert list((out / "checkpoints").glob("model_*_steps.zip"))  # a short run still evaluates and checkpoints
@@ -42,7 +42,7 @@ def test_rl_smoke_writes_a_loadable_model_and_eval_runs_it(tmp_path):
 
 
 def test_tune_writes_a_tuning_file_that_eval_reads(tmp_path):
-    p = run("train.py", "tune", "--env", "GnssIns/SageHusa-v0", "--env-kwargs", "episode_length_s=10",
+    p = run("train.py", "tune", "--env", "GnssIns/SageHusa-v1", "--env-kwargs", "episode_length_s=10",
             "--n-train", "2", "--grid-size", "3", "--out", str(tmp_path))
     assert p.returncode == 0, p.stderr[-2000:]
     t = json.loads((tmp_path / "tuning.json").read_text())
@@ -87,6 +87,6 @@ def test_eval_method_errors(args, msg, tmp_path):
 
 def test_rl_zoo_import_path():
     """RL Zoo's --gym-packages envs imports the package; gymnasium's 'module:id' form does the same."""
-    env = gym.make("envs:GnssIns/SageHusa-v0", episode_length_s=4.0)
+    env = gym.make("envs:GnssIns/SageHusa-v1", episode_length_s=4.0)
     obs, _ = env.reset(seed=0)
     assert env.observation_space.contains(obs)
