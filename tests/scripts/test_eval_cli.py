@@ -39,7 +39,7 @@ def test_results_json_schema_and_outputs(tmp_path):
     for f in ("results.json", "results.md", "results.csv", "cdf_seed000-sim.png", "NOTE.md"):
         assert str(out / f) in wrote, f  # stdout lists every file written
     assert per["kf+onestep"]["paired_vs_reference"]["episodes"] == 3
-    for f in ("cdf_seed000-sim.png", "rmse_bars_seed000-sim.png", "trajectory_seed000-sim.png"):
+    for f in ("cdf_seed000-sim.png", "paired_seed000-sim.png", "trajectory_seed000-sim.png"):
         assert (out / f).stat().st_size > 0
     note = (out / "NOTE.md").read_text()
     d = per["kf+onestep"]["paired_vs_reference"]
@@ -196,12 +196,15 @@ def test_headroom_table_and_json(tmp_path):
             assert r["share"] is None and "no net headroom" in r["note"]
     assert h["scenarios"]["open-sky"]["note"].startswith("this is the placebo scenario")
     assert h["scenarios"]["open-sky"]["methods"]["kf"]["net"] is False  # on the placebo: the gross headroom
-    table = (out / "headroom.md").read_text()
-    assert f"| seed000-sim | {ko} (knob) | 2 |" in table and f"| open-sky | optimized fixed: tuned:{fixed} |" in table
+    table = (out / "headroom.md").read_text()  # rows by their short labels (results.json keeps the specs)
+    assert "| seed000-sim | oracle: schedule (knob) | 2 |" in table
+    assert "| open-sky | optimized fixed: tuned b=0.98 |" in table and str(tmp_path) not in table
+    assert "| seed000-sim | tuned (2 seeds) | 2 |" in table  # the pooled row of the g* group
     assert "n < 10: no CI" in table and "- `seed000-sim`: placebo: open-sky" in table
     assert "headroom from the best hand-designed (95% CI)" in table
+    import eval as ev
     best = h["scenarios"]["seed000-sim"]["best_hand_designed"]["label"]
-    assert f"- `seed000-sim`: best hand-designed method: {best} (RMSE h" in table
+    assert f"- `seed000-sim`: best hand-designed method: {ev.method_labels(res, 'seed000-sim')[best]} (RMSE h" in table
     assert table.strip() in p.stdout
     note = (out / "NOTE.md").read_text()
     assert "## Headroom" in note and table.strip() in note
@@ -215,8 +218,12 @@ def test_headroom_without_placebo_says_so(tmp_path):
                  f"tuned:{fixed},kf,crossfit-schedule:GnssIns/SageHusa-v1[segment_s=30,lookahead_s=0,n=2]",
                  "--headroom", "--out", str(out), "--no-plots", "--note", str(out / "NOTE.md"))
     assert p.returncode == 0, p.stderr
-    line = next(x for x in (out / "NOTE.md").read_text().splitlines() if x.startswith("- `seed000-sim`: oracle: "))
-    assert line.endswith("(an oracle: it knows the truth, not a method a user could run).")
+    note = (out / "NOTE.md").read_text()
+    assert "oracle rows know the truth: they bound what a method could reach, no user could run them" in note
+    line = next(x for x in note.splitlines() if x.startswith("- `seed000-sim`: oracle: crossfit schedule: "))
+    assert line.endswith("n < 10: no CI.")  # said once above, not on every oracle line
+    assert note.splitlines()[2].startswith("- `seed000-sim` (2 episodes, reference `tuned b=0.98` ")  # the verdict
+    assert "oracle" not in note.splitlines()[2]  # an oracle is never the best method
     e = json.loads((out / "results.json").read_text())["headroom"]["scenarios"]["seed000-sim"]
     assert e["note"].startswith("placebo not measured") and e["knob_oracle"] is None
     o = e["oracles"]["oracle: crossfit-schedule:GnssIns/SageHusa-v1[segment_s=30,lookahead_s=0,n=2]"]
