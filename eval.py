@@ -330,6 +330,8 @@ def _main(argv=None) -> dict:
     timing = {"note": "wall-clock figures of this run (they vary between runs; results.json holds the rest)"}
     for s in scenarios:
         results["config"].setdefault("reference_labels", {})[s] = dict(plan[s])[ref][0].label
+    from earth.numba_cache import announce_compilation
+    announce_compilation()  # a first run compiles the kernels for minutes: one line says so
     t_start = time.perf_counter()
     by_source, track_by_source, events_by_source, length_by_source = run_batches(
         args, {sources[s]: [m for _, ms in plan[s] for m in ms] for s in scenarios}, seeds)
@@ -405,6 +407,8 @@ def run_experiment_cli(args, out: Path) -> dict:
     if args.experiment not in EXPERIMENTS:
         fail(f"unknown experiment {args.experiment!r}; known: {', '.join(EXPERIMENTS)}")
     check_out(out)
+    from earth.numba_cache import announce_compilation
+    announce_compilation()
     res, report = run_experiment(args.experiment, episodes=args.episodes, seed=args.seed, out_dir=out,
                                  progress=lambda msg: print(msg, file=sys.stderr))
     print(report)

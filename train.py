@@ -149,6 +149,12 @@ _MADE: list = []
 """Output folders this run created (removed again when the run ends by an error or Ctrl-C and left them empty)."""
 
 
+def announce() -> None:
+    """One line when navgym's numba kernels compile in this run (a first run: minutes; :mod:`earth.numba_cache`)."""
+    from earth.numba_cache import announce_compilation
+    announce_compilation()
+
+
 def check_out(out) -> None:
     """Create the output folder, or exit with one line when it cannot be written (before any work)."""
     from envs.outputs import check_output_dir
@@ -199,6 +205,7 @@ def _main(argv=None):
         check_env_kwargs(args.env, ekw)
         from agents.training import train_rl
         check_out(args.out)
+        announce()
         try:
             cfg = train_rl(args.env, args.algo, args.out, timesteps=args.timesteps, seed=args.seed,
                            n_envs=args.n_envs, env_kwargs=ekw, config_file=args.config, quick=args.quick,
@@ -222,6 +229,7 @@ def _main(argv=None):
         if param not in specs:
             fail(f"{args.env} has no parameter {param!r}; known: {', '.join(specs)}")
         check_out(args.out)
+        announce()
         try:
             res = tune_fixed_parameter(args.env, ekw, param, default_grid(specs[param], args.grid_size),
                                        n_train=args.n_train, seed=args.seed, progress=True)
@@ -235,6 +243,7 @@ def _main(argv=None):
         except ImportError as e:
             fail(f"zero-velocity detector training is not available: {e}")
         check_out(args.out)
+        announce()
         metrics = train_zupt_detector(args.model, args.seed, Path(args.out), quick=args.quick, progress=True)
         print(format_table(metrics))  # the full metrics (per drive, thresholds, history) are in metrics.json
         print(f"wrote {', '.join(str(p) for p in sorted(Path(args.out).iterdir()) if p.is_file())}")
@@ -258,6 +267,7 @@ def sweep_cli(args):
         backend = make_backend(args.backend, args.address, args.workers)
     except BackendUnavailable as e:
         fail(str(e))
+    announce()
     with backend:
         rows = run_sweep(cfg, out, backend)
     print((out / "sweep.md").read_text())
