@@ -3,7 +3,8 @@
 Two operations, with the same meaning on both backends:
 
 * :meth:`LocalBackend.map` / :meth:`RayBackend.map` -- ``fn(item)`` for every item, the results in the
-  items' order, with a tqdm progress bar over completed items (eval.py's paired episode batches). An
+  items' order, with a tqdm progress bar over completed items (eval.py's paired episode batches) whose rate
+  and ETA leave out the first item (it pays the kernels' compilation on a first run). An
   exception raised by ``fn`` is raised again here, as itself (not wrapped in a Ray error).
 * :meth:`RayBackend.run_search` -- Ray Tune trials whose configs a Tune searcher proposes (train.py sweep's
   ``search: optuna``; locally that search runs optuna's ask / tell loop over :meth:`LocalBackend.run_trials`).
@@ -105,10 +106,34 @@ def error_text(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {exc}"
 
 
-def _bar(total: int, desc: str | None, progress: bool):
+FIRST_ITEM_FORMAT = "{l_bar}{bar}| {n_fmt}/{total_fmt} [{elapsed}, ETA after the first batch{postfix}]"
+"""The progress bar's format until the first item is done: no rate and no ETA (it pays the kernels' compilation
+on a first run, which would make any estimate minutes too long)."""
+
+
+def _bar(total: int, desc: str | None, progress: bool, file=None):
+    """The progress bar of :meth:`LocalBackend.map` / :meth:`RayBackend.map` (to ``file``, default stderr): its
+    rate and ETA count from the end of the first item (:func:`_first_done`)."""
     from tqdm import tqdm
-    return tqdm(total=total, desc=desc, unit="batch", file=sys.stderr, dynamic_ncols=True, disable=not progress,
-                mininterval=0.5)
+    return tqdm(total=total, desc=desc, unit="batch", file=file or sys.stderr, dynamic_ncols=True,
+                disable=not progress, mininterval=0.5, bar_format=FIRST_ITEM_FORMAT)
+
+
+def _first_done(bar) -> None:
+    """Count one item done and restart the bar's clock: from now on its rate and ETA leave out the first item
+    (numba compiles the kernels during it on a first run), its elapsed time counts from here."""
+    if bar.disable:
+        bar.update(1)
+        return
+    bar.reset(bar.total)
+    bar.n = bar.last_print_n = bar.initial = 1  # the rate counts the items after the first
+    bar.bar_format = None
+    bar.refresh()
+
+
+def _advance(bar, first: bool) -> None:
+    """One more item done: the first through :func:`_first_done`."""
+    _first_done(bar) if first else bar.update(1)
 
 
 class LocalBackend:
@@ -126,7 +151,7 @@ class LocalBackend:
                 if label is not None:
                     bar.set_postfix_str(label(item), refresh=True)
                 out.append(fn(item))
-                bar.update(1)
+                _advance(bar, first=len(out) == 1)
         return out
 
     def run_trials(self, fn: Callable[[Any], dict], configs: Sequence, storage: str | os.PathLike,
@@ -206,6 +231,7 @@ class RayBackend:
                 if len(pending) >= self.workers:
                     return
 
+        n_done = 0
         with _bar(len(items), desc, progress) as bar:
             submit()
             while pending:
@@ -223,7 +249,8 @@ class RayBackend:
                         raise
                     if label is not None:
                         bar.set_postfix_str(label(items[i]), refresh=False)
-                    bar.update(1)
+                    n_done += 1
+                    _advance(bar, first=n_done == 1)
                 submit()
         return results
 

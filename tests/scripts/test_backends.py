@@ -88,3 +88,21 @@ def test_ray_address_where_no_cluster_answers_is_one_line_within_seconds(script,
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(f"{script}.py: error: --address '{addr}': no Ray cluster answers")
     assert not out.exists()  # refused before anything was created
+
+
+def test_progress_eta_leaves_out_the_first_batch(capsys):
+    """The first batch pays numba's compilation on a first run (minutes): the bar gives no ETA before it ends and
+    counts its rate, ETA and elapsed time from there, so a slow first batch does not inflate the estimate."""
+    import time
+
+    from agents.backends import LocalBackend
+
+    def fn(x):
+        time.sleep(1.2 if x == 0 else 0.05)
+        return x
+    assert LocalBackend().map(fn, [0, 1, 2, 3], desc="eval") == [0, 1, 2, 3]
+    frames = [f for f in capsys.readouterr().err.replace("\n", "\r").split("\r") if "eval" in f]
+    before = [f for f in frames if " 0/4 " in f]
+    assert before and all("ETA after the first batch" in f for f in before)
+    assert any(" 1/4 [00:00<?" in f for f in frames)  # the clock restarted when the first batch ended
+    assert " 4/4 [00:00<00:00" in frames[-1]  # 1.35 s in all, 0.15 s after the first batch
