@@ -51,6 +51,21 @@ def test_tune_writes_a_tuning_file_that_eval_reads(tmp_path):
     from agents.methods import parse_method_spec
     m = parse_method_spec(f"tuned:{tmp_path / 'tuning.json'}")
     assert m.method == "sage-husa" and m.params["b"] == t["best"]
+    # a line per grid value on stderr, the ETA from the second value on (the first pays the compilation)
+    lines = [x for x in p.stderr.splitlines() if x.startswith("tune: b = ")]
+    assert len(lines) == 3 and [f"({i}/3)" in x for i, x in enumerate(lines, 1)] == [True] * 3
+    assert lines[0].endswith("; ETA after the next value") and "; ETA " in lines[1] and "ETA" not in lines[2]
+    assert f"RMSE {t['rmse_h_m'][0]:.3f} m" in lines[0]
+    assert "best b = " in p.stdout
+
+
+def test_tune_progress_line_eta_leaves_out_the_first_value():
+    from agents.tuning import progress_line
+    assert progress_line("b", 0.5, 0, 5, 1.234, 0, 8, [100.0]) == (
+        "tune: b = 0.5 (1/5): RMSE 1.234 m in 2 min; ETA after the next value")
+    assert progress_line("b", 0.9, 2, 5, 1.0, 2, 8, [300.0, 30.0, 50.0]).endswith(
+        "RMSE 1.000 m, 2 of 8 diverged in 50 s; ETA 80 s")  # 2 values left x 40 s, not counting the first
+    assert progress_line("b", 0.99, 4, 5, 1.0, 0, 8, [1.0] * 5).endswith("in 1 s")
 
 
 @pytest.mark.parametrize("args, msg", [
