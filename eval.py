@@ -1,4 +1,6 @@
-"""Paired Monte Carlo comparison of navigation filters and tuning policies (DESIGN.md section 4).
+"""Paired Monte Carlo comparison of navigation filters and tuning policies: every method runs on the same
+episodes (the same truth and sensor errors), and each is compared with a reference method episode by
+episode, with bootstrap 95% confidence intervals.
 
 Usage::
 
@@ -25,8 +27,9 @@ robust screens, adaptive laws, ``tuned:`` and ``rule:`` rows), (best - oracle) /
 95% CIs (none below :data:`envs.metrics.MIN_CI_EPISODES` episodes). It prints the table and writes
 ``OUT/headroom.md`` and the ``"headroom"`` key of results.json (schema in :func:`compute_headroom`).
 
-Prints a table and writes ``OUT/results.json`` (schema of DESIGN.md plus the paired difference to the
-reference method), ``results.csv``, ``results.md`` and PNG plots per scenario (:mod:`plots`): error vs time
+Prints a table and writes ``OUT/results.json`` (per scenario and method: episodes, horizontal RMSE and
+its 95% CI, 3D RMSE, 95th percentile and maximum horizontal error, filter time per epoch, diverged
+episodes, and the paired difference to the reference method), ``results.csv``, ``results.md`` and PNG plots per scenario (:mod:`plots`): error vs time
 with the paired difference to the reference and the scenario's events, the trajectory of episode 0, the
 parameter a learned policy set over time, the CDF of the horizontal error and each method's paired difference
 to the reference with its 95% CI. Tables, plots and the note show short method labels (``tuned b=0.944``,
