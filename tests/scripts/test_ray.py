@@ -84,10 +84,29 @@ def run_sweep_cli(d, *extra):
 
 @pytest.fixture(scope="module")
 def sweep(local_ray, tmp_path_factory):
-    """A 3-trial sweep on Ray Tune: two PPO runs of 256 steps and one that fails."""
+    """A 3-trial sweep on Ray Tune: two PPO runs of 256 steps and one that fails (its console output in
+    ``d / "console.txt"``)."""
+    import contextlib
+    import io
     d = tmp_path_factory.mktemp("sweep")
     (d / "sweep.yml").write_text(SWEEP)
-    return d, run_sweep_cli(d, "--workers", "2")
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(buf):
+        rows = run_sweep_cli(d, "--workers", "2")
+    (d / "console.txt").write_text(buf.getvalue())
+    return d, rows
+
+
+def test_sweep_on_ray_is_quiet_with_a_line_per_trial_naming_its_hyperparameters(sweep):
+    d, rows = sweep
+    text = (d / "console.txt").read_text()
+    assert "Configuration for experiment" not in text and "Trial status" not in text  # Tune's tables: quiet
+    for v in (32, 64, 1):
+        started = [ln for ln in text.splitlines() if ln.startswith("sweep: trial ") and f"batch_size={v}" in ln]
+        assert len(started) == 2 and "started: GnssIns/SageHusa-v1 seed000-sim ppo seed 0" in started[0], started
+        assert (" failed: " if v == 1 else " done: ") in started[1]
+    done = [ln for ln in text.splitlines() if " done: " in ln]
+    assert all("eval_mean_reward_last " in ln and "/3 " in ln for ln in done)
 
 
 def test_sweep_writes_run_folders_and_tables(sweep):
