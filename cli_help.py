@@ -3,7 +3,7 @@
 :class:`HelpFormatter` appends ``(default: X)`` to every option whose default is a value (not None, not
 a ``store_true`` flag's False) and whose help does not state it already, and keeps descriptions and
 epilogs as written. :func:`method_grammar` is the method-spec table of :mod:`agents.methods` for
-``eval.py --help``. :func:`undocumented_options` lists the options of a parser (and its subcommands)
+``eval.py --help``, with the list of the registered filter methods. :func:`undocumented_options` lists the options of a parser (and its subcommands)
 without a help line (the test asks for none).
 """
 from __future__ import annotations
@@ -48,7 +48,16 @@ def method_grammar() -> str:
     w2 = max(len(a) for a, _ in rows) + 2
     table = [f"  {a:<{w2}}{b}" for a, b in rows]
     rest = _plain("\n".join(lines[rules[2] + 1:])).strip()
-    return "method specs (--methods, comma-separated):\n\n" + "\n".join(table) + "\n\n" + rest
+    return ("method specs (--methods, comma-separated):\n\n" + "\n".join(table) + "\n\n" + filter_methods()
+            + "\n\n" + rest)
+
+
+def filter_methods(width: int = 100) -> str:
+    """The registered filter methods (:data:`nav_filters.registry.FORMS`), wrapped to ``width`` columns."""
+    import textwrap
+
+    from nav_filters.registry import FORMS
+    return textwrap.fill("Filter methods: " + ", ".join(sorted(FORMS)) + ".", width=width)
 
 
 def undocumented_options(parser: argparse.ArgumentParser, prefix: str = "") -> list[str]:

@@ -1,4 +1,6 @@
-"""Paired Monte Carlo comparison of navigation filters and tuning policies (DESIGN.md section 4).
+"""Paired Monte Carlo comparison of navigation filters and tuning policies: every method runs on the same
+episodes (the same truth and sensor errors), and each is compared with a reference method episode by
+episode, with bootstrap 95% confidence intervals.
 
 Usage::
 
@@ -11,7 +13,7 @@ Method specs: a filter method (``kf``, ``svd-akf+onestep``, ...), an adaptive me
 (``sage-husa[b=0.995]``), the optimized fixed parameter (``tuned:<tuning.json>`` from ``train.py tune``),
 a learned policy (``<algo>:<model.zip>`` from ``train.py rl``), or an oracle of an env's knob
 (``oracle-schedule:<env id>``, ``best-per-episode:<env id>``, ``crossfit-schedule:<env id>``, options in
-brackets: ``oracle-schedule:GnssIns/SageHusa-v0[segment_s=10,lookahead_s=20,n=7]``; see
+brackets: ``oracle-schedule:GnssIns/SageHusa-v1[segment_s=10,lookahead_s=20,n=7]``; see
 :mod:`agents.methods`). Oracles know the truth: their rows are labelled ``oracle: ...`` and are never a
 method a user could run. Episode k of every method sees the same truth and sensor errors (the worlds are
 drawn from the episode seeds ``seed * 1_000_003 + k``).
@@ -25,12 +27,14 @@ robust screens, adaptive laws, ``tuned:`` and ``rule:`` rows), (best - oracle) /
 95% CIs (none below :data:`envs.metrics.MIN_CI_EPISODES` episodes). It prints the table and writes
 ``OUT/headroom.md`` and the ``"headroom"`` key of results.json (schema in :func:`compute_headroom`).
 
-Prints a table and writes ``OUT/results.json`` (schema of DESIGN.md plus the paired difference to the
-reference method), ``results.csv``, ``results.md`` and PNG plots per scenario (:mod:`plots`): error vs time
+Prints a table and writes ``OUT/results.json`` (per scenario and method: episodes, horizontal RMSE and
+its 95% CI, 3D RMSE, 95th percentile and maximum horizontal error, filter time per epoch, diverged
+episodes, and the paired difference to the reference method), ``results.csv``, ``results.md`` and PNG plots per scenario (:mod:`plots`): error vs time
 with the paired difference to the reference and the scenario's events, the trajectory of episode 0, the
-parameter a learned policy set over time, the CDF of the horizontal error and the RMSE with 95% CIs. Plots
-and the note show short method labels (:mod:`agents.provenance`); the tables keep the full specs. The note
-states what each tuned or learned method was trained on. The last line lists every file written.
+parameter a learned policy set over time, the CDF of the horizontal error and each method's paired difference
+to the reference with its 95% CI. Tables, plots and the note show short method labels (``tuned b=0.944``,
+``ppo (3 seeds)``; :func:`method_labels`); results.json keeps the full specs (results.csv has both). The note
+opens with one verdict per scenario and states what each tuned or learned method was trained on. The last line lists every file written.
 
 ``results.json`` is strict JSON (a NaN or inf figure is written as ``null``) and, apart from the wall-clock
 figures named in :data:`TIMING_KEYS` (``filter_time_per_epoch_s`` of each method, part of the DESIGN.md
@@ -329,6 +333,8 @@ def _main(argv=None) -> dict:
     timing = {"note": "wall-clock figures of this run (they vary between runs; results.json holds the rest)"}
     for s in scenarios:
         results["config"].setdefault("reference_labels", {})[s] = dict(plan[s])[ref][0].label
+    from earth.numba_cache import announce_compilation
+    announce_compilation()  # a first run compiles the kernels for minutes: one line says so
     t_start = time.perf_counter()
     by_source, track_by_source, events_by_source, length_by_source = run_batches(
         args, {sources[s]: [m for _, ms in plan[s] for m in ms] for s in scenarios}, seeds)
@@ -364,7 +370,7 @@ def _main(argv=None) -> dict:
     print(table)
     write_atomic(out / "results.md", table + "\n")
     if args.headroom:
-        htable = format_headroom(results["headroom"])
+        htable = format_headroom(results["headroom"], {s: method_labels(results, s) for s in results["scenarios"]})
         print("\nHeadroom\n\n" + htable)
         write_atomic(out / "headroom.md", htable + "\n")
     write_csv(results, out / "results.csv")
@@ -381,18 +387,18 @@ def _main(argv=None) -> dict:
 
 
 def write_all_plots(out: Path, results: dict, curves: dict, tracks: dict, events: dict, plan: dict) -> list:
-    """The PNGs of every scenario (:mod:`plots`, short labels of :mod:`agents.provenance`); their paths."""
+    """The PNGs of every scenario (:mod:`plots`, short labels of :func:`method_labels`); their paths."""
     import plots
     from agents.methods import PolicyMethod
-    from agents.provenance import short_labels
     paths = []
     for s, per in curves.items():
         masks = events.get(s, [])  # a recording has no event mask (None): nothing to shade
         ev = np.concatenate(masks, 0) if masks and all(m is not None for m in masks) else None
         ev = ev if ev is not None and ev.shape[-1] == next(iter(per.values())).t.size else None
         learned = [m.label for _, ms in plan[s] for m in ms if isinstance(m, PolicyMethod)]
+        pooled = {pooled_key(spec, g): g for spec, g in _group_rows(results, s)}
         paths += plots.write_plots(out, s, per, results["scenarios"][s], _ref_label(results, s),
-                                   short_labels(per, s), tracks[s], ev, learned)
+                                   method_labels(results, s), tracks[s], ev, learned, pooled=pooled)
     return paths
 
 
@@ -404,6 +410,8 @@ def run_experiment_cli(args, out: Path) -> dict:
     if args.experiment not in EXPERIMENTS:
         fail(f"unknown experiment {args.experiment!r}; known: {', '.join(EXPERIMENTS)}")
     check_out(out)
+    from earth.numba_cache import announce_compilation
+    announce_compilation()
     res, report = run_experiment(args.experiment, episodes=args.episodes, seed=args.seed, out_dir=out,
                                  progress=lambda msg: print(msg, file=sys.stderr))
     print(report)
@@ -463,24 +471,51 @@ def _fmt_pair(r):
     return f"{p['diff_rmse_h_m']:+.2f} [{lo:+.2f}, {hi:+.2f}] ({100 * p['rel_diff']:+.1f}%)"
 
 
+def pooled_key(spec: str, g: dict) -> str:
+    """The label of the pooled row of the seed group of ``spec`` (``g``: its ``seed_groups`` entry), as the
+    headroom section names it."""
+    return f"{spec} (pooled over {g['seeds']} seeds)"
+
+
 def _group_rows(results: dict, s: str):
-    """(label, metrics) of the pooled rows of the seed groups of scenario ``s``."""
-    for spec, g in results.get("seed_groups", {}).get(s, {}).items():
+    """(spec, pooled metrics) of the seed groups of scenario ``s``."""
+    yield from results.get("seed_groups", {}).get(s, {}).items()
+
+
+def method_labels(results: dict, s: str) -> dict:
+    """``{row label: short label}`` of scenario ``s``: its methods (:func:`agents.provenance.short_labels`,
+    distinct) and the pooled rows of its seed groups (:func:`pooled_key` -> ``'ppo (3 seeds)'``). The tables,
+    the note and the plots show these; results.json keeps the full specs."""
+    from agents.provenance import short_label, short_labels
+    out = short_labels(list(results["scenarios"][s]), s)
+    for spec, g in _group_rows(results, s):
+        out[pooled_key(spec, g)] = short_label(spec, s, g["seeds"])
+    return out
+
+
+def _table_rows(results: dict, s: str):
+    """(short label, metrics) of every row of scenario ``s``: the methods, then the pooled rows (their per-seed
+    RMSE range in the label)."""
+    lab = method_labels(results, s)
+    for m, r in results["scenarios"][s].items():
+        yield lab[m], r
+    for spec, g in _group_rows(results, s):
         lo, hi = min(g["rmse_h_per_seed_m"]), max(g["rmse_h_per_seed_m"])
-        yield f"{spec} (pooled over {g['seeds']} seeds; per seed {lo:.2f}-{hi:.2f} m)", g
+        yield f"{lab[pooled_key(spec, g)]}, pooled (per seed {lo:.2f}-{hi:.2f} m)", g
 
 
 def format_table(results: dict) -> str:
-    """Markdown table of every scenario x method, with the paired difference to the reference; a method
-    given as a pattern over training seeds also gets a pooled row (:func:`envs.metrics.summarize_seeds`).
-    Below :data:`envs.metrics.MIN_CI_EPISODES` episodes the CI columns say so instead of a CI."""
+    """Markdown table of every scenario x method (short labels, :func:`method_labels`), with the paired
+    difference to the reference; a method given as a pattern over training seeds also gets a pooled row
+    (:func:`envs.metrics.summarize_seeds`). Below :data:`envs.metrics.MIN_CI_EPISODES` episodes the CI columns
+    say so instead of a CI."""
     from envs.metrics import MIN_CI_EPISODES, no_ci_text
     head = ("| scenario | method | episodes | " + " | ".join(c[1] for c in COLUMNS)
-            + f" | vs {results['config']['reference']}: dRMSE h [m] (95% CI) |")
+            + " | vs the reference: dRMSE h [m] (95% CI) |")
     sep = "|" + "---|" * (4 + len(COLUMNS))
     rows = [head, sep]
-    for s, per in results["scenarios"].items():
-        for m, r in list(per.items()) + list(_group_rows(results, s)):
+    for s in results["scenarios"]:
+        for m, r in _table_rows(results, s):
             few = r["episodes"] < MIN_CI_EPISODES
             rows.append(f"| {s} | {m} | {r['episodes']} | " + " | ".join(
                 no_ci_text() if few and k == "rmse_h_ci95_m" else _fmt(k, r.get(k)) for k, _ in COLUMNS)
@@ -490,10 +525,12 @@ def format_table(results: dict) -> str:
 
 def write_csv(results: dict, path: Path) -> None:
     keys = [k for k, _ in COLUMNS]
-    lines = ["scenario,method,episodes," + ",".join(k if k != "rmse_h_ci95_m" else "rmse_h_ci95_lo_m,rmse_h_ci95_hi_m"
-                                                  for k in keys) + ",diff_rmse_h_m,diff_lo_m,diff_hi_m"]
+    lines = ["scenario,method,label,episodes," + ",".join(
+        k if k != "rmse_h_ci95_m" else "rmse_h_ci95_lo_m,rmse_h_ci95_hi_m" for k in keys)
+        + ",diff_rmse_h_m,diff_lo_m,diff_hi_m"]
     for s, per in results["scenarios"].items():
-        pooled = [(f"{spec} (pooled)", g) for spec, g in results.get("seed_groups", {}).get(s, {}).items()]
+        lab = method_labels(results, s)
+        pooled = [(pooled_key(spec, g), g) for spec, g in _group_rows(results, s)]
         for m, r in list(per.items()) + pooled:
             vals = []
             for k in keys:
@@ -504,29 +541,56 @@ def write_csv(results: dict, path: Path) -> None:
             p = r.get("paired_vs_reference")
             vals += ([f"{p['diff_rmse_h_m']:.6g}", f"{p['diff_rmse_h_ci95_m'][0]:.6g}",
                       f"{p['diff_rmse_h_ci95_m'][1]:.6g}"] if p else ["0", "0", "0"])
-            lines.append(f"\"{s}\",\"{m}\",{r['episodes']}," + ",".join(vals))
+            lines.append(f"\"{s}\",\"{m}\",\"{lab[m]}\",{r['episodes']}," + ",".join(vals))
     from envs.outputs import write_atomic
     write_atomic(path, "\n".join(lines) + "\n")
 
 
 def _verdict(p: dict) -> str:
-    from envs.metrics import MIN_CI_EPISODES, no_ci_text
+    from envs.metrics import no_ci_text, paired_verdict
+    return {"no CI": no_ci_text(), "lower": "lower (the 95% CI excludes 0)",
+            "higher": "higher (the 95% CI excludes 0)",
+            "not significant": "no significant difference (the 95% CI includes 0)"}[paired_verdict(p)]
+
+
+def _compared_rows(results: dict, s: str) -> list:
+    """(row label, metrics) of the methods of scenario ``s`` compared with the reference: the pooled row of
+    a seed group in place of its members, every other row with a paired difference (oracles included)."""
+    members = {m for _, g in _group_rows(results, s) for m in g.get("members", [])}
+    rows = [(m, r) for m, r in results["scenarios"][s].items() if "paired_vs_reference" in r and m not in members]
+    return rows + [(pooled_key(spec, g), g) for spec, g in _group_rows(results, s)]
+
+
+def verdict_sentence(results: dict, s: str) -> str:
+    """The note's opening sentence on scenario ``s``: the best method a user could run (no oracle) and its
+    paired difference to the reference with the 95% CI, whether any method is significantly better, or that
+    there is no verdict below :data:`envs.metrics.MIN_CI_EPISODES` episodes."""
+    from agents.methods import is_oracle_label
+    from envs.metrics import MIN_CI_EPISODES, paired_verdict
+    lab = method_labels(results, s)
+    ref = _ref_label(results, s)
+    ref_rmse = results["scenarios"][s].get(ref, {}).get("rmse_h_m")
+    cands = [(m, r["paired_vs_reference"]) for m, r in _compared_rows(results, s)
+             if not is_oracle_label(m) and r["paired_vs_reference"]["episodes"] > 0
+             and np.isfinite(r["paired_vs_reference"]["diff_rmse_h_m"])]
+    head = f"`{s}` ({results['config']['episodes']} episodes, reference `{lab.get(ref, ref)}`"
+    head += f" {ref_rmse:.2f} m)" if ref_rmse is not None and np.isfinite(ref_rmse) else ")"
+    if not cands:
+        return f"{head}: no other method to compare."
+    m, p = min(cands, key=lambda c: c[1]["diff_rmse_h_m"])
+    d = p["diff_rmse_h_m"]
+    diff = f"`{lab[m]}`, {d:+.3f} m" if abs(d) < 0.01 else f"`{lab[m]}`, {d:+.2f} m"
+    diff += f", {100 * p['rel_diff']:+.1f}%"
     if p["episodes"] < MIN_CI_EPISODES:
-        return no_ci_text()
+        lowest = f"the reference; the closest: {diff}" if p["diff_rmse_h_m"] >= 0 else f"{diff} against the reference"
+        return f"{head}: no verdict below {MIN_CI_EPISODES} episodes (lowest RMSE: {lowest}; no CI)."
     lo, hi = p["diff_rmse_h_ci95_m"]
-    if hi < 0:
-        return "lower (the 95% CI excludes 0)"
-    if lo > 0:
-        return "higher (the 95% CI excludes 0)"
-    return "no significant difference (the 95% CI includes 0)"
-
-
-def _named(label: str, scenario: str, row: dict) -> str:
-    """A method in the note's sentences: its short label with the full spec (pooled rows: the seed count)."""
-    from agents.provenance import short_label
-    spec = label.split(" (pooled over ", 1)[0]
-    short = short_label(spec, scenario, row.get("seeds") if spec != label else None)
-    return label if short == label else f"{short} (`{spec}`)"
+    ci = f"95% CI [{lo:+.2f}, {hi:+.2f}] m"
+    if p["diff_rmse_h_m"] >= 0:
+        return f"{head}: the reference is best (the closest: {diff}, {ci})."
+    if paired_verdict(p) == "lower":
+        return f"{head}: best is {diff} against the reference ({ci}): significantly lower."
+    return f"{head}: no method is significantly better than the reference (lowest RMSE: {diff}, {ci})."
 
 
 def _parse_goals(items) -> dict | None:
@@ -546,31 +610,32 @@ def _parse_goals(items) -> dict | None:
 def reading(results: dict, goals: dict | None = None) -> list[str]:
     """Sentences computed from the results: each method against the reference (and its ``goals``,
     ``{scenario or '*': max relative difference}``), and each tuned parameter's search (from its tuning
-    file): how much the whole parameter range moved the training RMSE."""
-    from agents.methods import is_oracle_label
+    file): how much the whole parameter range moved the training RMSE. Where methods were given as patterns
+    over training seeds, only their pooled rows are read (the table has the rest); methods are named by their
+    short labels (:func:`method_labels`)."""
     from envs.metrics import MIN_CI_EPISODES
     c = results["config"]
     out = []
     for s in results["scenarios"]:
         goal_rel = None if not goals else goals.get(s, goals.get("*"))
-        rows = list(_group_rows(results, s)) or [
-            (m, r) for m, r in results["scenarios"][s].items() if "paired_vs_reference" in r]
-        for m, r in rows:
+        lab = method_labels(results, s)
+        ref = _ref_label(results, s)
+        ref_rmse = results["scenarios"][s].get(ref, {}).get("rmse_h_m", float("nan"))
+        rows = _compared_rows(results, s)
+        pooled = [(m, r) for m, r in rows if "seeds" in r]
+        for m, r in pooled or rows:  # a pattern over training seeds: the note reads its pooled rows
             p = r["paired_vs_reference"]
             lo, hi = p["diff_rmse_h_ci95_m"]
-            ref_rmse = results["scenarios"][s].get(_ref_label(results, s), {}).get("rmse_h_m", float("nan"))
             few = p["episodes"] < MIN_CI_EPISODES
             ci = "" if few else f", 95% CI [{lo:+.2f}, {hi:+.2f}] m"
-            if is_oracle_label(m):
-                tail = " (an oracle: it knows the truth, not a method a user could run)."
-            elif goal_rel is None:
+            if goal_rel is None or m.startswith("oracle"):
                 tail = "."
             elif few:
                 tail = f"; goal {100 * goal_rel:+.0f}% not judged (n < {MIN_CI_EPISODES})."
             else:
                 tail = f"; goal {100 * goal_rel:+.0f}% {'met' if p['rel_diff'] <= goal_rel else 'not met'}."
-            out.append(f"- `{s}`: {_named(m, s, r)}: horizontal RMSE {100 * p['rel_diff']:+.1f}% against "
-                       f"`{c['reference']}` ({p['diff_rmse_h_m']:+.2f} m{ci}; reference {ref_rmse:.2f} m): "
+            out.append(f"- `{s}`: {lab[m]}: horizontal RMSE {100 * p['rel_diff']:+.1f}% against "
+                       f"`{lab.get(ref, ref)}` ({p['diff_rmse_h_m']:+.2f} m{ci}; reference {ref_rmse:.2f} m): "
                        f"{_verdict(p)}{tail}")
     for spec in c["methods"]:
         if not spec.startswith("tuned:"):
@@ -775,43 +840,50 @@ def _pct_ci(v, ci, note):
     return f"{_pct(v)} [{_pct(ci[0])}, {_pct(ci[1])}]" if ci is not None else f"{_pct(v)} ({note or 'no CI'})"
 
 
-def format_headroom(h: dict) -> str:
-    """Markdown table of the ``"headroom"`` section (:func:`compute_headroom`) and its notes per scenario."""
+def format_headroom(h: dict, labels: dict | None = None) -> str:
+    """Markdown table of the ``"headroom"`` section (:func:`compute_headroom`) and its notes per scenario;
+    ``labels`` (``{scenario: {row label: short label}}``, :func:`method_labels`) names the rows (default: the
+    labels themselves)."""
     head = ("| scenario | row | episodes | RMSE h [m] | headroom (95% CI) | net of placebo (95% CI) | "
             "share of the knob headroom closed (95% CI) | headroom from the best hand-designed (95% CI) |")
     rows = [head, "|" + "---|" * 8]
     notes = []
     for s, e in h["scenarios"].items():
+        lab = (labels or {}).get(s, {})
         f = e["fixed"]
-        rows.append(f"| {s} | optimized fixed: {f['label']} | {f['episodes']} | {f['rmse_h_m']:.3f} | - | - | - | - |")
-        for lab, o in e["oracles"].items():
+        rows.append(f"| {s} | optimized fixed: {lab.get(f['label'], f['label'])} | {f['episodes']} | "
+                    f"{f['rmse_h_m']:.3f} | - | - | - | - |")
+        for o_lab, o in e["oracles"].items():
             net = ("placebo" if s == h["placebo"] else "not measured" if o.get("net_headroom") is None
                    else _pct_ci(o["net_headroom"], o["net_headroom_ci95"], o["ci_note"]))
-            knob = " (knob)" if lab == e["knob_oracle"] else ""
+            knob = " (knob)" if o_lab == e["knob_oracle"] else ""
             fb = o.get("from_best")
             from_best = "-" if fb is None else _pct_ci(fb["headroom"], fb["headroom_ci95"], fb["ci_note"])
-            rows.append(f"| {s} | {lab}{knob} | {o['episodes']} | {o['rmse_h_m']:.3f} | "
+            rows.append(f"| {s} | {lab.get(o_lab, o_lab)}{knob} | {o['episodes']} | {o['rmse_h_m']:.3f} | "
                         f"{_pct_ci(o['headroom'], o.get('headroom_ci95'), o['ci_note'])} | {net} | - | {from_best} |")
-        for lab, m in e["methods"].items():
+        for m_lab, m in e["methods"].items():
             share = _pct_ci(m["share"], m["share_ci95"], m.get("note"))
             if m["share"] is not None and m.get("note") and m["share_ci95"] is not None:
                 share += f" ({m['note']})"
             kind = " (learned)" if m["learned"] else ""
-            rows.append(f"| {s} | {lab}{kind} | {m['episodes']} | {m['rmse_h_m']:.3f} | - | - | {share} | - |")
+            rows.append(f"| {s} | {lab.get(m_lab, m_lab)}{kind} | {m['episodes']} | {m['rmse_h_m']:.3f} | - | - | "
+                        f"{share} | - |")
         notes.append(f"- `{s}`: {e['note']}" + ("" if e["knob_oracle"] else
                                                  "; no knob oracle ('oracle-schedule:<env id>') in --methods"))
         if "best_hand_designed" in e:
-            notes.append(f"- `{s}`: {_best_note(e['best_hand_designed'])}")
+            notes.append(f"- `{s}`: {_best_note(e['best_hand_designed'], lab)}")
     return "\n".join(rows + [""] + notes)
 
 
-def _best_note(b: dict | None) -> str:
-    """The note's sentence naming a scenario's best hand-designed method (:func:`best_hand_designed`)."""
+def _best_note(b: dict | None, labels: dict | None = None) -> str:
+    """The note's sentence naming a scenario's best hand-designed method (:func:`best_hand_designed`), by its
+    short label where ``labels`` has one."""
     if b is None:
         return "best hand-designed method: none (no hand-designed row with a finite RMSE)"
     div = (f"; diverged in {b['diverged']} of {b['episodes']} episodes, left out of its RMSE as in the results "
            "table" if b["diverged"] else "")
-    return (f"best hand-designed method: {b['label']} (RMSE h {b['rmse_h_m']:.3f} m, the lowest of "
+    name = (labels or {}).get(b["label"], b["label"])
+    return (f"best hand-designed method: {name} (RMSE h {b['rmse_h_m']:.3f} m, the lowest of "
             f"{len(b['candidates'])} hand-designed row{'s' if len(b['candidates']) != 1 else ''}{div}); the "
             "oracles' headroom from it is the last column")
 
@@ -838,19 +910,47 @@ def _skipped(results: dict) -> list[str]:
             *items, ""] if items else []
 
 
+def _label_key(results: dict) -> list[str]:
+    """The note's key from the short labels of the tables to the full method specs (results.json's keys):
+    one item per spec whose short label differs from it, its label per scenario where they differ."""
+    seen: dict = {}  # spec -> {short label: [scenarios]}
+    for s in results["scenarios"]:
+        for m, short in method_labels(results, s).items():
+            if short != m:
+                seen.setdefault(m, {}).setdefault(short, []).append(s)
+    items = []
+    for m, shorts in seen.items():
+        if len(shorts) == 1:
+            items.append(f"- {next(iter(shorts))}: `{m}`")
+        else:
+            items.append(f"- `{m}`: " + ", ".join(f"{sh} (" + ", ".join(f"`{x}`" for x in sc) + ")"
+                                                  for sh, sc in shorts.items()))
+    return ["Methods by their short labels:", "", *items, ""] if items else []
+
+
 def write_note(results: dict, path: Path, out: Path, cmd: str) -> None:
-    """A Markdown results note generated from results.json (never typed by hand)."""
+    """A Markdown results note generated from results.json (never typed by hand): it opens with one verdict
+    per scenario (:func:`verdict_sentence`), then the command, the table (short labels, keyed to the full
+    specs), the reading, what the tuned and learned methods were trained on and the headroom."""
     path.parent.mkdir(parents=True, exist_ok=True)
     c = results["config"]
-    lines = ["# navgym results", "",
+    from agents.methods import is_oracle_label
+    groups = any(results.get("seed_groups", {}).values())
+    oracles = any(is_oracle_label(m) for per in results["scenarios"].values() for m in per)
+    all_labels = {s: method_labels(results, s) for s in results["scenarios"]}
+    lines = ["# navgym results", "", *(f"- {verdict_sentence(results, s)}" for s in results["scenarios"]), "",
              f"Generated by `python eval.py {cmd}` ({time.strftime('%Y-%m-%d')}); "
-             f"{c['episodes']} paired episodes per scenario, seed {c['seed']}, filter arithmetic {c['dtype']}.",
-             f"Differences are paired against `{c['reference']}`: bootstrap 95% CI over episodes. A method given "
-             "as a pattern over training seeds has a row per seed and a pooled row (the CI resamples episodes, "
-             "each with all its seeds).", "",
-             format_table(results), "", "## Reading", "", *reading(results, results["config"].get("goal")), "",
+             f"{c['episodes']} paired episodes per scenario, seed {c['seed']}, filter arithmetic {c['dtype']}. "
+             f"Differences are method minus the reference (`{c['reference']}`), paired over the episodes, "
+             "with bootstrap 95% CIs"
+             + ("; a method given as a pattern over training seeds has a row per seed and a pooled row (the CI "
+                "resamples episodes, each with all its seeds)" if groups else "")
+             + ("; oracle rows know the truth: they bound what a method could reach, no user could run them"
+                if oracles else "") + ".", "",
+             format_table(results), "", *_label_key(results),
+             "## Reading", "", *reading(results, results["config"].get("goal")), "",
              *_trained_on(results), *_skipped(results),
-             *(["## Headroom", "", HEADROOM_INTRO, "", format_headroom(results["headroom"]), ""]
+             *(["## Headroom", "", HEADROOM_INTRO, "", format_headroom(results["headroom"], all_labels), ""]
                if "headroom" in results else []),
              f"Plots and raw numbers: `{out}` (results.json, results.csv, *.png).", ""]
     from envs.outputs import write_atomic

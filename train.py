@@ -1,8 +1,8 @@
 """One entry point for training (DESIGN.md section 4).
 
-    python train.py rl   --env GnssIns/SageHusa-v0 --algo ppo --timesteps N --seed S --out runs/DIR
-    python train.py rl   --env GnssIns/SageHusa-v0 --algo ppo --quick --out runs/quick
-    python train.py tune --env GnssIns/SageHusa-v0 --out runs/DIR          # the optimized fixed parameter
+    python train.py rl   --env GnssIns/SageHusa-v1 --algo ppo --timesteps N --seed S --out runs/DIR
+    python train.py rl   --env GnssIns/SageHusa-v1 --algo ppo --quick --out runs/quick
+    python train.py tune --env GnssIns/SageHusa-v1 --out runs/DIR          # the optimized fixed parameter
     python train.py zupt --model lstm --seed S --out runs/DIR              # zero-velocity detector
     python train.py sweep --config configs/sweep.yml --out runs/sweep [--backend ray [--address ADDR]]
 
@@ -17,7 +17,7 @@ for ``eval.py --methods tuned:runs/DIR/tuning.json``. ``zupt`` writes the detect
 ``--backend ray``) and writes ``sweep.csv`` / ``sweep.md`` beside the trials' run folders.
 
 The environments also train unchanged under RL Zoo, with navgym's hyperparameters from ``hyperparams/``:
-``python -m rl_zoo3.train --gym-packages envs --env GnssIns/SageHusa-v0 --algo ppo --conf-file hyperparams/ppo.yml``.
+``python -m rl_zoo3.train --gym-packages envs --env GnssIns/SageHusa-v1 --algo ppo --conf-file hyperparams/ppo.yml``.
 """
 from __future__ import annotations
 
@@ -72,7 +72,7 @@ def build_parser():
                                 "parameter, and zero-velocity detectors.", formatter_class=HelpFormatter)
     sub = p.add_subparsers(dest="cmd", required=True)
     rl = sub.add_parser("rl", help="train an RL tuning policy (stable-baselines3)", formatter_class=HelpFormatter)
-    rl.add_argument("--env", default="GnssIns/SageHusa-v0", help="environment id")
+    rl.add_argument("--env", default="GnssIns/SageHusa-v1", help="environment id")
     rl.add_argument("--algo", default="ppo", help="ppo, sac, td3 or recurrentppo")
     rl.add_argument("--timesteps", type=float, default=None,
                     help=f"total environment steps (default: {D['n_timesteps']}; --quick: {Q['n_timesteps']}; or the "
@@ -96,7 +96,7 @@ def build_parser():
     rl.add_argument("--out", required=True, help="output directory runs/DIR (required)")
     tu = sub.add_parser("tune", help="the optimized fixed-parameter baseline (grid search on training seeds)",
                         formatter_class=HelpFormatter)
-    tu.add_argument("--env", default="GnssIns/SageHusa-v0", help="environment id whose parameter is tuned")
+    tu.add_argument("--env", default="GnssIns/SageHusa-v1", help="environment id whose parameter is tuned")
     tu.add_argument("--env-kwargs", nargs="*", metavar="KEY=VALUE",
                     help="environment arguments of the training episodes, e.g. scenario=urban "
                          "episode_length_s=300 (default: the env's)")
@@ -149,6 +149,12 @@ _MADE: list = []
 """Output folders this run created (removed again when the run ends by an error or Ctrl-C and left them empty)."""
 
 
+def announce() -> None:
+    """One line when navgym's numba kernels compile in this run (a first run: minutes; :mod:`earth.numba_cache`)."""
+    from earth.numba_cache import announce_compilation
+    announce_compilation()
+
+
 def check_out(out) -> None:
     """Create the output folder, or exit with one line when it cannot be written (before any work)."""
     from envs.outputs import check_output_dir
@@ -193,12 +199,13 @@ def _main(argv=None):
         if args.algo.lower() not in ALGOS:
             fail(f"unknown algorithm {args.algo!r}; known: {', '.join(ALGOS)}")
         import envs
-        if args.env not in envs.ENV_IDS:
+        if not envs.is_env_id(args.env):
             fail(f"unknown environment {args.env!r}; known: {', '.join(sorted(envs.ENV_IDS))}")
         ekw = parse_env_kwargs(args.env_kwargs)
         check_env_kwargs(args.env, ekw)
         from agents.training import train_rl
         check_out(args.out)
+        announce()
         try:
             cfg = train_rl(args.env, args.algo, args.out, timesteps=args.timesteps, seed=args.seed,
                            n_envs=args.n_envs, env_kwargs=ekw, config_file=args.config, quick=args.quick,
@@ -209,7 +216,7 @@ def _main(argv=None):
               f"({cfg['env_steps_per_s']:.0f} env-steps/s); model: {Path(args.out) / 'model.zip'}")
     elif args.cmd == "tune":
         import envs
-        if args.env not in envs.ENV_IDS:
+        if not envs.is_env_id(args.env):
             fail(f"unknown environment {args.env!r}; known: {', '.join(sorted(envs.ENV_IDS))}")
         ekw = parse_env_kwargs(args.env_kwargs)
         check_env_kwargs(args.env, ekw)
@@ -222,6 +229,7 @@ def _main(argv=None):
         if param not in specs:
             fail(f"{args.env} has no parameter {param!r}; known: {', '.join(specs)}")
         check_out(args.out)
+        announce()
         try:
             res = tune_fixed_parameter(args.env, ekw, param, default_grid(specs[param], args.grid_size),
                                        n_train=args.n_train, seed=args.seed, progress=True)
@@ -235,6 +243,7 @@ def _main(argv=None):
         except ImportError as e:
             fail(f"zero-velocity detector training is not available: {e}")
         check_out(args.out)
+        announce()
         metrics = train_zupt_detector(args.model, args.seed, Path(args.out), quick=args.quick, progress=True)
         print(format_table(metrics))  # the full metrics (per drive, thresholds, history) are in metrics.json
         print(f"wrote {', '.join(str(p) for p in sorted(Path(args.out).iterdir()) if p.is_file())}")
@@ -258,6 +267,7 @@ def sweep_cli(args):
         backend = make_backend(args.backend, args.address, args.workers)
     except BackendUnavailable as e:
         fail(str(e))
+    announce()
     with backend:
         rows = run_sweep(cfg, out, backend)
     print((out / "sweep.md").read_text())

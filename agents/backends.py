@@ -3,7 +3,8 @@
 Two operations, with the same meaning on both backends:
 
 * :meth:`LocalBackend.map` / :meth:`RayBackend.map` -- ``fn(item)`` for every item, the results in the
-  items' order, with a tqdm progress bar over completed items (eval.py's paired episode batches). An
+  items' order, with a tqdm progress bar over completed items (eval.py's paired episode batches) whose rate
+  and ETA leave out the first item (it pays the kernels' compilation on a first run). An
   exception raised by ``fn`` is raised again here, as itself (not wrapped in a Ray error).
 * :meth:`RayBackend.run_search` -- Ray Tune trials whose configs a Tune searcher proposes (train.py sweep's
   ``search: optuna``; locally that search runs optuna's ask / tell loop over :meth:`LocalBackend.run_trials`).
@@ -23,6 +24,7 @@ Ray is an optional dependency (``pip install 'navgym[distributed]'``): :func:`re
 """
 from __future__ import annotations
 
+import functools
 import os
 import sys
 import traceback
@@ -105,10 +107,129 @@ def error_text(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {exc}"
 
 
-def _bar(total: int, desc: str | None, progress: bool):
+FIRST_ITEM_FORMAT = "{l_bar}{bar}| {n_fmt}/{total_fmt} [{elapsed}, ETA after the first batch{postfix}]"
+"""The progress bar's format until the first item is done: no rate and no ETA (it pays the kernels' compilation
+on a first run, which would make any estimate minutes too long)."""
+
+
+class TrialProgress:
+    """The progress lines of :meth:`run_trials` / :meth:`run_search`: one when a trial starts and one when it
+    ends (its metric or its error, its time and the ETA of the rest), each naming the trial by its
+    hyperparameters (``describe(config)``); on Ray they replace Tune's own status tables, which stay quiet.
+
+    Parameters
+    ----------
+    total : the trials to run.
+    describe : ``describe(config) -> str``, the trial's name in its lines (module-level or a partial of one:
+        Tune may pickle it with the run's settings).
+    metric : the key of the trial result shown in its end line.
+    workers : trials run at once (the ETA divides by it).
+    prefix : the first word of every line.
+    clock : seconds now (default: ``time.perf_counter``).
+
+    The ETA averages the trials that ended, leaving the first out once another has ended (it pays the kernels'
+    compilation on a first run); it is the time for the trials that have not ended, ``workers`` at once.
+    """
+
+    def __init__(self, total: int, describe: Callable[[Any], str] = str, metric: str | None = None,
+                 workers: int = 1, prefix: str = "trial", clock: Callable[[], float] | None = None):
+        self.total, self.describe, self.metric, self.workers, self.prefix = total, describe, metric, workers, prefix
+        self.clock = clock  # seconds (default: time.perf_counter)
+        self.started: dict = {}   # key -> (number, description, start time)
+        self.times: list = []     # durations of the ended trials, in the order they ended
+
+    def _now(self) -> float:
+        if self.clock is not None:
+            return self.clock()
+        import time
+        return time.perf_counter()
+
+    def _say(self, line: str) -> None:
+        from tqdm import tqdm
+        tqdm.write(line, file=sys.stderr)  # above a progress bar, if any
+
+    def start(self, key, config) -> None:
+        """Trial ``key`` (any hashable: the config's position, Tune's trial id) starts with ``config``."""
+        number = len(self.started) + 1
+        self.started[key] = (number, self.describe(config), self._now())
+        self._say(f"{self.prefix} {number}/{self.total} started: {self.started[key][1]}")
+
+    def end(self, key, result: dict | None = None, error: str | None = None) -> str:
+        """Trial ``key`` ended with ``result`` (a dict) or ``error`` (its text); returns the line it printed."""
+        now = self._now()
+        number, desc, t0 = self.started.get(key, (len(self.times) + 1, str(key), now))
+        took = now - t0
+        self.times.append(took)
+        if error is not None:
+            what = f"failed: {desc}: {error.splitlines()[0] if error else 'error'}"
+        else:
+            v = (result or {}).get(self.metric) if self.metric else None
+            what = f"done: {desc}" + (f": {self.metric} {v:.4g}" if isinstance(v, (int, float)) else "")
+        line = f"{self.prefix} {number}/{self.total} {what} in {_duration(took)}"
+        left = self.total - len(self.times)
+        if left > 0:
+            base = self.times[1:] if len(self.times) > 1 else self.times
+            line += f"; ETA {_duration(left * sum(base) / len(base) / max(1, self.workers))}"
+        self._say(line)
+        return line
+
+
+def _duration(s: float) -> str:
+    """A duration for a progress line: seconds, minutes or hours."""
+    return f"{s:.0f} s" if s < 90 else f"{s / 60:.0f} min" if s < 5400 else f"{s / 3600:.1f} h"
+
+
+def _tune_callback(progress: TrialProgress | None, key_of: Callable):
+    """A Ray Tune callback that feeds ``progress`` (None: no callback) with its trials' starts and ends;
+    ``key_of(trial)`` gives the key and the config :class:`TrialProgress` gets."""
+    if progress is None:
+        return []
+    from ray.tune import Callback
+
+    class Lines(Callback):
+        def on_trial_start(self, iteration, trials, trial, **info):
+            key, config = key_of(trial)
+            progress.start(key, config)
+
+        def on_trial_complete(self, iteration, trials, trial, **info):
+            progress.end(key_of(trial)[0], result=_metrics_of(trial.last_result))
+
+        def on_trial_error(self, iteration, trials, trial, **info):
+            try:
+                err = trial.get_pickled_error()
+            except Exception:  # noqa: BLE001 - the line is a courtesy; the outcome keeps the error
+                err = None
+            progress.end(key_of(trial)[0], error=error_text(err) if err is not None else "the trial failed")
+    return [Lines()]
+
+
+def _metrics_of(result: dict | None) -> dict:
+    return {k: v for k, v in (result or {}).items() if not _tune_bookkeeping(k)}
+
+
+def _bar(total: int, desc: str | None, progress: bool, file=None):
+    """The progress bar of :meth:`LocalBackend.map` / :meth:`RayBackend.map` (to ``file``, default stderr): its
+    rate and ETA count from the end of the first item (:func:`_first_done`)."""
     from tqdm import tqdm
-    return tqdm(total=total, desc=desc, unit="batch", file=sys.stderr, dynamic_ncols=True, disable=not progress,
-                mininterval=0.5)
+    return tqdm(total=total, desc=desc, unit="batch", file=file or sys.stderr, dynamic_ncols=True,
+                disable=not progress, mininterval=0.5, bar_format=FIRST_ITEM_FORMAT)
+
+
+def _first_done(bar) -> None:
+    """Count one item done and restart the bar's clock: from now on its rate and ETA leave out the first item
+    (numba compiles the kernels during it on a first run), its elapsed time counts from here."""
+    if bar.disable:
+        bar.update(1)
+        return
+    bar.reset(bar.total)
+    bar.n = bar.last_print_n = bar.initial = 1  # the rate counts the items after the first
+    bar.bar_format = None
+    bar.refresh()
+
+
+def _advance(bar, first: bool) -> None:
+    """One more item done: the first through :func:`_first_done`."""
+    _first_done(bar) if first else bar.update(1)
 
 
 class LocalBackend:
@@ -126,19 +247,25 @@ class LocalBackend:
                 if label is not None:
                     bar.set_postfix_str(label(item), refresh=True)
                 out.append(fn(item))
-                bar.update(1)
+                _advance(bar, first=len(out) == 1)
         return out
 
     def run_trials(self, fn: Callable[[Any], dict], configs: Sequence, storage: str | os.PathLike,
-                   name: str = "trials") -> list[TrialOutcome]:
-        """Each trial in turn; an exception ends that trial only (its traceback is printed to stderr)."""
+                   name: str = "trials", progress: TrialProgress | None = None) -> list[TrialOutcome]:
+        """Each trial in turn; an exception ends that trial only (its traceback is printed to stderr).
+        ``progress`` (:class:`TrialProgress`) prints a line as each trial starts and ends."""
         out = []
         for c in configs:
+            key = object()
+            if progress is not None:
+                progress.start(key, c)
             try:
                 out.append(TrialOutcome(c, dict(fn(c)), None))
             except Exception as e:  # a failing trial is reported and the others go on
                 traceback.print_exc(file=sys.stderr)
                 out.append(TrialOutcome(c, None, error_text(e)))
+            if progress is not None:
+                progress.end(key, out[-1].result, out[-1].error)
         return out
 
     def close(self) -> None:
@@ -206,6 +333,7 @@ class RayBackend:
                 if len(pending) >= self.workers:
                     return
 
+        n_done = 0
         with _bar(len(items), desc, progress) as bar:
             submit()
             while pending:
@@ -223,14 +351,17 @@ class RayBackend:
                         raise
                     if label is not None:
                         bar.set_postfix_str(label(items[i]), refresh=False)
-                    bar.update(1)
+                    n_done += 1
+                    _advance(bar, first=n_done == 1)
                 submit()
         return results
 
     def run_trials(self, fn: Callable[[Any], dict], configs: Sequence, storage: str | os.PathLike,
-                   name: str = "trials") -> list[TrialOutcome]:
+                   name: str = "trials", progress: TrialProgress | None = None) -> list[TrialOutcome]:
         """Each config as one Ray Tune trial (1 CPU, at most :attr:`workers` at once, no retry), the Tune
-        experiment under ``storage/name``; a failing trial is recorded by Tune and the others go on."""
+        experiment under ``storage/name``; a failing trial is recorded by Tune and the others go on. Tune's
+        own output is quiet (``verbose=0``); ``progress`` (:class:`TrialProgress`) prints a line as each trial
+        starts and ends, naming it by its config."""
         from ray import tune
         configs = list(configs)
         if not configs:
@@ -243,9 +374,11 @@ class RayBackend:
             tune.with_resources(trial, {"cpu": 1}),
             param_space={"index": tune.grid_search(list(range(len(configs))))},
             tune_config=tune.TuneConfig(max_concurrent_trials=self.workers, reuse_actors=False),
-            run_config=tune.RunConfig(name=name, storage_path=str(Path(storage).resolve()), verbose=1,
+            run_config=tune.RunConfig(name=name, storage_path=str(Path(storage).resolve()), verbose=0,
+                                      callbacks=_tune_callback(progress, functools.partial(_indexed, configs)),
                                       failure_config=tune.FailureConfig(max_failures=0, fail_fast=False)))
-        grid = tuner.fit()
+        with _QuietTune():
+            grid = tuner.fit()
         out: list = [None] * len(configs)
         for r in grid:
             i = r.config["index"]
@@ -259,12 +392,12 @@ class RayBackend:
         return out
 
     def run_search(self, fn: Callable[[dict], dict], searcher, num_samples: int, storage: str | os.PathLike,
-                   name: str = "search") -> list[TrialOutcome]:
+                   name: str = "search", progress: TrialProgress | None = None) -> list[TrialOutcome]:
         """``num_samples`` Ray Tune trials whose configs a Tune searcher proposes (``searcher``: a
         ``ray.tune.search.Searcher`` with its space, metric and mode set, e.g. ``OptunaSearch``), at most
         :attr:`workers` at once (1 CPU each, no retry), the experiment under ``storage/name``. Each trial runs
         ``fn(config)``; the outcomes hold the proposed config, in the order Tune created the trials; a failing
-        trial is recorded and the others go on."""
+        trial is recorded and the others go on. Tune's own output is quiet; ``progress`` prints the lines."""
         from ray import tune
         from ray.tune.search import ConcurrencyLimiter
         if num_samples < 1:
@@ -277,10 +410,13 @@ class RayBackend:
             tune.with_resources(trial, {"cpu": 1}),
             tune_config=tune.TuneConfig(search_alg=ConcurrencyLimiter(searcher, max_concurrent=self.workers),
                                         num_samples=num_samples, reuse_actors=False),
-            run_config=tune.RunConfig(name=name, storage_path=str(Path(storage).resolve()), verbose=1,
+            run_config=tune.RunConfig(name=name, storage_path=str(Path(storage).resolve()), verbose=0,
+                                      callbacks=_tune_callback(progress, _proposed),
                                       failure_config=tune.FailureConfig(max_failures=0, fail_fast=False)))
+        with _QuietTune():
+            results = tuner.fit()
         return [TrialOutcome(dict(r.config), None, error_text(r.error)) if r.error is not None
-                else TrialOutcome(dict(r.config), _metrics(r), None) for r in tuner.fit()]
+                else TrialOutcome(dict(r.config), _metrics(r), None) for r in results]
 
     def close(self) -> None:
         """Shut Ray down if this backend started it (a Ray this process had initialized stays)."""
@@ -294,6 +430,33 @@ class RayBackend:
 
     def __exit__(self, *exc):
         self.close()
+
+
+class _QuietTune:
+    """While inside: Ray Tune's legacy console output, silent at ``verbose=0`` (its newer output prints an
+    experiment table and result paths even then); the trials' lines come from :class:`TrialProgress`."""
+
+    def __enter__(self):
+        self.before = os.environ.get("RAY_AIR_NEW_OUTPUT")
+        os.environ["RAY_AIR_NEW_OUTPUT"] = "0"
+        return self
+
+    def __exit__(self, *exc):
+        if self.before is None:
+            os.environ.pop("RAY_AIR_NEW_OUTPUT", None)
+        else:
+            os.environ["RAY_AIR_NEW_OUTPUT"] = self.before
+
+
+def _indexed(configs: list, trial) -> tuple:
+    """(key, config) of a Tune trial of :meth:`RayBackend.run_trials` (its config holds the index)."""
+    i = trial.config["index"]
+    return i, configs[i]
+
+
+def _proposed(trial) -> tuple:
+    """(key, config) of a Tune trial of :meth:`RayBackend.run_search` (the searcher's config)."""
+    return trial.trial_id, dict(trial.config)
 
 
 _TUNE_KEYS = {"timestamp", "checkpoint_dir_name", "done", "training_iteration", "trial_id", "date",

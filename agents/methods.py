@@ -3,7 +3,9 @@
 =============================  ===================================================================
 spec                           meaning
 =============================  ===================================================================
-``kf``, ``svd-akf+onestep``    a filter method of DESIGN.md section 4 with its own rule and defaults
+``kf``, ``svd-akf+onestep``    a filter method (the list is below) with its own rule and defaults; ``+onestep``
+                               propagates the covariance only at measurement epochs, ``+fde`` adds fault
+                               detection and exclusion
 ``sage-husa[b=0.995]``         an adaptive method with parameters fixed at the given values
 ``kf[zupt=lstm]``              zero-velocity aiding by a detector (``none``, ``truth``, ``shoe``, ``are``,
                                ``mag``, ``mv``, ``mlp``, ``lstm``); ``zupt_weights=<file>`` for own weights;

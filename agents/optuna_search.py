@@ -150,6 +150,14 @@ def run_configuration(cfg, root, config: dict) -> dict:
     return {OBJECTIVE: sum(metrics) / len(metrics), "metrics": metrics}
 
 
+def describe_configuration(cfg, config: dict) -> str:
+    """A configuration in a progress line: its number and the hyperparameters Optuna proposed."""
+    from agents.sweep import _fmt
+    hp = " ".join(f"{k}={_fmt(config[k])}" for k in cfg.random if k in config)
+    cid = config.get("config_id")
+    return (f"#{cid} " if cid is not None else "") + hp
+
+
 def _rows(cfg, root, cid: int, params: dict, kept: dict, error: str | None):
     """The table rows of one configuration's runs after it ran (``kept``: run_dir -> record from before)."""
     from agents.sweep import METRIC, TrialRow, config_trials, trial_status
@@ -188,13 +196,17 @@ def run_optuna(cfg, root, backend) -> list:
     if n_ask == 0:
         return rows
     space = search_space(cfg)
+    from agents.backends import TrialProgress
+    progress = TrialProgress(n_ask, functools.partial(describe_configuration, cfg), OBJECTIVE,
+                             workers=backend.workers or 1, prefix="sweep: configuration")
     if backend.name != "ray":
         for _ in range(n_ask):
             trial = study.ask(space)
             params = {k: trial.params[k] for k in cfg.random}
             kept = _kept(cfg, root, trial.number, params)
             out, = backend.run_trials(functools.partial(run_configuration, cfg, str(root)),
-                                      [{**params, "config_id": trial.number}], storage=root / "tune")
+                                      [{**params, "config_id": trial.number}], storage=root / "tune",
+                                      progress=progress)
             if out.error is None:
                 study.tell(trial, out.result[OBJECTIVE])
             else:
@@ -209,7 +221,7 @@ def run_optuna(cfg, root, backend) -> list:
     for rec in recorded:
         kept_before.update(_kept(cfg, root, rec.config_id, rec.params))
     outcomes = backend.run_search(functools.partial(run_configuration, cfg, str(root)), searcher, n_ask,
-                                  storage=root / "tune", name=name)
+                                  storage=root / "tune", name=name, progress=progress)
     for o in sorted(outcomes, key=lambda o: o.config["config_id"]):
         params = {k: o.config[k] for k in cfg.random}
         rows += _rows(cfg, root, o.config["config_id"], params, kept_before, o.error)

@@ -282,9 +282,9 @@ def greedy_schedule(env_id: str, env_kwargs: dict | None, seeds, segment_s: floa
 
     Cost: ``K (segment + lookahead) / segment`` episode-equivalents per episode (21 for the defaults and a
     1-D action; 147 for the 49 candidates of a 2-D action), plus one snapshot of the filter state per
-    segment. Measured on 2 shared cores, noise-burst, 8 episodes: ``GnssIns/SageHusa-v0`` (7 candidates)
+    segment. Measured on 2 shared cores, noise-burst, 8 episodes: ``GnssIns/SageHusa-v1`` (7 candidates)
     60 s episodes 4.3 s (17.5 episode-equivalents: the last segments' lookahead is cut), 300 s episodes
-    22 s (20.3; one plain batched run of the 8 episodes: 1.7 s); ``GnssIns/MASTKF-v0`` (49 candidates) 60 s
+    22 s (20.3; one plain batched run of the 8 episodes: 1.7 s); ``GnssIns/MASTKF-v1`` (49 candidates) 60 s
     episodes 23 s (122.5).
 
     Parameters

@@ -109,7 +109,7 @@ class ReactiveRule:
         from envs.core import OBS_FEATURES
         names = [f[0] for f in OBS_FEATURES]
         if not specs or specs[0].name != "b":
-            raise ValueError("ReactiveRule drives a Sage-Husa forgetting factor b (GnssIns/SageHusa-v0)")
+            raise ValueError("ReactiveRule drives a Sage-Husa forgetting factor b (GnssIns/SageHusa-v1)")
         for name, v in (("b_low", b_low), ("b_high", b_high)):
             if not specs[0].low <= v <= specs[0].high:
                 raise ValueError(f"{name} must lie in [{specs[0].low}, {specs[0].high}], got {v!r}")

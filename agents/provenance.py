@@ -17,8 +17,9 @@ from .policies import ALGOS
 MAX_LABEL = 28
 """Longest short label [characters]; longer ones are cut with an ellipsis."""
 
-_ORACLE_SHORT = {"oracle-schedule": "schedule", "best-per-episode": "best constant per episode",
-                 "crossfit-schedule": "cross-fitted schedule"}
+_ORACLE_SHORT = {"oracle-schedule": "schedule", "best-per-episode": "best per episode",
+                 "crossfit-schedule": "crossfit schedule"}
+"""Oracle kinds in short labels (within :data:`MAX_LABEL` with the ``oracle: `` prefix)."""
 _BRACKETS = re.compile(r"\[[^\]]*\]")
 
 
@@ -114,13 +115,27 @@ def _cut(s: str) -> str:
     return s if len(s) <= MAX_LABEL else s[:MAX_LABEL - 3] + "..."
 
 
+def _tail(path: str, n: int) -> str:
+    """``path`` in at most ``n`` characters: its last components after ``.../`` when it is longer."""
+    if len(path) <= n:
+        return path
+    parts, out = Path(path).parts, ""
+    for part in reversed(parts):
+        cand = part if not out else f"{part}/{out}"
+        if len(cand) + 4 > n:
+            break
+        out = cand
+    return ".../" + (out or parts[-1][-(n - 4):])
+
+
 def short_label(label: str, scenario: str, n_seeds: int | None = None) -> str:
     """A short readable label of the eval.py method ``label`` on ``scenario``.
 
-    ``tuned:<file>`` -> ``'tuned b=0.944'`` (the value read from the file; ``'tuned (<file name>)'`` when it
-    cannot be read); ``<algo>:<model.zip>`` -> ``'ppo'`` or, for a pooled group of ``n_seeds`` training seeds,
-    ``'ppo (3 seeds)'``; an oracle -> ``'oracle: schedule'``, ``'oracle: true R'``, ...; ``rule:<env id>[...]``
-    -> ``'rule'`` plus its options; a filter spec stays as it is. At most :data:`MAX_LABEL` characters.
+    ``tuned:<file>`` -> ``'tuned b=0.944'`` (the value read from the file; ``'tuned (runs/main/tune-urban)'``,
+    its folder with ``{scenario}`` resolved, when it cannot be read); ``<algo>:<model.zip>`` -> ``'ppo'``; the
+    pooled row of a pattern over ``n_seeds`` training seeds -> ``'ppo (3 seeds)'``, ``'tuned (3 seeds)'``; an
+    oracle -> ``'oracle: schedule'``, ``'oracle: true R'``, ...; ``rule:<env id>[...]`` -> ``'rule'`` plus its
+    options; a filter spec stays as it is. At most :data:`MAX_LABEL` characters.
     """
     if label.startswith("oracle: "):
         kind = label.removeprefix("oracle: ").split(":", 1)[0]
@@ -131,9 +146,11 @@ def short_label(label: str, scenario: str, n_seeds: int | None = None) -> str:
         return _cut("oracle: true R" + (f" ({label.split(':', 1)[1]})" if ":" in label else ""))
     kind, rest = _kind_path(label)
     if kind == "tuned":
+        if n_seeds:  # the pooled row of a pattern over several tuning files
+            return f"tuned ({n_seeds} seeds)"
         r = training_record(label, scenario)
         if r is None or r.get("best") is None:
-            return _cut(f"tuned ({Path(rest).name})")
+            return f"tuned ({_tail(str(Path(rest.replace('{scenario}', scenario)).parent), MAX_LABEL - 8)})"
         return _cut(f"tuned {r['param']}={r['best']:.3g}")
     if kind.lower() in ALGOS:
         return _cut(kind.lower() + (f" ({n_seeds} seeds)" if n_seeds else ""))

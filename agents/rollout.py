@@ -13,9 +13,11 @@ from envs.episodes import EpisodeLog
 
 
 def env_class(env_id: str):
-    """The single-env class registered under ``env_id`` (``ValueError`` for an unknown id)."""
+    """The single-env class registered under ``env_id`` (``ValueError`` for an unknown id; a ``FutureWarning``
+    naming the current id for an out-of-date one, :func:`envs.warn_if_outdated`)."""
     if env_id not in gym.registry:
         raise ValueError(f"unknown environment id {env_id!r}; known: {sorted(envs.ENV_IDS)}")
+    envs.warn_if_outdated(env_id)
     ep = gym.registry[env_id].entry_point
     mod, name = ep.split(":")
     import importlib

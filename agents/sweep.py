@@ -2,7 +2,7 @@
 
 A sweep file (YAML; every key but ``envs`` is optional; an example: ``configs/sweep.yml``)::
 
-    envs: [GnssIns/SageHusa-v0]        # environment ids
+    envs: [GnssIns/SageHusa-v1]        # environment ids
     scenarios: [urban-transition]      # scenario names (env kwarg 'scenario'); omitted: the env's default
     algos: [ppo]                       # ppo, recurrentppo, sac, td3
     seeds: [0, 1]                      # training seeds: replicates of every hyperparameter configuration
@@ -148,7 +148,7 @@ class SweepConfig:
             if len(set(v)) != len(v):
                 self._bad(name, f"lists a value twice: {list(v)}")
         for e in self.envs:
-            if e not in envs.ENV_IDS:
+            if not envs.is_env_id(e):
                 self._bad("envs", f"unknown environment {e!r}; known: {', '.join(sorted(envs.ENV_IDS))}")
         for a in self.algos:
             if not isinstance(a, str) or a.lower() not in ALGOS:
@@ -327,6 +327,11 @@ class Trial:
         """(env, scenario, algo): the trials compared for the best one."""
         return (self.env, self.scenario or "default", self.algo)
 
+    def describe(self) -> str:
+        """The trial in a progress line: what it trains and its searched hyperparameters."""
+        hp = " ".join(f"{k}={_fmt(v)}" for k, v in self.searched.items())
+        return f"{self.env} {self.scenario or 'default'} {self.algo} seed {self.seed}" + (f" {hp}" if hp else "")
+
     def command(self) -> str:
         """The ``train.py rl`` command line of this trial."""
         args = ["python", "train.py", "rl", "--env", self.env, "--algo", self.algo, "--timesteps",
@@ -487,7 +492,10 @@ def run_sweep(cfg: SweepConfig, root, backend) -> list[TrialRow]:
     print(f"sweep: {len(trials)} trials, {len(trials) - len(pending)} finished before (kept), running "
           f"{len(pending)} on {backend.name}", file=sys.stderr)
     name = time.strftime("sweep-%Y%m%d-%H%M%S")
-    outcomes = {o.config.run_dir: o for o in backend.run_trials(run_trial, pending, storage=root / "tune", name=name)}
+    from agents.backends import TrialProgress
+    progress = TrialProgress(len(pending), Trial.describe, METRIC, workers=backend.workers or 1, prefix="sweep: trial")
+    outcomes = {o.config.run_dir: o for o in backend.run_trials(run_trial, pending, storage=root / "tune", name=name,
+                                                                progress=progress)}
     rows = []
     for t in trials:
         if kept[t.run_dir] is not None:

@@ -30,7 +30,7 @@ def default_grid(spec, n: int = 13) -> np.ndarray:
 
 
 def tune_fixed_parameter(env_id: str, env_kwargs: dict | None = None, param: str | None = None, grid=None,
-                         n_train: int = 16, seed: int = 0, progress: bool = False) -> dict:
+                         n_train: int = 16, seed: int = 0, progress=False) -> dict:
     """Grid search of one constant filter parameter on training seeds.
 
     Parameters
@@ -40,11 +40,17 @@ def tune_fixed_parameter(env_id: str, env_kwargs: dict | None = None, param: str
     param : the parameter to tune (default: the env's first); the others stay at their defaults.
     grid : values to try (default :func:`default_grid`).
     n_train : training episodes per grid value; seeds ``TRAIN_SEED_OFFSET + 1000 * seed + k``.
+    progress : False (silent), True (a line per grid value on stderr, :func:`progress_line`, and the result
+        on stdout) or a callable ``progress(line)`` taking all those lines.
 
     Returns
     -------
     dict with the env, method, parameter, grid, per-value horizontal RMSE [m] (diverged episodes count
     with the divergence bound), the best value and the training seeds.
+
+    The training worlds are drawn once and every grid value runs on them, one value after another (a value's
+    episodes in one batched navigator): the rows are independent, so the numbers are those of one batch of
+    all values, and a line per value tells how far the search is.
     """
     env_kwargs = dict(env_kwargs or {})
     cls = env_class(env_id)
@@ -58,27 +64,61 @@ def tune_fixed_parameter(env_id: str, env_kwargs: dict | None = None, param: str
     if param not in specs:
         raise ValueError(f"{env_id} has no parameter {param!r}; known: {sorted(specs)}")
     grid = default_grid(specs[param]) if grid is None else np.asarray(grid, float)
+    say = _say(progress)
     seeds = [TRAIN_SEED_OFFSET + 1000 * seed + k for k in range(n_train)]
     G, n = grid.size, len(seeds)
     t0 = time.perf_counter()
-    world = cfg.make_world(seeds * G)
-    params = {s.name: np.full(G * n, s.default) for s in cls.PARAMS}
-    params[param] = np.repeat(grid, n)
-    log = run_episodes(world, cfg.method, dtype=cfg.dtype, params=params)
+    world = cfg.make_world(seeds)
     bound = cfg.divergence_bound_m
-    h = np.where(np.isfinite(log.horizontal_error), np.minimum(log.horizontal_error, bound), bound)
-    h[log.diverged] = bound
-    rmse = np.sqrt((h ** 2).reshape(G, n, -1).mean(axis=(1, 2)))
+    rmse, diverged, times = np.zeros(G), np.zeros(G, int), []
+    for g, value in enumerate(grid):
+        t_value = time.perf_counter()
+        params = {s.name: np.full(n, s.default) for s in cls.PARAMS}
+        params[param] = np.full(n, value)
+        log = run_episodes(world, cfg.method, dtype=cfg.dtype, params=params)
+        h = np.where(np.isfinite(log.horizontal_error), np.minimum(log.horizontal_error, bound), bound)
+        h[log.diverged] = bound
+        rmse[g], diverged[g] = np.sqrt((h ** 2).mean()), int(log.diverged.sum())
+        times.append(time.perf_counter() - t_value)
+        say(progress_line(param, value, g, G, rmse[g], diverged[g], n, times))
     best = int(np.argmin(rmse))
     out = {"env": env_id, "env_kwargs": env_kwargs, "method": cfg.method, "param": param,
            "fixed": {s.name: s.default for s in cls.PARAMS if s.name != param},
-           "grid": grid.tolist(), "rmse_h_m": rmse.tolist(), "diverged": log.diverged.reshape(G, n).sum(1).tolist(),
+           "grid": grid.tolist(), "rmse_h_m": rmse.tolist(), "diverged": diverged.tolist(),
            "best": float(grid[best]), "best_rmse_h_m": float(rmse[best]), "train_seeds": seeds,
            "wall_time_s": time.perf_counter() - t0}
-    if progress:
-        print(f"tuned {param} of {cfg.method} on {n} training episodes x {G} values in {out['wall_time_s']:.1f} s: "
-              f"best {param} = {out['best']:.6g} (RMSE {out['best_rmse_h_m']:.3f} m)")
+    done = (f"tuned {param} of {cfg.method} on {n} training episodes x {G} values in {out['wall_time_s']:.1f} s: "
+            f"best {param} = {out['best']:.6g} (RMSE {out['best_rmse_h_m']:.3f} m)")
+    print(done) if progress is True else say(done)  # the result on stdout, the progress on stderr
     return out
+
+
+def _say(progress):
+    """The callable that takes :func:`tune_fixed_parameter`'s lines (``progress``: False, True: stderr, or one)."""
+    if callable(progress):
+        return progress
+    if progress:
+        import sys
+        return lambda line: print(line, file=sys.stderr, flush=True)
+    return lambda line: None
+
+
+def _duration(s: float) -> str:
+    return f"{s:.0f} s" if s < 90 else f"{s / 60:.0f} min" if s < 5400 else f"{s / 3600:.1f} h"
+
+
+def progress_line(param: str, value: float, g: int, G: int, rmse: float, diverged: int, n: int, times: list) -> str:
+    """The line of grid value ``g`` (0-based) of ``G``: its RMSE, its time and the ETA of the rest. The ETA
+    averages the values after the first (the first pays the kernels' compilation on a first run); after the
+    first value it says it will come."""
+    div = f", {diverged} of {n} diverged" if diverged else ""
+    line = f"tune: {param} = {value:.6g} ({g + 1}/{G}): RMSE {rmse:.3f} m{div} in {_duration(times[-1])}"
+    left = G - g - 1
+    if left == 0:
+        return line
+    if len(times) < 2:
+        return line + "; ETA after the next value"
+    return line + f"; ETA {_duration(left * float(np.mean(times[1:])))}"
 
 
 def save_tuning(result: dict, path) -> Path:

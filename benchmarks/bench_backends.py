@@ -28,7 +28,7 @@ sys.path.insert(0, str(ROOT))
 
 from envs.json_io import without_timing  # noqa: E402
 
-METHODS = "kf,sage-husa,stkf,ma-stkf,svd-akf,rule:GnssIns/SageHusa-v0"
+METHODS = "kf,sage-husa,stkf,ma-stkf,svd-akf,rule:GnssIns/SageHusa-v1"
 SCENARIOS = ("noise-burst", "urban", "open-sky")
 
 

@@ -90,10 +90,10 @@ import envs  # noqa: E402,F401  (registers the ids)
 import nav_filters.navigator as navmod  # noqa: E402
 
 METHOD_ENV = {
-    "sage-husa": "GnssIns/SageHusa-v0",
-    "stkf": "GnssIns/STKF-v0",
-    "ma-stkf": "GnssIns/MASTKF-v0",
-    "svd-akf": "GnssIns/SageHusa-v0",
+    "sage-husa": "GnssIns/SageHusa-v1",
+    "stkf": "GnssIns/STKF-v1",
+    "ma-stkf": "GnssIns/MASTKF-v1",
+    "svd-akf": "GnssIns/SageHusa-v1",
     "satellite-r": "GnssIns/SatelliteR-v0",
     "satellite-sage-husa": "GnssIns/SatelliteSageHusa-v0",
 }
@@ -460,7 +460,7 @@ def print_filterpy(batches, episode_s, scenario, steps_of):
     from filterpy_baseline import N_MEAS, SAMPLES_PER_EPOCH, filterpy_rate
     print(f"\nside by side with the plain loop: filterpy KalmanFilter, 17 states, {SAMPLES_PER_EPOCH} predict() + "
           f"1 update() of {N_MEAS} measurements per epoch (no mechanization, no adaptive law), one Python object "
-          f"per filter;\nnavgym: GnssIns/SageHusa-v0 env steps ({scenario}; each = {SAMPLES_PER_EPOCH} IMU samples "
+          f"per filter;\nnavgym: GnssIns/SageHusa-v1 env steps ({scenario}; each = {SAMPLES_PER_EPOCH} IMU samples "
           f"of mechanization + the covariance + a Sage-Husa update of ~20 measurements + feedback + observation)")
     fp = filterpy_rate()
     hdr = f"{'loop':28s} {'B':>5s} {'epochs/s wall':>14s} {'per CPU s (core)':>17s} {'vs filterpy/core':>17s}"

@@ -25,7 +25,7 @@ def run(timesteps: int, threads: int, n_envs: int, hyper: dict) -> tuple[float, 
     torch.set_num_threads(threads)
     h = {**DEFAULT_HYPERPARAMS["recurrentppo"], **QUICK["hyper"]["recurrentppo"], **hyper}
     policy = h.pop("policy")
-    venv = VecNormalize(VecMonitor(make_sb3_vec_env("GnssIns/SageHusa-v0", n_envs, seed=0, **QUICK["env_kwargs"])),
+    venv = VecNormalize(VecMonitor(make_sb3_vec_env("GnssIns/SageHusa-v1", n_envs, seed=0, **QUICK["env_kwargs"])),
                         gamma=h["gamma"])
     model = RecurrentPPO(policy, venv, seed=0, device="cpu", verbose=0, **h)
     model.set_logger(Logger(None, []))  # SB3's default logger leaves an empty SB3-<time> folder in the temp dir

@@ -191,7 +191,7 @@ def main():
         print(json.dumps(native_cell(env_id, int(n), mode, int(rollouts), float(episode_length), int(prefetch))))
         return
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--env", default="GnssIns/SageHusa-v0")
+    ap.add_argument("--env", default="GnssIns/SageHusa-v1")
     ap.add_argument("--n-envs", type=int, nargs="+", default=[16, 64, 256])
     ap.add_argument("--transitions", nargs="+", choices=list(MODES), default=list(MODES))
     ap.add_argument("--rollouts", type=int, default=2, help="timed rollouts per cell (n_steps x n_envs steps each)")

@@ -23,7 +23,7 @@ import time
 import numpy as np
 
 METHODS = ("sage-husa", "stkf", "ma-stkf")
-"""The default method of each env id (GnssIns/SageHusa-v0, STKF-v0, MASTKF-v0)."""
+"""The default method of each env id (GnssIns/SageHusa-v1, STKF-v0, MASTKF-v0)."""
 
 
 def _scenario_duration(name, cap_s):

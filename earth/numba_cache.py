@@ -23,6 +23,8 @@ import json
 import os
 from pathlib import Path
 
+from numba.core.event import Listener
+
 PACKAGES = ("earth", "nav_filters", "envs")
 """The packages whose modules define cached numba kernels (the layers below ``agents``)."""
 
@@ -136,3 +138,55 @@ def invalidate_stale_caches(root: Path | None = None, packages=PACKAGES) -> int:
     except OSError:
         pass
     return removed
+
+
+COMPILE_NOTICE = ("navgym: compiling its numba kernels once (a minute or a few on 2 cores; later runs load them from "
+                  "the cache)...")
+"""The line :func:`announce_compilation` prints when navgym's kernels start compiling."""
+KERNEL_PACKAGES = (*PACKAGES, "agents")
+"""The top-level packages whose numba kernels :func:`announce_compilation` watches."""
+
+
+class CompileNotice(Listener):
+    """A numba event listener (``numba:compile``, fired on a cache miss only) that writes :data:`COMPILE_NOTICE`
+    to ``stream`` (default: stderr at the time) when the first kernel of ``packages`` starts compiling, once."""
+
+    def __init__(self, stream=None, packages=KERNEL_PACKAGES):
+        self.stream, self.packages, self.said = stream, tuple(packages), False
+
+    def on_start(self, event):
+        if self.said:
+            return
+        func = getattr(event.data.get("dispatcher"), "py_func", None)
+        if str(getattr(func, "__module__", "")).split(".")[0] in self.packages:
+            import sys
+            self.said = True
+            stream = self.stream or sys.stderr
+            try:  # above a running progress bar, not inside its line
+                from tqdm import tqdm
+                tqdm.write(COMPILE_NOTICE, file=stream)
+                stream.flush()
+            except ImportError:  # pragma: no cover - tqdm comes with navgym
+                print(COMPILE_NOTICE, file=stream, flush=True)
+
+    def on_end(self, event):
+        pass
+
+
+_NOTICE: CompileNotice | None = None
+
+
+def announce_compilation(stream=None) -> CompileNotice:
+    """From now on, print :data:`COMPILE_NOTICE` once in this process when one of navgym's kernels compiles
+    (numba's cache missed: the first run of a checkout, or an update of the sources invalidated the caches,
+    :func:`invalidate_stale_caches`); a run that loads every kernel from the cache says nothing. eval.py and
+    train.py call it before their work, so that a first run does not look hung. Idempotent (one listener per
+    process; ``stream`` replaces the earlier one)."""
+    global _NOTICE
+    if _NOTICE is None:
+        from numba.core import event
+        _NOTICE = CompileNotice(stream)
+        event.register("numba:compile", _NOTICE)
+    elif stream is not None:
+        _NOTICE.stream = stream
+    return _NOTICE

@@ -74,7 +74,7 @@ def check_method_has_params(method: str, specs, env_method: str | None = None) -
 def check_method_law(method: str, env_method: str) -> None:
     """``ValueError`` when ``method`` runs another adaptive law than ``env_method``, the env's own method.
 
-    A parameter of the same name means another thing in another law: ``GnssIns/STKF-v0`` sets the strong-tracking
+    A parameter of the same name means another thing in another law: ``GnssIns/STKF-v1`` sets the strong-tracking
     softening of ``stkf``; ``ma-stkf`` takes a ``softening`` too, but there it scales the fading factor beside its
     own ``b`` and ``fading_scale``, which the env would leave at their defaults while calling the result
     tuned. The methods of the env's law (its forms, ``+fde``, ``+onestep``) are accepted."""

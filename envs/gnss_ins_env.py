@@ -11,9 +11,9 @@ against the simulated truth.
 
 | id | action sets | default method |
 |---|---|---|
-| ``GnssIns/SageHusa-v0`` | the Sage-Husa forgetting factor ``b`` | ``sage-husa`` (any Sage-Husa form: ``svd-akf``, ``svd-asrkf``) |
-| ``GnssIns/STKF-v0`` | the strong-tracking softening factor | ``stkf`` |
-| ``GnssIns/MASTKF-v0`` | MA-STKF ``b`` and its fading-factor scaling | ``ma-stkf`` |
+| ``GnssIns/SageHusa-v1`` | the Sage-Husa forgetting factor ``b`` | ``sage-husa`` (any Sage-Husa form: ``svd-akf``, ``svd-asrkf``) |
+| ``GnssIns/STKF-v1`` | the strong-tracking softening factor | ``stkf`` |
+| ``GnssIns/MASTKF-v1`` | MA-STKF ``b`` and its fading-factor scaling | ``ma-stkf`` |
 
 ## Action Space
 
@@ -101,33 +101,47 @@ Limits (a ``ValueError`` naming the argument at construction): ``episode_length_
 
 ## Version History
 
-* v0: initial version.
-* v0, revised with issue 16 (the ids are a public contract and were kept): the Sage-Husa methods adapt R
-  per satellite (``sage-husa-group`` is the earlier law), and six per-satellite health features (k+13 to
-  k+18) were appended to the observation. Policies trained before do not fit the new observation size.
-* v0, revised again with issue 16: the per-satellite law takes the *consensus* sample (the smaller of the
-  deleted residual and the snapshot-fit residual; :class:`nav_filters.adaptive.SageHusa`) with a floor of 1
-  on each satellite's scale, and the ``b`` range of ``GnssIns/SageHusa-v0`` widened from [0.90, 0.9999] to
-  [0.30, 0.9999] (the optimum of the canyon scenarios lay at or below the old lower edge; on the 32
-  tuning episodes of ``train.py tune`` b = 0.1 gives 3.10 m on urban-transition against 2.64 m at 0.3, and
-  is 3.5% better on regime-switch, so the range stops at 0.3). The same
-  action now means another b: policies trained before must be retrained. The STKF softening range widened
-  from [0.2, 5] to [0.2, 1000] and the MA-STKF fading-scale range from [0.2, 5] to [0.01, 5]: measured on
-  8 development episodes x 300 s, the best STKF softening is 100 on noise-burst (1.48 m against 3.83 at
-  5) and outage (4.3 m against 4.7), and the best MA-STKF fading scale 0.01 on noise-burst,
-  urban-transition and regime-switch (5.1 m against 7.3 at 0.2 on urban-transition): both optima lay
-  beyond the old edges, where fading is all but off.
-* v0, revised a third time with issue 16: ``stkf`` and ``ma-stkf`` fade on state events only (the lower
-  confidence bound of the innovation excess a state error can explain, withheld while the measurements are
-  noisier than reported) and MA-STKF's measurement factor is per measurement type, from the snapshot-fit
-  residuals (:mod:`nav_filters.adaptive.strong_tracking`). The actions keep their ranges and meanings
-  (softening scales the noise term, fading_scale the ratio); policies trained before see another law.
-* v0, revised with the issue "adaptive laws that never lose badly" (a version bump is due: the same seed and
-  actions give other episodes): the Sage-Husa Q law of ``sage-husa`` / ``svd-akf`` / ``svd-asrkf`` keeps the
-  applied Q at or above the nominal one (``q_lower='nominal'``, :class:`nav_filters.adaptive.SageHusa`), so
-  ``GnssIns/SageHusa-v0``'s ``q_scale`` feature no longer falls below ~1; the per-satellite R law of those and
-  ``sage-husa-r`` divides each deleted-residual sample by its epoch's median (``median_guard``), which changes
-  the per-satellite health features. Action ranges and meanings unchanged.
+* v1 (``GnssIns/SageHusa-v1``, ``GnssIns/STKF-v1``, ``GnssIns/MASTKF-v1``; the current ids): the laws and
+  ranges of today, the first version bump since v0. Against v0 as first published (the revisions listed
+  under v0, made while the id stayed v0): the Sage-Husa methods adapt R per satellite with the consensus
+  sample, a floor of 1 on each scale and the epoch's median guard, and their Q law never goes below the
+  nominal Q; ``b`` of ``GnssIns/SageHusa-v1`` spans [0.30, 0.9999] (was [0.90, 0.9999]); ``stkf`` and
+  ``ma-stkf`` fade on state events only, MA-STKF's measurement factor is per measurement type; the STKF
+  softening spans [0.2, 1000] (was [0.2, 5]) and the MA-STKF fading scale [0.01, 5] (was [0.2, 5]); the
+  observation has the six per-satellite health features k+13 to k+18. The same seed and actions give other
+  episodes than any v0: policies trained on v0 load (the observation and action spaces are those of the last
+  v0) but act on other laws; retrain them.
+* v0: initial version. The ``-v0`` ids stay makeable: they build the v1 environment, and ``gym.make`` warns
+  that the id is out of date and names v1 (Gymnasium's ``DeprecationWarning``). The v0 laws are not kept:
+  figures published with v0 (``docs/headroom.md`` and ``docs/results.md`` were generated with it) cannot be
+  reproduced bit for bit by this release. v0 changed meaning four times without a version bump:
+
+  * v0, revised with issue 16 (the ids are a public contract and were kept): the Sage-Husa methods adapt R
+    per satellite (``sage-husa-group`` is the earlier law), and six per-satellite health features (k+13 to
+    k+18) were appended to the observation. Policies trained before do not fit the new observation size.
+  * v0, revised again with issue 16: the per-satellite law takes the *consensus* sample (the smaller of the
+    deleted residual and the snapshot-fit residual; :class:`nav_filters.adaptive.SageHusa`) with a floor of 1
+    on each satellite's scale, and the ``b`` range of ``GnssIns/SageHusa-v0`` widened from [0.90, 0.9999] to
+    [0.30, 0.9999] (the optimum of the canyon scenarios lay at or below the old lower edge; on the 32
+    tuning episodes of ``train.py tune`` b = 0.1 gives 3.10 m on urban-transition against 2.64 m at 0.3, and
+    is 3.5% better on regime-switch, so the range stops at 0.3). The same
+    action now means another b: policies trained before must be retrained. The STKF softening range widened
+    from [0.2, 5] to [0.2, 1000] and the MA-STKF fading-scale range from [0.2, 5] to [0.01, 5]: measured on
+    8 development episodes x 300 s, the best STKF softening is 100 on noise-burst (1.48 m against 3.83 at
+    5) and outage (4.3 m against 4.7), and the best MA-STKF fading scale 0.01 on noise-burst,
+    urban-transition and regime-switch (5.1 m against 7.3 at 0.2 on urban-transition): both optima lay
+    beyond the old edges, where fading is all but off.
+  * v0, revised a third time with issue 16: ``stkf`` and ``ma-stkf`` fade on state events only (the lower
+    confidence bound of the innovation excess a state error can explain, withheld while the measurements are
+    noisier than reported) and MA-STKF's measurement factor is per measurement type, from the snapshot-fit
+    residuals (:mod:`nav_filters.adaptive.strong_tracking`). The actions keep their ranges and meanings
+    (softening scales the noise term, fading_scale the ratio); policies trained before see another law.
+  * v0, revised with the issue "adaptive laws that never lose badly" (a version bump is due: the same seed and
+    actions give other episodes): the Sage-Husa Q law of ``sage-husa`` / ``svd-akf`` / ``svd-asrkf`` keeps the
+    applied Q at or above the nominal one (``q_lower='nominal'``, :class:`nav_filters.adaptive.SageHusa`), so
+    ``GnssIns/SageHusa-v0``'s ``q_scale`` feature no longer falls below ~1; the per-satellite R law of those and
+    ``sage-husa-r`` divides each deleted-residual sample by its epoch's median (``median_guard``), which changes
+    the per-satellite health features. Action ranges and meanings unchanged.
 """
 from __future__ import annotations
 
@@ -253,7 +267,7 @@ class GnssInsTuningEnv(gym.Env):
 
 
 class SageHusaEnv(GnssInsTuningEnv):
-    """``GnssIns/SageHusa-v0``: the action sets the Sage-Husa forgetting factor ``b`` in [0.30, 0.9999]
+    """``GnssIns/SageHusa-v1``: the action sets the Sage-Husa forgetting factor ``b`` in [0.30, 0.9999]
     (``log(1 - b)`` linear in the action; default b = 0.98 <-> action 0.06). Methods: ``sage-husa``,
     ``svd-akf``, ``svd-asrkf``, ``sage-husa-r``, ``sage-husa-group`` (``+onestep`` allowed).
 
@@ -268,7 +282,7 @@ class SageHusaEnv(GnssInsTuningEnv):
 
 
 class StkfEnv(GnssInsTuningEnv):
-    """``GnssIns/STKF-v0``: the action sets the strong-tracking softening factor in [0.2, 1000] (log-uniform,
+    """``GnssIns/STKF-v1``: the action sets the strong-tracking softening factor in [0.2, 1000] (log-uniform,
     default 1)."""
 
     PARAMS = STKF_PARAMS
@@ -276,7 +290,7 @@ class StkfEnv(GnssInsTuningEnv):
 
 
 class MaStkfEnv(GnssInsTuningEnv):
-    """``GnssIns/MASTKF-v0``: the action sets the MA-STKF forgetting factor ``b`` in [0.90, 0.9999] (default
+    """``GnssIns/MASTKF-v1``: the action sets the MA-STKF forgetting factor ``b`` in [0.90, 0.9999] (default
     0.987) and the fading-factor scaling in [0.01, 5] (default 1)."""
 
     PARAMS = MASTKF_PARAMS

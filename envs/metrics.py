@@ -130,6 +130,21 @@ def no_ci_text(min_episodes: int = MIN_CI_EPISODES) -> str:
     return f"n < {min_episodes}: no CI"
 
 
+VERDICTS = ("lower", "higher", "not significant", "no CI")
+"""The verdicts of a paired difference (:func:`paired_verdict`)."""
+
+
+def paired_verdict(p: dict, min_episodes: int = MIN_CI_EPISODES) -> str:
+    """The verdict of a paired difference ``p`` (:func:`paired_difference`: method minus reference):
+    ``'lower'`` (its 95% CI lies below 0: the method's RMSE is lower), ``'higher'`` (above 0),
+    ``'not significant'`` (the CI includes 0), ``'no CI'`` (fewer than ``min_episodes`` paired episodes, or a
+    missing or non-finite CI, as results.json's null)."""
+    lo, hi = (np.nan if v is None else float(v) for v in (p.get("diff_rmse_h_ci95_m") or (None, None)))
+    if p["episodes"] < min_episodes or not (np.isfinite(lo) and np.isfinite(hi)):
+        return "no CI"
+    return "lower" if hi < 0 else "higher" if lo > 0 else "not significant"
+
+
 def episode_mse(log: EpisodeLog) -> np.ndarray:
     """(E,) mean squared horizontal error of each episode [m^2] (NaN where non-finite)."""
     return np.mean(log.horizontal_error ** 2, axis=1)

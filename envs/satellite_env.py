@@ -8,13 +8,13 @@ satellite of the coming GNSS epoch on its own, one action component per receiver
 | id | a channel's action sets | default method |
 |---|---|---|
 | ``GnssIns/SatelliteR-v0`` | the base-10 log of the inflation of the channel's reported pseudorange and pseudorange-rate variances, in [0, 4] (x1 to x10^4), applied before the epoch's update | ``kf`` (any method: form, adaptive law, robust screen, ``+fde``, ``+onestep``) |
-| ``GnssIns/SatelliteSageHusa-v0`` | the forgetting factor ``b_i`` of the satellite's own Sage-Husa R recursion, in [0.30, 0.9999] (``GnssIns/SageHusa-v0``'s range and map) | ``sage-husa`` (any per-satellite Sage-Husa method: ``svd-akf``, ``svd-asrkf``, ``sage-husa-r``, with ``+fde`` / ``+onestep``) |
+| ``GnssIns/SatelliteSageHusa-v0`` | the forgetting factor ``b_i`` of the satellite's own Sage-Husa R recursion, in [0.30, 0.9999] (``GnssIns/SageHusa-v1``'s range and map) | ``sage-husa`` (any per-satellite Sage-Husa method: ``svd-akf``, ``svd-asrkf``, ``sage-husa-r``, with ``+fde`` / ``+onestep``) |
 
 SatelliteR inflates the variance the receiver reports before the filter sees it (the filter then runs unchanged,
 whatever its method): the action space in which ``oracle-r`` (the simulator's true variance per satellite and
 epoch) is the floor. SatelliteSageHusa writes each channel's ``b`` to its satellite's pseudorange and rate keys
 (:meth:`nav_filters.adaptive.SageHusa.set_satellite_params`); the row's own ``b`` (the Q law, the group scales)
-stays at 0.98, ``GnssIns/SageHusa-v0``'s default.
+stays at 0.98, ``GnssIns/SageHusa-v1``'s default.
 
 Channels are a set: the receiver orders them as it likes (the simulated one by elevation, so a satellite moves
 between channels), satellites rise and set. Channel i of an action is channel i of the epoch the observation
@@ -26,7 +26,7 @@ correspondingly permuted actions, gives the same trajectory (to rounding; test).
 
 ``Box(-1, 1, shape=(C,), float32)``, ``C = channels`` (default: the scenario's receiver channels, 16 for the
 simulated ones; a recording's own channel count). A channel's action maps linearly to ``log10_inflation`` in
-[0, 4] (-1: x1, the default; 1: x10^4) in SatelliteR, and as ``GnssIns/SageHusa-v0``'s ``b`` (``log(1 - b)``
+[0, 4] (-1: x1, the default; 1: x10^4) in SatelliteR, and as ``GnssIns/SageHusa-v1``'s ``b`` (``log(1 - b)``
 linear, -1: 0.30, 1: 0.9999, default 0.98 <-> 0.06) in SatelliteSageHusa. Values outside [-1, 1] are clipped,
 NaN or inf raise ``ValueError``. The components of channels without a satellite (mask 0) are ignored.
 
@@ -105,7 +105,7 @@ INFLATION_SPEC = ParamSpec("log10_inflation", 0.0, 4.0, "linear", 0.0,
                            "base-10 log of the inflation of a channel's reported variances (x1 to x10^4)")
 """SatelliteR's channel action: ``log10`` of the factor on the reported pseudorange and rate variances."""
 SATELLITE_B_SPEC = dataclasses.replace(SAGE_HUSA_PARAMS[0], description="a satellite's Sage-Husa forgetting factor")
-"""SatelliteSageHusa's channel action: the b of ``GnssIns/SageHusa-v0``, per satellite."""
+"""SatelliteSageHusa's channel action: the b of ``GnssIns/SageHusa-v1``, per satellite."""
 MAX_CHANNELS = 128
 """Most channels of a per-satellite env (``channels``)."""
 

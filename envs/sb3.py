@@ -8,7 +8,7 @@ step (``SAME_STEP``), so the adapter only reshapes its outputs.
 Usage::
 
     from envs.sb3 import make_sb3_vec_env
-    venv = make_sb3_vec_env("GnssIns/SageHusa-v0", n_envs=16, seed=0, episode_length_s=60.0)
+    venv = make_sb3_vec_env("GnssIns/SageHusa-v1", n_envs=16, seed=0, episode_length_s=60.0)
     model = stable_baselines3.PPO("MlpPolicy", venv)
 """
 from __future__ import annotations

@@ -147,21 +147,21 @@ class GnssInsTuningVectorEnv(VectorEnv):
 
 
 class SageHusaVectorEnv(GnssInsTuningVectorEnv):
-    """Vector ``GnssIns/SageHusa-v0``."""
+    """Vector ``GnssIns/SageHusa-v1``."""
 
     PARAMS = SAGE_HUSA_PARAMS
     DEFAULTS = {"method": "sage-husa"}
 
 
 class StkfVectorEnv(GnssInsTuningVectorEnv):
-    """Vector ``GnssIns/STKF-v0``."""
+    """Vector ``GnssIns/STKF-v1``."""
 
     PARAMS = STKF_PARAMS
     DEFAULTS = {"method": "stkf"}
 
 
 class MaStkfVectorEnv(GnssInsTuningVectorEnv):
-    """Vector ``GnssIns/MASTKF-v0``."""
+    """Vector ``GnssIns/MASTKF-v1``."""
 
     PARAMS = MASTKF_PARAMS
     DEFAULTS = {"method": "ma-stkf"}

@@ -7,7 +7,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
 PY=.venv/bin/python
-ENV=GnssIns/SageHusa-v0
+ENV=GnssIns/SageHusa-v1
 SCENARIOS=(noise-burst urban open-sky)
 $PY train.py rl --env "$ENV" --algo ppo --quick --seed 0 --out runs/main
 # the optimized fixed b per evaluated scenario, on full-length training episodes (the distribution the

@@ -22,7 +22,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 if [ -z "${PY:-}" ]; then bash scripts/setup.sh; PY=.venv/bin/python; fi
 export OMP_NUM_THREADS=1 MKL_NUM_THREADS=1
-ENV=GnssIns/SageHusa-v0
+ENV=GnssIns/SageHusa-v1
 SCENARIOS="urban urban-transition noise-mismatch regime-switch noise-burst open-sky"
 SWEEP=${SWEEP:-configs/results.yml}
 SWEEP_VARIANTS=${SWEEP_VARIANTS:-configs/results_variants.yml}

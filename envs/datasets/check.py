@@ -138,13 +138,26 @@ def format_check(c: DatasetCheck) -> str:
     return "\n".join(lines)
 
 
+def build_parser():
+    """The parser of ``python -m envs.datasets`` (its help names the shipped specs)."""
+    import argparse
+    from .spec import SPEC_DIR
+    shipped = "".join(f"\n  {f.stem}" for f in sorted(SPEC_DIR.glob("*.toml")))
+    p = argparse.ArgumentParser(
+        prog="python -m envs.datasets", formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Recorded data sets, replayed as scenarios of eval.py and the environments. A dataset spec\n"
+                    "is a small TOML file naming the observation, navigation and truth files.",
+        epilog="shipped specs (give the name or a path to your own *.toml):" + shipped)
+    sub = p.add_subparsers(dest="cmd", required=True)
+    c = sub.add_parser("check", help="load a dataset spec (path or shipped name), check its data for physical "
+                                     "plausibility and print its summary")
+    c.add_argument("spec", nargs="+", help="dataset spec file (*.toml) or shipped name")
+    return p
+
+
 def main(argv=None) -> int:
     """Command line: ``python -m envs.datasets check SPEC_OR_NAME [...]``; returns the exit status."""
-    import argparse
-    p = argparse.ArgumentParser(prog="python -m envs.datasets", description="recorded data sets (issue 12)")
-    sub = p.add_subparsers(dest="cmd", required=True)
-    c = sub.add_parser("check", help="load a dataset spec (path or shipped name) and print its summary")
-    c.add_argument("spec", nargs="+", help="dataset spec file (*.toml) or shipped name")
+    p = build_parser()
     args = p.parse_args(argv)
     from .spec import dataset_spec_of
     status = 0

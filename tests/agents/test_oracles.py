@@ -29,11 +29,11 @@ def _row(d, b):
 
 
 @pytest.mark.parametrize("env_id, kw", [
-    ("GnssIns/SageHusa-v0", {}),
-    ("GnssIns/SageHusa-v0", {"method": "svd-asrkf", "reward": "advantage", "history": 3}),
-    ("GnssIns/STKF-v0", {}),
-    ("GnssIns/MASTKF-v0", {"zupt": "truth"}),
-    ("GnssIns/STKF-v0", {"scenario": "seed003-sim", "episode_length_s": 40.0}),  # odometer rows (world array)
+    ("GnssIns/SageHusa-v1", {}),
+    ("GnssIns/SageHusa-v1", {"method": "svd-asrkf", "reward": "advantage", "history": 3}),
+    ("GnssIns/STKF-v1", {}),
+    ("GnssIns/MASTKF-v1", {"zupt": "truth"}),
+    ("GnssIns/STKF-v1", {"scenario": "seed003-sim", "episode_length_s": 40.0}),  # odometer rows (world array)
 ])
 def test_core_copy_rows_continues_bit_identically(env_id, kw):
     """Rows 0 <- 1 and 2 <- 0 (overlapping, different worlds) continue exactly like the uncopied rows."""
@@ -60,7 +60,7 @@ def test_core_copy_rows_continues_bit_identically(env_id, kw):
 
 
 def test_clone_is_an_independent_snapshot():
-    core = _core("GnssIns/SageHusa-v0", 2)
+    core = _core("GnssIns/SageHusa-v1", 2)
     core.reset_rows(np.arange(2), [5, 6])
     for _ in range(5):
         core.step(np.zeros((2, 1)))
@@ -78,12 +78,12 @@ def test_clone_is_an_independent_snapshot():
 
 
 def test_copy_rows_refuses_stateful_zupt_detectors():
-    core = _core("GnssIns/SageHusa-v0", 2, zupt="shoe")
+    core = _core("GnssIns/SageHusa-v1", 2, zupt="shoe")
     core.reset_rows(np.arange(2), [1, 2])
     with pytest.raises(ValueError, match="'shoe' zero-velocity detector.*needs zupt='none'"):
         core.copy_rows([0], [1])
     with pytest.raises(RuntimeError, match="reset"):
-        _core("GnssIns/SageHusa-v0", 2).copy_rows([0], [1])
+        _core("GnssIns/SageHusa-v1", 2).copy_rows([0], [1])
 
 
 # --------------------------------------------------------------------------- oracles
@@ -91,7 +91,7 @@ from agents.oracles import (action_grid, best_per_episode, crossfit_schedule, ep
                             greedy_schedule, resolve_grid)
 from agents.policies import ConstantPolicy, ScheduledPolicy  # noqa: E402
 
-SH = "GnssIns/SageHusa-v0"
+SH = "GnssIns/SageHusa-v1"
 KW = {"scenario": "noise-burst", "episode_length_s": 30.0}
 BOUND = 1000.0
 
@@ -232,10 +232,10 @@ def test_reactive_rule_lowers_b_while_the_satellites_look_degraded_and_holds_it(
     np.testing.assert_allclose(1 - b[:, 0], 1e-4, rtol=1e-5)
     np.testing.assert_allclose(1 - b[:3, 1], 0.1, rtol=1e-5)  # the degraded epoch, then held 2 epochs
     np.testing.assert_allclose(1 - b[3, 1], 1e-4, rtol=1e-5)
-    m = parse_method_spec("rule:GnssIns/SageHusa-v0[b_low=0.92,hold=3]")
+    m = parse_method_spec("rule:GnssIns/SageHusa-v1[b_low=0.92,hold=3]")
     assert isinstance(m, RuleMethod) and m.options == {"b_low": 0.92, "hold": 3}
-    for bad, msg in (("rule:GnssIns/SageHusa-v0[q=1]", "unknown option"),
-                     ("rule:GnssIns/SageHusa-v0[b_low=0.2]", "b_low must lie"),
-                     ("rule:GnssIns/STKF-v0", "Sage-Husa forgetting factor")):
+    for bad, msg in (("rule:GnssIns/SageHusa-v1[q=1]", "unknown option"),
+                     ("rule:GnssIns/SageHusa-v1[b_low=0.2]", "b_low must lie"),
+                     ("rule:GnssIns/STKF-v1", "Sage-Husa forgetting factor")):
         with pytest.raises(ValueError, match=msg):
             parse_method_spec(bad)

@@ -14,10 +14,10 @@ KW = {"scenario": "urban", "episode_length_s": 30.0}
 @pytest.fixture(scope="module", params=["ppo", "recurrentppo"])
 def policy(request):
     from agents.policies import algo_class
-    env = gym.make("GnssIns/SageHusa-v0", **KW)
+    env = gym.make("GnssIns/SageHusa-v1", **KW)
     policy_name = "MlpLstmPolicy" if request.param == "recurrentppo" else "MlpPolicy"
     model = algo_class(request.param)(policy_name, env, n_steps=16, batch_size=16, seed=3, device="cpu")
-    return Sb3Policy(model, request.param, env_id="GnssIns/SageHusa-v0", env_kwargs=KW)
+    return Sb3Policy(model, request.param, env_id="GnssIns/SageHusa-v1", env_kwargs=KW)
 
 
 def test_actions_do_not_depend_on_the_batch(policy):
@@ -35,7 +35,7 @@ def test_actions_do_not_depend_on_the_batch(policy):
 
 def test_episodes_are_bit_identical_run_together_or_one_by_one(policy):
     seeds = [5, 6, 7]
-    together = run_policy_episodes("GnssIns/SageHusa-v0", KW, policy, seeds)
+    together = run_policy_episodes("GnssIns/SageHusa-v1", KW, policy, seeds)
     for i, s in enumerate(seeds):
-        alone = run_policy_episodes("GnssIns/SageHusa-v0", KW, policy, [s])
+        alone = run_policy_episodes("GnssIns/SageHusa-v1", KW, policy, [s])
         np.testing.assert_array_equal(together.pos_err_ned[i], alone.pos_err_ned[0])

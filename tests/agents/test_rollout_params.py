@@ -17,8 +17,8 @@ class Constant:
 
 
 def test_params_are_the_actions_in_parameter_units():
-    spec = env_class("GnssIns/SageHusa-v0").PARAMS[0]
-    log = run_policy_episodes("GnssIns/SageHusa-v0", {"episode_length_s": 5.0}, Constant(np.array([0.25])), [3, 4])
+    spec = env_class("GnssIns/SageHusa-v1").PARAMS[0]
+    log = run_policy_episodes("GnssIns/SageHusa-v1", {"episode_length_s": 5.0}, Constant(np.array([0.25])), [3, 4])
     assert set(log.params) == {spec.name}
     v = log.params[spec.name]
     assert v.shape == log.horizontal_error.shape

@@ -21,9 +21,9 @@ ROOT = Path(__file__).resolve().parents[2]
     *[("prefetch_worlds", v, "prefetch_worlds must be an int >= 0") for v in ("-1", "2.5", "true")]])
 def test_run_settings_are_checked_before_any_work(tmp_path, key, value, message):
     cfg = tmp_path / "c.yml"
-    cfg.write_text(f"GnssIns/SageHusa-v0:\n  {key}: {value}\n")
+    cfg.write_text(f"GnssIns/SageHusa-v1:\n  {key}: {value}\n")
     with pytest.raises(ValueError, match=message):
-        train_rl("GnssIns/SageHusa-v0", "ppo", tmp_path / "out", config_file=cfg, progress=False)
+        train_rl("GnssIns/SageHusa-v1", "ppo", tmp_path / "out", config_file=cfg, progress=False)
     assert not (tmp_path / "out").exists()
 
 
@@ -46,7 +46,7 @@ CHILD = textwrap.dedent("""
         return train(self)
 
     ActorCriticPolicy.forward, PPO.train = counted_forward, counted_train
-    train_rl("GnssIns/SageHusa-v0", "ppo", sys.argv[1], config_file=sys.argv[2], progress=False)
+    train_rl("GnssIns/SageHusa-v1", "ppo", sys.argv[1], config_file=sys.argv[2], progress=False)
     print(json.dumps({"numba": numba.get_num_threads(), **{k: sorted(v) for k, v in seen.items()}}))
 """)
 
@@ -60,7 +60,7 @@ def test_torch_threads_hold_after_numba_parallel_kernels(tmp_path):
     n_envs = 64
     assert n_envs >= PARALLEL_MIN_BATCH
     cfg = tmp_path / "c.yml"
-    cfg.write_text("GnssIns/SageHusa-v0:\n"
+    cfg.write_text("GnssIns/SageHusa-v1:\n"
                    f"  n_envs: {n_envs}\n  n_timesteps: {2 * n_envs}\n  n_steps: 2\n  batch_size: {n_envs}\n"
                    "  n_epochs: 1\n  normalize: false\n  eval_episodes: 1\n  torch_threads: 1\n"
                    "  env_kwargs: {episode_length_s: 5.0}\n")
@@ -82,7 +82,7 @@ def test_ppo_default_uses_torchs_fused_adam():
     from envs.sb3 import make_sb3_vec_env
 
     hp = dict(DEFAULT_HYPERPARAMS["ppo"])
-    model = PPO(hp.pop("policy"), make_sb3_vec_env("GnssIns/SageHusa-v0", 2, seed=0, episode_length_s=10.0),
+    model = PPO(hp.pop("policy"), make_sb3_vec_env("GnssIns/SageHusa-v1", 2, seed=0, episode_length_s=10.0),
                 device="cpu", **hp)
     opt = model.policy.optimizer
     assert type(opt).__name__ == "Adam" and opt.defaults["fused"] is True
@@ -97,11 +97,11 @@ def test_the_evaluations_of_a_run_repeat_with_its_seed(tmp_path):
     import numpy as np
 
     cfg = tmp_path / "c.yml"
-    cfg.write_text("GnssIns/SageHusa-v0:\n  n_envs: 2\n  n_timesteps: 64\n  n_steps: 8\n  batch_size: 16\n"
+    cfg.write_text("GnssIns/SageHusa-v1:\n  n_envs: 2\n  n_timesteps: 64\n  n_steps: 8\n  batch_size: 16\n"
                    "  n_epochs: 1\n  eval_episodes: 2\n  prefetch_worlds: 0\n  env_kwargs: {episode_length_s: 4.0}\n")
     runs = []
     for k in range(2):
-        train_rl("GnssIns/SageHusa-v0", "ppo", tmp_path / f"run{k}", config_file=cfg, seed=3, progress=False)
+        train_rl("GnssIns/SageHusa-v1", "ppo", tmp_path / f"run{k}", config_file=cfg, seed=3, progress=False)
         runs.append(np.load(tmp_path / f"run{k}" / "eval" / "evaluations.npz")["results"])
     assert runs[0].shape[0] >= 3  # several evaluations
     np.testing.assert_array_equal(runs[0], runs[1])
@@ -122,9 +122,9 @@ def test_the_training_worlds_keep_their_seed_base_after_sb3_seeds_the_env(tmp_pa
 
     monkeypatch.setattr(GnssInsTuningVectorEnv, "_seed_rows", record)
     cfg = tmp_path / "c.yml"
-    cfg.write_text("GnssIns/SageHusa-v0:\n  n_envs: 2\n  n_timesteps: 16\n  n_steps: 8\n  batch_size: 16\n"
+    cfg.write_text("GnssIns/SageHusa-v1:\n  n_envs: 2\n  n_timesteps: 16\n  n_steps: 8\n  batch_size: 16\n"
                    "  n_epochs: 1\n  eval_episodes: 1\n  prefetch_worlds: 0\n  env_kwargs: {episode_length_s: 4.0}\n")
-    config = train_rl("GnssIns/SageHusa-v0", "ppo", tmp_path / "run", config_file=cfg, seed=3, progress=False)
+    config = train_rl("GnssIns/SageHusa-v1", "ppo", tmp_path / "run", config_file=cfg, seed=3, progress=False)
     assert seen[0] == config["train_seed_base"] == 3 * 10_007  # the training env's first reset
     assert config["eval_seed_base"] in seen and 3 not in seen
 
@@ -140,15 +140,15 @@ def test_best_and_checkpoint_models_load_with_the_statistics_they_were_saved_wit
     from agents.policies import Sb3Policy
 
     cfg = tmp_path / "c.yml"
-    cfg.write_text("GnssIns/SageHusa-v0:\n  n_envs: 2\n  n_timesteps: 64\n  n_steps: 8\n  batch_size: 16\n"
+    cfg.write_text("GnssIns/SageHusa-v1:\n  n_envs: 2\n  n_timesteps: 64\n  n_steps: 8\n  batch_size: 16\n"
                    "  n_epochs: 1\n  eval_episodes: 1\n  prefetch_worlds: 0\n  env_kwargs: {episode_length_s: 4.0}\n")
     out = tmp_path / "run"
-    train_rl("GnssIns/SageHusa-v0", "ppo", out, config_file=cfg, seed=0, progress=False)
+    train_rl("GnssIns/SageHusa-v1", "ppo", out, config_file=cfg, seed=0, progress=False)
     best = Sb3Policy.load(out / "best" / "best_model.zip", "ppo")
     with open(out / "best" / "vecnormalize.pkl", "rb") as f:
         saved = pickle.load(f)
     np.testing.assert_array_equal(best.obs_rms.mean, saved.obs_rms.mean)
-    assert best.env_id == "GnssIns/SageHusa-v0"  # the run's config.json, one folder up
+    assert best.env_id == "GnssIns/SageHusa-v1"  # the run's config.json, one folder up
     ckpt = sorted((out / "checkpoints").glob("model_*_steps.zip"))[0]
     steps = ckpt.stem.split("_")[1]
     with open(out / "checkpoints" / f"model_vecnormalize_{steps}_steps.pkl", "rb") as f:

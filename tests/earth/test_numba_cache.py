@@ -76,3 +76,37 @@ def test_the_import_graph_follows_relative_absolute_and_package_imports(tmp_path
 def test_importing_earth_recorded_the_sources_of_this_tree():
     root = Path(earth.__file__).resolve().parents[1]
     assert json.loads((root / RECORD).read_text()) == module_hashes(root)
+
+
+def test_compile_notice_once_when_a_kernel_of_the_packages_compiles():
+    """The first run of a checkout compiles navgym's kernels for minutes: one line says so, once; kernels of other
+    packages and a second compilation say nothing."""
+    import io
+
+    import numba
+    from numba.core import event
+
+    from earth.numba_cache import COMPILE_NOTICE, CompileNotice
+
+    def f(x):
+        return x + 1
+
+    def g(x):
+        return 2 * x
+    out = io.StringIO()
+    mine = f.__module__.split(".")[0]
+    with event.install_listener("numba:compile", CompileNotice(out, packages=("not-this-one",))):
+        numba.njit(f)(1)
+    assert out.getvalue() == ""  # another package's kernel
+    with event.install_listener("numba:compile", CompileNotice(out, packages=(mine,))):
+        assert numba.njit(f)(1) == 2 and numba.njit(g)(2) == 4 and numba.njit(f)(1.5) == 2.5
+    assert out.getvalue() == COMPILE_NOTICE + "\n"
+    assert "compiling" in COMPILE_NOTICE and "once" in COMPILE_NOTICE
+
+
+def test_the_announcer_is_one_listener_per_process():
+    from numba.core import event
+
+    from earth.numba_cache import announce_compilation
+    a = announce_compilation()
+    assert announce_compilation() is a and event._registered["numba:compile"].count(a) == 1

@@ -370,6 +370,6 @@ def test_the_env_refuses_an_impossible_value_naming_file_and_line(tmp_path, monk
                          lambda v: v * 1e7)
     p = _smartloc_copy(tmp_path, "Input", data)
     monkeypatch.setenv("NAVGYM_DATA_DIR", str(tmp_path))
-    env = gym.make("GnssIns/SageHusa-v0", scenario="smartloc-potsdamer-platz", episode_length_s=10.0)
+    env = gym.make("GnssIns/SageHusa-v1", scenario="smartloc-potsdamer-platz", episode_length_s=10.0)
     err = _expect(p, lambda: env.reset(seed=0))
     assert err.line == line and "receiver clock bias beyond" in str(err)

@@ -201,7 +201,7 @@ def test_reach_spec_through_eval_and_gym(tmp_path, capsys):
     assert (tmp_path / "out" / "results.json").is_file()
     err = capsys.readouterr().err
     assert "GPS: 1 of 11 satellites observed have no healthy ephemeris" in err and "(G22)" in err
-    env = gym.make("GnssIns/SageHusa-v0", scenario=str(spec), episode_length_s=20.0)
+    env = gym.make("GnssIns/SageHusa-v1", scenario=str(spec), episode_length_s=20.0)
     obs, _ = env.reset(seed=3)
     assert isinstance(env.unwrapped.config.resolve_scenario(), ReplayScenario)
     for _ in range(3):

@@ -35,47 +35,47 @@ FAST = dict(episode_length_s=5.0)
 ])
 def test_bad_argument_fails_at_construction_naming_it(kwargs, msg):
     with pytest.raises(ValueError) as e:
-        gym.make("GnssIns/SageHusa-v0", **kwargs)
+        gym.make("GnssIns/SageHusa-v1", **kwargs)
     assert msg in str(e.value)
 
 
 def test_unknown_scenario_lists_the_recorded_data_sets_too():
     with pytest.raises(ValueError, match="smartloc-potsdamer-platz"):
-        gym.make("GnssIns/STKF-v0", scenario="potsdam")
+        gym.make("GnssIns/STKF-v1", scenario="potsdam")
 
 
 def test_method_of_another_env_fails_at_construction_not_at_reset():
     with pytest.raises(ValueError, match="methods that do: ma-stkf"):
-        gym.make_vec("GnssIns/MASTKF-v0", num_envs=2, vectorization_mode="vector_entry_point", method="sage-husa")
-    gym.make("GnssIns/MASTKF-v0", method="ma-stkf+onestep", **FAST)  # its own method, with the suffix, is fine
+        gym.make_vec("GnssIns/MASTKF-v1", num_envs=2, vectorization_mode="vector_entry_point", method="sage-husa")
+    gym.make("GnssIns/MASTKF-v1", method="ma-stkf+onestep", **FAST)  # its own method, with the suffix, is fine
 
 
-@pytest.mark.parametrize("env_id, method", [("GnssIns/STKF-v0", "ma-stkf"), ("GnssIns/SageHusa-v0", "ma-stkf+fde")])
+@pytest.mark.parametrize("env_id, method", [("GnssIns/STKF-v1", "ma-stkf"), ("GnssIns/SageHusa-v1", "ma-stkf+fde")])
 def test_a_method_of_another_law_is_refused_even_when_it_has_a_parameter_of_that_name(env_id, method):
     """ma-stkf takes a 'softening' and a 'b' too, with another meaning: the env would tune the wrong knob."""
     for make in (lambda: gym.make(env_id, method=method, **FAST),
                  lambda: gym.make_vec(env_id, num_envs=2, vectorization_mode="vector_entry_point", method=method)):
         with pytest.raises(ValueError, match=rf"method '{re.escape(method)}' runs another adaptive law "
-                                             r"\(MeasurementAdaptiveSTKF\).*has its own env: GnssIns/MASTKF-v0"):
+                                             r"\(MeasurementAdaptiveSTKF\).*has its own env: GnssIns/MASTKF-v1"):
             make()
-    gym.make("GnssIns/STKF-v0", method="stkf+fde", **FAST)                 # the env's own law, with suffixes
-    gym.make("GnssIns/SageHusa-v0", method="svd-asrkf+onestep", **FAST)
+    gym.make("GnssIns/STKF-v1", method="stkf+fde", **FAST)                 # the env's own law, with suffixes
+    gym.make("GnssIns/SageHusa-v1", method="svd-asrkf+onestep", **FAST)
 
 
 @pytest.mark.parametrize("n", [2.7, "3", 10**7, MAX_BATCH + 1, True, 0, -1, None])
 def test_num_envs_must_be_an_int_within_limits(n):
     with pytest.raises(ValueError, match=rf"num_envs must be an int in \[1, {MAX_BATCH}\], got {n!r}"):
-        gym.make_vec("GnssIns/SageHusa-v0", num_envs=n, vectorization_mode="vector_entry_point", **FAST)
+        gym.make_vec("GnssIns/SageHusa-v1", num_envs=n, vectorization_mode="vector_entry_point", **FAST)
 
 
 def test_num_envs_accepts_numpy_ints():
-    venv = gym.make_vec("GnssIns/SageHusa-v0", num_envs=np.int64(2), vectorization_mode="vector_entry_point", **FAST)
+    venv = gym.make_vec("GnssIns/SageHusa-v1", num_envs=np.int64(2), vectorization_mode="vector_entry_point", **FAST)
     assert venv.num_envs == 2 and isinstance(venv.num_envs, int)
 
 
 @pytest.fixture(scope="module")
 def venv256():
-    venv = gym.make_vec("GnssIns/SageHusa-v0", num_envs=256, vectorization_mode="vector_entry_point", **FAST)
+    venv = gym.make_vec("GnssIns/SageHusa-v1", num_envs=256, vectorization_mode="vector_entry_point", **FAST)
     venv.reset(seed=0)
     return venv
 
@@ -110,7 +110,7 @@ def test_a_nan_action_names_the_rows_in_one_short_line(venv256):
 
 
 def test_single_env_rejects_a_complex_action():
-    env = gym.make("GnssIns/SageHusa-v0", **FAST)
+    env = gym.make("GnssIns/SageHusa-v1", **FAST)
     env.reset(seed=0)
     with pytest.raises(ValueError, match="real numbers"):
         env.step(np.array([0.5 + 1j]))

@@ -57,9 +57,45 @@ def test_seeded_determinism_full_episode(env_id):
     assert not np.array_equal(a[1][0], c[1][0])
 
 
+@pytest.mark.parametrize("old", sorted(envs.OUTDATED_ENV_IDS))
+def test_outdated_v0_ids_make_the_current_env_with_gymnasiums_warning(old):
+    """``-v0`` of the three scalar envs stays makeable: Gymnasium warns that it is out of date and names v1, and
+    it builds v1's environment (the same episode for the same seed and actions); v1 itself does not warn."""
+    from gymnasium.envs.registration import parse_env_id
+    new = envs.OUTDATED_ENV_IDS[old]
+    assert new in ENV_IDS and old not in ENV_IDS and envs.is_env_id(old) and envs.current_env_id(old) == new
+    (ns, name, v_old), (ns1, name1, v_new) = parse_env_id(old), parse_env_id(new)
+    assert (ns, name) == (ns1, name1) and (v_old, v_new) == (0, 1)
+    with pytest.warns(DeprecationWarning, match=rf"{old} is out of date.*upgrading to version `v1`"):
+        e_old = gym.make(old, **FAST)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DeprecationWarning)  # the current id: no out-of-date warning
+        e_new = gym.make(new, **FAST)
+    assert e_old.spec.id == old and type(e_old.unwrapped) is type(e_new.unwrapped)
+    acts = np.random.default_rng(1).uniform(-1, 1, size=(3,) + e_new.action_space.shape).astype(np.float32)
+    for (o1, r1, *_), (o2, r2, *_) in zip(_rollout(e_old, 7, acts), _rollout(e_new, 7, acts)):
+        np.testing.assert_array_equal(o1, o2)
+        assert r1 == r2
+    with pytest.warns(DeprecationWarning, match=rf"{old} is out of date"):
+        v = gym.make_vec(old, num_envs=2, vectorization_mode="vector_entry_point", **FAST)
+    assert type(v.unwrapped) is type(gym.make_vec(new, num_envs=2, vectorization_mode="vector_entry_point",
+                                                    **FAST).unwrapped)
+
+
+def test_outdated_ids_warn_where_the_core_is_built_without_gym_make():
+    """``train.py tune``, eval.py's policies, rules and oracles take an env's class from its id
+    (:func:`agents.rollout.env_class`): an out-of-date id says there, once, which version runs."""
+    from agents.rollout import env_class
+    with pytest.warns(FutureWarning, match=r"GnssIns/STKF-v0 is out of date: it runs GnssIns/STKF-v1"):
+        assert env_class("GnssIns/STKF-v0") is env_class("GnssIns/STKF-v1")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        env_class("GnssIns/SatelliteR-v0")  # current: per-satellite ids stay at v0
+
+
 def _snapshot_rollout():
     # the recorded snapshot is of the exact per-sample composition (the reference eval.py runs)
-    env = gym.make("GnssIns/SageHusa-v0", exact_transition=True, fused_update=False, **FAST)
+    env = gym.make("GnssIns/SageHusa-v1", exact_transition=True, fused_update=False, **FAST)
     obs, _ = env.reset(seed=0)
     rec = {"obs0": obs.tolist(), "steps": []}
     for a in (-1.0, -0.5, 0.0, 0.5, 1.0):
@@ -83,7 +119,7 @@ def write_snapshot():
     SNAPSHOT.write_text(json.dumps(_snapshot_rollout(), indent=1))
 
 
-@pytest.mark.parametrize("env_id", ["GnssIns/SageHusa-v0", "GnssIns/MASTKF-v0", "GnssIns/SatelliteR-v0",
+@pytest.mark.parametrize("env_id", ["GnssIns/SageHusa-v1", "GnssIns/MASTKF-v1", "GnssIns/SatelliteR-v0",
                                     "GnssIns/SatelliteSageHusa-v0"])
 def test_vector_rows_equal_single_envs_across_autoreset(env_id):
     n, seed = 3, 40
@@ -118,7 +154,7 @@ def test_reset_without_a_seed_continues_every_rows_stream_as_the_single_env():
     after ``reset(seed=s + i)``; the same again in a second vector env (reproducible, as SB3's evaluation env
     reset at every evaluation needs)."""
     kw = dict(episode_length_s=3.0)
-    venvs = [gym.make_vec("GnssIns/SageHusa-v0", num_envs=3, vectorization_mode="vector_entry_point", **kw)
+    venvs = [gym.make_vec("GnssIns/SageHusa-v1", num_envs=3, vectorization_mode="vector_entry_point", **kw)
              for _ in range(2)]
     got = []
     for venv in venvs:
@@ -129,7 +165,7 @@ def test_reset_without_a_seed_continues_every_rows_stream_as_the_single_env():
         assert len({*first["seed"], *info["seed"], *third["seed"]}) == 9  # each reset: new worlds
     np.testing.assert_array_equal(got[0][0], got[1][0])
     np.testing.assert_array_equal(got[0][1], got[1][1])
-    env = gym.make("GnssIns/SageHusa-v0", **kw)
+    env = gym.make("GnssIns/SageHusa-v1", **kw)
     for i in range(3):
         env.reset(seed=7 + i)
         o, info = env.reset()
@@ -142,10 +178,10 @@ def test_reset_without_a_seed_continues_every_rows_stream_as_the_single_env():
 def test_world_seeds_are_apart_from_evaluation_seeds():
     """Training worlds come from [2**30, 2**31): never one of eval.py's episode seeds (< 2**30)."""
     from envs.core import TRAINING_WORLD_SEEDS
-    venv = gym.make_vec("GnssIns/SageHusa-v0", num_envs=4, vectorization_mode="vector_entry_point",
+    venv = gym.make_vec("GnssIns/SageHusa-v1", num_envs=4, vectorization_mode="vector_entry_point",
                         episode_length_s=2.0)
     _, info = venv.reset(seed=0)
-    env = gym.make("GnssIns/SageHusa-v0", episode_length_s=2.0)
+    env = gym.make("GnssIns/SageHusa-v1", episode_length_s=2.0)
     seeds = [env.reset(seed=s)[1]["seed"] for s in range(20)]
     assert list(info["seed"]) == seeds[:4]  # row i of the vector env = single env seeded i
     assert all(TRAINING_WORLD_SEEDS[0] <= s < TRAINING_WORLD_SEEDS[1] for s in seeds)
@@ -156,7 +192,7 @@ def test_sb3_ppo_trains_on_the_vector_env():
     from stable_baselines3 import PPO
     from stable_baselines3.common.logger import Logger
     from envs.sb3 import make_sb3_vec_env
-    venv = make_sb3_vec_env("GnssIns/SageHusa-v0", n_envs=4, seed=0, episode_length_s=6.0)
+    venv = make_sb3_vec_env("GnssIns/SageHusa-v1", n_envs=4, seed=0, episode_length_s=6.0)
     model = PPO("MlpPolicy", venv, n_steps=32, batch_size=64, n_epochs=1, seed=0, device="cpu")
     model.set_logger(Logger(None, []))  # SB3's default logger leaves an empty SB3-<time> folder in the temp dir
     model.learn(total_timesteps=256)
@@ -175,35 +211,35 @@ def test_sb3_ppo_trains_on_the_vector_env():
 
 
 def test_render_modes():
-    env = gym.make("GnssIns/SageHusa-v0", render_mode="rgb_array", **FAST)
+    env = gym.make("GnssIns/SageHusa-v1", render_mode="rgb_array", **FAST)
     env.reset(seed=1)
     for _ in range(3):
         env.step(env.action_space.sample())
     img = env.render()
     assert img.ndim == 3 and img.shape[2] == 3 and img.dtype == np.uint8 and img.std() > 0
-    env = gym.make("GnssIns/STKF-v0", render_mode="ansi", **FAST)
+    env = gym.make("GnssIns/STKF-v1", render_mode="ansi", **FAST)
     env.reset(seed=1)
     env.step(env.action_space.sample())
     assert "err_h=" in env.render()
 
 
 def test_bad_input_is_a_clear_error():
-    env = gym.make("GnssIns/SageHusa-v0", **FAST)
+    env = gym.make("GnssIns/SageHusa-v1", **FAST)
     env.reset(seed=0)
     with pytest.raises(ValueError, match="NaN"):
         env.step(np.array([np.nan], np.float32))
     with pytest.raises(ValueError, match="shape"):
         env.step(np.zeros(3, np.float32))
     with pytest.raises(ValueError, match="unknown scenario"):
-        gym.make("GnssIns/SageHusa-v0", scenario="moon")
+        gym.make("GnssIns/SageHusa-v1", scenario="moon")
     with pytest.raises(ValueError, match="unknown filter method"):
-        gym.make("GnssIns/SageHusa-v0", method="ukf")
+        gym.make("GnssIns/SageHusa-v1", method="ukf")
     with pytest.raises(ValueError, match="no adjustable parameters"):
-        gym.make("GnssIns/SageHusa-v0", method="kf", **FAST).reset(seed=0)
+        gym.make("GnssIns/SageHusa-v1", method="kf", **FAST).reset(seed=0)
     with pytest.raises(ValueError, match="unknown environment argument"):
-        gym.make("GnssIns/SageHusa-v0", scenaro="urban")
+        gym.make("GnssIns/SageHusa-v1", scenaro="urban")
     with pytest.raises(ValueError, match="reward"):
-        gym.make("GnssIns/SageHusa-v0", reward="profit")
+        gym.make("GnssIns/SageHusa-v1", reward="profit")
     # out-of-range actions are clipped (documented), not an error
     _, _, _, _, info = env.step(np.array([7.0], np.float32))
     assert info["b"] == pytest.approx(0.9999)

@@ -17,7 +17,7 @@ EPISODE_S = 4.0  # 4 steps per episode: automatic resets every 4 steps
 
 
 def _env(prefetch, B=3):
-    env = gym.make_vec("GnssIns/SageHusa-v0", num_envs=B, vectorization_mode="vector_entry_point",
+    env = gym.make_vec("GnssIns/SageHusa-v1", num_envs=B, vectorization_mode="vector_entry_point",
                        episode_length_s=EPISODE_S, prefetch_worlds=prefetch)
     if prefetch:
         assert env.unwrapped._prefetch.wait_ready(120)
@@ -108,7 +108,7 @@ def test_take_serves_requests_in_order_and_cancels_on_another_grouping():
 @pytest.mark.parametrize("value", [-1, 1.5, True, "2"])
 def test_prefetch_worlds_must_be_a_non_negative_int(value):
     with pytest.raises(ValueError, match="prefetch_worlds must be an int >= 0"):
-        gym.make_vec("GnssIns/SageHusa-v0", num_envs=2, vectorization_mode="vector_entry_point",
+        gym.make_vec("GnssIns/SageHusa-v1", num_envs=2, vectorization_mode="vector_entry_point",
                      prefetch_worlds=value)
 
 
@@ -118,7 +118,7 @@ def test_depth_must_be_positive():
 
 
 def test_reset_rows_rejects_a_prepared_world_of_other_seeds():
-    env = gym.make_vec("GnssIns/SageHusa-v0", num_envs=2, vectorization_mode="vector_entry_point",
+    env = gym.make_vec("GnssIns/SageHusa-v1", num_envs=2, vectorization_mode="vector_entry_point",
                        episode_length_s=EPISODE_S)
     core = env.unwrapped.core
     with pytest.raises(ValueError, match="prepared world holds seeds"):
@@ -134,7 +134,7 @@ def test_a_main_script_without_a_main_guard_can_prefetch(tmp_path):
     script = tmp_path / "plain.py"
     script.write_text(
         "import gymnasium as gym, numpy as np, envs\n"
-        "env = gym.make_vec('GnssIns/SageHusa-v0', num_envs=2, vectorization_mode='vector_entry_point',\n"
+        "env = gym.make_vec('GnssIns/SageHusa-v1', num_envs=2, vectorization_mode='vector_entry_point',\n"
         f"                   episode_length_s={EPISODE_S}, prefetch_worlds=1)\n"
         "assert env.unwrapped._prefetch.wait_ready(120)\n"
         "env.reset(seed=1)\n"

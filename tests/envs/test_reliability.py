@@ -39,7 +39,7 @@ last bits of float32 rounding, which differ between CPUs (numba compiles for the
 width): seeds 100 and 600 on one machine, 100, 900 and 1100 on an AVX-512 one."""
 
 
-@pytest.mark.parametrize("env_id", ["GnssIns/MASTKF-v0", "GnssIns/STKF-v0"])
+@pytest.mark.parametrize("env_id", ["GnssIns/MASTKF-v1", "GnssIns/STKF-v1"])
 def test_float32_strong_tracking_bang_bang_after_an_outage_keeps_failures_in_their_rows(env_id):
     """Before the fix ma-stkf (seed 100) raised LinAlgError from the Joseph update when GNSS returned (the
     navigator checked S in float64 with the raw R, not the update's float32 S with alpha R), and P became
@@ -48,7 +48,7 @@ def test_float32_strong_tracking_bang_bang_after_an_outage_keeps_failures_in_the
     covariances and flags without exercising the isolation; ma-stkf still pushes a row over the edge on some
     of :data:`MA_STKF_EDGE_SEEDS` (the test needs one, so that it exercises the isolation in the env; the
     isolation itself is tested deterministically in tests/nav_filters/test_failure_isolation.py)."""
-    if env_id == "GnssIns/STKF-v0":
+    if env_id == "GnssIns/STKF-v1":
         _bang_bang_outage(env_id, 600)
         return
     flagged = [_bang_bang_outage(env_id, s) for s in MA_STKF_EDGE_SEEDS]
@@ -74,7 +74,7 @@ def test_soak_no_exception_no_nonfinite_output_and_every_live_covariance_pd(env_
             assert (c.exceptions, c.nonfinite, c.non_pd, c.unexplained) == (0, 0, 0, 0), (scenario, actions, c)
             assert c.row_steps == 8 * 130
             total += c
-    if env_id == "GnssIns/MASTKF-v0":
+    if env_id == "GnssIns/MASTKF-v1":
         assert total.flagged > 0  # MA-STKF on outage does diverge: the flagging path is exercised (STKF
         # diverged here too until it faded on state events only, issue 16)
 
@@ -97,7 +97,7 @@ def test_soak_counts_an_escaped_exception_and_a_non_pd_covariance(monkeypatch):
         return out
 
     monkeypatch.setattr(Navigator, "update_gnss", indefinite)
-    c = soak("GnssIns/STKF-v0", scenario="open-sky", dtype="float64", actions="uniform", num_envs=2, steps=3,
+    c = soak("GnssIns/STKF-v1", scenario="open-sky", dtype="float64", actions="uniform", num_envs=2, steps=3,
              episode_length_s=10.0)
     assert c.non_pd >= 2 and c.exceptions == 0  # counted until the navigator flags the row (then reset)
 
@@ -105,6 +105,6 @@ def test_soak_counts_an_escaped_exception_and_a_non_pd_covariance(monkeypatch):
         raise np.linalg.LinAlgError("boom")
 
     monkeypatch.setattr(Navigator, "update_gnss", boom)
-    c = soak("GnssIns/STKF-v0", scenario="open-sky", dtype="float64", actions="uniform", num_envs=2, steps=3,
+    c = soak("GnssIns/STKF-v1", scenario="open-sky", dtype="float64", actions="uniform", num_envs=2, steps=3,
              episode_length_s=10.0)
-    assert c.exceptions == 1 and "LinAlgError: boom" in c.errors[0] and "GnssIns/STKF-v0 open-sky" in c.errors[0]
+    assert c.exceptions == 1 and "LinAlgError: boom" in c.errors[0] and "GnssIns/STKF-v1 open-sky" in c.errors[0]

@@ -126,14 +126,14 @@ def test_actions_of_empty_channels_are_ignored():
 
 @pytest.mark.parametrize("b", [0.5, 0.98])
 def test_one_b_on_every_satellite_is_the_scalar_sage_husa_env(b):
-    """Every channel at b gives GnssIns/SageHusa-v0 at b (the per-key b replaces the row's in the satellites'
+    """Every channel at b gives GnssIns/SageHusa-v1 at b (the per-key b replaces the row's in the satellites'
     recursions; the row's b is the scalar env's default, so at 0.98 the two laws are the same): to 1e-9, not bit
     for bit, since the scalar env's row b is the float32 action's 0.98 (0.98 + 4.8e-10) where the per-satellite env
     keeps the default 0.98 for the Q law, which never applies less than the nominal Q and so uses it."""
     a_b = float(SAGE_HUSA_PARAMS[0].to_action(b))
     kw = dict(episode_length_s=20.0, scenario="urban")
     sat = gym.make("GnssIns/SatelliteSageHusa-v0", **kw)
-    ref = gym.make("GnssIns/SageHusa-v0", **kw)
+    ref = gym.make("GnssIns/SageHusa-v1", **kw)
     o_s, _ = sat.reset(seed=4)
     o_r, _ = ref.reset(seed=4)
     for t in range(20):
@@ -149,7 +149,7 @@ def test_one_b_on_every_satellite_is_the_scalar_sage_husa_env(b):
 def test_satellite_r_without_inflation_is_the_method_itself():
     kw = dict(episode_length_s=15.0, scenario="noise-burst")
     sat = gym.make("GnssIns/SatelliteR-v0", method="sage-husa", **kw)
-    ref = gym.make("GnssIns/SageHusa-v0", **kw)
+    ref = gym.make("GnssIns/SageHusa-v1", **kw)
     sat.reset(seed=9)
     ref.reset(seed=9)
     for t in range(15):

@@ -234,17 +234,17 @@ def test_bad_option_names_the_field(urban):
 def test_env_kwarg_reaches_the_navigator():
     import gymnasium as gym
     import envs  # noqa: F401
-    env = gym.make("GnssIns/SageHusa-v0", scenario="noise-burst", episode_length_s=10.0, exact_transition=True)
+    env = gym.make("GnssIns/SageHusa-v1", scenario="noise-burst", episode_length_s=10.0, exact_transition=True)
     env.reset(seed=0)
     env.step(env.action_space.sample())
     assert env.unwrapped.core.nav.exact_transition is True
-    vec = gym.make_vec("GnssIns/SageHusa-v0", num_envs=2, vectorization_mode="vector_entry_point",
+    vec = gym.make_vec("GnssIns/SageHusa-v1", num_envs=2, vectorization_mode="vector_entry_point",
                        scenario="noise-burst", episode_length_s=10.0)
     vec.reset(seed=0)
     assert vec.core.nav.exact_transition is False  # the env default: the averaged dynamics (issue 11)
     assert navigator_for(generate_world("seed000-sim", [0]), "kf").exact_transition is True  # eval's default
     with pytest.raises(ValueError, match="exact_transition"):
-        gym.make("GnssIns/SageHusa-v0", exact_transition=1)
+        gym.make("GnssIns/SageHusa-v1", exact_transition=1)
 
 
 @pytest.mark.parametrize("method", ["kf", "sage-husa"])

@@ -239,17 +239,17 @@ def test_option_is_plumbed_off_for_the_navigator_and_on_for_the_envs():
     with pytest.raises(ValueError, match="fused_update"):
         NavigatorConfig(noise=process_noise_for(w), fused_update="yes")
     assert navigator_for(w, "sage-husa").form.fused is False
-    env = gym.make("GnssIns/SageHusa-v0", scenario="noise-burst", episode_length_s=10.0)
+    env = gym.make("GnssIns/SageHusa-v1", scenario="noise-burst", episode_length_s=10.0)
     env.reset(seed=0)
     env.step(env.action_space.sample())
     nav = env.unwrapped.core.nav
     assert nav.config.fused_update and nav.form.fused and nav.form.inner.fused  # the env default (issue 11)
-    vec = gym.make_vec("GnssIns/SageHusa-v0", num_envs=2, vectorization_mode="vector_entry_point",
+    vec = gym.make_vec("GnssIns/SageHusa-v1", num_envs=2, vectorization_mode="vector_entry_point",
                        scenario="noise-burst", episode_length_s=10.0, fused_update=False)
     vec.reset(seed=0)
     assert vec.core.nav.form.fused is False
     with pytest.raises(ValueError, match="fused_update"):
-        gym.make("GnssIns/SageHusa-v0", fused_update=1)
+        gym.make("GnssIns/SageHusa-v1", fused_update=1)
 
 
 def test_own_symmetric_eigendecomposition():

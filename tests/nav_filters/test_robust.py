@@ -133,9 +133,11 @@ def test_vb_plan_agrees_with_its_numpy_specification():
 
 
 # ------------------------------------------------------------------------------------------ fault exclusion
-def test_fde_excludes_one_gross_outlier_and_then_equals_kf_without_it():
+@pytest.mark.parametrize("fused", [False, True])
+def test_fde_excludes_one_gross_outlier_and_then_equals_kf_without_it(fused):
     """One pseudorange of eight 200 m off: kf-fde excludes exactly it, and its update equals kf's with that
-    satellite masked (float64, 1e-12 relative)."""
+    satellite masked (float64, 1e-12 relative), on the numpy path and on the fused compiled one (where the
+    excluded row reaches the kernel with its values and only the mask leaves it out)."""
     rng = np.random.default_rng(4)
     B, C = 5, 8
     H = gnss_rows(rng, B, C)
@@ -143,6 +145,8 @@ def test_fde_excludes_one_gross_outlier_and_then_equals_kf_without_it():
     R = np.full((B, C), 4.0)
     bad = rng.integers(0, C, B)
     fde, kf = make_form("kf-fde", P0), KalmanFilter(P0)
+    fde.set_fused(fused)
+    kf.set_fused(fused)
     Phi = np.eye(N) + 0.01 * rng.normal(size=(B, N, N))
     Q = 0.1 * np.broadcast_to(np.eye(N), (B, N, N))
     fde.predict(Phi, Q)

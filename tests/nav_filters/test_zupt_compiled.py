@@ -116,7 +116,7 @@ def test_env_with_a_detector_steps_the_same_with_and_without_the_compiled_passes
         pytest.importorskip("torch")
     out = []
     for compiled in (True, False):
-        env = gym.make("GnssIns/SageHusa-v0", episode_length_s=40.0, scenario="urban", zupt=zupt)
+        env = gym.make("GnssIns/SageHusa-v1", episode_length_s=40.0, scenario="urban", zupt=zupt)
         env.reset(seed=3)
         env.unwrapped.core._zupt.compiled = compiled  # the detector's step and the constraint block
         assert env.unwrapped.core._zupt.detector.compiled is compiled

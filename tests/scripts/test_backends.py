@@ -88,3 +88,49 @@ def test_ray_address_where_no_cluster_answers_is_one_line_within_seconds(script,
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(f"{script}.py: error: --address '{addr}': no Ray cluster answers")
     assert not out.exists()  # refused before anything was created
+
+
+def test_progress_eta_leaves_out_the_first_batch(capsys):
+    """The first batch pays numba's compilation on a first run (minutes): the bar gives no ETA before it ends and
+    counts its rate, ETA and elapsed time from there, so a slow first batch does not inflate the estimate."""
+    import time
+
+    from agents.backends import LocalBackend
+
+    def fn(x):
+        time.sleep(1.2 if x == 0 else 0.05)
+        return x
+    assert LocalBackend().map(fn, [0, 1, 2, 3], desc="eval") == [0, 1, 2, 3]
+    frames = [f for f in capsys.readouterr().err.replace("\n", "\r").split("\r") if "eval" in f]
+    before = [f for f in frames if " 0/4 " in f]
+    assert before and all("ETA after the first batch" in f for f in before)
+    assert any(" 1/4 [00:00<?" in f for f in frames)  # the clock restarted when the first batch ended
+    assert " 4/4 [00:00<00:00" in frames[-1]  # 1.35 s in all, 0.15 s after the first batch
+
+
+def test_trial_progress_lines_name_the_trial_and_leave_the_first_out_of_the_eta(capsys):
+    import itertools
+
+    from agents.backends import LocalBackend, TrialProgress
+    clock = itertools.count(0.0, 50.0)  # each reading of the clock: 50 s later
+    p = TrialProgress(4, describe=lambda c: f"lr={c['lr']}", metric="m", workers=2, prefix="sweep: trial",
+                      clock=lambda: next(clock))
+    p.start("a", {"lr": 0.1})                               # t = 0
+    first = p.end("a", result={"m": -1.5})                  # t = 50: 50 s
+    p.start("b", {"lr": 0.2})                               # t = 100
+    p.start("c", {"lr": 0.3})                               # t = 150
+    second = p.end("c", error="ValueError: bad\nmore")      # t = 200: 50 s
+    assert first == "sweep: trial 1/4 done: lr=0.1: m -1.5 in 50 s; ETA 75 s"  # 3 left x 50 s / 2 workers
+    assert second == "sweep: trial 3/4 failed: lr=0.3: ValueError: bad in 50 s; ETA 50 s"
+    err = capsys.readouterr().err
+    assert "sweep: trial 2/4 started: lr=0.2" in err and first in err
+
+    def fn(c):
+        if c == 2:
+            raise ValueError("two")
+        return {"m": c}
+    out = LocalBackend().run_trials(fn, [1, 2], storage="unused", progress=TrialProgress(2, str, "m"))
+    assert [o.error for o in out] == [None, "ValueError: two"]
+    lines = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("trial ")]
+    assert [ln.split(" in ")[0] for ln in lines] == ["trial 1/2 started: 1", "trial 1/2 done: 1: m 1",
+                                                     "trial 2/2 started: 2", "trial 2/2 failed: 2: ValueError: two"]

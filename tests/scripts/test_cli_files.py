@@ -32,10 +32,10 @@ def files(tmp_path_factory):
     root = tmp_path_factory.mktemp("cli_files")
     good = root / "good"
     good.mkdir()
-    venv = VecNormalize(DummyVecEnv([lambda: gym.make("GnssIns/SageHusa-v0", episode_length_s=6.0)]))
+    venv = VecNormalize(DummyVecEnv([lambda: gym.make("GnssIns/SageHusa-v1", episode_length_s=6.0)]))
     PPO("MlpPolicy", venv, n_steps=16, batch_size=16, seed=0, device="cpu").save(good / "model.zip")
     venv.save(str(good / "vecnormalize.pkl"))
-    (good / "config.json").write_text(json.dumps({"env": "GnssIns/SageHusa-v0", "algo": "ppo",
+    (good / "config.json").write_text(json.dumps({"env": "GnssIns/SageHusa-v1", "algo": "ppo",
                                                   "env_kwargs": {"episode_length_s": 6.0}}))
     zipb = (good / "model.zip").read_bytes()
 
@@ -60,13 +60,13 @@ def files(tmp_path_factory):
         "no_config": copy("nocfg", config_json=None),
         "unknown_env": copy("unkenv", config_json=json.dumps({"env": "GnssIns/Nope-v0", "env_kwargs": {}}).encode()),
         "garbage_config": copy("badcfg", config_json=b"\xff\xfe garbage"),
-        "bad_env_kwarg": copy("badkw", config_json=json.dumps({"env": "GnssIns/SageHusa-v0",
+        "bad_env_kwarg": copy("badkw", config_json=json.dumps({"env": "GnssIns/SageHusa-v1",
                                                                "env_kwargs": {"scenaro": "x"}}).encode()),
-        "no_algo": copy("noalgo", config_json=json.dumps({"env": "GnssIns/SageHusa-v0",
+        "no_algo": copy("noalgo", config_json=json.dumps({"env": "GnssIns/SageHusa-v1",
                                                           "env_kwargs": {"episode_length_s": 6.0}}).encode()),
-        "other_env": copy("otherenv", config_json=json.dumps({"env": "GnssIns/MASTKF-v0", "env_kwargs": {}}).encode()),
+        "other_env": copy("otherenv", config_json=json.dumps({"env": "GnssIns/MASTKF-v1", "env_kwargs": {}}).encode()),
     }
-    other = VecNormalize(DummyVecEnv([lambda: gym.make("GnssIns/MASTKF-v0", episode_length_s=6.0)]))
+    other = VecNormalize(DummyVecEnv([lambda: gym.make("GnssIns/MASTKF-v1", episode_length_s=6.0)]))
     other.save(str(root / "other_vecnormalize.pkl"))  # statistics of another observation size
     f["wrong_vecnormalize"] = copy("wrongvn", vecnormalize_pkl=(root / "other_vecnormalize.pkl").read_bytes())
     (root / "tuning_garbage.json").write_bytes(rng.bytes(300))
@@ -75,19 +75,19 @@ def files(tmp_path_factory):
     f["tuning_list"] = root / "tuning_list.json"
     (root / "afile").write_text("x")
     f["afile"] = root / "afile"
-    (root / "hp_unknown.yml").write_text("GnssIns/SageHusa-v0:\n  n_steps: 16\n  learning_ratee: 0.1\n")
+    (root / "hp_unknown.yml").write_text("GnssIns/SageHusa-v1:\n  n_steps: 16\n  learning_ratee: 0.1\n")
     f["hp_unknown"] = root / "hp_unknown.yml"
     (root / "hp_garbage.yml").write_bytes(b"\xff\xfe: [\n")
     f["hp_garbage"] = root / "hp_garbage.yml"
-    (root / "hp_kwargs.yml").write_text("GnssIns/SageHusa-v0:\n  env_kwargs: [1, 2]\n")
+    (root / "hp_kwargs.yml").write_text("GnssIns/SageHusa-v1:\n  env_kwargs: [1, 2]\n")
     f["hp_kwargs"] = root / "hp_kwargs.yml"
-    (root / "hp_steps.yml").write_text("GnssIns/SageHusa-v0:\n  n_timesteps: lots\n")
+    (root / "hp_steps.yml").write_text("GnssIns/SageHusa-v1:\n  n_timesteps: lots\n")
     f["hp_steps"] = root / "hp_steps.yml"
     for name, text in (("hp_float_steps", "n_steps: 64.5"), ("hp_negative_steps", "n_steps: -5"),
                        ("hp_gamma_text", "gamma: high"), ("hp_gamma_range", "gamma: 1.5"),
                        ("hp_batch_one", "batch_size: 1"), ("hp_huge", "n_timesteps: 1.0e+30"),
                        ("hp_kwargs_type", "policy_kwargs: [64, 64]")):
-        (root / f"{name}.yml").write_text(f"GnssIns/SageHusa-v0:\n  {text}\n")
+        (root / f"{name}.yml").write_text(f"GnssIns/SageHusa-v1:\n  {text}\n")
         f[name] = root / f"{name}.yml"
     (root / "notedir").mkdir()
     f["notedir"] = root / "notedir"
@@ -176,10 +176,10 @@ PROBES = [
     ("train", ["rl", "--config", "{hp_huge}"], "hp_huge", "n_timesteps must be at most 1e+10"),
     ("train", ["rl", "--timesteps", "1e30"], None, "--timesteps must be a whole number of steps <= 1e+10"),
     ("train", ["rl", "--timesteps", "100.5"], None, "--timesteps must be a whole number of steps"),
-    ("train", ["rl", "--env", "GnssIns/STKF-v0", "--env-kwargs", "method=ma-stkf"], None,
+    ("train", ["rl", "--env", "GnssIns/STKF-v1", "--env-kwargs", "method=ma-stkf"], None,
      "method 'ma-stkf' runs another adaptive law (MeasurementAdaptiveSTKF) than this env's 'stkf'"),
-    ("train", ["tune", "--env", "GnssIns/STKF-v0", "--env-kwargs", "method=ma-stkf"], None,
-     "'ma-stkf' has its own env: GnssIns/MASTKF-v0"),
+    ("train", ["tune", "--env", "GnssIns/STKF-v1", "--env-kwargs", "method=ma-stkf"], None,
+     "'ma-stkf' has its own env: GnssIns/MASTKF-v1"),
     ("train", ["rl", "--env-kwargs", "divergence_bound_m=1e-9"], None, "divergence_bound_m must be >= 50 m"),
     ("eval", ["--methods", "kf", *E, "--note", "{afile}/note.md"], "afile", "is a file, not a directory"),
     ("eval", ["--methods", "kf", *E, "--note", "{notedir}"], "notedir", "is a directory; give the note's file name"),

@@ -39,7 +39,7 @@ def test_results_json_schema_and_outputs(tmp_path):
     for f in ("results.json", "results.md", "results.csv", "cdf_seed000-sim.png", "NOTE.md"):
         assert str(out / f) in wrote, f  # stdout lists every file written
     assert per["kf+onestep"]["paired_vs_reference"]["episodes"] == 3
-    for f in ("cdf_seed000-sim.png", "rmse_bars_seed000-sim.png", "trajectory_seed000-sim.png"):
+    for f in ("cdf_seed000-sim.png", "paired_seed000-sim.png", "trajectory_seed000-sim.png"):
         assert (out / f).stat().st_size > 0
     note = (out / "NOTE.md").read_text()
     d = per["kf+onestep"]["paired_vs_reference"]
@@ -73,20 +73,20 @@ def test_pairing_same_seed_same_result(tmp_path):
     (("--methods", "kf[zupt=lstm,zupt_weights=/nonexistent/w.pt]"), "weights file '/nonexistent/w.pt'"),
     (("--headroom",), "--headroom needs the optimized fixed parameter: add a 'tuned:<tuning.json>'"),
     (("--methods", "kf,oracle-schedule:GnssIns/Nope-v0"), "unknown environment id 'GnssIns/Nope-v0'"),
-    (("--methods", "kf,oracle-schedule:GnssIns/SageHusa-v0[m=3]"),
-     "unknown option 'm' in 'oracle-schedule:GnssIns/SageHusa-v0[m=3]'; oracle-schedule takes segment_s"),
-    (("--methods", "kf,best-per-episode:GnssIns/STKF-v0[segment_s=5]"), "unknown option 'segment_s'"),
-    (("--methods", "kf,crossfit-schedule:GnssIns/MASTKF-v0[n=1]"), "bad value '1' for 'n'"),
-    (("--methods", "kf,oracle-schedule:GnssIns/SageHusa-v0[segment_s=abc]"), "bad value 'abc' for 'segment_s'"),
-    (("--methods", "oracle-schedule:GnssIns/SageHusa-v0,kf"), "is an oracle; the reference must be a method"),
-    (("--methods", "kf,oracle-schedule:GnssIns/SageHusa-v0", "--zupt", "shoe"), "use --zupt none or truth"),
+    (("--methods", "kf,oracle-schedule:GnssIns/SageHusa-v1[m=3]"),
+     "unknown option 'm' in 'oracle-schedule:GnssIns/SageHusa-v1[m=3]'; oracle-schedule takes segment_s"),
+    (("--methods", "kf,best-per-episode:GnssIns/STKF-v1[segment_s=5]"), "unknown option 'segment_s'"),
+    (("--methods", "kf,crossfit-schedule:GnssIns/MASTKF-v1[n=1]"), "bad value '1' for 'n'"),
+    (("--methods", "kf,oracle-schedule:GnssIns/SageHusa-v1[segment_s=abc]"), "bad value 'abc' for 'segment_s'"),
+    (("--methods", "oracle-schedule:GnssIns/SageHusa-v1,kf"), "is an oracle; the reference must be a method"),
+    (("--methods", "kf,oracle-schedule:GnssIns/SageHusa-v1", "--zupt", "shoe"), "use --zupt none or truth"),
     (("--methods", "kf,sage-husa[b=nan]"), "sage-husa[b=nan].b must not be NaN"),
     (("--methods", "kf,sage-husa[b=inf]"), "sage-husa[b=inf].b must lie in (0, 1]"),
     (("--methods", "kf,sage-husa[b=2]"), "sage-husa[b=2].b must lie in (0, 1]"),
     (("--methods", "kf,sage-husa[b=-5]"), "sage-husa[b=-5].b must lie in (0, 1]"),
     (("--methods", "kf,sage-husa[q=1]"), "sage-husa[q=1]: unknown parameter 'q' of 'sage-husa'"),
     (("--methods", "kf[b=0.9]"), "kf[b=0.9]: method 'kf' has no parameters to set"),
-    (("--methods", "kf,rule:GnssIns/SageHusa-v0[hold=x]"), "bad value 'x' for 'hold'"),
+    (("--methods", "kf,rule:GnssIns/SageHusa-v1[hold=x]"), "bad value 'x' for 'hold'"),
     (("--methods", "kf,oracle-r:ukf"), "unknown filter method"),
 ])
 def test_cli_errors_are_one_line_exit_2(tmp_path, args, msg):
@@ -147,8 +147,8 @@ def test_headroom_table_and_json(tmp_path):
     for i, b in enumerate((0.95, 0.995)):  # a group of two 'seeds' (pooled row)
         (tmp_path / f"g{i}").mkdir()
         (tmp_path / f"g{i}" / "tuning.json").write_text(json.dumps({"method": "sage-husa", "param": "b", "best": b}))
-    knob = "oracle-schedule:GnssIns/SageHusa-v0[segment_s=30,lookahead_s=0,n=3]"
-    methods = f"tuned:{fixed},kf,tuned:{tmp_path}/g*/tuning.json,{knob},best-per-episode:GnssIns/SageHusa-v0[n=2]"
+    knob = "oracle-schedule:GnssIns/SageHusa-v1[segment_s=30,lookahead_s=0,n=3]"
+    methods = f"tuned:{fixed},kf,tuned:{tmp_path}/g*/tuning.json,{knob},best-per-episode:GnssIns/SageHusa-v1[n=2]"
     out = tmp_path / "o"
     p = run_eval("--scenario", "seed000-sim", "--scenario", "open-sky", "--episodes", "2", "--methods", methods,
                  "--headroom", "--out", str(out), "--no-plots", "--note", str(out / "NOTE.md"))
@@ -172,7 +172,7 @@ def test_headroom_table_and_json(tmp_path):
             R = rmse[s][b["label"]]
             assert o["from_best"]["headroom"] == pytest.approx((R - rmse[s][lab]) / R, rel=1e-9)
             assert o["from_best"]["headroom_ci95"] is None and o["from_best"]["ci_note"] == "n < 10: no CI"
-        assert set(e["oracles"]) == {ko, "oracle: best-per-episode:GnssIns/SageHusa-v0[n=2]"}
+        assert set(e["oracles"]) == {ko, "oracle: best-per-episode:GnssIns/SageHusa-v1[n=2]"}
         o = e["oracles"][ko]
         F, O = rmse[s][f"tuned:{fixed}"], rmse[s][ko]
         assert o["headroom"] == pytest.approx((F - O) / F, rel=1e-9) and o["kind"] == "oracle-schedule"
@@ -196,12 +196,15 @@ def test_headroom_table_and_json(tmp_path):
             assert r["share"] is None and "no net headroom" in r["note"]
     assert h["scenarios"]["open-sky"]["note"].startswith("this is the placebo scenario")
     assert h["scenarios"]["open-sky"]["methods"]["kf"]["net"] is False  # on the placebo: the gross headroom
-    table = (out / "headroom.md").read_text()
-    assert f"| seed000-sim | {ko} (knob) | 2 |" in table and f"| open-sky | optimized fixed: tuned:{fixed} |" in table
+    table = (out / "headroom.md").read_text()  # rows by their short labels (results.json keeps the specs)
+    assert "| seed000-sim | oracle: schedule (knob) | 2 |" in table
+    assert "| open-sky | optimized fixed: tuned b=0.98 |" in table and str(tmp_path) not in table
+    assert "| seed000-sim | tuned (2 seeds) | 2 |" in table  # the pooled row of the g* group
     assert "n < 10: no CI" in table and "- `seed000-sim`: placebo: open-sky" in table
     assert "headroom from the best hand-designed (95% CI)" in table
+    import eval as ev
     best = h["scenarios"]["seed000-sim"]["best_hand_designed"]["label"]
-    assert f"- `seed000-sim`: best hand-designed method: {best} (RMSE h" in table
+    assert f"- `seed000-sim`: best hand-designed method: {ev.method_labels(res, 'seed000-sim')[best]} (RMSE h" in table
     assert table.strip() in p.stdout
     note = (out / "NOTE.md").read_text()
     assert "## Headroom" in note and table.strip() in note
@@ -212,14 +215,18 @@ def test_headroom_without_placebo_says_so(tmp_path):
     fixed.write_text(json.dumps({"method": "sage-husa", "param": "b", "best": 0.98}))
     out = tmp_path / "o"
     p = run_eval("--scenario", "seed000-sim", "--episodes", "2", "--methods",
-                 f"tuned:{fixed},kf,crossfit-schedule:GnssIns/SageHusa-v0[segment_s=30,lookahead_s=0,n=2]",
+                 f"tuned:{fixed},kf,crossfit-schedule:GnssIns/SageHusa-v1[segment_s=30,lookahead_s=0,n=2]",
                  "--headroom", "--out", str(out), "--no-plots", "--note", str(out / "NOTE.md"))
     assert p.returncode == 0, p.stderr
-    line = next(x for x in (out / "NOTE.md").read_text().splitlines() if x.startswith("- `seed000-sim`: oracle: "))
-    assert line.endswith("(an oracle: it knows the truth, not a method a user could run).")
+    note = (out / "NOTE.md").read_text()
+    assert "oracle rows know the truth: they bound what a method could reach, no user could run them" in note
+    line = next(x for x in note.splitlines() if x.startswith("- `seed000-sim`: oracle: crossfit schedule: "))
+    assert line.endswith("n < 10: no CI.")  # said once above, not on every oracle line
+    assert note.splitlines()[2].startswith("- `seed000-sim` (2 episodes, reference `tuned b=0.98` ")  # the verdict
+    assert "oracle" not in note.splitlines()[2]  # an oracle is never the best method
     e = json.loads((out / "results.json").read_text())["headroom"]["scenarios"]["seed000-sim"]
     assert e["note"].startswith("placebo not measured") and e["knob_oracle"] is None
-    o = e["oracles"]["oracle: crossfit-schedule:GnssIns/SageHusa-v0[segment_s=30,lookahead_s=0,n=2]"]
+    o = e["oracles"]["oracle: crossfit-schedule:GnssIns/SageHusa-v1[segment_s=30,lookahead_s=0,n=2]"]
     assert o["net_headroom"] is None and o["kind"] == "crossfit-schedule"
     assert e["methods"]["kf"]["share"] is None and "no knob oracle" in e["methods"]["kf"]["note"]
     assert "placebo not measured" in (out / "headroom.md").read_text()
@@ -227,20 +234,20 @@ def test_headroom_without_placebo_says_so(tmp_path):
 
 def test_oracle_method_specs():
     from agents.methods import OracleMethod, expand_method_spec, is_oracle_label, parse_method_spec
-    m = parse_method_spec("oracle-schedule:GnssIns/SageHusa-v0[segment_s=10,lookahead_s=20,n=7]")
-    assert isinstance(m, OracleMethod) and (m.kind, m.env_id) == ("oracle-schedule", "GnssIns/SageHusa-v0")
+    m = parse_method_spec("oracle-schedule:GnssIns/SageHusa-v1[segment_s=10,lookahead_s=20,n=7]")
+    assert isinstance(m, OracleMethod) and (m.kind, m.env_id) == ("oracle-schedule", "GnssIns/SageHusa-v1")
     assert m.options == {"segment_s": 10.0, "lookahead_s": 20.0, "n": 7} and isinstance(m.options["n"], int)
-    assert m.label == "oracle: oracle-schedule:GnssIns/SageHusa-v0[segment_s=10,lookahead_s=20,n=7]"
+    assert m.label == "oracle: oracle-schedule:GnssIns/SageHusa-v1[segment_s=10,lookahead_s=20,n=7]"
     assert is_oracle_label(m.label) and is_oracle_label("oracle-r") and not is_oracle_label("kf")
     # the brackets are options, not a glob pattern
-    [e] = expand_method_spec("best-per-episode:GnssIns/MASTKF-v0[n=3]", "urban")
-    assert (e.kind, e.env_id, e.options) == ("best-per-episode", "GnssIns/MASTKF-v0", {"n": 3})
-    assert parse_method_spec("crossfit-schedule:GnssIns/STKF-v0").options == {}
+    [e] = expand_method_spec("best-per-episode:GnssIns/MASTKF-v1[n=3]", "urban")
+    assert (e.kind, e.env_id, e.options) == ("best-per-episode", "GnssIns/MASTKF-v1", {"n": 3})
+    assert parse_method_spec("crossfit-schedule:GnssIns/STKF-v1").options == {}
     # the knob's oracle on top of fault exclusion: the env's filter method as an option, checked up front
-    m = parse_method_spec("oracle-schedule:GnssIns/SageHusa-v0[n=3,method=sage-husa+fde]")
+    m = parse_method_spec("oracle-schedule:GnssIns/SageHusa-v1[n=3,method=sage-husa+fde]")
     assert m.options == {"n": 3, "method": "sage-husa+fde"}
     with pytest.raises(ValueError, match="does not take the parameter"):
-        parse_method_spec("oracle-schedule:GnssIns/SageHusa-v0[method=kf-fde]")
+        parse_method_spec("oracle-schedule:GnssIns/SageHusa-v1[method=kf-fde]")
 
 
 def test_oracle_r_beats_kf_on_urban_and_refuses_worlds_without_a_truth():
@@ -352,10 +359,10 @@ def _methods():
     return {"fixed": FilterMethod("tuned:runs/t/tuning.json", "sage-husa", {"b": 0.98}),
             "kf": FilterMethod("kf", "kf"), "fde": FilterMethod("kf-fde", "kf-fde"),
             "vb": FilterMethod("vb-akf", "vb-akf"),
-            "rule": RuleMethod("rule:GnssIns/SageHusa-v0", "GnssIns/SageHusa-v0"),
+            "rule": RuleMethod("rule:GnssIns/SageHusa-v1", "GnssIns/SageHusa-v1"),
             "ppo": PolicyMethod("ppo:runs/p/model.zip", "ppo", "runs/p/model.zip", None),
-            "knob": OracleMethod("oracle: oracle-schedule:GnssIns/SageHusa-v0", "oracle-schedule",
-                                 "GnssIns/SageHusa-v0"),
+            "knob": OracleMethod("oracle: oracle-schedule:GnssIns/SageHusa-v1", "oracle-schedule",
+                                 "GnssIns/SageHusa-v1"),
             "oracle-r": OracleRMethod("oracle-r")}
 
 
@@ -373,9 +380,9 @@ def test_headroom_from_the_best_hand_designed_method():
     e = h["scenarios"]["urban"]
     b = e["best_hand_designed"]
     assert b["label"] == "kf-fde" and b["rmse_h_m"] == results["scenarios"]["urban"]["kf-fde"]["rmse_h_m"]
-    assert set(b["candidates"]) == {"tuned:runs/t/tuning.json", "kf", "kf-fde", "vb-akf", "rule:GnssIns/SageHusa-v0"}
+    assert set(b["candidates"]) == {"tuned:runs/t/tuning.json", "kf", "kf-fde", "vb-akf", "rule:GnssIns/SageHusa-v1"}
     assert b["episodes"] == 12 and b["diverged"] == 0
-    for lab, o_scale in (("oracle: oracle-schedule:GnssIns/SageHusa-v0", 1.2), ("oracle-r", 0.5)):
+    for lab, o_scale in (("oracle: oracle-schedule:GnssIns/SageHusa-v1", 1.2), ("oracle-r", 0.5)):
         o = e["oracles"][lab]
         fb = o["from_best"]
         assert fb["headroom"] == pytest.approx(1 - o_scale / 1.5, rel=1e-12) and fb["episodes"] == 12
@@ -409,7 +416,7 @@ def test_headroom_from_the_best_below_the_minimum_episodes_and_with_divergences(
     b = e["best_hand_designed"]
     assert b["label"] == "vb-akf" and b["diverged"] == 1
     assert b["rmse_h_m"] == pytest.approx(1.5 * np.sqrt(np.mean(base[1:] ** 2)), rel=1e-12)
-    o = e["oracles"]["oracle: oracle-schedule:GnssIns/SageHusa-v0"]
+    o = e["oracles"]["oracle: oracle-schedule:GnssIns/SageHusa-v1"]
     fb = o["from_best"]
     assert fb["episodes"] == E - 1 and fb["headroom"] == pytest.approx(0.2, rel=1e-12)
     assert fb["headroom_ci95"] is None and fb["ci_note"] == no_ci_text()

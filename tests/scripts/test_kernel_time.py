@@ -31,7 +31,7 @@ def test_an_env_step_is_mostly_accounted_for():
     import gymnasium as gym
 
     import envs  # noqa: F401
-    env = gym.make("GnssIns/SageHusa-v0", episode_length_s=20.0)
+    env = gym.make("GnssIns/SageHusa-v1", episode_length_s=20.0)
     env.reset(seed=0)
     acts = np.zeros((4, 1), np.float32)
     for a in acts:

@@ -30,7 +30,7 @@ def local_ray():
 
 
 def test_eval_ray_equals_local(local_ray, tmp_path):
-    common = ["--scenario", "seed000-sim", "--methods", "kf,sage-husa[b=0.99],rule:GnssIns/SageHusa-v0",
+    common = ["--scenario", "seed000-sim", "--methods", "kf,sage-husa[b=0.99],rule:GnssIns/SageHusa-v1",
               "--episodes", "3", "--batch-size", "2", "--seed", "2", "--no-plots"]
     eval_cli.main([*common, "--out", str(tmp_path / "local")])
     eval_cli.main([*common, "--backend", "ray", "--workers", "2", "--out", str(tmp_path / "ray")])
@@ -38,7 +38,7 @@ def test_eval_ray_equals_local(local_ray, tmp_path):
     b = json.loads((tmp_path / "ray" / "results.json").read_text())
     assert without_timing(a) == without_timing(b)
     per = a["scenarios"]["seed000-sim"]
-    assert set(per) == {"kf", "sage-husa[b=0.99]", "rule:GnssIns/SageHusa-v0"}
+    assert set(per) == {"kf", "sage-husa[b=0.99]", "rule:GnssIns/SageHusa-v1"}
     assert all(r["episodes"] == 3 for r in per.values())
     assert ray.is_initialized()  # eval.py used the Ray it found and left it running
 
@@ -61,7 +61,7 @@ def test_map_runs_in_workers_and_reraises_the_task_error(local_ray):
         local_ray.map(_fail, [0, 1, 2, 3], progress=False)
 
 
-SWEEP = """envs: [GnssIns/SageHusa-v0]
+SWEEP = """envs: [GnssIns/SageHusa-v1]
 scenarios: [seed000-sim]
 timesteps: 256
 n_envs: 4
@@ -84,10 +84,29 @@ def run_sweep_cli(d, *extra):
 
 @pytest.fixture(scope="module")
 def sweep(local_ray, tmp_path_factory):
-    """A 3-trial sweep on Ray Tune: two PPO runs of 256 steps and one that fails."""
+    """A 3-trial sweep on Ray Tune: two PPO runs of 256 steps and one that fails (its console output in
+    ``d / "console.txt"``)."""
+    import contextlib
+    import io
     d = tmp_path_factory.mktemp("sweep")
     (d / "sweep.yml").write_text(SWEEP)
-    return d, run_sweep_cli(d, "--workers", "2")
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(buf):
+        rows = run_sweep_cli(d, "--workers", "2")
+    (d / "console.txt").write_text(buf.getvalue())
+    return d, rows
+
+
+def test_sweep_on_ray_is_quiet_with_a_line_per_trial_naming_its_hyperparameters(sweep):
+    d, rows = sweep
+    text = (d / "console.txt").read_text()
+    assert "Configuration for experiment" not in text and "Trial status" not in text  # Tune's tables: quiet
+    for v in (32, 64, 1):
+        started = [ln for ln in text.splitlines() if ln.startswith("sweep: trial ") and f"batch_size={v}" in ln]
+        assert len(started) == 2 and "started: GnssIns/SageHusa-v1 seed000-sim ppo seed 0" in started[0], started
+        assert (" failed: " if v == 1 else " done: ") in started[1]
+    done = [ln for ln in text.splitlines() if " done: " in ln]
+    assert all("eval_mean_reward_last " in ln and "/3 " in ln for ln in done)
 
 
 def test_sweep_writes_run_folders_and_tables(sweep):
@@ -138,7 +157,7 @@ def test_resume_does_not_redo_finished_trials(sweep):
     assert again[0]["eval_mean_reward_last"] == rows[0]["eval_mean_reward_last"]
 
 
-OPTUNA_SWEEP = """envs: [GnssIns/SageHusa-v0]
+OPTUNA_SWEEP = """envs: [GnssIns/SageHusa-v1]
 scenarios: [seed000-sim]
 timesteps: 256
 n_envs: 4

@@ -7,7 +7,7 @@ import pytest
 import train
 from agents.sweep import configurations, expand_trials, load_sweep
 
-BASE = """envs: [GnssIns/SageHusa-v0]
+BASE = """envs: [GnssIns/SageHusa-v1]
 scenarios: [seed000-sim]
 timesteps: 256
 """
@@ -80,6 +80,15 @@ def test_shipped_example_sweep_file_is_valid():
     from pathlib import Path
     cfg = load_sweep(Path(__file__).resolve().parents[2] / "configs" / "sweep.yml")
     assert len(expand_trials(cfg, "runs/sweep")) == 16
+
+
+def test_shipped_small_sweep_file_is_valid_and_small():
+    """configs/sweep_small.yml runs in minutes on 2 cores: two short PPO runs on short episodes."""
+    from pathlib import Path
+    cfg = load_sweep(Path(__file__).resolve().parents[2] / "configs" / "sweep_small.yml")
+    trials = expand_trials(cfg, "runs/sweep_small")
+    assert len(trials) == 2 and sum(t.timesteps for t in trials) <= 40_000
+    assert cfg.env_kwargs["episode_length_s"] <= 60 and cfg.search == "grid"
 
 
 def test_a_run_finished_by_train_rl_with_the_same_settings_counts_as_done(tmp_path):

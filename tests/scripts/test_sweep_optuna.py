@@ -13,7 +13,7 @@ pytest.importorskip("optuna", reason="Optuna is not installed (pip install 'navg
 import train  # noqa: E402
 from agents.sweep import load_sweep  # noqa: E402
 
-SWEEP = """envs: [GnssIns/SageHusa-v0]
+SWEEP = """envs: [GnssIns/SageHusa-v1]
 scenarios: [seed000-sim]
 timesteps: 256
 env_kwargs: {episode_length_s: 6}
@@ -119,7 +119,7 @@ def test_resume_keeps_finished_trials_and_tells_the_sampler(first, monkeypatch):
 ])
 def test_bad_search_fields_are_one_line_naming_file_and_field(tmp_path, capsys, extra, msg):
     p = tmp_path / "sweep.yml"
-    p.write_text("envs: [GnssIns/SageHusa-v0]\ntimesteps: 256\n" + extra)
+    p.write_text("envs: [GnssIns/SageHusa-v1]\ntimesteps: 256\n" + extra)
     with pytest.raises(SystemExit) as e:
         train.main(["sweep", "--config", str(p), "--out", str(tmp_path / "out")])
     assert e.value.code == 2
@@ -131,7 +131,7 @@ def test_bad_search_fields_are_one_line_naming_file_and_field(tmp_path, capsys, 
 def test_without_optuna_the_error_says_how_to_install(tmp_path, capsys, monkeypatch):
     monkeypatch.setitem(sys.modules, "optuna", None)
     p = tmp_path / "sweep.yml"
-    p.write_text("envs: [GnssIns/SageHusa-v0]\nsearch: optuna\nnum_samples: 2\n"
+    p.write_text("envs: [GnssIns/SageHusa-v1]\nsearch: optuna\nnum_samples: 2\n"
                  "random: {gamma: {uniform: [0.9, 0.99]}}\n")
     with pytest.raises(SystemExit) as e:
         train.main(["sweep", "--config", str(p), "--out", str(tmp_path / "out")])

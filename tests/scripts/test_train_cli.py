@@ -19,11 +19,11 @@ def run(script, *args):
 
 def test_rl_smoke_writes_a_loadable_model_and_eval_runs_it(tmp_path):
     out = tmp_path / "run"
-    p = run("train.py", "rl", "--env", "GnssIns/SageHusa-v0", "--algo", "ppo", "--timesteps", "256",
+    p = run("train.py", "rl", "--env", "GnssIns/SageHusa-v1", "--algo", "ppo", "--timesteps", "256",
             "--n-envs", "4", "--env-kwargs", "episode_length_s=6", "--seed", "1", "--no-progress", "--out", str(out))
     assert p.returncode == 0, p.stderr[-2000:]
     cfg = json.loads((out / "config.json").read_text())
-    assert cfg["env"] == "GnssIns/SageHusa-v0" and cfg["n_timesteps"] == 256 and cfg["env_kwargs"]["episode_length_s"] == 6
+    assert cfg["env"] == "GnssIns/SageHusa-v1" and cfg["n_timesteps"] == 256 and cfg["env_kwargs"]["episode_length_s"] == 6
     for f in ("model.zip", "vecnormalize.pkl", "best/best_model.zip"):
         assert (out / f).stat().st_size > 0
     assert list((out / "checkpoints").glob("model_*_steps.zip"))  # a short run still evaluates and checkpoints
@@ -42,7 +42,7 @@ def test_rl_smoke_writes_a_loadable_model_and_eval_runs_it(tmp_path):
 
 
 def test_tune_writes_a_tuning_file_that_eval_reads(tmp_path):
-    p = run("train.py", "tune", "--env", "GnssIns/SageHusa-v0", "--env-kwargs", "episode_length_s=10",
+    p = run("train.py", "tune", "--env", "GnssIns/SageHusa-v1", "--env-kwargs", "episode_length_s=10",
             "--n-train", "2", "--grid-size", "3", "--out", str(tmp_path))
     assert p.returncode == 0, p.stderr[-2000:]
     t = json.loads((tmp_path / "tuning.json").read_text())
@@ -51,6 +51,21 @@ def test_tune_writes_a_tuning_file_that_eval_reads(tmp_path):
     from agents.methods import parse_method_spec
     m = parse_method_spec(f"tuned:{tmp_path / 'tuning.json'}")
     assert m.method == "sage-husa" and m.params["b"] == t["best"]
+    # a line per grid value on stderr, the ETA from the second value on (the first pays the compilation)
+    lines = [x for x in p.stderr.splitlines() if x.startswith("tune: b = ")]
+    assert len(lines) == 3 and [f"({i}/3)" in x for i, x in enumerate(lines, 1)] == [True] * 3
+    assert lines[0].endswith("; ETA after the next value") and "; ETA " in lines[1] and "ETA" not in lines[2]
+    assert f"RMSE {t['rmse_h_m'][0]:.3f} m" in lines[0]
+    assert "best b = " in p.stdout
+
+
+def test_tune_progress_line_eta_leaves_out_the_first_value():
+    from agents.tuning import progress_line
+    assert progress_line("b", 0.5, 0, 5, 1.234, 0, 8, [100.0]) == (
+        "tune: b = 0.5 (1/5): RMSE 1.234 m in 2 min; ETA after the next value")
+    assert progress_line("b", 0.9, 2, 5, 1.0, 2, 8, [300.0, 30.0, 50.0]).endswith(
+        "RMSE 1.000 m, 2 of 8 diverged in 50 s; ETA 80 s")  # 2 values left x 40 s, not counting the first
+    assert progress_line("b", 0.99, 4, 5, 1.0, 0, 8, [1.0] * 5).endswith("in 1 s")
 
 
 @pytest.mark.parametrize("args, msg", [
@@ -87,6 +102,6 @@ def test_eval_method_errors(args, msg, tmp_path):
 
 def test_rl_zoo_import_path():
     """RL Zoo's --gym-packages envs imports the package; gymnasium's 'module:id' form does the same."""
-    env = gym.make("envs:GnssIns/SageHusa-v0", episode_length_s=4.0)
+    env = gym.make("envs:GnssIns/SageHusa-v1", episode_length_s=4.0)
     obs, _ = env.reset(seed=0)
     assert env.observation_space.contains(obs)

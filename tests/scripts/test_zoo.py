@@ -37,7 +37,7 @@ def _zoo(*args, cwd):
                           timeout=300)
 
 
-@pytest.mark.parametrize("env_id", ["GnssIns/SageHusa-v0", "GnssIns/SatelliteR-v0"])
+@pytest.mark.parametrize("env_id", ["GnssIns/SageHusa-v1", "GnssIns/SatelliteR-v0"])
 def test_rl_zoo_trains_and_enjoys_with_the_shipped_file(tmp_path, env_id):
     """RL Zoo with hyperparams/ppo.yml: the scalar env, and a per-satellite env with its set policy (imported by
     name from agents.set_policy)."""
