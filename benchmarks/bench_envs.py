@@ -5,6 +5,10 @@ mechanization + covariance accumulation) + one tightly coupled update + feedback
 
 Prints, in one run:
 
+* the headline: **end to end** env-steps/s, what a training loop pays (:func:`bench_end_to_end`: zero actions,
+  ``2 M + 5`` steps for M epochs per episode, so two automatic resets fall inside the timed steps, each drawing
+  its rows' new worlds; no prefetch process), beside the step-only figure of the same cell and the resets'
+  share of the end-to-end time, at B = 1 and 1024 (``--e2e-batches``), in the env default (fused) mode;
 * env steps/s of the single env (``gym.make``, B = 1) and of the native vector env
   (``gym.make_vec(..., vectorization_mode="vector_entry_point")``) at B = 16, 256, 1024, for the methods
   ``sage-husa``, ``stkf``, ``ma-stkf`` and ``svd-akf`` (the Sage-Husa law around the SVD form; ``--methods satellite-r
@@ -62,7 +66,8 @@ Usage::
     python benchmarks/bench_envs.py --filterpy [--batches 1 1024]
     python benchmarks/bench_envs.py --kernel-time [--methods sage-husa] [--batches 1 1024]
 
-``--quick``: B = 1, 16, 256, fewer steps, profile at B = 1 and 256 (a minute or two).
+``--quick``: B = 1, 16, 256, fewer steps, profile at B = 1 and 256 (a minute or two). ``--headline-only``: only
+the end-to-end headline (with ``--compare`` and ``--rounds`` as the throughput table).
 """
 from __future__ import annotations
 
@@ -167,6 +172,39 @@ def bench_env(method, B, steps, episode_s, scenario, transition="exact", warmup=
     env.close()
     rate = B / float(np.median(ts)) if stat == "median" else B * steps / dt
     return t_reset, rate, 1e3 * dc / steps
+
+
+E2E_WARMUP_STEPS = 3
+"""Untimed steps of :func:`bench_end_to_end` after the first reset: the compiled step kernels load from numba's cache."""
+
+
+def bench_end_to_end(method, B, episode_s, scenario, transition="fused", steps=None):
+    """End-to-end env-steps/s as a training loop pays it: resets included, no prefetch.
+
+    After ``reset(seed=0)`` and :data:`E2E_WARMUP_STEPS` untimed steps, ``steps`` steps with zero actions are
+    timed (default ``2 M + 5`` for M epochs per episode: two automatic resets fall inside, each drawing its rows'
+    new worlds; the single env, B = 1, is reset by the loop when its episode ends, as a user's loop does).
+
+    Returns (env-steps/s = B x steps / wall time, the resets' share of that time, CPU ms per batched step).
+    """
+    env = _make(method, B, episode_s, scenario, transition)
+    env.reset(seed=0)
+    core = _core(env)
+    M = core.M
+    n = steps or 2 * M + 5
+    zero = np.zeros(env.action_space.shape, np.float32)
+    for _ in range(E2E_WARMUP_STEPS):
+        env.step(zero)
+    acc = {"reset": 0.0}
+    core.reset_rows = timed(core.reset_rows, acc, "reset")   # an instance attribute: the core's own reset
+    t0, c0 = time.perf_counter(), time.process_time()
+    for _ in range(n):
+        out = env.step(zero)
+        if B == 1 and (out[2] or out[3]):
+            env.reset()
+    dt, dc = time.perf_counter() - t0, time.process_time() - c0
+    env.close()
+    return B * n / dt, acc["reset"] / dt, 1e3 * dc / n
 
 
 class StageTimer:
@@ -372,6 +410,36 @@ def _print_rounds(args, batches, n_steps, root):
         _print_rate_row(_label(m, tr), B, t_reset, rate, cpu, f" {spread:>18s}")
 
 
+def _print_headline(args, n_steps, here, other=None):
+    """The end-to-end headline (:func:`bench_end_to_end`) beside the step-only rate of the same cell, for each
+    method and B of ``--e2e-batches``, in the env default (fused) mode; every figure from fresh processes, the
+    median of ``--rounds`` (with ``other``: alternately in that tree too, and the speed-up)."""
+    print(f"\nend to end, the headline: {args.scenario}, {args.episode_s:g} s episodes, zero actions, automatic "
+          f"resets included (each draws its rows' new worlds), no prefetch, env default mode (fused); "
+          f"{'median of ' + str(args.rounds) + ' runs' if args.rounds > 1 else 'one run'} per cell")
+    cols = ("e2e steps/s", "step-only", "resets")
+    hdr = (f"{'method':16s} {'B':>5s} " + (" ".join(f"{c + ' before':>18s} {'after':>9s}" for c in cols) + " e2e speed-up"
+                                           if other else " ".join(f"{c:>12s}" for c in cols)))
+    print(hdr + "\n" + "-" * len(hdr))
+    for m in args.methods:
+        for B in args.e2e_batches:
+            runs = {}
+            for _ in range(args.rounds):
+                for tree in ([other] if other else []) + [here]:
+                    e2e = _run_cell(tree, "e2e", m, B, 0, args.episode_s, args.scenario, "fused")
+                    rate = _run_cell(tree, "rate", m, B, n_steps(B), args.episode_s, args.scenario, "fused", args.stat)
+                    runs.setdefault(tree, []).append((e2e[0], rate[1], e2e[1]))
+            med = {tree: np.median(np.asarray(v, float), axis=0) for tree, v in runs.items()}
+            a = med[here]
+            if other:
+                b = med[other]
+                print(f"{m:16s} {B:5d} {b[0]:18.0f} {a[0]:9.0f} {b[1]:18.0f} {a[1]:9.0f} {100 * b[2]:17.0f}% "
+                      f"{100 * a[2]:8.0f}% {a[0] / b[0]:11.2f}x", flush=True)
+            else:
+                print(f"{m:16s} {B:5d} {a[0]:12.0f} {a[1]:12.0f} {100 * a[2]:11.0f}%", flush=True)
+    print()
+
+
 def _print_rate_row(label, B, t_reset, rate, cpu, extra=""):
     """One row of the single-tree throughput table (``extra``: the rounds' range column)."""
     print(f"{label:16s} {B:5d} {t_reset:10.2f} {rate:12.0f} {1e3 * B / rate:9.2f} {cpu:12.2f}{extra}", flush=True)
@@ -381,6 +449,8 @@ def _cell_main(kind, method, B, steps, episode_s, scenario, transition, stat="me
     B, steps, episode_s = int(B), int(steps), float(episode_s)
     if kind == "rate":
         print(json.dumps(bench_env(method, B, steps, episode_s, scenario, transition, stat=stat)))
+    elif kind == "e2e":
+        print(json.dumps(bench_end_to_end(method, B, episode_s, scenario, transition)))
     else:
         print(json.dumps(profile_env(method, B, steps, episode_s, scenario, transition, cpu=kind == "cpu-profile")))
 
@@ -419,6 +489,10 @@ def main(argv=None):
     p.add_argument("--episode-s", type=float, default=60.0, help="episode length [s] (memory: B x IMU samples)")
     p.add_argument("--scenario", default="noise-burst")
     p.add_argument("--no-profile", action="store_true")
+    p.add_argument("--e2e-batches", nargs="+", type=int, default=None,
+                   help="batch sizes of the end-to-end headline (resets included; default 1 1024, --quick 1 256)")
+    p.add_argument("--no-headline", action="store_true", help="skip the end-to-end headline")
+    p.add_argument("--headline-only", action="store_true", help="only the end-to-end headline")
     p.add_argument("--profile-only", action="store_true", help="skip the throughput table")
     p.add_argument("--cpu-profile", action="store_true",
                    help="stage profile in process CPU time (all threads) instead of wall time")
@@ -479,6 +553,7 @@ def main(argv=None):
         print_filterpy(args.batches or [1, 1024], args.episode_s, args.scenario, lambda B: steps if B == 1 else 8)
         return
     batches = args.batches or ([1, 16, 256] if args.quick else [1, 16, 256, 1024])
+    args.e2e_batches = args.e2e_batches or ([1, 256] if args.quick else [1, 1024])
     print(f"navgym env throughput: scenario {args.scenario}, episode {args.episode_s:g} s, "
           f"{os.cpu_count()} CPUs; one step = one GNSS epoch (100 IMU samples + update); steps/s from the "
           f"{'median step time' if args.stat == 'median' else 'total time'}")
@@ -504,6 +579,10 @@ def main(argv=None):
                + (f" {'rounds: steps/s':>18s}" if args.rounds > 1 else ""))
         if args.rounds > 1:
             print(f"each figure the median of {args.rounds} runs in fresh processes, cells in turn; their range beside")
+    if not args.no_headline and not args.profile_only:
+        _print_headline(args, n_steps, here, os.path.abspath(args.compare) if args.compare else None)
+    if args.headline_only:
+        return
     print("\n" + hdr + "\n" + "-" * len(hdr))
     rounds_here = args.rounds > 1 and not args.compare  # the table of _print_rounds instead of the loop below
     if rounds_here and not args.profile_only:

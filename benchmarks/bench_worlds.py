@@ -2,14 +2,25 @@
 
 For each scenario and batch size B the world is drawn ``--reps`` times (fresh seeds each time, after one
 untimed draw that loads the compiled kernels) and the median is printed per row: ``ms/row`` of the whole
-world and IMU samples per second (B x N / wall time), and the split into ``truth``
-(:func:`envs.sim.trajectory.generate_truth`: trajectory and ideal IMU), ``imu``
-(:func:`envs.sim.imu.simulate_imu`: sensor errors, vibration), ``gnss`` (:func:`envs.sim.gnss.simulate_gnss`:
-constellation, receiver, events) and ``rest`` (motions, epochs, initial estimate, odometer, event bits). The
-stages are timed by wrapping the names that :mod:`envs.sim.world` calls. Wall time: on a machine shared with
-other jobs run ``--compare`` (side by side) rather than trusting one figure, or ``--cpu``: the process CPU time
-(all threads) instead of the wall time, which swings much less with the other jobs' load (the IMU stage runs
-its rows on threads: with ``--cpu`` it counts their CPU time, not the wall time they overlap in).
+world, the IMU samples generated per second (B x N / wall time, the figure of the issue's target), and the
+split by stage (ms per row and share of the world's time):
+
+* ``trajectory``: the random drives and :func:`envs.sim.trajectory.generate_truth` (truth and ideal IMU);
+* ``imu``: :func:`envs.sim.imu.simulate_imu` (sensor errors, vibration, IMU events);
+* ``geometry``: the constellation geometry of :mod:`envs.sim.gnss_stages` (``sky_geometry``,
+  ``allocate_channels``, ``channel_ranging``);
+* ``events``: the GNSS degradations (``canyon_and_bursts``, ``random_events``, ``scheduled_events``) and the
+  world's IMU event bits;
+* ``receiver``: the receiver errors (``channel_noise``, ``receiver_errors``);
+* ``rest``: the world's time less the stages (row generators, input checks, the GNSS assembly, epochs,
+  initial estimate, odometer).
+
+The stages are timed by wrapping the names their callers look up. A tree without a stage's functions (an
+earlier tree of ``--compare``, before the GNSS stages existed) shows ``-`` there and counts that work in
+``rest``. Wall time: on a machine shared with other jobs run ``--compare`` (side by side) rather than trusting
+one figure, or ``--cpu``: the process CPU time (all threads) instead of the wall time, which swings much less
+with the other jobs' load (a stage that runs rows on threads counts their CPU time, not the wall time they
+overlap in).
 
 ``--compare DIR`` runs every cell twice, in this tree and in the source tree ``DIR`` (e.g. ``git worktree add
 /tmp/before <commit>``), alternately in fresh processes (``--rounds`` times, median over the rounds), and
@@ -18,10 +29,10 @@ have this script: the cells run this file with ``NAVGYM_BENCH_ROOT=DIR``, which 
 
 Usage::
 
-    python benchmarks/bench_worlds.py [--scenarios noise-burst urban] [--batches 1 64] [--duration-s 60]
+    python benchmarks/bench_worlds.py [--scenarios noise-burst urban] [--batches 1 1024] [--duration-s 60]
                                       [--reps 5] [--compare DIR] [--rounds 1] [--dtype float64] [--cpu]
 
-Defaults: noise-burst and urban, 60 s episodes, B = 1 and 64 (a minute or so; ``--compare`` twice that).
+Defaults: noise-burst and urban, 60 s episodes, B = 1 and 1024 (a few minutes; ``--compare`` twice that).
 """
 from __future__ import annotations
 
@@ -38,11 +49,45 @@ sys.path.insert(0, ROOT)
 import numpy as np  # noqa: E402
 from stage_timing import timed  # noqa: E402  (this script's folder)
 
-STAGES = ("truth", "imu", "gnss", "rest")
-"""Columns of the split; ``rest`` is the world's time less the three timed stages."""
+STAGES = ("trajectory", "imu", "geometry", "events", "receiver", "rest")
+"""Columns of the split; ``rest`` is the world's time less the timed stages."""
 
-_WRAPPED = {"truth": "generate_truth", "imu": "simulate_imu", "gnss": "simulate_gnss"}
-"""Stage -> the name :mod:`envs.sim.world` calls (wrapped to time it)."""
+_WRAPPED = {
+    "trajectory": (("envs.sim.world", "generate_truth"), ("envs.sim.scenarios", "Scenario.motions")),
+    "imu": (("envs.sim.world", "simulate_imu"),),
+    "geometry": (("envs.sim.gnss_stages", "sky_geometry"), ("envs.sim.gnss_stages", "allocate_channels"),
+                 ("envs.sim.gnss_stages", "channel_ranging")),
+    "events": (("envs.sim.gnss_stages", "canyon_and_bursts"), ("envs.sim.gnss_stages", "random_events"),
+               ("envs.sim.gnss_stages", "scheduled_events"), ("envs.sim.world", "imu_event_bits")),
+    "receiver": (("envs.sim.gnss_stages", "channel_noise"), ("envs.sim.gnss_stages", "receiver_errors")),
+}
+"""Stage -> the (module, name) its callers look up (wrapped to time it; ``Class.method`` on the class). None of
+them calls another, so the stages do not nest."""
+
+
+def _install_timers(acc, clock) -> set:
+    """Wrap the functions of every stage this tree has all of; returns those stages (the others stay at 0 and
+    their work counts in ``rest``)."""
+    import importlib
+    found = set()
+    for stage, targets in _WRAPPED.items():
+        owners = []
+        for mod_name, name in targets:
+            try:
+                obj = importlib.import_module(mod_name)
+            except ImportError:
+                break
+            *path, attr = name.split(".")
+            for o in path:
+                obj = getattr(obj, o)
+            if not hasattr(obj, attr):
+                break
+            owners.append((obj, attr))
+        else:
+            for obj, attr in owners:
+                setattr(obj, attr, timed(getattr(obj, attr), acc, stage, clock))
+            found.add(stage)
+    return found
 
 
 def _make_world(scenario, seeds, duration_s, dtype):
@@ -55,14 +100,12 @@ def bench_cell(scenario, B, duration_s, reps, dtype="float64", cpu=False):
     """Median wall time (``cpu``: process CPU time) per row [s] of the world and of each stage over ``reps`` draws
     of B rows, and N.
 
-    Returns ``{"total": s, "truth": s, "imu": s, "gnss": s, "rest": s, "n": N}`` (per row; each stage the
-    median of its own times, ``rest`` the median of the per-draw remainders).
+    Returns ``{"total": s, "<stage>": s or None, ..., "rest": s, "n": N}`` (per row; each stage the median of its
+    own times, None where this tree lacks it; ``rest`` the median of the per-draw remainders).
     """
-    from envs.sim import world as wmod
     acc = dict.fromkeys(_WRAPPED, 0.0)
     clock = time.process_time if cpu else time.perf_counter
-    for stage, name in _WRAPPED.items():
-        setattr(wmod, name, timed(getattr(wmod, name), acc, stage, clock))
+    found = _install_timers(acc, clock)
     w = _make_world(scenario, list(range(B)), duration_s, np.dtype(dtype))  # untimed: loads compiled kernels
     n = w.truth.t.shape[0]
     del w
@@ -76,7 +119,11 @@ def bench_cell(scenario, B, duration_s, reps, dtype="float64", cpu=False):
         total = clock() - t0
         rows.append((total, *(acc[k] for k in _WRAPPED), total - sum(acc.values())))
     med = np.median(np.array(rows), axis=0) / B
-    return dict(zip(("total",) + STAGES, map(float, med)), n=n)
+    out = dict(zip(("total",) + STAGES, map(float, med)), n=n)
+    for stage in _WRAPPED:
+        if stage not in found:
+            out[stage] = None
+    return out
 
 
 def _run_cell(root, scenario, B, duration_s, reps, dtype, cpu):
@@ -89,13 +136,24 @@ def _run_cell(root, scenario, B, duration_s, reps, dtype, cpu):
 
 
 def _median_cells(cells):
-    return {k: float(np.median([c[k] for c in cells])) for k in cells[0]}
+    return {k: None if cells[0][k] is None else float(np.median([c[k] for c in cells])) for k in cells[0]}
+
+
+def _ms(x, width) -> str:
+    """Seconds as ms right-aligned in ``width`` (``-`` for a stage the tree lacks)."""
+    return f"{'-':>{width}s}" if x is None else f"{1e3 * x:{width}.3f}"
+
+
+def _with_share(r, stage) -> str:
+    """A stage's ms per row and its share of the world's time."""
+    share = "   -" if r[stage] is None else f"{100 * r[stage] / r['total']:4.1f}"
+    return f"{_ms(r[stage], 8)} ({share}%)"
 
 
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--scenarios", nargs="+", default=["noise-burst", "urban"])
-    p.add_argument("--batches", nargs="+", type=int, default=[1, 64])
+    p.add_argument("--batches", nargs="+", type=int, default=[1, 1024])
     p.add_argument("--duration-s", type=float, default=60.0, help="episode length [s]")
     p.add_argument("--reps", type=int, default=None, help="timed draws per cell (default 20 at B = 1, else 5)")
     p.add_argument("--dtype", choices=("float64", "float32"), default="float64", help="IMU output dtype")
@@ -111,11 +169,11 @@ def main(argv=None):
     if args.compare:
         other = os.path.abspath(args.compare)
         print(f"before = {other}\nafter  = {here}")
-        hdr = (f"{'scenario':14s} {'B':>4s} {'stage':6s} {'ms/row before':>14s} {'after':>8s} {'speed-up':>9s}")
+        hdr = (f"{'scenario':14s} {'B':>4s} {'stage':10s} {'ms/row before':>14s} {'after':>8s} {'speed-up':>9s}")
         print("(row Msa/s: million IMU samples generated per second, whole world)")
     else:
         hdr = (f"{'scenario':14s} {'B':>4s} {'ms/row':>8s} {'samples/s':>11s} "
-               + " ".join(f"{s:>15s}" for s in STAGES))
+               + " ".join(f"{s:>16s}" for s in STAGES))
     print("\n" + hdr + "\n" + "-" * len(hdr))
     for scen in args.scenarios:
         for B in args.batches:
@@ -127,13 +185,14 @@ def main(argv=None):
                     after.append(_run_cell(here, *cell))
                 rb, ra = _median_cells(before), _median_cells(after)
                 for s in ("total",) + STAGES:
-                    print(f"{scen:14s} {B:4d} {s:6s} {1e3 * rb[s]:14.3f} {1e3 * ra[s]:8.3f} "
-                          f"{rb[s] / ra[s] if ra[s] > 0 else float('nan'):8.2f}x", flush=True)
-                print(f"{scen:14s} {B:4d} {'Msa/s':6s} {1e-6 * rb['n'] / rb['total']:14.3f} "
+                    up = (f"{rb[s] / ra[s]:8.2f}x" if rb[s] is not None and ra[s] is not None and ra[s] > 0
+                          else f"{'-':>9s}")
+                    print(f"{scen:14s} {B:4d} {s:10s} {_ms(rb[s], 14)} {_ms(ra[s], 8)} {up}", flush=True)
+                print(f"{scen:14s} {B:4d} {'Msa/s':10s} {1e-6 * rb['n'] / rb['total']:14.3f} "
                       f"{1e-6 * ra['n'] / ra['total']:8.3f} {rb['total'] / ra['total']:8.2f}x", flush=True)
             else:
                 r = bench_cell(*cell)
-                parts = " ".join(f"{1e3 * r[s]:7.3f} ({100 * r[s] / r['total']:4.1f}%)" for s in STAGES)
+                parts = " ".join(_with_share(r, s) for s in STAGES)
                 print(f"{scen:14s} {B:4d} {1e3 * r['total']:8.3f} {r['n'] / r['total']:11.3g} {parts}", flush=True)
 
 

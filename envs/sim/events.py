@@ -600,7 +600,7 @@ def zone_effects(t, kind, zone_id, windows, el, az, v_e, heading, cfg: UrbanZone
     """
     from dataclasses import replace
 
-    from .gnss import _canyon
+    from .gnss_stages import _canyon
     M, S = el.shape
     in_c = (kind == ZONE_CANYON)[:, None]
     in_t = (kind == ZONE_TREES)[:, None]

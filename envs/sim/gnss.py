@@ -64,45 +64,26 @@ so float32 consumers should form innovations ``pr - rho_hat`` carefully.
 """
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, fields, replace
 
-import numba as nb
 import numpy as np
-from scipy.signal import lfilter
 
-from earth.ranging import range_and_rate
-from earth.wgs84 import C_LIGHT, OMEGA_IE, ecef_to_geodetic
-
-from . import events as ev
-from .constellation import Constellation, _check_int, _check_pair, _check_real
+from . import gnss_stages as stages
+from .constellation import Constellation, _check_pair, _check_real
 from .events import NoiseRegimes, RandomBursts, Reacquisition, SigmaMismatch, UrbanZones
-from .sigma_models import SigmaModel
+# the receiver's models and the stages' stream indices live in their own modules (re-exported here)
+from .gnss_stages import (_N_SUB, _SUB_BURSTS, _SUB_CANYON, _SUB_CLOCK, _SUB_CN0, _SUB_CODE,  # noqa: F401
+                          _SUB_IONO, _SUB_MISMATCH, _SUB_NLOS, _SUB_RATE, _SUB_REGIME, _SUB_REGIME_NLOS, _SUB_SKY,
+                          _SUB_TROPO, _SUB_ZONE_GEOM, _SUB_ZONE_SAT, _SUB_ZONES, GPS_WEEK_S, _canyon,
+                          _entropy_words, _in_intervals, _nlos_bursts, _row_children)
+from .receiver import (CN0_JITTER_DB, ClockModel, ReceiverConfig, _check_rngs, _check_times,  # noqa: F401
+                       _gauss_markov, iono_obliquity, simulate_clock, tropo_mapping)
 
 __all__ = [
     "Constellation", "ClockModel", "ReceiverConfig", "NlosConfig", "UrbanCanyon", "GnssEvents",
     "GnssData", "simulate_clock", "simulate_gnss", "tropo_mapping", "iono_obliquity", "EVENT_PRESETS",
     "GPS_WEEK_S", "RandomBursts", "SigmaMismatch", "NoiseRegimes", "UrbanZones", "Reacquisition",
 ]
-
-GPS_WEEK_S = 604_800.0
-"""Seconds in a GPS week: ``t0_gps`` is drawn uniformly in [0, GPS_WEEK_S)."""
-
-# fixed child-stream indices of a row's generator inside simulate_gnss: a component
-# added later gets a new index and never shifts another component's draws.
-_SUB_SKY, _SUB_CLOCK, _SUB_TROPO, _SUB_IONO, _SUB_CODE, _SUB_RATE, _SUB_NLOS, _SUB_CANYON = range(8)
-# issue 16 (random events): SeedSequence.spawn keys its children by index, so spawning more
-# children leaves the first 8 streams, and every pre-existing draw, unchanged (tested).
-(_SUB_BURSTS, _SUB_MISMATCH, _SUB_REGIME, _SUB_REGIME_NLOS, _SUB_ZONES, _SUB_ZONE_GEOM, _SUB_ZONE_SAT,
- _SUB_CN0) = range(8, 16)
-_N_SUB = 16
-CN0_JITTER_DB = 1.0
-"""Sigma of the receiver's C/N0 estimate per epoch [dB] (assumption: a 1 s C/N0 estimator at 35-45 dB-Hz)."""
-_MIN_EL_SIGMA = math.radians(1.0)
-"""The 1/sin(el) sigma model is evaluated at max(el, 1 deg) (finite at a 0-deg mask)."""
-_CHUNK_ELEMS = 50_000
-"""Satellite-epochs per vectorized geometry block and tracked channels per ranging block (cache-sized; results
-do not depend on it)."""
 
 
 # =============================================================================
@@ -122,374 +103,6 @@ def _check_intervals(owner: str, name: str, value, with_scale: bool) -> None:
             raise ValueError(f"{owner}.{name}[{k}]: t1 < t0 in {iv!r}")
         if with_scale:
             _check_real(owner, f"{name}[{k}].scale", iv[2], lo=0.0)
-
-
-def _in_intervals(t: np.ndarray, intervals) -> np.ndarray:
-    """Boolean (M,) : ``t`` lies in any half-open interval ``[t0, t1)``."""
-    out = np.zeros(t.shape, dtype=bool)
-    for iv in intervals:
-        out |= (t >= iv[0]) & (t < iv[1])
-    return out
-
-
-# =============================================================================
-# receiver clock
-# =============================================================================
-@dataclass(frozen=True)
-class ClockModel:
-    """Receiver clock: two-state (bias, drift) random process in metres.
-
-    Power-law model of the oscillator's fractional frequency (Allan-variance
-    coefficients ``h_alpha``) reduced to the two-state model of Brown & Hwang
-    (*Introduction to Random Signals and Applied Kalman Filtering*, 4th ed.,
-    ch. 9, receiver clock model) and Groves 2nd ed. ch. 9 (clock phase / frequency PSDs
-    ``S_cphi``, ``S_cf``); the flicker term ``h_-1`` is omitted, as in the
-    two-state model::
-
-        q_bias  = h_0 / 2 * c^2            [m^2/s]    (white frequency -> bias random walk)
-        q_drift = 2 pi^2 h_-2 * c^2        [m^2/s^3]  (random-walk frequency -> drift random walk)
-
-    Defaults are Brown & Hwang's typical TCXO Allan coefficients (the values
-    Kaplan & Hegarty, *Understanding GPS*, 2nd ed., also quote for a TCXO):
-    ``h_0 = 2e-19 s``, ``h_-2 = 2e-20 1/s``, giving
-    ``q_bias = 0.009 m^2/s`` and ``q_drift = 0.036 m^2/s^3`` (Groves quotes
-    0.01 and 0.04 as typical TCXO values).
-
-    Parameters
-    ----------
-    h0 : float
-        White-frequency Allan coefficient ``h_0`` [s], >= 0.
-    h_minus2 : float
-        Random-walk-frequency Allan coefficient ``h_-2`` [1/s], >= 0.
-    init_bias_sigma_m : float
-        Standard deviation of the initial clock bias [m], Gaussian, zero mean.
-        Default 1e5 m (0.33 ms: a receiver keeps its clock within ~1 ms of GPS time).
-    init_drift_sigma_mps : float
-        Standard deviation of the initial clock drift [m/s], Gaussian, zero
-        mean. Default 100 m/s (0.33 ppm, a TCXO's frequency offset).
-    """
-
-    h0: float = 2e-19
-    h_minus2: float = 2e-20
-    init_bias_sigma_m: float = 1e5
-    init_drift_sigma_mps: float = 100.0
-
-    def __post_init__(self):
-        o = "ClockModel"
-        for name in ("h0", "h_minus2", "init_bias_sigma_m", "init_drift_sigma_mps"):
-            _check_real(o, name, getattr(self, name), lo=0.0)
-
-    @classmethod
-    def tcxo(cls, **kw) -> "ClockModel":
-        """Temperature-compensated crystal (Brown & Hwang: h0 = 2e-19, h-2 = 2e-20)."""
-        return cls(h0=2e-19, h_minus2=2e-20, **kw)
-
-    @classmethod
-    def ocxo(cls, **kw) -> "ClockModel":
-        """Oven-controlled crystal (Brown & Hwang: h0 = 2e-25, h-2 = 6e-25)."""
-        return cls(h0=2e-25, h_minus2=6e-25, **kw)
-
-    @classmethod
-    def ideal(cls) -> "ClockModel":
-        """A perfect clock: zero bias and drift at all times."""
-        return cls(h0=0.0, h_minus2=0.0, init_bias_sigma_m=0.0, init_drift_sigma_mps=0.0)
-
-    @property
-    def q_bias(self) -> float:
-        """Bias random-walk PSD ``h_0 / 2 c^2`` [m^2/s]."""
-        return 0.5 * self.h0 * C_LIGHT**2
-
-    @property
-    def q_drift(self) -> float:
-        """Drift random-walk PSD ``2 pi^2 h_-2 c^2`` [m^2/s^3]."""
-        return 2.0 * math.pi**2 * self.h_minus2 * C_LIGHT**2
-
-    def discrete_Q(self, dt):
-        """Exact discrete process noise of the two-state clock over ``dt``.
-
-        Integrated random walk (Brown & Hwang 4th ed. ch. 9): ``Q = int_0^dt Phi(s) diag(q_b, q_d) Phi(s)^T ds``
-        with ``Phi(s) = [[1, s], [0, 1]]``::
-
-            Q = [[q_b dt + q_d dt^3/3, q_d dt^2/2],
-                 [q_d dt^2/2,          q_d dt    ]]
-
-        Parameters
-        ----------
-        dt : (...,) array_like, time step [s], >= 0.
-
-        Returns
-        -------
-        (..., 2, 2) float64 [m^2, m^2/s; m^2/s, m^2/s^2].
-        """
-        dt = np.asarray(dt, dtype=np.float64)
-        qb, qd = self.q_bias, self.q_drift
-        Q = np.empty(dt.shape + (2, 2))
-        Q[..., 0, 0] = qb * dt + qd * dt**3 / 3.0
-        Q[..., 0, 1] = Q[..., 1, 0] = qd * dt**2 / 2.0
-        Q[..., 1, 1] = qd * dt
-        return Q
-
-
-def _check_times(t) -> np.ndarray:
-    """(M,) finite, strictly increasing float64 epochs, else ``ValueError`` naming ``t``."""
-    t = np.asarray(t, dtype=np.float64)
-    if t.ndim != 1 or t.size < 1:
-        raise ValueError(f"t must be a non-empty 1-D array of epochs [s], got shape {t.shape}")
-    if not np.all(np.isfinite(t)):
-        raise ValueError("t must be finite")
-    if t.size > 1 and np.any(np.diff(t) <= 0.0):
-        raise ValueError("t must be strictly increasing")
-    return t
-
-
-def _check_rngs(rngs) -> list:
-    if isinstance(rngs, np.random.Generator) or not hasattr(rngs, "__len__") or len(rngs) == 0:
-        raise ValueError("rngs must be a non-empty list of numpy Generators (one per row)")
-    for i, g in enumerate(rngs):
-        if not isinstance(g, np.random.Generator):
-            raise ValueError(f"rngs[{i}] must be a numpy.random.Generator, got {type(g).__name__}")
-    return list(rngs)
-
-
-def simulate_clock(t, rngs, clock: ClockModel | None = None):
-    """Receiver clock bias and drift at the epochs ``t``, exact discrete propagation.
-
-    Two-state model ``x = [b, d]``: ``b_k+1 = b_k + dt_k d_k + w_b``,
-    ``d_k+1 = d_k + w_d`` with ``w ~ N(0, Q(dt_k))`` of
-    :meth:`ClockModel.discrete_Q` (Brown & Hwang ch. 9). The correlated
-    increments are drawn through the 2x2 Cholesky factor of ``Q(dt_k)`` and
-    accumulated by cumulative sums (no loop over epochs).
-
-    Per row ``i`` the draws from ``rngs[i]`` are, in this order: 2 standard
-    normals (initial bias, drift), then ``(M-1, 2)`` standard normals.
-
-    Parameters
-    ----------
-    t : (M,) array_like
-        Strictly increasing epochs [s].
-    rngs : list of B numpy.random.Generator
-        One generator per row.
-    clock : ClockModel, optional
-        Clock parameters (default ``ClockModel()``, a TCXO).
-
-    Returns
-    -------
-    bias_m : (B, M) float64
-        Clock bias expressed as a range [m].
-    drift_mps : (B, M) float64
-        Clock drift expressed as a range rate [m/s].
-    """
-    t = _check_times(t)
-    rngs = _check_rngs(rngs)
-    clock = ClockModel() if clock is None else clock
-    if not isinstance(clock, ClockModel):
-        raise ValueError(f"clock must be a ClockModel, got {type(clock).__name__}")
-    B, M = len(rngs), t.size
-    dt = np.diff(t)
-    Q = clock.discrete_Q(dt)                                       # (M-1, 2, 2)
-    l11 = np.sqrt(Q[:, 0, 0])
-    l21 = np.divide(Q[:, 1, 0], l11, out=np.zeros_like(l11), where=l11 > 0.0)
-    l22 = np.sqrt(np.maximum(Q[:, 1, 1] - l21 * l21, 0.0))
-    z0 = np.empty((B, 2))
-    z = np.empty((B, M - 1, 2))
-    for i, g in enumerate(rngs):
-        z0[i] = g.standard_normal(2)
-        z[i] = g.standard_normal((M - 1, 2))
-    wb = l11 * z[..., 0]                                           # (B, M-1)
-    wd = l21 * z[..., 0] + l22 * z[..., 1]
-    drift = np.empty((B, M))
-    drift[:, 0] = clock.init_drift_sigma_mps * z0[:, 1]
-    drift[:, 1:] = drift[:, :1] + np.cumsum(wd, axis=1)
-    bias = np.empty((B, M))
-    bias[:, 0] = clock.init_bias_sigma_m * z0[:, 0]
-    bias[:, 1:] = bias[:, :1] + np.cumsum(dt * drift[:, :-1] + wb, axis=1)
-    return bias, drift
-
-
-def _gauss_markov(t: np.ndarray, tau: float, sigma: float, z: np.ndarray) -> np.ndarray:
-    """Stationary first-order Gauss-Markov process sampled exactly at ``t``.
-
-    ``x_0 = sigma z_0``, ``x_k = a_k x_k-1 + sigma sqrt(1 - a_k^2) z_k``,
-    ``a_k = exp(-dt_k / tau)``: the exact discretization of
-    ``dx/dt = -x / tau + w`` (first-order Gauss-Markov process, Brown & Hwang
-    4th ed. ch. 2; Groves 2nd ed. ch. 3). Uniform steps use ``scipy.signal.lfilter``;
-    non-uniform steps a blocked cumulative-product solution (no epoch loop).
-
-    Parameters
-    ----------
-    t : (M,) strictly increasing epochs [s].
-    tau : correlation time [s], > 0.
-    sigma : stationary standard deviation.
-    z : (M, ...) standard normal draws.
-
-    Returns
-    -------
-    (M, ...) float64 samples.
-    """
-    x0 = sigma * z[0]
-    if t.size == 1:
-        return x0[None].copy() if np.ndim(x0) else np.array([x0])
-    dt = np.diff(t)
-    a = np.exp(-dt / tau)
-    e = sigma * np.sqrt(-np.expm1(-2.0 * dt / tau)).reshape((-1,) + (1,) * (z.ndim - 1)) * z[1:]
-    if np.all(np.abs(dt - dt[0]) <= 1e-9 * abs(dt[0])):      # uniform: np.allclose(dt, dt[0], rtol=1e-9, atol=0)
-        a0 = float(a[0])
-        y, _ = lfilter([1.0], [1.0, -a0], e, axis=0, zi=(a0 * x0)[None])
-        return np.concatenate([x0[None], y], axis=0)
-    # non-uniform: x_k = P_k (x_prev + sum_j e_j / P_j) within blocks where -log P stays < 600
-    la = np.maximum(-dt / tau, -300.0)
-    out = np.empty(z.shape)
-    out[0] = x0
-    cum = np.cumsum(-la)
-    block = np.floor(cum / 300.0).astype(np.int64)
-    starts = np.flatnonzero(np.r_[True, block[1:] != block[:-1]])
-    ends = np.r_[starts[1:], block.size]
-    x_prev = x0
-    shape = (-1,) + (1,) * (z.ndim - 1)
-    for s, f in zip(starts, ends):                       # a few blocks, not epochs
-        L = np.cumsum(la[s:f]).reshape(shape)            # log P relative to the block start
-        xs = np.exp(L) * (x_prev + np.cumsum(e[s:f] * np.exp(-L), axis=0))
-        out[s + 1:f + 1] = xs
-        x_prev = xs[-1]
-    return out
-
-
-# =============================================================================
-# receiver
-# =============================================================================
-@dataclass(frozen=True)
-class ReceiverConfig:
-    """A single-frequency (L1 C/A) receiver and the residual errors it sees.
-
-    Parameters
-    ----------
-    n_channels : int
-        Number of tracking channels C; visible satellites sorted by elevation
-        (descending) fill them, the rest are masked out.
-    elevation_mask_deg : float
-        Elevation mask [deg], in [0, 89].
-    pr_sigma_m : float
-        Zenith code noise incl. multipath [m], scaled by ``1/sin(el)``
-        (0.8 m at zenith -> 4.6 m at 10 deg), >= 0.
-    prr_sigma_mps : float
-        Zenith pseudorange-rate (Doppler) noise [m/s], scaled by ``1/sin(el)``, >= 0.
-    tropo_zenith_sigma_m : float
-        Stationary sigma of the residual zenith tropospheric delay [m] (after
-        a standard tropo model: ~0.1-0.2 m), >= 0.
-    tropo_tau_s : float
-        Correlation time of the tropospheric residual [s], > 0.
-    iono_zenith_sigma_m : float
-        Stationary sigma of the residual vertical ionospheric delay after the
-        Klobuchar model [m] (Klobuchar removes ~50 %: ~0.5-1 m left), >= 0.
-    iono_tau_s : float
-        Correlation time of the ionospheric residual [s], > 0.
-    clock : ClockModel
-        Receiver clock (default TCXO).
-    sigma_model : SigmaModel
-        The model of the reported pseudorange sigma (:mod:`envs.sim.sigma_models`); the default
-        ``'receiver'`` keeps the nominal model of the module docstring. Another model replaces the nominal
-        ``pr_sigma`` by its value at the channel's elevation and reported C/N0 (``cn0_dbhz``: NLOS and zone
-        attenuation included); a :class:`~envs.sim.events.SigmaMismatch` factor still multiplies it. The true
-        errors do not depend on it.
-    """
-
-    n_channels: int = 16
-    elevation_mask_deg: float = 10.0
-    pr_sigma_m: float = 0.8
-    prr_sigma_mps: float = 0.05
-    tropo_zenith_sigma_m: float = 0.15
-    tropo_tau_s: float = 1800.0
-    iono_zenith_sigma_m: float = 0.7
-    iono_tau_s: float = 1800.0
-    clock: ClockModel = field(default_factory=ClockModel)
-    sigma_model: SigmaModel = field(default_factory=SigmaModel)
-
-    def __post_init__(self):
-        o = "ReceiverConfig"
-        _check_int(o, "n_channels", self.n_channels, lo=1)
-        _check_real(o, "elevation_mask_deg", self.elevation_mask_deg, lo=0.0, hi=89.0)
-        for name in ("pr_sigma_m", "prr_sigma_mps", "tropo_zenith_sigma_m", "iono_zenith_sigma_m"):
-            _check_real(o, name, getattr(self, name), lo=0.0)
-        for name in ("tropo_tau_s", "iono_tau_s"):
-            _check_real(o, name, getattr(self, name), lo=0.0, lo_open=True)
-        if not isinstance(self.clock, ClockModel):
-            raise ValueError(f"{o}.clock must be a ClockModel, got {type(self.clock).__name__}")
-        if not isinstance(self.sigma_model, SigmaModel):
-            raise ValueError(f"{o}.sigma_model must be a SigmaModel, got {type(self.sigma_model).__name__}")
-
-    @classmethod
-    def dual_frequency(cls, **kw) -> "ReceiverConfig":
-        """A receiver with a small atmosphere residual: dual-frequency (L1/L5) iono-free, SBAS-grade troposphere.
-
-        The first-order ionospheric delay (> 99.9 % of it) cancels in the
-        iono-free combination; what is left is the higher-order terms (cm)
-        and inter-frequency bias errors: assumption ``iono_zenith_sigma_m =
-        0.1`` m (conservative; the SBAS-corrected single-frequency user's
-        vertical iono error, after GIVE-level grid corrections, is of the same
-        order). The troposphere residual is RTCA DO-229 A.4.2.4's
-        ``sigma_tvert = 0.12`` m. The zenith code noise stays 0.8 m
-        (assumption: the iono-free combination amplifies the noise by ~2.6 on
-        L1/L5, offset by L5's ten times faster chipping rate). With these,
-        white-noise mismatch is no longer swamped by the slow atmosphere
-        residual (default receiver: 0.7 m iono, 0.15 m tropo zenith).
-        """
-        base = dict(tropo_zenith_sigma_m=0.12, iono_zenith_sigma_m=0.1)
-        base.update(kw)
-        return cls(**base)
-
-    @classmethod
-    def geodetic(cls, **kw) -> "ReceiverConfig":
-        """A geodetic-grade receiver: small code and Doppler noise, a centimetre-level atmosphere residual.
-
-        Zenith code noise incl. multipath 0.1 m (assumption: narrow-correlator
-        tracking and a choke-ring antenna; geodetic data sheets quote code
-        precisions of a few cm to ~0.25 m), Doppler 0.01 m/s (assumption:
-        carrier-aided tracking, mm/s-level precision, multipath left room),
-        dual-frequency iono-free with 0.02 m higher-order ionosphere and
-        0.02 m zenith troposphere after a network ZTD correction
-        (assumptions: cm-level real-time products). The receiver clock stays
-        the default TCXO.
-        """
-        base = dict(pr_sigma_m=0.1, prr_sigma_mps=0.01, tropo_zenith_sigma_m=0.02, iono_zenith_sigma_m=0.02)
-        base.update(kw)
-        return cls(**base)
-
-    @classmethod
-    def ideal(cls, **kw) -> "ReceiverConfig":
-        """No noise, no atmospheric residual, a perfect clock (geometry checks)."""
-        base = dict(pr_sigma_m=0.0, prr_sigma_mps=0.0, tropo_zenith_sigma_m=0.0,
-                    iono_zenith_sigma_m=0.0, clock=ClockModel.ideal())
-        base.update(kw)
-        return cls(**base)
-
-
-def tropo_mapping(el):
-    """Tropospheric mapping function ``1.001 / sqrt(0.002001 + sin^2 el)`` (RTCA DO-229, A.4.2.4).
-
-    Parameters
-    ----------
-    el : (...) elevation [rad].
-
-    Returns
-    -------
-    (...) dimensionless, ~1/sin(el) above 15 deg, 22.4 at the horizon.
-    """
-    s = np.sin(el)
-    return 1.001 / np.sqrt(0.002001 + s * s)
-
-
-def iono_obliquity(el):
-    """Klobuchar obliquity factor ``F = 1 + 16 (0.53 - E)^3``, E = el / pi (IS-GPS-200 20.3.3.5.2.5).
-
-    Parameters
-    ----------
-    el : (...) elevation [rad].
-
-    Returns
-    -------
-    (...) dimensionless, 1.0 at zenith, ~3 at the horizon.
-    """
-    return 1.0 + 16.0 * (0.53 - np.asarray(el) / np.pi) ** 3
 
 
 # =============================================================================
@@ -805,248 +418,93 @@ class GnssData:
             return v if (name == "t" or v is None) else v[idx]
         return GnssData(**{f.name: take(f.name) for f in fields(self)})
 
-
 # =============================================================================
 # simulation
 # =============================================================================
-class _RowChildren:
-    """The ``_N_SUB`` fixed child generators of one row, each built on first use.
-
-    Child ``k`` is ``np.random.default_rng(SeedSequence(entropy).spawn(_N_SUB)[k])``: a spawned child is
-    ``SeedSequence(entropy, spawn_key=(k,))``, so building only the children a run uses (a clean sky
-    needs 7 of the 16) gives the very same streams at a fraction of the cost (~10 us per child).
-    Indexing with an int or a slice returns generators, as a list of all children would.
-    """
-
-    __slots__ = ("_words", "_gens")
-
-    def __init__(self, entropy: list):
-        self._words = _entropy_words(entropy)
-        self._gens = [None] * _N_SUB
-
-    def __len__(self) -> int:
-        return _N_SUB
-
-    def __getitem__(self, k):
-        if isinstance(k, slice):
-            return [self[j] for j in range(*k.indices(_N_SUB))]
-        g = self._gens[k]
-        if g is None:
-            g = self._gens[k] = np.random.default_rng(
-                np.random.SeedSequence(self._words, spawn_key=(range(_N_SUB)[k],)))
-        return g
-
-
-def _entropy_words(entropy: list) -> np.ndarray:
-    """The uint32 words ``SeedSequence`` makes of a list of non-negative ints, as a uint32 array.
-
-    ``SeedSequence`` turns each int of its entropy into 32-bit words, least significant first, at
-    least one word (0 -> [0]), and takes a uint32 array word for word: ``SeedSequence(words)`` is
-    ``SeedSequence(entropy)`` (same pool, same streams; tested), and ~2.5x cheaper to build.
-    """
-    words = []
-    for e in entropy:
-        words.append(e & 0xFFFFFFFF)
-        e >>= 32
-        while e:
-            words.append(e & 0xFFFFFFFF)
-            e >>= 32
-    return np.array(words, dtype=np.uint32)
+def _check_inputs(t, r_e, v_e, heading, constellation, receiver, events, rngs, t0_gps, dtype):
+    """The arguments of :func:`simulate_gnss` checked and converted (``ValueError`` naming the argument):
+    returns ``(t, r_e, v_e, heading, rngs, t0_gps, dtype)``."""
+    try:
+        ok = np.dtype(dtype) in (np.dtype(np.float32), np.dtype(np.float64))
+    except TypeError:
+        ok = False
+    if not ok:
+        raise ValueError(f"dtype must be np.float32 or np.float64, got {dtype!r}")
+    dtype = np.dtype(dtype)
+    if not isinstance(constellation, Constellation):
+        raise ValueError(f"constellation must be a Constellation, got {type(constellation).__name__}")
+    if not isinstance(receiver, ReceiverConfig):
+        raise ValueError(f"receiver must be a ReceiverConfig, got {type(receiver).__name__}")
+    if not isinstance(events, GnssEvents):
+        raise ValueError(f"events must be a GnssEvents, got {type(events).__name__}")
+    t = _check_times(t)
+    rngs = _check_rngs(rngs)
+    B, M = len(rngs), t.size
+    r_e = np.asarray(r_e, dtype=np.float64)
+    v_e = np.asarray(v_e, dtype=np.float64)
+    for name, arr in (("r_e", r_e), ("v_e", v_e)):
+        if arr.shape != (B, M, 3):
+            raise ValueError(f"{name} must have shape (B, M, 3) = {(B, M, 3)}, got {arr.shape}")
+        if not np.all(np.isfinite(arr)):
+            raise ValueError(f"{name} must be finite")
+    if heading is not None:
+        heading = np.asarray(heading, dtype=np.float64)
+        if heading.shape != (B, M):
+            raise ValueError(f"heading must have shape (B, M) = {(B, M)}, got {heading.shape}")
+        if not np.all(np.isfinite(heading)):
+            raise ValueError("heading must be finite")
+    elif events.canyon is not None:
+        raise ValueError("heading is required when events.canyon is set")
+    if t0_gps is not None:
+        t0_gps = np.asarray(t0_gps, dtype=np.float64)
+        if t0_gps.shape != (B,):
+            raise ValueError(f"t0_gps must have shape (B,) = {(B,)}, got {t0_gps.shape}")
+        if not np.all(np.isfinite(t0_gps)):
+            raise ValueError("t0_gps must be finite")
+    return t, r_e, v_e, heading, rngs, t0_gps, dtype
 
 
-def _row_children(rng: np.random.Generator) -> _RowChildren:
-    """Fixed child generators of one row (one per component), drawn from that row's generator only.
+def _gnss_data(t, sky, ch, rng, noise, err, bits, dtype) -> GnssData:
+    """The stages' results as :class:`GnssData`: pseudoranges and rates formed, masked channels set to finite
+    zeros (in place, then one cast; ``sat_pos`` / ``sat_vel``, evaluated on the tracked channels only, and the
+    NLOS biases, since ``nlos`` implies ``mask``, are zero there already)."""
+    mask = ch.mask
+    off = ~mask
+    pr = rng.rho + err.bias_m[..., None] + err.pr_err
+    prr = rng.rho_dot + err.drift_mps[..., None] + err.prr_err
 
-    One draw of 4 integers from ``rng`` is the entropy; child ``k`` (``0 .. _N_SUB-1``) is the ``k``-th
-    child of ``SeedSequence(entropy)`` (built lazily, see :class:`_RowChildren`).
-    """
-    entropy = rng.integers(0, 2**63, size=4, dtype=np.int64)
-    return _RowChildren([int(x) for x in entropy])
+    def z(a):
+        a[off] = 0.0
+        return a.astype(dtype, copy=False)
 
+    def zero_already(a):
+        return a.astype(dtype, copy=False)
 
-def _geometry(t_rx: np.ndarray, r_e: np.ndarray, constellation: Constellation, lat: np.ndarray,
-              lon: np.ndarray):
-    """Transmission time, elevation and azimuth of all satellites (one time chunk).
-
-    The transmission time is ``t_tx = t_rx - tau`` with ``tau = |r_s(t_rx) -
-    r_r| / c``, one light-time iteration: ``tau`` is off by < 0.5 us (the
-    range changes by <~ 150 m during the ~70 ms flight), i.e. < 2 mm of
-    satellite motion, and the ephemeris position at ``t_tx`` is exactly the
-    one the pseudorange is generated from, so the data stay self-consistent.
-
-    Elevation and azimuth use the line of sight to ``C_z(OMEGA_IE tau)
-    (r_s - v_s tau)`` (Groves eq 8.36 with a first-order satellite back
-    propagation; < 2 mm of position, < 1e-9 rad of direction).
-
-    Parameters
-    ----------
-    t_rx : (B, m) GPS reception time [s]; r_e : (B, m, 3) [m]; lat, lon : (B, m) [rad].
-
-    Returns
-    -------
-    t_tx, el, az : (B, m, S) [s, rad, rad]
-    """
-    p, v = constellation.positions_velocities(t_rx)        # (B, m, S, 3)
-    d = p - r_e[..., None, :]
-    tau = np.sqrt(np.einsum("...i,...i->...", d, d)) / C_LIGHT
-    t_tx = t_rx[..., None] - tau
-    th = OMEGA_IE * tau
-    # elevation / azimuth from the NED components of the (unnormalized) line of sight
-    n, e, up = _los_ned(p, v, tau, np.cos(th), np.sin(th), r_e,
-                        np.sin(lat), np.cos(lat), np.sin(lon), np.cos(lon))
-    el = np.arctan2(up, np.hypot(n, e))
-    az = _wrap_2pi(np.arctan2(e, n))
-    return t_tx, el, az
-
-
-@nb.njit(cache=True)
-def _los_ned(p, v, tau, c, s, r, sl, cl, so, co):
-    """NED components of the line of sight of :func:`_geometry`, one pass (numpy's operation order).
-
-    ``d = C_z(OMEGA_IE tau) (r_s - v_s tau) - r_r`` resolved in the local NED frame:
-    ``h = cos(lon) d_x + sin(lon) d_y``, ``n = -sin(lat) h + cos(lat) d_z``,
-    ``e = -sin(lon) d_x + cos(lon) d_y``, ``up = cos(lat) h + sin(lat) d_z``.
-
-    Parameters
-    ----------
-    p, v : (B, m, S, 3) satellite ECEF position [m] / velocity [m/s] at the reception time.
-    tau : (B, m, S) signal flight time [s]; c, s : (B, m, S) cos / sin of ``OMEGA_IE tau``.
-    r : (B, m, 3) receiver ECEF position [m]; sl, cl, so, co : (B, m) sin / cos of latitude and longitude.
-
-    Returns
-    -------
-    n, e, up : (B, m, S) [m].
-    """
-    B, m, S = tau.shape
-    n = np.empty((B, m, S))
-    e = np.empty((B, m, S))
-    up = np.empty((B, m, S))
-    for b in range(B):
-        for j in range(m):
-            for k in range(S):
-                px = p[b, j, k, 0] - v[b, j, k, 0] * tau[b, j, k]
-                py = p[b, j, k, 1] - v[b, j, k, 1] * tau[b, j, k]
-                pz = p[b, j, k, 2] - v[b, j, k, 2] * tau[b, j, k]
-                dx = c[b, j, k] * px + s[b, j, k] * py - r[b, j, 0]
-                dy = -s[b, j, k] * px + c[b, j, k] * py - r[b, j, 1]
-                dz = pz - r[b, j, 2]
-                h1 = co[b, j] * dx + so[b, j] * dy
-                n[b, j, k] = -sl[b, j] * h1 + cl[b, j] * dz
-                e[b, j, k] = -so[b, j] * dx + co[b, j] * dy
-                up[b, j, k] = cl[b, j] * h1 + sl[b, j] * dz
-    return n, e, up
-
-
-def _wrap_2pi(x: np.ndarray) -> np.ndarray:
-    """``np.mod(x, 2 pi)`` for ``x`` in [-pi, pi] (arctan2's range), without its fmod.
-
-    There ``fmod(x, 2 pi) = x``: np.mod adds ``2 pi`` to a negative ``x`` and turns ``-0.0`` into ``+0.0``
-    (``x + 0.0`` does the same), so the result is the same to the bit.
-    """
-    return np.where(x < 0.0, x + 2.0 * np.pi, x + 0.0)
-
-
-def _orbit_at(constellation: Constellation, t_sat: np.ndarray, sat_index=None):
-    """Positions / velocities of satellite ``s`` at its own time ``t_sat[..., s]``: (..., S) -> (..., S, 3)."""
-    if sat_index is None:
-        sat_index = np.broadcast_to(np.arange(constellation.n_sats), t_sat.shape)
-    # evaluate each (time, satellite) pair: flatten to a trailing axis of length 1
-    p, v = constellation.positions_velocities(t_sat, sat_index[..., None])
-    return p[..., 0, :], v[..., 0, :]
-
-
-def _nlos_bursts(t: np.ndarray, n_sats: int, cfg: NlosConfig, g: np.random.Generator):
-    """Per-satellite NLOS bursts of one row (alternating renewal process, see :class:`NlosConfig`).
-
-    Returns
-    -------
-    active : (M, S) bool; bias_m : (M, S) [m]; rate_mps : (M, S) [m/s].
-    """
-    M = t.size
-    active = np.zeros((M, n_sats), dtype=bool)
-    bias = np.zeros((M, n_sats))
-    rate = np.zeros((M, n_sats))
-    if cfg.rate_hz <= 0.0:
-        return active, bias, rate
-    d_lo, d_hi = cfg.duration_s
-    t_begin = t[0] - d_hi                                  # a burst may already run at t[0]
-    span = t[-1] - t_begin
-    mean_cycle = 1.0 / cfg.rate_hz + 0.5 * (d_lo + d_hi)
-    n_exp = span / mean_cycle
-    n_cyc = int(math.ceil(n_exp + 6.0 * math.sqrt(n_exp) + 3.0))
-    gaps, durs, biases, rates = [], [], [], []
-    end = np.full(n_sats, t_begin)
-    while True:                                            # almost always one pass
-        gp = g.exponential(1.0 / cfg.rate_hz, size=(n_cyc, n_sats))
-        du = g.uniform(d_lo, d_hi, size=(n_cyc, n_sats))
-        gaps.append(gp), durs.append(du)
-        biases.append(g.uniform(cfg.bias_m[0], cfg.bias_m[1], size=(n_cyc, n_sats)))
-        rates.append(cfg.rate_sigma_mps * g.standard_normal((n_cyc, n_sats)))
-        end = end + np.sum(gp + du, axis=0)
-        if np.all(end > t[-1]):
-            break
-    gp, du = np.concatenate(gaps), np.concatenate(durs)
-    bs, rs = np.concatenate(biases), np.concatenate(rates)
-    cyc_end = t_begin + np.cumsum(gp + du, axis=0)         # (K, S)
-    b_end = cyc_end
-    b_start = cyc_end - du
-    i0 = np.searchsorted(t, b_start.ravel(), side="left")
-    i1 = np.searchsorted(t, b_end.ravel(), side="left")
-    sat = np.broadcast_to(np.arange(n_sats), b_start.shape).ravel()
-    ident = np.arange(1, b_start.size + 1)
-    diff = np.zeros((M + 1, n_sats), dtype=np.int64)
-    np.add.at(diff, (i0, sat), ident)                      # bursts of one satellite never overlap
-    np.add.at(diff, (i1, sat), -ident)
-    burst = np.cumsum(diff[:M], axis=0)                    # 1-based burst id, 0 outside bursts
-    active = burst > 0
-    k = np.maximum(burst - 1, 0)
-    bias = np.where(active, bs.ravel()[k], 0.0)
-    rate = np.where(active, rs.ravel()[k], 0.0)
-    return active, bias, rate
-
-
-def _canyon(t, v_e, heading, el, az, cfg: UrbanCanyon, g: np.random.Generator):
-    """Street-canyon visibility of one row (see :class:`UrbanCanyon`).
-
-    Parameters
-    ----------
-    t : (M,) [s]; v_e : (M, 3) [m/s]; heading : (M,) [rad]; el, az : (M, S) [rad].
-
-    Returns
-    -------
-    blocked : (M, S) bool (not received at all); reflected : (M, S) bool
-    (received as NLOS); excess_m : (M, S) reflection excess path [m].
-    """
-    M, S = el.shape
-    speed = np.linalg.norm(v_e, axis=-1)
-    dist = np.concatenate([[0.0], np.cumsum(0.5 * (speed[1:] + speed[:-1]) * np.diff(t))])
-    blk = np.floor(dist / cfg.block_length_m).astype(np.int64)
-    K = int(blk.max()) + 1
-    heights = g.uniform(cfg.building_height_m[0], cfg.building_height_m[1], size=(K, 2))
-    present = g.random((K, 2)) < cfg.blockage_probability
-    reflect = g.random((K, S)) < cfg.nlos_probability
-    h = np.where(present, heights, 0.0)[blk]                # (M, 2): [left, right]
-    sa = np.sin(az - heading[:, None])                      # > 0: right side
-    h_side = np.where(sa > 0.0, h[:, 1:2], h[:, 0:1])       # (M, S)
-    half_w = 0.5 * cfg.street_width_m
-    under = np.tan(np.clip(el, -1.5, 1.5)) * half_w < h_side * np.abs(sa)
-    if cfg.intervals:
-        under &= _in_intervals(t, cfg.intervals)[:, None]
-    refl = under & reflect[blk]
-    excess = np.zeros((M, S))
-    excess[refl] = cfg.street_width_m * np.cos(el[refl]) * np.abs(sa[refl])   # the reflected few only
-    return under & ~refl, refl, excess
+    prn = np.where(mask, ch.sel + 1, -1).astype(np.int64)
+    return GnssData(
+        t=t.astype(dtype),
+        t0_gps=sky.t0_gps.copy(),
+        sat_pos=zero_already(rng.sat_pos), sat_vel=zero_already(rng.sat_vel),
+        pr=z(pr), prr=z(prr), pr_sigma=z(err.pr_sigma), prr_sigma=z(err.prr_sigma),
+        mask=mask, prn=prn, elevation=z(ch.el), azimuth=z(ch.az),
+        clock_bias_m=err.bias_m.astype(dtype, copy=False), clock_drift_mps=err.drift_mps.astype(dtype, copy=False),
+        nlos=noise.nlos, pr_error_m=z(err.pr_err), prr_error_mps=z(err.prr_err),
+        cn0_dbhz=z(ch.cn0), pr_var_true=err.pr_var_true.astype(dtype), prr_var_true=err.prr_var_true.astype(dtype),
+        pr_bias_m=zero_already(noise.pr_bias), prr_bias_mps=zero_already(noise.prr_bias), event_mask=bits,
+    )
 
 
 def simulate_gnss(t, r_e, v_e, heading, constellation: Constellation, receiver: ReceiverConfig,
                   events: GnssEvents, rngs, t0_gps=None, dtype=np.float64) -> GnssData:
     """Simulate pseudoranges and pseudorange rates of B receivers over M epochs.
 
-    See the module docstring for the measurement model. Steps: satellite
-    geometry of all satellites (chunked over time), visibility (elevation
-    mask, urban canyon, outages), channel allocation by elevation, then the
-    error processes (clock, troposphere, ionosphere, NLOS, white noise), all
-    vectorized over time.
+    See the module docstring for the measurement model. The stages
+    (:mod:`envs.sim.gnss_stages`, each vectorized over time): satellite
+    geometry of all satellites (chunked over time), visibility and the
+    degradations (elevation mask, urban canyon, NLOS bursts, random events,
+    outages), channel allocation by elevation, ranging on the tracked
+    channels, the channels' NLOS state and noise multipliers, then the error
+    processes (clock, troposphere, ionosphere, white noise) and sigmas.
 
     Per row ``i``, ``rngs[i]`` gives one draw of 4 integers that seed fixed
     child streams (0-7: sky epoch, clock, troposphere, ionosphere, code noise,
@@ -1090,266 +548,15 @@ def simulate_gnss(t, r_e, v_e, heading, constellation: Constellation, receiver: 
     dtype = np.dtype(dtype)
     if not isinstance(constellation, Constellation):
         raise ValueError(f"constellation must be a Constellation, got {type(constellation).__name__}")
-    if not isinstance(receiver, ReceiverConfig):
-        raise ValueError(f"receiver must be a ReceiverConfig, got {type(receiver).__name__}")
-    if not isinstance(events, GnssEvents):
-        raise ValueError(f"events must be a GnssEvents, got {type(events).__name__}")
-    t = _check_times(t)
-    rngs = _check_rngs(rngs)
-    B, M = len(rngs), t.size
-    r_e = np.asarray(r_e, dtype=np.float64)
-    v_e = np.asarray(v_e, dtype=np.float64)
-    for name, arr in (("r_e", r_e), ("v_e", v_e)):
-        if arr.shape != (B, M, 3):
-            raise ValueError(f"{name} must have shape (B, M, 3) = {(B, M, 3)}, got {arr.shape}")
-        if not np.all(np.isfinite(arr)):
-            raise ValueError(f"{name} must be finite")
-    if heading is not None:
-        heading = np.asarray(heading, dtype=np.float64)
-        if heading.shape != (B, M):
-            raise ValueError(f"heading must have shape (B, M) = {(B, M)}, got {heading.shape}")
-        if not np.all(np.isfinite(heading)):
-            raise ValueError("heading must be finite")
-    elif events.canyon is not None:
-        raise ValueError("heading is required when events.canyon is set")
-
-    subs = [_row_children(g) for g in rngs]
-    if t0_gps is None:
-        t0_gps = np.array([s[_SUB_SKY].uniform(0.0, GPS_WEEK_S) for s in subs])
-    else:
-        t0_gps = np.asarray(t0_gps, dtype=np.float64)
-        if t0_gps.shape != (B,):
-            raise ValueError(f"t0_gps must have shape (B,) = {(B,)}, got {t0_gps.shape}")
-        if not np.all(np.isfinite(t0_gps)):
-            raise ValueError("t0_gps must be finite")
-
-    S, C = constellation.n_sats, receiver.n_channels
-    lat, lon, _ = ecef_to_geodetic(r_e)
-    t_rx = t0_gps[:, None] + t[None, :]                     # (B, M)
-
-    # ---- geometry of all satellites, chunked over time (bounded memory, cache-sized blocks)
-    t_tx = np.empty((B, M, S))
-    el_all = np.empty((B, M, S))
-    az_all = np.empty((B, M, S))
-    chunk = max(1, _CHUNK_ELEMS // (B * S))
-    for k0 in range(0, M, chunk):
-        sl_ = slice(k0, min(M, k0 + chunk))
-        t_tx[:, sl_], el_all[:, sl_], az_all[:, sl_] = _geometry(
-            t_rx[:, sl_], r_e[:, sl_], constellation, lat[:, sl_], lon[:, sl_])
-
-    # ---- visibility
-    mask_rad = math.radians(receiver.elevation_mask_deg)
-    visible = el_all >= mask_rad
-    nlos_sat = np.zeros((B, M, S), dtype=bool)
-    nlos_bias_sat = np.zeros((B, M, S))
-    nlos_rate_sat = np.zeros((B, M, S))
-    if events.canyon is not None:
-        for i in range(B):
-            blocked, refl, excess = _canyon(t, v_e[i], heading[i], el_all[i], az_all[i], events.canyon,
-                                            subs[i][_SUB_CANYON])
-            visible[i] &= ~blocked
-            nlos_sat[i] |= refl
-            nlos_bias_sat[i] = excess
-    if events.nlos is not None:
-        for i in range(B):
-            act, bias, rate = _nlos_bursts(t, S, events.nlos, subs[i][_SUB_NLOS])
-            nlos_sat[i] |= act
-            nlos_bias_sat[i] = np.maximum(nlos_bias_sat[i], bias)
-            nlos_rate_sat[i] = rate
-    # issue-16 events: each from its own child stream, drawn only when configured
-    n_ep = np.ones((B, M)), np.ones((B, M))                  # per-epoch true code / Doppler sigma multipliers
-    rep_fac = np.ones((B, M)), np.ones((B, M))               # reported-sigma factors (mismatch)
-    bits = np.zeros((B, M), dtype=np.uint16)
-    new_nlos = events.zones is not None or (events.regimes is not None
-                                            and any(r.nlos_fraction > 0 for r in events.regimes.regimes))
-    if new_nlos:                                           # NLOS of the zones / regimes, and their C/N0 loss
-        nlos2_sat = np.zeros((B, M, S), dtype=bool)
-        bias2_sat = np.zeros((B, M, S))
-        rate2_sat = np.zeros((B, M, S))
-        att_sat = np.zeros((B, M, S))
-    if events.bursts is not None:
-        for i in range(B):
-            c, d, act, _ = ev.draw_bursts(t, events.bursts, subs[i][_SUB_BURSTS])
-            n_ep[0][i] *= c
-            n_ep[1][i] *= d
-            bits[i] |= np.where(act, ev.NOISE, 0).astype(np.uint16)
-    if events.mismatch is not None:
-        for i in range(B):
-            fp, fd = ev.draw_mismatch(t, events.mismatch, subs[i][_SUB_MISMATCH])
-            rep_fac[0][i], rep_fac[1][i] = fp, fd
-            bits[i] |= np.where((fp != 1.0) | (fd != 1.0), ev.MISMATCH, 0).astype(np.uint16)
-    if events.regimes is not None:
-        rg = events.regimes
-        sc = np.array([[r.code_scale, r.doppler_scale] for r in rg.regimes])
-        for i in range(B):
-            regime, _ = ev.draw_regimes(t, rg, subs[i][_SUB_REGIME])
-            n_ep[0][i] *= sc[regime, 0]
-            n_ep[1][i] *= sc[regime, 1]
-            bits[i] |= np.where(regime > 0, ev.REGIME, 0).astype(np.uint16)
-            if new_nlos:
-                nl, bi, ra = ev.regime_nlos(t, regime, el_all[i], rg, subs[i][_SUB_REGIME_NLOS])
-                nl &= visible[i]
-                nlos2_sat[i] |= nl
-                bias2_sat[i] = np.where(nl, bi, bias2_sat[i])
-                rate2_sat[i] = np.where(nl, ra, rate2_sat[i])
-    if events.zones is not None:
-        for i in range(B):
-            kind, zid, windows = ev.draw_zone_schedule(t, events.zones, subs[i][_SUB_ZONES])
-            blocked, nl, bi, ra, att = ev.zone_effects(
-                t, kind, zid, windows, el_all[i], az_all[i], v_e[i], None if heading is None else heading[i],
-                events.zones, subs[i][_SUB_ZONE_GEOM], subs[i][_SUB_ZONE_SAT])
-            visible[i] &= ~blocked
-            nl &= visible[i]
-            nlos2_sat[i] |= nl
-            bias2_sat[i] = np.where(nl, bi, bias2_sat[i])
-            rate2_sat[i] = np.where(nl, ra, rate2_sat[i])
-            att_sat[i] = np.where(visible[i], att, 0.0)
-            zb = np.zeros(M, dtype=np.uint16)
-            zb[kind == ev.ZONE_CANYON] = ev.NLOS_ZONE
-            zb[kind == ev.ZONE_TREES] = ev.NLOS_ZONE | ev.TREES
-            zb[kind == ev.ZONE_OVERPASS] = ev.OVERPASS
-            bits[i] |= zb
-    if new_nlos:                                           # the regimes' NLOS carry the measured C/N0 deficit too
-        att_sat = np.where(nlos2_sat & (att_sat == 0.0), ev.NLOS_DEFICIT_DB, att_sat)
-    if events.outages:
-        in_out = _in_intervals(t, events.outages)
-        visible &= ~in_out[None, :, None]
-        bits |= np.where(in_out, ev.OUTAGE, 0).astype(np.uint16)[None]
-    for iv in events.noise_scale:
-        if iv[2] != 1.0:
-            bits |= np.where((t >= iv[0]) & (t < iv[1]), ev.NOISE, 0).astype(np.uint16)[None]
-    if events.canyon is not None:
-        in_c = _in_intervals(t, events.canyon.intervals) if events.canyon.intervals else np.ones(M, bool)
-        bits |= np.where(in_c, ev.NLOS_ZONE, 0).astype(np.uint16)[None]
-    reacq_sat = None
-    if events.reacquisition is not None:
-        reacq_sat = ev.reacquisition_multiplier(t, visible, events.reacquisition)
-
-    # ---- channel allocation: visible satellites by elevation, descending
-    key = np.where(visible, el_all, -np.inf)
-    order = np.argsort(-key, axis=-1, kind="stable")
-    if C <= S:
-        sel = order[..., :C].copy()
-    else:
-        sel = np.concatenate([order, np.zeros((B, M, C - S), dtype=order.dtype)], axis=-1)
-    # one flat index into (B, M, S) arrays serves every gather (one np.take instead of take_along_axis)
-    flat_sel = sel + (S * np.arange(B * M)).reshape(B, M, 1)
-
-    def gather(a):
-        """(B, M, S) per-satellite array -> (B, M, C) per-channel array (``a[b, k, sel[b, k, c]]``)."""
-        return np.take(a, flat_sel)
-
-    mask = gather(visible)
-    if C > S:
-        mask[..., S:] = False
-
-    el, az = gather(el_all), gather(az_all)
-    cn0_z = np.stack([s[_SUB_CN0].standard_normal((M, S)) for s in subs])     # C/N0 jitter, per satellite
-    cn0 = ev.cn0_los(el) + CN0_JITTER_DB * gather(cn0_z)
-    del el_all, az_all, key, order, cn0_z
-    # ---- ephemeris at transmission time and true range / rate, on the tracked channels only (the
-    # others are zeroed at the end; every formula is elementwise, so a value does not depend on which
-    # channels are evaluated with it), in blocks of _CHUNK_ELEMS channels
-    t_tx_ch = gather(t_tx)
-    del t_tx
-    sat_pos = np.zeros((B, M, C, 3))
-    sat_vel = np.zeros((B, M, C, 3))
-    rho = np.zeros((B, M, C))
-    rho_dot = np.zeros((B, M, C))
-    tracked = np.flatnonzero(mask)                          # flat (b, k, c) index of the tracked channels
-    for k0 in range(0, tracked.size, _CHUNK_ELEMS):
-        ch = tracked[k0:k0 + _CHUNK_ELEMS]
-        epoch = ch // C                                    # flat (b, k) index
-        sp, sv = _orbit_at(constellation, t_tx_ch.reshape(-1)[ch], sel.reshape(-1)[ch])
-        sat_pos.reshape(-1, 3)[ch], sat_vel.reshape(-1, 3)[ch] = sp, sv
-        rho_ch, rho_dot_ch, _ = range_and_rate(sp[:, None], sv[:, None], r_e.reshape(-1, 3)[epoch],
-                                               v_e.reshape(-1, 3)[epoch])
-        rho.reshape(-1)[ch], rho_dot.reshape(-1)[ch] = rho_ch[:, 0], rho_dot_ch[:, 0]
-
-    # ---- error processes
-    clock = receiver.clock
-    bias_m, drift_mps = simulate_clock(t, [s[_SUB_CLOCK] for s in subs], clock)
-    s_el = np.sin(np.maximum(el, _MIN_EL_SIGMA))
-    m_t, f_i = tropo_mapping(el), iono_obliquity(el)
-    # the Gauss-Markov processes of all rows in one call each (time axis first; columns are independent)
-    tropo_z = _gauss_markov(t, receiver.tropo_tau_s, receiver.tropo_zenith_sigma_m,
-                            np.stack([s[_SUB_TROPO].standard_normal(M) for s in subs], axis=1)).T
-    iono_sat = _gauss_markov(t, receiver.iono_tau_s, receiver.iono_zenith_sigma_m,   # one process per satellite
-                             np.stack([s[_SUB_IONO].standard_normal((M, S)) for s in subs], axis=1))
-    iono_ch = gather(iono_sat.transpose(1, 0, 2))
-    del iono_sat
-    code_z = np.stack([s[_SUB_CODE].standard_normal((M, C)) for s in subs])
-    rate_z = np.stack([s[_SUB_RATE].standard_normal((M, C)) for s in subs])
-    nlos = gather(nlos_sat) & mask
-    nlos_bias, nlos_rate = gather(nlos_bias_sat), gather(nlos_rate_sat)
-    del nlos_sat, nlos_bias_sat, nlos_rate_sat
-    k_nlos = events.nlos.noise_factor if events.nlos is not None else 3.0
-    cn0 -= np.where(nlos, ev.NLOS_DEFICIT_DB, 0.0)
-    scale = np.ones(M)
-    for iv in events.noise_scale:
-        scale = np.where((t >= iv[0]) & (t < iv[1]), scale * iv[2], scale)
-    noise_mult = scale[None, :, None] * np.where(nlos, k_nlos, 1.0)
-    noise_mult_prr = noise_mult
-    if new_nlos:                                           # zone / regime NLOS replace the old ones on a channel
-        nlos2 = gather(nlos2_sat) & mask
-        att = gather(att_sat)
-        nlos_bias = np.where(nlos2, gather(bias2_sat), nlos_bias)
-        nlos_rate = np.where(nlos2, gather(rate2_sat), nlos_rate)
-        noise_mult = np.where(nlos2 & nlos, noise_mult / k_nlos, noise_mult) * 10.0 ** (att / 20.0)
-        nlos = nlos | nlos2
-        cn0 -= att
-        noise_mult_prr = noise_mult
-        del nlos2_sat, bias2_sat, rate2_sat, att_sat
-    if reacq_sat is not None:
-        rq = gather(reacq_sat)
-        noise_mult = noise_mult * rq
-        noise_mult_prr = noise_mult_prr * rq
-        bits |= np.where((mask & (rq > 1.0)).any(axis=-1), ev.REACQUISITION, 0).astype(np.uint16)
-    if events.bursts is not None or events.regimes is not None:
-        noise_mult = noise_mult * n_ep[0][..., None]
-        noise_mult_prr = noise_mult_prr * n_ep[1][..., None]
-    sig_pr_code = receiver.pr_sigma_m / s_el
-    sig_prr = receiver.prr_sigma_mps / s_el
-    pr_bias = np.where(nlos, nlos_bias, 0.0)
-    prr_bias = np.where(nlos, nlos_rate, 0.0)
-    pr_white = noise_mult * sig_pr_code
-    prr_white = noise_mult_prr * sig_prr
-    pr_err = (m_t * tropo_z[..., None] + f_i * iono_ch + pr_bias + pr_white * code_z)
-    prr_err = prr_bias + prr_white * rate_z
-    pr = rho + bias_m[..., None] + pr_err
-    prr = rho_dot + drift_mps[..., None] + prr_err
-    atm_var = (m_t * receiver.tropo_zenith_sigma_m) ** 2 + (f_i * receiver.iono_zenith_sigma_m) ** 2
-    pr_sigma = np.sqrt(sig_pr_code**2 + (m_t * receiver.tropo_zenith_sigma_m) ** 2
-                       + (f_i * receiver.iono_zenith_sigma_m) ** 2)
-    if receiver.sigma_model.name != "receiver":             # a variance model replaces the nominal sigma
-        with np.errstate(over="ignore"):
-            pr_sigma = np.sqrt(receiver.sigma_model.variance(el, cn0))
-    pr_var_true = np.where(mask, pr_white**2 + atm_var + pr_bias**2, 1.0)
-    prr_var_true = np.where(mask, prr_white**2 + prr_bias**2, 1.0)
-    if events.mismatch is not None:
-        pr_sigma = pr_sigma * rep_fac[0][..., None]
-        sig_prr = sig_prr * rep_fac[1][..., None]
-
-    # ---- masked channels: finite zeros (in place, then one cast); sat_pos / sat_vel (evaluated on the
-    # tracked channels only) and the NLOS biases (nlos implies mask) are zero there already
-    off = ~mask
-
-    def z(a):
-        a[off] = 0.0
-        return a.astype(dtype, copy=False)
-
-    def zero_already(a):
-        return a.astype(dtype, copy=False)
-
-    prn = np.where(mask, sel + 1, -1).astype(np.int64)
-    return GnssData(
-        t=t.astype(dtype),
-        t0_gps=t0_gps.copy(),
-        sat_pos=zero_already(sat_pos), sat_vel=zero_already(sat_vel),
-        pr=z(pr), prr=z(prr), pr_sigma=z(pr_sigma), prr_sigma=z(sig_prr),
-        mask=mask, prn=prn, elevation=z(el), azimuth=z(az),
-        clock_bias_m=bias_m.astype(dtype, copy=False), clock_drift_mps=drift_mps.astype(dtype, copy=False),
-        nlos=nlos, pr_error_m=z(pr_err), prr_error_mps=z(prr_err),
-        cn0_dbhz=z(cn0), pr_var_true=pr_var_true.astype(dtype), prr_var_true=prr_var_true.astype(dtype),
-        pr_bias_m=zero_already(pr_bias), prr_bias_mps=zero_already(prr_bias), event_mask=bits,
-    )
+    t, r_e, v_e, heading, rngs, t0_gps, dtype = _check_inputs(t, r_e, v_e, heading, constellation, receiver,
+                                                               events, rngs, t0_gps, dtype)
+    subs = [stages._row_children(g) for g in rngs]
+    sky = stages.sky_geometry(t, r_e, constellation, subs, t0_gps)
+    sat = stages.canyon_and_bursts(t, v_e, heading, sky, receiver.elevation_mask_deg, events, subs)
+    stages.random_events(t, v_e, heading, sky, sat, events, subs)
+    stages.scheduled_events(t, sat, events)
+    ch = stages.allocate_channels(sky, sat.visible, receiver.n_channels, subs)
+    rng = stages.channel_ranging(r_e, v_e, sky, ch, constellation)
+    noise = stages.channel_noise(t, ch, sat, events)
+    err = stages.receiver_errors(t, ch, noise, sat, receiver, subs)
+    return _gnss_data(t, sky, ch, rng, noise, err, sat.bits, dtype)

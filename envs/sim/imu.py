@@ -48,12 +48,15 @@ import math
 import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Sequence
 
 import numba as nb
 import numpy as np
 
 from earth.units import DEG, deg, dph, dpsh, mg, mpsph, ppm, ugpsh, ugpshz
+
+from .rng import ChildStreams
 
 __all__ = [
     "ImuGrade",
@@ -531,9 +534,29 @@ def _sum_of_products(basis: np.ndarray, coef: np.ndarray) -> np.ndarray:
     return out
 
 
+@nb.njit(cache=True, nogil=True)
+def _road_vibration(e, zi, a, level, scale, ridx, vib) -> None:
+    """The road samples of :func:`_vibration_row` into the rows ``ridx`` (m,) of ``vib`` (N, 6) (f_vib, w_vib).
+
+    ``y`` = :func:`_all_pole_filter` of the unit innovations ``e`` (m, 6) from the state ``zi`` (2, 6) (the
+    AR(2) resonance ``a``); the sample is ``(L_k y_k - L_(k-1) y_(k-1)) scale`` with the speed level ``L``
+    (m,) and ``L_(-1) y_(-1) = 0``: the operations of ``y *= level; np.diff(y, prepend=0); y *= scale`` in
+    their order (the same bits), in one pass.
+    """
+    y = _all_pole_filter(a, e, zi)
+    prev = np.zeros(6)
+    for k in range(ridx.shape[0]):
+        r = ridx[k]
+        for j in range(6):
+            yl = y[k, j] * level[k]
+            vib[r, j] = (yl - prev[j]) * scale[j]
+            prev[j] = yl
+
+
 def _vibration_row(gen: np.random.Generator, dt: float, engine_on: np.ndarray | None, speed: np.ndarray,
-                   vib: Vibration) -> tuple[np.ndarray, np.ndarray] | None:
-    """Vibration of one run: ``(f_vib, w_vib)``, each (N, 3) float64, or None if it is zero throughout.
+                   vib: Vibration) -> np.ndarray | None:
+    """Vibration of one run: (N, 6) float64, ``f_vib`` in columns 0-2 and ``w_vib`` in 3-5, or None if it is zero
+    throughout.
 
     Draw order (fixed, independent of the data): f_e, idle accel rms, idle gyro
     rms, 2 x 6 phases, road accel level, road gyro level, then (only if the run
@@ -551,13 +574,13 @@ def _vibration_row(gen: np.random.Generator, dt: float, engine_on: np.ndarray | 
     eng = np.ones(n, dtype=bool) if engine_on is None else engine_on
     idle = eng & ~moving
     road = eng & moving
-    if not idle.any() and not road.any():
+    any_idle, any_road = idle.any(), road.any()
+    if not any_idle and not any_road:
         return None
     weights = np.asarray(vib.axis_weights)
-    fv = np.zeros((n, 3))
-    wv = np.zeros((n, 3))
+    out = np.zeros((n, 6))
 
-    if idle.any():
+    if any_idle:
         # per-channel rms r -> fundamental amplitude sqrt(2) r / sqrt(1 + h^2), harmonic h times that
         rms = np.concatenate([a_rms * weights, g_rms * weights])
         h = vib.harmonic_ratio
@@ -573,11 +596,9 @@ def _vibration_row(gen: np.random.Generator, dt: float, engine_on: np.ndarray | 
             basis += [np.sin(th), np.cos(th)]
             # A sin(th + phi) = A cos(phi) sin(th) + A sin(phi) cos(th)
             coef += [amp * atten * np.cos(phases[j]), amp * atten * np.sin(phases[j])]
-        vals = _sum_of_products(np.stack(basis), np.stack(coef))  # (M, 4) x (4, 6)
-        fv[idx] = vals[:, :3]
-        wv[idx] = vals[:, 3:]
+        out[idx] = _sum_of_products(np.stack(basis), np.stack(coef))  # (M, 4) x (4, 6)
 
-    if road.any() and (road_a > 0.0 or road_g > 0.0):
+    if any_road and (road_a > 0.0 or road_g > 0.0):
         # The process runs only over the road samples (a stationary process
         # restarted from its carried-over state after a stop is still stationary).
         ridx = np.flatnonzero(road)
@@ -588,25 +609,20 @@ def _vibration_row(gen: np.random.Generator, dt: float, engine_on: np.ndarray | 
         y1 = z[0]
         y2 = rho1 * z[0] + math.sqrt(max(1.0 - rho1 * rho1, 0.0)) * z[1]
         zi = np.stack([a1 * y1 + a2 * y2, a2 * y1]) * math.sqrt(gamma0)  # state in the unscaled process
-        y = _all_pole_filter(np.array([1.0, -a1, -a2]), e, zi)  # stationary variance gamma0
         level = np.abs(speed[ridx]) * (1.0 / vib.road_ref_speed_mps)
         if vib.road_speed_exponent != 1.0:
             level **= vib.road_speed_exponent
-        # y is the vibration *displacement* (tilt angle, velocity) of the resonance; the IMU
-        # senses its rate, and the interval mean of a rate is the displacement increment over
-        # the interval divided by dt. So the sample is (L_k y_k - L_(k-1) y_(k-1)) / dt: its sum
-        # telescopes, the integrated vibration (attitude, velocity) stays bounded, and its
-        # spectrum is zero at DC, as for a physical oscillation (a rate with power at DC would
-        # integrate into an attitude random walk that no vehicle has).
-        # var(y_k - y_(k-1)) = 2 gamma0 (1 - rho1) for the unit-innovation process.
+        # y (stationary variance gamma0) is the vibration *displacement* (tilt angle, velocity) of the
+        # resonance; the IMU senses its rate, and the interval mean of a rate is the displacement increment
+        # over the interval divided by dt. So the sample is (L_k y_k - L_(k-1) y_(k-1)) / dt: its sum
+        # telescopes, the integrated vibration (attitude, velocity) stays bounded, and its spectrum is zero
+        # at DC, as for a physical oscillation (a rate with power at DC would integrate into an attitude
+        # random walk that no vehicle has). var(y_k - y_(k-1)) = 2 gamma0 (1 - rho1) for the unit-innovation
+        # process.
         unit = 1.0 / math.sqrt(2.0 * gamma0 * (1.0 - rho1))
         scale = np.concatenate([road_a * weights, road_g * weights]) * unit
-        y *= level[:, None]
-        y = np.diff(y, axis=0, prepend=np.zeros((1, 6)))
-        y *= scale
-        fv[ridx] = y[:, :3]
-        wv[ridx] = y[:, 3:]
-    return fv, wv
+        _road_vibration(e, zi, np.array([1.0, -a1, -a2]), level, scale, ridx, out)
+    return out
 
 
 def simulate_vibration(imu_rate_hz: float, rngs: Sequence[np.random.Generator], speed, engine_on=None,
@@ -647,7 +663,7 @@ def simulate_vibration(imu_rate_hz: float, rngs: Sequence[np.random.Generator], 
     for i in range(b):
         r = _vibration_row(rngs[i], 1.0 / rate, None if engine_on is None else engine_on[i], speed[i], vib)
         if r is not None:
-            f[i], w[i] = r
+            f[i], w[i] = r[:, :3], r[:, 3:]
     return f, w
 
 
@@ -830,14 +846,12 @@ def _check_motion(speed, engine_on, b: int, n: int):
 
 
 # --------------------------------------------------------------------------- simulation
-def _children(rng: np.random.Generator) -> dict[str, np.random.Generator]:
-    """Independent per-component streams of one row (2 draws from ``rng``)."""
+def _children(rng: np.random.Generator) -> ChildStreams:
+    """Independent per-component streams of one row (2 draws from ``rng``), by name (:data:`_COMPONENTS`): child
+    ``k`` is ``Generator(SFC64(SeedSequence(entropy, spawn_key=(k,))))``, each built on first use
+    (:class:`envs.sim.rng.ChildStreams`)."""
     words = rng.integers(0, _U64_MAX, size=2, dtype=np.uint64, endpoint=True)
-    entropy = [int(w) for w in words]
-    return {
-        c: np.random.Generator(np.random.SFC64(np.random.SeedSequence(entropy, spawn_key=(k,))))
-        for k, c in enumerate(_COMPONENTS)
-    }
+    return ChildStreams([int(w) for w in words], len(_COMPONENTS), np.random.SFC64, _COMPONENTS)
 
 
 def _error_matrix(gen: np.random.Generator, scale_sigma: float, mis_sigma: float) -> np.ndarray:
@@ -848,25 +862,53 @@ def _error_matrix(gen: np.random.Generator, scale_sigma: float, mis_sigma: float
     return e
 
 
-def _gauss_markov_row(gen: np.random.Generator, sigma: float, tau: float, dt: float, n: int,
-                      scratch: np.ndarray | None = None) -> np.ndarray:
-    """First-order Gauss-Markov sequence b_1..b_n on 3 axes, (n, 3), stationary from b_0.
+@nb.njit(cache=True, nogil=True)
+def _sensor_kernel(truth, vib, rough, a, has_sm, const, add_const, gm_z, gm_scale, zi, phi, has_gm, step, has_step,
+                   white_z, white_sigma, has_white, out, bias_out) -> None:
+    """One sensor's output of one row, in one pass: ``out = (I + S + M) src + bias + white`` (n, 3).
 
-    ``b_k = phi b_{k-1} + u_k``, ``phi = exp(-dt/tau)``,
-    ``var(u) = sigma^2 (1 - phi^2)``, ``b_0 ~ N(0, sigma^2)``
-    (exact discretization of the continuous first-order Markov process,
-    Groves 2013 sec. 4.4 / Brown & Hwang, *Introduction to Random Signals and
-    Applied Kalman Filtering*, first-order Gauss-Markov process). Computed with
-    :func:`_all_pole_filter` (``scipy.signal.lfilter``'s recursion) along time. Draws: 3 (b_0), then n x 3.
-    ``scratch`` is an optional (n, 3) float64 work array (overwritten).
+    ``src`` is ``truth`` (n, 3) plus, when ``vib`` (n, 3) is not empty, the vibration times ``rough`` (n,) (ones
+    off the rough-road segments: multiplying by 1 changes no bit). ``a = I + S + M`` applied when ``has_sm``
+    (:func:`_apply_matrix`'s sum order). The bias, written to ``bias_out`` when it varies in time:
+
+    * with ``has_gm`` the first-order Gauss-Markov process (Groves 2013 sec. 4.4; Brown & Hwang, first-order
+      Gauss-Markov process): ``b_k = phi b_(k-1) + u_k``, ``u = gm_scale gm_z`` (``gm_scale = sigma
+      sqrt(1 - phi^2)``), from the state ``zi = phi b_0`` (:func:`_all_pole_filter`'s recursion with
+      ``a = [1, -phi]``, ``b = [1, 0]``, its operations in its order), plus ``const`` (3,), plus ``step`` (n, 3)
+      when ``has_step``;
+    * else ``step + const`` when ``has_step``; else ``const`` when ``add_const`` (not at all when it is zero).
+
+    The white noise ``white_z white_sigma rough`` when ``has_white``. The operations of the numpy sequence
+    this replaces (``o = A src; o += bias; o += noise``), in its order: the same bits.
     """
-    phi = math.exp(-dt / tau)
-    b0 = gen.standard_normal(3) * sigma
-    u = np.empty((n, 3)) if scratch is None else scratch
-    gen.standard_normal(out=u)
-    u *= sigma * math.sqrt(-math.expm1(-2.0 * dt / tau))
-    y = _all_pole_filter(np.array([1.0, -phi]), u, (phi * b0)[None, :])
-    return y
+    n = truth.shape[0]
+    has_vib = vib.shape[0] > 0
+    z = zi.copy()
+    nphi = -phi
+    s = np.empty(3)
+    for k in range(n):
+        for j in range(3):
+            s[j] = vib[k, j] * rough[k] + truth[k, j] if has_vib else truth[k, j]
+        for j in range(3):
+            o = s[0] * a[j, 0] + s[1] * a[j, 1] + s[2] * a[j, 2] if has_sm else s[j]
+            if has_gm:
+                xn = gm_z[k, j] * gm_scale
+                yn = z[j] + 1.0 * xn
+                z[j] = xn * 0.0 - yn * nphi
+                bias = yn + const[j]
+                if has_step:
+                    bias += step[k, j]
+                o += bias
+                bias_out[k, j] = bias
+            elif has_step:
+                bias = step[k, j] + const[j]
+                o += bias
+                bias_out[k, j] = bias
+            elif add_const:
+                o += const[j]
+            if has_white:
+                o += white_z[k, j] * white_sigma * rough[k]
+            out[k, j] = o
 
 
 @nb.njit(cache=True, nogil=True)
@@ -904,6 +946,184 @@ class _SensorSpec:
     @property
     def has_sm(self) -> bool:
         return self.scale_sigma > 0 or self.mis_sigma > 0
+
+
+@dataclass(frozen=True)
+class _RowJob:
+    """What one row of :func:`simulate_imu` reads and where it writes (row ``i`` of each output array).
+
+    Inputs: ``sensors`` (gyro, accel :class:`_SensorSpec`), ``truth`` (w_true, f_true) (B, N, 3), ``dt`` [s],
+    ``rngs`` / ``vibration_rngs`` (B generators or None), ``engine_on``, ``speed`` (B, N) or None,
+    ``vibration`` (None when off), ``events`` (:class:`ImuEvents` or None), ``step_rates`` (gyro, accel) [1/s].
+    Outputs: ``outs`` (gyro, accel) (B, N, 3) of the output dtype, ``bias_full`` (the time-varying biases or
+    None), ``bias_const`` (B, 3) per sensor, ``sm`` (B, 3, 3) per sensor, ``ev_rows`` (B,) list of the rows'
+    ``(steps, rough)``.
+    """
+
+    sensors: tuple
+    truth: tuple
+    dt: float
+    rngs: Sequence
+    vibration_rngs: Sequence | None
+    engine_on: np.ndarray | None
+    speed: np.ndarray | None
+    vibration: Vibration | None
+    events: ImuEvents | None
+    step_rates: tuple
+    outs: tuple
+    bias_full: tuple
+    bias_const: tuple
+    sm: tuple
+    ev_rows: list
+
+
+def _check_inputs(f_true, w_true, imu_rate_hz, grade, rngs, engine_on, speed, vibration, dtype, workers,
+                  vibration_rngs, events):
+    """The arguments of :func:`simulate_imu` checked and converted (``ValueError`` naming the argument).
+
+    Returns ``(grade, dtype, dt, f_true, w_true, engine_on, speed, vibration, workers)`` with ``vibration``
+    None when it is off and ``workers`` resolved.
+    """
+    grade = get_imu_grade(grade)
+    dtype = _check_dtype(dtype)
+    dt = 1.0 / _check_rate(imu_rate_hz)
+    f_true = np.asarray(f_true)
+    w_true = np.asarray(w_true)
+    if f_true.ndim != 3 or f_true.shape[-1] != 3:
+        raise ValueError(f"f_true must have shape (B, N, 3), got {f_true.shape}")
+    if w_true.shape != f_true.shape:
+        raise ValueError(f"w_true must have the shape of f_true {f_true.shape}, got {w_true.shape}")
+    for name, arr in (("f_true", f_true), ("w_true", w_true)):
+        if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
+            raise ValueError(f"{name} must be a real array, got dtype {arr.dtype}")
+        if not np.isfinite(arr).all():
+            raise ValueError(f"{name} must be finite")
+    b, n, _ = f_true.shape
+    if b == 0 or n == 0:
+        raise ValueError(f"f_true must hold at least one row and one sample, got shape {f_true.shape}")
+    _check_rngs(rngs, b)
+    speed, engine_on = _check_motion(speed, engine_on, b, n)
+    if vibration is not None and not isinstance(vibration, Vibration):
+        raise ValueError(f"vibration must be a Vibration or None, got {type(vibration).__name__}")
+    vib_on = vibration is not None and vibration.enabled
+    if vib_on and speed is None:
+        raise ValueError("speed (B, N) is required when vibration is enabled")
+    if vibration_rngs is not None:
+        try:
+            _check_rngs(vibration_rngs, b)
+        except ValueError as exc:
+            raise ValueError(f"vibration_rngs: {exc}") from None
+    if events is not None and not isinstance(events, ImuEvents):
+        raise ValueError(f"events must be an ImuEvents or None, got {type(events).__name__}")
+    if workers is None:
+        workers = max(1, min(b, os.cpu_count() or 1, 8))
+    elif not isinstance(workers, (int, np.integer)) or isinstance(workers, bool) or workers < 1:
+        raise ValueError(f"workers must be a positive int or None, got {workers!r}")
+    return grade, dtype, dt, f_true, w_true, engine_on, speed, (vibration if vib_on else None), workers
+
+
+def _sensor_specs(g: ImuGrade, dt: float) -> tuple[_SensorSpec, _SensorSpec]:
+    """The (gyro, accel) views of the grade ``g`` at the sample interval ``dt`` [s]: the white noise as the
+    per-sample sigma of an interval mean, ``ARW / sqrt(dt)`` and ``VRW / sqrt(dt)`` (IEEE Std 952-1997)."""
+    return (
+        _SensorSpec(g.gyro_bias_fixed, g.gyro_bias_turn_on_sigma, g.gyro_scale_sigma, g.gyro_misalignment_sigma,
+                    g.gyro_bias_instability, g.gyro_bias_tau_s, g.gyro_arw / math.sqrt(dt), "gyro_gm", "gyro_white"),
+        _SensorSpec(g.accel_bias_fixed, g.accel_bias_turn_on_sigma, g.accel_scale_sigma, g.accel_misalignment_sigma,
+                    g.accel_bias_instability, g.accel_bias_tau_s, g.accel_vrw / math.sqrt(dt), "accel_gm",
+                    "accel_white"),
+    )
+
+
+def _row_events(gen: np.random.Generator, events: ImuEvents, step_rates, dt: float, n: int):
+    """Stage of one row: its :class:`ImuEvents` (bias steps, rough-road segments) drawn from ``gen``.
+
+    Returns ``(steps, rough)`` (:func:`_draw_imu_events`), the rough-road factor per sample (n,) or None
+    without a segment, and the step biases (gyro, accel) (n, 3) each, None where that sensor's step rate is 0.
+    Sample j covers ``(t_j-1, t_j]``, ``t_j = j dt``.
+    """
+    steps, rough = _draw_imu_events(gen, events, dt, n)
+    t_end = np.arange(n) * dt
+    rough_f = None
+    if rough:
+        rough_f = np.ones(n)
+        for t0, t1, fac in rough:
+            sel = (t_end > t0) & (t_end <= t1)
+            rough_f[sel] = np.maximum(rough_f[sel], fac)
+    sb = [np.zeros((n, 3)) if r > 0 else None for r in step_rates]
+    for ts, sensor, axis, size in steps:
+        k = 0 if sensor == "gyro" else 1
+        sb[k][t_end > ts, axis] += size
+    return (steps, rough), rough_f, tuple(sb)
+
+
+_NONE = np.empty((0, 3))
+"""An empty (0, 3) array: "no such input" (or output) for :func:`_sensor_kernel`."""
+
+
+def _sensor_row(s: _SensorSpec, truth, vib, rough, sm_row, const, step_bias, ch, dt: float, out, bias_out) -> bool:
+    """Stage of one row: one sensor's measured output into ``out`` (n, 3) (any float dtype).
+
+    ``out = (I + S + M)(truth + vib rough) + bias + white`` (:func:`_sensor_kernel`): ``vib`` (n, 3) or None,
+    ``rough`` (n,) the rough-road factor (ones without), ``sm_row`` the row's ``S + M``, the bias the constant
+    ``const`` (3,) plus the Gauss-Markov process (drawn from the sensor's stream of ``ch``: 3 for its start,
+    then n x 3) and the ``step_bias`` (n, 3) or None; the white noise (n x 3 from its own stream of ``ch``).
+    ``bias_out`` (n, 3) receives the bias when it varies in time. Returns whether it does.
+    """
+    n = truth.shape[0]
+    has_gm = s.gm_sigma > 0
+    gm_z, zi, phi, gm_scale = _NONE, np.zeros(3), 0.0, 0.0
+    if has_gm:
+        phi = math.exp(-dt / s.gm_tau)
+        g = ch[s.gm_stream]
+        zi = phi * (g.standard_normal(3) * s.gm_sigma)        # phi b_0, b_0 ~ N(0, sigma^2)
+        gm_z = g.standard_normal((n, 3))
+        gm_scale = s.gm_sigma * math.sqrt(-math.expm1(-2.0 * dt / s.gm_tau))
+    white_z = ch[s.white_stream].standard_normal((n, 3)) if s.white_sigma > 0 else _NONE
+    has_step = step_bias is not None
+    _sensor_kernel(truth, _NONE if vib is None else vib, rough, np.eye(3) + sm_row, s.has_sm, const, bool(np.any(const)),
+                   gm_z, gm_scale, zi, phi, has_gm, _NONE if step_bias is None else step_bias, has_step, white_z,
+                   s.white_sigma, s.white_sigma > 0, out, bias_out)
+    return has_gm or has_step
+
+
+def _imu_row(job: _RowJob, i: int) -> None:
+    """Row ``i`` of :func:`simulate_imu`: its per-run constants, vibration, events and both sensors, written into
+    the job's outputs. Draws only from ``job.rngs[i]`` (its component streams, :func:`_children`) and
+    ``job.vibration_rngs[i]``."""
+    ch = _children(job.rngs[i])
+    c = ch["constants"]
+    n = job.truth[0].shape[1]
+    # per-run constants, fixed order: turn-on gyro (3), turn-on accel (3), S+M gyro (9), S+M accel (9)
+    for k, s in enumerate(job.sensors):
+        job.bias_const[k][i] = s.fixed + c.standard_normal(3) * s.turn_on_sigma
+    for k, s in enumerate(job.sensors):
+        job.sm[k][i] = _error_matrix(c, s.scale_sigma, s.mis_sigma)
+    vib = None
+    if job.vibration is not None:
+        vgen = ch["vibration"] if job.vibration_rngs is None else job.vibration_rngs[i]
+        vib = _vibration_row(vgen, job.dt, None if job.engine_on is None else job.engine_on[i], job.speed[i],
+                             job.vibration)
+    rough_f, step_bias = None, (None, None)
+    if job.events is not None:
+        job.ev_rows[i], rough_f, step_bias = _row_events(ch["events"], job.events, job.step_rates, job.dt, n)
+    rough = _ones(n) if rough_f is None else rough_f
+    for k, s in enumerate(job.sensors):  # k = 0 gyro (vibration columns 3-5), 1 accel (0-2)
+        bias_out = _NONE if job.bias_full[k] is None else job.bias_full[k][i]
+        _sensor_row(s, job.truth[k][i], None if vib is None else vib[:, 3 * (1 - k):3 * (2 - k)], rough,
+                    job.sm[k][i], job.bias_const[k][i], step_bias[k], ch, job.dt, job.outs[k][i], bias_out)
+
+
+def _ones(n: int) -> np.ndarray:
+    """A read-only (n,) array of ones (the rough-road factor of a row without a segment), shared per length."""
+    a = _ONES_CACHE.get(n)
+    if a is None:
+        a = np.ones(n)
+        a.setflags(write=False)
+        _ONES_CACHE[n] = a
+    return a
+
+
+_ONES_CACHE: dict = {}
 
 
 def simulate_imu(f_true, w_true, imu_rate_hz: float, grade, rngs: Sequence[np.random.Generator],
@@ -959,147 +1179,50 @@ def simulate_imu(f_true, w_true, imu_rate_hz: float, grade, rngs: Sequence[np.ra
         Bad shapes (naming ``f_true``, ``w_true``, ``rngs``, ``engine_on``,
         ``speed``), non-finite truth, unknown grade, bad rate, dtype or workers.
     """
-    grade = get_imu_grade(grade)
-    dtype = _check_dtype(dtype)
-    rate = _check_rate(imu_rate_hz)
-    dt = 1.0 / rate
-    f_true = np.asarray(f_true)
-    w_true = np.asarray(w_true)
-    if f_true.ndim != 3 or f_true.shape[-1] != 3:
-        raise ValueError(f"f_true must have shape (B, N, 3), got {f_true.shape}")
-    if w_true.shape != f_true.shape:
-        raise ValueError(f"w_true must have the shape of f_true {f_true.shape}, got {w_true.shape}")
-    for name, arr in (("f_true", f_true), ("w_true", w_true)):
-        if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
-            raise ValueError(f"{name} must be a real array, got dtype {arr.dtype}")
-        if not np.isfinite(arr).all():
-            raise ValueError(f"{name} must be finite")
+    grade, dtype, dt, f_true, w_true, engine_on, speed, vibration, workers = _check_inputs(
+        f_true, w_true, imu_rate_hz, grade, rngs, engine_on, speed, vibration, dtype, workers, vibration_rngs, events)
     b, n, _ = f_true.shape
-    if b == 0 or n == 0:
-        raise ValueError(f"f_true must hold at least one row and one sample, got shape {f_true.shape}")
-    _check_rngs(rngs, b)
-    speed, engine_on = _check_motion(speed, engine_on, b, n)
-    if vibration is not None and not isinstance(vibration, Vibration):
-        raise ValueError(f"vibration must be a Vibration or None, got {type(vibration).__name__}")
-    vib_on = vibration is not None and vibration.enabled
-    if vib_on and speed is None:
-        raise ValueError("speed (B, N) is required when vibration is enabled")
-    if vibration_rngs is not None:
-        try:
-            _check_rngs(vibration_rngs, b)
-        except ValueError as exc:
-            raise ValueError(f"vibration_rngs: {exc}") from None
-    if events is not None and not isinstance(events, ImuEvents):
-        raise ValueError(f"events must be an ImuEvents or None, got {type(events).__name__}")
-    if workers is None:
-        workers = max(1, min(b, os.cpu_count() or 1, 8))
-    elif not isinstance(workers, (int, np.integer)) or isinstance(workers, bool) or workers < 1:
-        raise ValueError(f"workers must be a positive int or None, got {workers!r}")
-
-    g = grade
-    sensors = (
-        _SensorSpec(g.gyro_bias_fixed, g.gyro_bias_turn_on_sigma, g.gyro_scale_sigma, g.gyro_misalignment_sigma,
-                    g.gyro_bias_instability, g.gyro_bias_tau_s, g.gyro_arw / math.sqrt(dt), "gyro_gm", "gyro_white"),
-        _SensorSpec(g.accel_bias_fixed, g.accel_bias_turn_on_sigma, g.accel_scale_sigma, g.accel_misalignment_sigma,
-                    g.accel_bias_instability, g.accel_bias_tau_s, g.accel_vrw / math.sqrt(dt), "accel_gm", "accel_white"),
-    )
-    truth = (w_true, f_true)
-    outs = (np.empty((b, n, 3), dtype=dtype), np.empty((b, n, 3), dtype=dtype))
+    sensors = _sensor_specs(grade, dt)
     step_rates = (0.0, 0.0) if events is None else (events.gyro_step_rate_hz, events.accel_step_rate_hz)
-    bias_full = tuple(np.empty((b, n, 3), dtype=dtype) if (s.gm_sigma > 0 or r > 0) else None
-                      for s, r in zip(sensors, step_rates))
-    ev_rows = [None] * b
-    bias_const = (np.empty((b, 3)), np.empty((b, 3)))
-    sm = (np.zeros((b, 3, 3)), np.zeros((b, 3, 3)))
-    direct = dtype == np.dtype(np.float64)
-
-    def row(i: int) -> None:
-        ch = _children(rngs[i])
-        c = ch["constants"]
-        # per-run constants, fixed order: turn-on gyro (3), turn-on accel (3), S+M gyro (9), S+M accel (9)
-        for k, s in enumerate(sensors):
-            bias_const[k][i] = s.fixed + c.standard_normal(3) * s.turn_on_sigma
-        for k, s in enumerate(sensors):
-            sm[k][i] = _error_matrix(c, s.scale_sigma, s.mis_sigma)
-        vib_row = None
-        if vib_on:
-            vgen = ch["vibration"] if vibration_rngs is None else vibration_rngs[i]
-            vib_row = _vibration_row(vgen, dt, None if engine_on is None else engine_on[i], speed[i], vibration)
-        rough_f = None
-        step_bias = (None, None)
-        if events is not None:
-            steps, rough = _draw_imu_events(ch["events"], events, dt, n)
-            ev_rows[i] = (steps, rough)
-            t_end = np.arange(n) * dt                          # sample j covers (t_j-1, t_j], t_j = j dt
-            if rough:
-                rough_f = np.ones(n)
-                for t0, t1, fac in rough:
-                    sel = (t_end > t0) & (t_end <= t1)
-                    rough_f[sel] = np.maximum(rough_f[sel], fac)
-                if vib_row is not None:
-                    vib_row = (vib_row[0] * rough_f[:, None], vib_row[1] * rough_f[:, None])
-            sb = [np.zeros((n, 3)) if r > 0 else None for r in step_rates]
-            for ts, sensor, axis, size in steps:
-                k = 0 if sensor == "gyro" else 1
-                sb[k][t_end > ts, axis] += size
-            step_bias = tuple(sb)
-        noise = np.empty((n, 3))
-        for k, s in enumerate(sensors):  # k = 0 gyro, 1 accel
-            o = outs[k][i] if direct else np.empty((n, 3))
-            src = truth[k][i]
-            if vib_row is not None:
-                src = np.add(vib_row[1 - k], src, out=vib_row[1 - k])  # vib_row = (f_vib, w_vib)
-            if s.has_sm:
-                _apply_matrix(np.eye(3) + sm[k][i], src, o)
-            else:
-                o[...] = src
-            const = bias_const[k][i]
-            if s.gm_sigma > 0:
-                bias = _gauss_markov_row(ch[s.gm_stream], s.gm_sigma, s.gm_tau, dt, n, noise)
-                bias += const
-                if step_bias[k] is not None:
-                    bias += step_bias[k]
-                o += bias
-                bias_full[k][i] = bias
-            elif step_bias[k] is not None:
-                bias = step_bias[k] + const
-                o += bias
-                bias_full[k][i] = bias
-            elif np.any(const):
-                o += const
-            if s.white_sigma > 0:
-                ch[s.white_stream].standard_normal(out=noise)
-                noise *= s.white_sigma
-                if rough_f is not None:
-                    noise *= rough_f[:, None]
-                o += noise
-            if not direct:
-                outs[k][i] = o
-
+    job = _RowJob(sensors=sensors, truth=(w_true, f_true), dt=dt, rngs=rngs, vibration_rngs=vibration_rngs,
+                  engine_on=engine_on, speed=speed, vibration=vibration, events=events, step_rates=step_rates,
+                  outs=(np.empty((b, n, 3), dtype=dtype), np.empty((b, n, 3), dtype=dtype)),
+                  bias_full=tuple(np.empty((b, n, 3), dtype=dtype) if (s.gm_sigma > 0 or r > 0) else None
+                                  for s, r in zip(sensors, step_rates)),
+                  bias_const=(np.empty((b, 3)), np.empty((b, 3))), sm=(np.zeros((b, 3, 3)), np.zeros((b, 3, 3))),
+                  ev_rows=[None] * b)
     if workers == 1 or b == 1:
         for i in range(b):
-            row(i)
+            _imu_row(job, i)
     else:
         with ThreadPoolExecutor(max_workers=workers) as ex:
-            for _ in ex.map(row, range(b)):
+            for _ in ex.map(partial(_imu_row, job), range(b)):
                 pass
+    return _imu_data(job, grade)
+
+
+def _imu_data(job: _RowJob, grade: ImuGrade) -> ImuData:
+    """The rows' outputs as :class:`ImuData` (a constant bias as a read-only broadcast view)."""
+    b, n = job.truth[0].shape[:2]
+    dtype = job.outs[0].dtype
 
     def _bias(full, const):
         if full is not None:
             return full
         return np.broadcast_to(const.astype(dtype)[:, None, :], (b, n, 3))
 
+    with_events = job.events is not None
     return ImuData(
-        f_b=outs[1],
-        w_b=outs[0],
-        gyro_bias=_bias(bias_full[0], bias_const[0]),
-        accel_bias=_bias(bias_full[1], bias_const[1]),
-        gyro_scale_misalignment=sm[0].astype(dtype),
-        accel_scale_misalignment=sm[1].astype(dtype),
-        dt=dt,
+        f_b=job.outs[1],
+        w_b=job.outs[0],
+        gyro_bias=_bias(job.bias_full[0], job.bias_const[0]),
+        accel_bias=_bias(job.bias_full[1], job.bias_const[1]),
+        gyro_scale_misalignment=job.sm[0].astype(dtype),
+        accel_scale_misalignment=job.sm[1].astype(dtype),
+        dt=job.dt,
         grade=grade,
-        bias_steps=None if events is None else tuple(r[0] for r in ev_rows),
-        rough=None if events is None else tuple(r[1] for r in ev_rows),
+        bias_steps=tuple(r[0] for r in job.ev_rows) if with_events else None,
+        rough=tuple(r[1] for r in job.ev_rows) if with_events else None,
     )
 
 

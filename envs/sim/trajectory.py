@@ -100,6 +100,8 @@ drawn by :func:`random_drive` from the row's own generator.
 from __future__ import annotations
 
 import math
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import NamedTuple, Sequence, Union
 
@@ -732,10 +734,10 @@ def _imu_points(t, pid, arc_c, arc_s, pc, gA, dgA, inv_h, f, w):
             wb[p, 0], wb[p, 1], wb[p, 2], wND[u, 0], wND[u, 1], gN, gE, gD)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _node_kernel(t, dtk, pn, arc_c, arc_s, mid_c, mid_s, simpson, pc, gA, dgA, inv_h,
-                 r, ve, C, speed, heading, pitch, engine, fo, wo):
-    """One pass over the U x N grid nodes (``pn`` (U N,) their pieces).
+                 r, ve, C, speed, heading, pitch, engine, fo, wo, u0, u1, j0, jm0):
+    """One pass over the grid nodes of rows ``u0 .. u1 - 1`` of the U x N grid (``pn`` (U N,) their pieces).
 
     Writes speed and engine_on everywhere; heading (off horizontal arcs), pitch (off vertical arcs) and
     r_e, v_e, C_eb on the straight pieces (the arcs' states are numpy's, :func:`_arc_node_states`); and the
@@ -744,15 +746,17 @@ def _node_kernel(t, dtk, pn, arc_c, arc_s, mid_c, mid_s, simpson, pc, gA, dgA, i
     with the midpoint value on an arc, or everywhere with ``simpson`` (gravity with kinks inside intervals).
     The intervals at segment boundaries get the trapezoid as a placeholder (:func:`_split_means`).
     ``arc_c``, ``arc_s``: the turning angle's cos/sin at the nodes on arcs; ``mid_c``, ``mid_s``: at the
-    midpoints of the intervals on one arc; each in grid order (:func:`_arc_kin`).
+    midpoints of the intervals on one arc; each in grid order (:func:`_arc_kin`), from their entries ``j0``,
+    ``jm0`` (those of the first row ``u0``). Rows are independent: any split into row ranges gives the same
+    bits, and the kernel releases the GIL (:func:`_node_rows` runs row ranges on threads).
     """
     t0, v0, acc, kind, trig, rate, wb, wND = (pc.pl.t0, pc.pl.v0, pc.pl.acc, pc.pl.kind, pc.trig, pc.rate, pc.wb,
                                               pc.wND)
     eng, gam0, psi0w, xe, re0, C_eb = pc.pl.engine, pc.pl.gam0, pc.psi0w, pc.xe, pc.re0, pc.C_eb
-    U, n = speed.shape
-    j = jm = 0
+    n = speed.shape[1]
+    j, jm = j0, jm0
     a0 = a1 = a2 = b0 = b1 = b2 = 0.0
-    for u in range(U):
+    for u in range(u0, u1):
         for k in range(n):
             p = pn[u * n + k]
             kd = kind[p]
@@ -951,6 +955,34 @@ def _grid_pieces(pc: _Pieces, t):
     return starts, cnt, np.repeat(np.arange(starts.shape[0]), cnt)
 
 
+def _node_rows(args, U: int, n: int, ia, gm, workers: int | None = None) -> None:
+    """:func:`_node_kernel` over the U rows, in row ranges on ``workers`` threads (default ``min(os.cpu_count(),
+    8)``; dynamic: a thread takes the next range when it is done, so a busy core costs only its share).
+
+    ``args``: the kernel's arguments up to ``wo``; ``ia``, ``gm`` the global indices (``u n + k``, ascending) of
+    the arc nodes and of the arc nodes that start an interval on one piece, whose ranks are the kernel's entries
+    into its arc inputs. The same bits as one call over all rows (rows are independent).
+    """
+    workers = max(1, min(os.cpu_count() or 1, 8)) if workers is None else workers
+    nchunk = 1 if workers == 1 or U < 2 * _ROWS_PER_TASK else min(4 * workers, U // _ROWS_PER_TASK)
+    bounds = np.linspace(0, U, nchunk + 1).astype(np.int64)
+
+    def run(c):
+        u0, u1 = int(bounds[c]), int(bounds[c + 1])
+        _node_kernel(*args, u0, u1, int(np.searchsorted(ia, u0 * n)), int(np.searchsorted(gm, u0 * n)))
+
+    if nchunk == 1:
+        run(0)
+        return
+    with ThreadPoolExecutor(max_workers=workers) as ex:
+        for _ in ex.map(run, range(nchunk)):
+            pass
+
+
+_ROWS_PER_TASK = 8
+"""Fewest rows per thread task of :func:`_node_rows` (a task costs tens of microseconds to hand over)."""
+
+
 def _evaluate(pc: _Pieces, t, grav, linear_gravity: bool, dtype) -> dict:
     """All outputs of the U rows of ``pc`` on the grid ``t`` (N,): a dict of (U, N, ...) arrays of :class:`Truth`.
 
@@ -985,8 +1017,9 @@ def _evaluate(pc: _Pieces, t, grav, linear_gravity: bool, dtype) -> dict:
     km = gm % n
     _, mid_c, mid_s = _arc_kin(pl, 0.5 * (t[km] + t[km + 1]), pn[gm])
     dtk = np.diff(t)
-    _node_kernel(t, dtk, pn, arc_c, arc_s, mid_c, mid_s, not linear_gravity, pc, *grav, out["r_e"], out["v_e"],
-                 out["C_eb"], out["speed"], out["heading"], out["pitch"], out["engine_on"], out["f_b"], out["w_b"])
+    _node_rows((t, dtk, pn, arc_c, arc_s, mid_c, mid_s, not linear_gravity, pc, *grav, out["r_e"], out["v_e"],
+                out["C_eb"], out["speed"], out["heading"], out["pitch"], out["engine_on"], out["f_b"], out["w_b"]),
+               U, n, ia, gm)
     if ia.size:
         _arc_node_states(pc, ia, pa, ka, out)
     _split_means(pc, t, dtk, starts, pn, grav, linear_gravity, out)

@@ -234,6 +234,20 @@ def test_batch_rows_equal_single_runs_bit_for_bit(rate):
             np.testing.assert_array_equal(getattr(tb, name)[b], getattr(t1, name)[0], err_msg=name)
 
 
+@pytest.mark.parametrize("rate", [100.0, 13.7])
+def test_rows_on_threads_equal_single_runs(rate):
+    """The node pass runs row ranges on threads from 16 rows on (_node_rows): each of 40 rows of mixed drives
+    (turns, climbs, stops; anchors on and off the nodes) is what it is alone, bit for bit."""
+    rngs = row_generators(list(range(100, 140)), "trajectory")
+    styles = ("urban", "open", "highway")
+    ms = [random_drive(g, 30.0, styles[i % 3]) for i, g in enumerate(rngs)]
+    tb = generate_truth(ms, 30.0, rate)
+    for b in (0, 7, 8, 15, 16, 23, 31, 39):
+        t1 = generate_truth([ms[b]], 30.0, rate)
+        for name in ("r_e", "v_e", "C_eb", "f_b", "w_b", "speed", "heading", "pitch", "engine_on"):
+            np.testing.assert_array_equal(getattr(tb, name)[b], getattr(t1, name)[0], err_msg=f"row {b} {name}")
+
+
 def test_float32_is_float64_rounded_once():
     t64 = generate_truth([ON_GRID, OFF_GRID], 20.0, 50.0)
     t32 = generate_truth([ON_GRID, OFF_GRID], 20.0, 50.0, dtype=np.float32)

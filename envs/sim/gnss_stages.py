@@ -1,0 +1,620 @@
+"""The stages of :func:`envs.sim.gnss.simulate_gnss`, in the order it runs them.
+
+1. :func:`sky_geometry`: each row's GPS time and the elevation, azimuth and transmission time of all S
+   satellites at all M epochs (:class:`Sky`);
+2. :func:`canyon_and_bursts`: visibility above the mask, street-canyon blockage and reflections, NLOS bursts;
+3. :func:`random_events`: the random events of :mod:`envs.sim.events` (bursts, mismatch, regimes, zones);
+4. :func:`scheduled_events`: outages, the interval event bits, re-acquisition (2-4 fill
+   :class:`SatelliteEvents`, per satellite);
+5. :func:`allocate_channels`: the visible satellites on the C channels by elevation, C/N0 (:class:`Channels`);
+6. :func:`channel_ranging`: ephemeris at transmission time, true range and rate on the tracked channels;
+7. :func:`channel_noise`: each channel's NLOS state and true noise multipliers;
+8. :func:`receiver_errors`: clock, atmosphere residuals, white noise, reported sigmas, true variances.
+
+Row ``i`` draws only from the fixed child streams of its own generator (:func:`_row_children`; indices
+``_SUB_*``), each stage from its own streams, so the stages may run in any grouping without changing a draw.
+Each stage is vectorized over rows and epochs except the per-row event draws.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numba as nb
+import numpy as np
+
+from earth.ranging import range_and_rate
+from earth.wgs84 import C_LIGHT, OMEGA_IE, ecef_to_geodetic
+
+from . import events as ev
+from .constellation import Constellation
+from .receiver import _MIN_EL_SIGMA, CN0_JITTER_DB, _gauss_markov, iono_obliquity, simulate_clock, tropo_mapping
+from .rng import ChildStreams
+from .rng import entropy_words as _entropy_words  # noqa: F401  (re-exported by envs.sim.gnss)
+
+GPS_WEEK_S = 604_800.0
+"""Seconds in a GPS week: ``t0_gps`` is drawn uniformly in [0, GPS_WEEK_S)."""
+
+# fixed child-stream indices of a row's generator inside simulate_gnss: a component
+# added later gets a new index and never shifts another component's draws.
+_SUB_SKY, _SUB_CLOCK, _SUB_TROPO, _SUB_IONO, _SUB_CODE, _SUB_RATE, _SUB_NLOS, _SUB_CANYON = range(8)
+# issue 16 (random events): SeedSequence.spawn keys its children by index, so spawning more
+# children leaves the first 8 streams, and every pre-existing draw, unchanged (tested).
+(_SUB_BURSTS, _SUB_MISMATCH, _SUB_REGIME, _SUB_REGIME_NLOS, _SUB_ZONES, _SUB_ZONE_GEOM, _SUB_ZONE_SAT,
+ _SUB_CN0) = range(8, 16)
+_N_SUB = 16
+_CHUNK_ELEMS = 50_000
+"""Satellite-epochs per vectorized geometry block and tracked channels per ranging block (cache-sized; results
+do not depend on it)."""
+
+
+def _in_intervals(t: np.ndarray, intervals) -> np.ndarray:
+    """Boolean (M,) : ``t`` lies in any half-open interval ``[t0, t1)``."""
+    out = np.zeros(t.shape, dtype=bool)
+    for iv in intervals:
+        out |= (t >= iv[0]) & (t < iv[1])
+    return out
+
+
+
+def _row_children(rng: np.random.Generator) -> ChildStreams:
+    """Fixed child generators of one row (one per component), drawn from that row's generator only.
+
+    One draw of 4 integers from ``rng`` is the entropy; child ``k`` (``0 .. _N_SUB-1``) is the ``k``-th
+    child of ``SeedSequence(entropy)`` (built lazily, see :class:`envs.sim.rng.ChildStreams`).
+    """
+    entropy = rng.integers(0, 2**63, size=4, dtype=np.int64)
+    return ChildStreams([int(x) for x in entropy], _N_SUB)
+
+
+def _geometry(t_rx: np.ndarray, r_e: np.ndarray, constellation: Constellation, lat: np.ndarray,
+              lon: np.ndarray):
+    """Transmission time, elevation and azimuth of all satellites (one time chunk).
+
+    The transmission time is ``t_tx = t_rx - tau`` with ``tau = |r_s(t_rx) -
+    r_r| / c``, one light-time iteration: ``tau`` is off by < 0.5 us (the
+    range changes by <~ 150 m during the ~70 ms flight), i.e. < 2 mm of
+    satellite motion, and the ephemeris position at ``t_tx`` is exactly the
+    one the pseudorange is generated from, so the data stay self-consistent.
+
+    Elevation and azimuth use the line of sight to ``C_z(OMEGA_IE tau)
+    (r_s - v_s tau)`` (Groves eq 8.36 with a first-order satellite back
+    propagation; < 2 mm of position, < 1e-9 rad of direction).
+
+    Parameters
+    ----------
+    t_rx : (B, m) GPS reception time [s]; r_e : (B, m, 3) [m]; lat, lon : (B, m) [rad].
+
+    Returns
+    -------
+    t_tx, el, az : (B, m, S) [s, rad, rad]
+    """
+    p, v = constellation.positions_velocities(t_rx)        # (B, m, S, 3)
+    d = p - r_e[..., None, :]
+    tau = np.sqrt(np.einsum("...i,...i->...", d, d)) / C_LIGHT
+    t_tx = t_rx[..., None] - tau
+    th = OMEGA_IE * tau
+    # elevation / azimuth from the NED components of the (unnormalized) line of sight
+    n, e, up = _los_ned(p, v, tau, np.cos(th), np.sin(th), r_e,
+                        np.sin(lat), np.cos(lat), np.sin(lon), np.cos(lon))
+    el = np.arctan2(up, np.hypot(n, e))
+    az = _wrap_2pi(np.arctan2(e, n))
+    return t_tx, el, az
+
+
+@nb.njit(cache=True)
+def _los_ned(p, v, tau, c, s, r, sl, cl, so, co):
+    """NED components of the line of sight of :func:`_geometry`, one pass (numpy's operation order).
+
+    ``d = C_z(OMEGA_IE tau) (r_s - v_s tau) - r_r`` resolved in the local NED frame:
+    ``h = cos(lon) d_x + sin(lon) d_y``, ``n = -sin(lat) h + cos(lat) d_z``,
+    ``e = -sin(lon) d_x + cos(lon) d_y``, ``up = cos(lat) h + sin(lat) d_z``.
+
+    Parameters
+    ----------
+    p, v : (B, m, S, 3) satellite ECEF position [m] / velocity [m/s] at the reception time.
+    tau : (B, m, S) signal flight time [s]; c, s : (B, m, S) cos / sin of ``OMEGA_IE tau``.
+    r : (B, m, 3) receiver ECEF position [m]; sl, cl, so, co : (B, m) sin / cos of latitude and longitude.
+
+    Returns
+    -------
+    n, e, up : (B, m, S) [m].
+    """
+    B, m, S = tau.shape
+    n = np.empty((B, m, S))
+    e = np.empty((B, m, S))
+    up = np.empty((B, m, S))
+    for b in range(B):
+        for j in range(m):
+            for k in range(S):
+                px = p[b, j, k, 0] - v[b, j, k, 0] * tau[b, j, k]
+                py = p[b, j, k, 1] - v[b, j, k, 1] * tau[b, j, k]
+                pz = p[b, j, k, 2] - v[b, j, k, 2] * tau[b, j, k]
+                dx = c[b, j, k] * px + s[b, j, k] * py - r[b, j, 0]
+                dy = -s[b, j, k] * px + c[b, j, k] * py - r[b, j, 1]
+                dz = pz - r[b, j, 2]
+                h1 = co[b, j] * dx + so[b, j] * dy
+                n[b, j, k] = -sl[b, j] * h1 + cl[b, j] * dz
+                e[b, j, k] = -so[b, j] * dx + co[b, j] * dy
+                up[b, j, k] = cl[b, j] * h1 + sl[b, j] * dz
+    return n, e, up
+
+
+def _wrap_2pi(x: np.ndarray) -> np.ndarray:
+    """``np.mod(x, 2 pi)`` for ``x`` in [-pi, pi] (arctan2's range), without its fmod.
+
+    There ``fmod(x, 2 pi) = x``: np.mod adds ``2 pi`` to a negative ``x`` and turns ``-0.0`` into ``+0.0``
+    (``x + 0.0`` does the same), so the result is the same to the bit.
+    """
+    return np.where(x < 0.0, x + 2.0 * np.pi, x + 0.0)
+
+
+def _orbit_at(constellation: Constellation, t_sat: np.ndarray, sat_index=None):
+    """Positions / velocities of satellite ``s`` at its own time ``t_sat[..., s]``: (..., S) -> (..., S, 3)."""
+    if sat_index is None:
+        sat_index = np.broadcast_to(np.arange(constellation.n_sats), t_sat.shape)
+    # evaluate each (time, satellite) pair: flatten to a trailing axis of length 1
+    p, v = constellation.positions_velocities(t_sat, sat_index[..., None])
+    return p[..., 0, :], v[..., 0, :]
+
+
+def _nlos_bursts(t: np.ndarray, n_sats: int, cfg: NlosConfig, g: np.random.Generator):
+    """Per-satellite NLOS bursts of one row (alternating renewal process, see :class:`~envs.sim.gnss.NlosConfig`).
+
+    Returns
+    -------
+    active : (M, S) bool; bias_m : (M, S) [m]; rate_mps : (M, S) [m/s].
+    """
+    M = t.size
+    active = np.zeros((M, n_sats), dtype=bool)
+    bias = np.zeros((M, n_sats))
+    rate = np.zeros((M, n_sats))
+    if cfg.rate_hz <= 0.0:
+        return active, bias, rate
+    d_lo, d_hi = cfg.duration_s
+    t_begin = t[0] - d_hi                                  # a burst may already run at t[0]
+    span = t[-1] - t_begin
+    mean_cycle = 1.0 / cfg.rate_hz + 0.5 * (d_lo + d_hi)
+    n_exp = span / mean_cycle
+    n_cyc = int(math.ceil(n_exp + 6.0 * math.sqrt(n_exp) + 3.0))
+    gaps, durs, biases, rates = [], [], [], []
+    end = np.full(n_sats, t_begin)
+    while True:                                            # almost always one pass
+        gp = g.exponential(1.0 / cfg.rate_hz, size=(n_cyc, n_sats))
+        du = g.uniform(d_lo, d_hi, size=(n_cyc, n_sats))
+        gaps.append(gp), durs.append(du)
+        biases.append(g.uniform(cfg.bias_m[0], cfg.bias_m[1], size=(n_cyc, n_sats)))
+        rates.append(cfg.rate_sigma_mps * g.standard_normal((n_cyc, n_sats)))
+        end = end + np.sum(gp + du, axis=0)
+        if np.all(end > t[-1]):
+            break
+    gp, du = np.concatenate(gaps), np.concatenate(durs)
+    bs, rs = np.concatenate(biases), np.concatenate(rates)
+    cyc_end = t_begin + np.cumsum(gp + du, axis=0)         # (K, S)
+    b_end = cyc_end
+    b_start = cyc_end - du
+    i0 = np.searchsorted(t, b_start.ravel(), side="left")
+    i1 = np.searchsorted(t, b_end.ravel(), side="left")
+    sat = np.broadcast_to(np.arange(n_sats), b_start.shape).ravel()
+    ident = np.arange(1, b_start.size + 1)
+    diff = np.zeros((M + 1, n_sats), dtype=np.int64)
+    np.add.at(diff, (i0, sat), ident)                      # bursts of one satellite never overlap
+    np.add.at(diff, (i1, sat), -ident)
+    burst = np.cumsum(diff[:M], axis=0)                    # 1-based burst id, 0 outside bursts
+    active = burst > 0
+    k = np.maximum(burst - 1, 0)
+    bias = np.where(active, bs.ravel()[k], 0.0)
+    rate = np.where(active, rs.ravel()[k], 0.0)
+    return active, bias, rate
+
+
+def _canyon(t, v_e, heading, el, az, cfg: UrbanCanyon, g: np.random.Generator):
+    """Street-canyon visibility of one row (see :class:`~envs.sim.gnss.UrbanCanyon`).
+
+    Parameters
+    ----------
+    t : (M,) [s]; v_e : (M, 3) [m/s]; heading : (M,) [rad]; el, az : (M, S) [rad].
+
+    Returns
+    -------
+    blocked : (M, S) bool (not received at all); reflected : (M, S) bool
+    (received as NLOS); excess_m : (M, S) reflection excess path [m].
+    """
+    M, S = el.shape
+    speed = np.linalg.norm(v_e, axis=-1)
+    dist = np.concatenate([[0.0], np.cumsum(0.5 * (speed[1:] + speed[:-1]) * np.diff(t))])
+    blk = np.floor(dist / cfg.block_length_m).astype(np.int64)
+    K = int(blk.max()) + 1
+    heights = g.uniform(cfg.building_height_m[0], cfg.building_height_m[1], size=(K, 2))
+    present = g.random((K, 2)) < cfg.blockage_probability
+    reflect = g.random((K, S)) < cfg.nlos_probability
+    h = np.where(present, heights, 0.0)[blk]                # (M, 2): [left, right]
+    sa = np.sin(az - heading[:, None])                      # > 0: right side
+    h_side = np.where(sa > 0.0, h[:, 1:2], h[:, 0:1])       # (M, S)
+    half_w = 0.5 * cfg.street_width_m
+    under = np.tan(np.clip(el, -1.5, 1.5)) * half_w < h_side * np.abs(sa)
+    if cfg.intervals:
+        under &= _in_intervals(t, cfg.intervals)[:, None]
+    refl = under & reflect[blk]
+    excess = np.zeros((M, S))
+    excess[refl] = cfg.street_width_m * np.cos(el[refl]) * np.abs(sa[refl])   # the reflected few only
+    return under & ~refl, refl, excess
+
+
+# =============================================================================
+# stage results
+# =============================================================================
+@dataclass
+class Sky:
+    """The sky of B rows over M epochs, all S satellites (:func:`sky_geometry`).
+
+    Attributes
+    ----------
+    t0_gps : (B,) GPS time of ``t = 0`` per row [s].
+    t_tx : (B, M, S) transmission time [s]; el, az : (B, M, S) elevation, azimuth [rad].
+    """
+
+    t0_gps: np.ndarray
+    t_tx: np.ndarray
+    el: np.ndarray
+    az: np.ndarray
+
+
+@dataclass
+class SatelliteEvents:
+    """What the degradations do to each satellite and epoch (:func:`canyon_and_bursts`, :func:`random_events`,
+    :func:`scheduled_events`); the stages fill it in that order.
+
+    Attributes
+    ----------
+    visible : (B, M, S) bool, above the mask and not blocked (canyon, zones, outages).
+    nlos, nlos_bias, nlos_rate : (B, M, S) NLOS flag, pseudorange bias [m], rate error [m/s] of the canyon
+        reflections and NLOS bursts.
+    code_mult, doppler_mult : (B, M) true code / Doppler sigma multipliers of the random bursts and regimes.
+    code_rep, doppler_rep : (B, M) reported-sigma factors of the mismatch, or None without one.
+    bits : (B, M) uint16 event bits.
+    zone : None, or ``(nlos, bias, rate, att)`` (B, M, S) each: the NLOS of the zones and regimes (they replace
+        the others on a channel) and the C/N0 loss [dB] of the zones.
+    reacq : (B, M, S) re-acquisition noise multiplier, or None.
+    """
+
+    visible: np.ndarray
+    nlos: np.ndarray
+    nlos_bias: np.ndarray
+    nlos_rate: np.ndarray
+    code_mult: np.ndarray
+    doppler_mult: np.ndarray
+    bits: np.ndarray
+    code_rep: np.ndarray | None = None
+    doppler_rep: np.ndarray | None = None
+    zone: tuple | None = None
+    reacq: np.ndarray | None = None
+
+
+@dataclass
+class Channels:
+    """The tracked satellites on the receiver's C channels (:func:`allocate_channels`).
+
+    Attributes
+    ----------
+    sel : (B, M, C) satellite index of each channel (0 on the padding when C > S).
+    mask : (B, M, C) bool, the channel tracks a satellite.
+    el, az : (B, M, C) [rad]; cn0 : (B, M, C) C/N0 before the NLOS and zone losses [dB-Hz].
+    flat_sel : (B, M, C) flat index into a (B, M, S) array (:meth:`gather`).
+    """
+
+    sel: np.ndarray
+    mask: np.ndarray
+    el: np.ndarray
+    az: np.ndarray
+    cn0: np.ndarray
+    flat_sel: np.ndarray
+
+    def gather(self, a: np.ndarray) -> np.ndarray:
+        """(B, M, S) per-satellite array -> (B, M, C) per-channel array (``a[b, k, sel[b, k, c]]``)."""
+        return np.take(a, self.flat_sel)
+
+
+@dataclass
+class Ranging:
+    """Ephemeris at transmission time and true range / rate on the tracked channels (:func:`channel_ranging`;
+    zeros on the others): sat_pos, sat_vel (B, M, C, 3) [m, m/s], rho, rho_dot (B, M, C) [m, m/s]."""
+
+    sat_pos: np.ndarray
+    sat_vel: np.ndarray
+    rho: np.ndarray
+    rho_dot: np.ndarray
+
+
+@dataclass
+class ChannelNoise:
+    """The NLOS state and the true white-noise multipliers of each channel (:func:`channel_noise`).
+
+    Attributes
+    ----------
+    nlos : (B, M, C) bool; pr_bias, prr_bias : (B, M, C) NLOS pseudorange bias [m] and rate error [m/s] (0 off
+    NLOS); code_mult, doppler_mult : (B, M, C) multipliers of the nominal code / Doppler sigma.
+    """
+
+    nlos: np.ndarray
+    pr_bias: np.ndarray
+    prr_bias: np.ndarray
+    code_mult: np.ndarray
+    doppler_mult: np.ndarray
+
+
+@dataclass
+class ReceiverErrors:
+    """The errors and sigmas of each channel (:func:`receiver_errors`): clock bias_m, drift_mps (B, M) [m, m/s];
+    pr_err, prr_err (B, M, C) [m, m/s]; the reported pr_sigma, prr_sigma and the true pr_var_true, prr_var_true
+    (B, M, C) (see :class:`envs.sim.gnss.GnssData`)."""
+
+    bias_m: np.ndarray
+    drift_mps: np.ndarray
+    pr_err: np.ndarray
+    prr_err: np.ndarray
+    pr_sigma: np.ndarray
+    prr_sigma: np.ndarray
+    pr_var_true: np.ndarray
+    prr_var_true: np.ndarray
+
+
+# =============================================================================
+# stages
+# =============================================================================
+def sky_geometry(t, r_e, constellation: Constellation, subs, t0_gps=None) -> Sky:
+    """Stage 1: the GPS time of each row and the geometry of all satellites, chunked over time (bounded memory,
+    cache-sized blocks; results do not depend on the chunking).
+
+    Parameters
+    ----------
+    t : (M,) epochs [s]; r_e : (B, M, 3) receiver ECEF position [m]; subs : B rows' child streams
+    (:func:`_row_children`); t0_gps : (B,) or None: drawn ``U[0, GPS_WEEK_S)`` from each row's sky stream.
+    """
+    B, M = r_e.shape[:2]
+    if t0_gps is None:
+        t0_gps = np.array([s[_SUB_SKY].uniform(0.0, GPS_WEEK_S) for s in subs])
+    S = constellation.n_sats
+    lat, lon, _ = ecef_to_geodetic(r_e)
+    t_rx = t0_gps[:, None] + t[None, :]                     # (B, M)
+    t_tx = np.empty((B, M, S))
+    el_all = np.empty((B, M, S))
+    az_all = np.empty((B, M, S))
+    chunk = max(1, _CHUNK_ELEMS // (B * S))
+    for k0 in range(0, M, chunk):
+        sl_ = slice(k0, min(M, k0 + chunk))
+        t_tx[:, sl_], el_all[:, sl_], az_all[:, sl_] = _geometry(
+            t_rx[:, sl_], r_e[:, sl_], constellation, lat[:, sl_], lon[:, sl_])
+    return Sky(t0_gps=t0_gps, t_tx=t_tx, el=el_all, az=az_all)
+
+
+def canyon_and_bursts(t, v_e, heading, sky: Sky, mask_deg: float, events, subs) -> SatelliteEvents:
+    """Stage 2: visibility above the elevation mask, the street canyon's blockage and reflections and the NLOS
+    bursts (:class:`~envs.sim.gnss.UrbanCanyon`, :class:`~envs.sim.gnss.NlosConfig`), per row from its canyon and
+    NLOS streams; the other fields start neutral (multipliers 1, no bits)."""
+    B, M, S = sky.el.shape
+    visible = sky.el >= math.radians(mask_deg)
+    nlos_sat = np.zeros((B, M, S), dtype=bool)
+    nlos_bias_sat = np.zeros((B, M, S))
+    nlos_rate_sat = np.zeros((B, M, S))
+    if events.canyon is not None:
+        for i in range(B):
+            blocked, refl, excess = _canyon(t, v_e[i], heading[i], sky.el[i], sky.az[i], events.canyon,
+                                            subs[i][_SUB_CANYON])
+            visible[i] &= ~blocked
+            nlos_sat[i] |= refl
+            nlos_bias_sat[i] = excess
+    if events.nlos is not None:
+        for i in range(B):
+            act, bias, rate = _nlos_bursts(t, S, events.nlos, subs[i][_SUB_NLOS])
+            nlos_sat[i] |= act
+            nlos_bias_sat[i] = np.maximum(nlos_bias_sat[i], bias)
+            nlos_rate_sat[i] = rate
+    return SatelliteEvents(visible=visible, nlos=nlos_sat, nlos_bias=nlos_bias_sat, nlos_rate=nlos_rate_sat,
+                           code_mult=np.ones((B, M)), doppler_mult=np.ones((B, M)),
+                           bits=np.zeros((B, M), dtype=np.uint16))
+
+
+def random_events(t, v_e, heading, sky: Sky, sat: SatelliteEvents, events, subs) -> None:
+    """Stage 3: the random events of :mod:`envs.sim.events` into ``sat`` (in place), each from its own child
+    stream and drawn only when configured: bursts of the true noise, reported-sigma mismatch, noise regimes
+    (with their NLOS) and urban zones (blockage, NLOS, C/N0 loss), in this order."""
+    B, M, S = sky.el.shape
+    new_nlos = events.zones is not None or (events.regimes is not None
+                                            and any(r.nlos_fraction > 0 for r in events.regimes.regimes))
+    if new_nlos:                                           # NLOS of the zones / regimes, and their C/N0 loss
+        nlos2_sat = np.zeros((B, M, S), dtype=bool)
+        bias2_sat = np.zeros((B, M, S))
+        rate2_sat = np.zeros((B, M, S))
+        att_sat = np.zeros((B, M, S))
+    visible, bits = sat.visible, sat.bits
+    if events.bursts is not None:
+        for i in range(B):
+            c, d, act, _ = ev.draw_bursts(t, events.bursts, subs[i][_SUB_BURSTS])
+            sat.code_mult[i] *= c
+            sat.doppler_mult[i] *= d
+            bits[i] |= np.where(act, ev.NOISE, 0).astype(np.uint16)
+    if events.mismatch is not None:
+        sat.code_rep, sat.doppler_rep = np.ones((B, M)), np.ones((B, M))
+        for i in range(B):
+            fp, fd = ev.draw_mismatch(t, events.mismatch, subs[i][_SUB_MISMATCH])
+            sat.code_rep[i], sat.doppler_rep[i] = fp, fd
+            bits[i] |= np.where((fp != 1.0) | (fd != 1.0), ev.MISMATCH, 0).astype(np.uint16)
+    if events.regimes is not None:
+        rg = events.regimes
+        sc = np.array([[r.code_scale, r.doppler_scale] for r in rg.regimes])
+        for i in range(B):
+            regime, _ = ev.draw_regimes(t, rg, subs[i][_SUB_REGIME])
+            sat.code_mult[i] *= sc[regime, 0]
+            sat.doppler_mult[i] *= sc[regime, 1]
+            bits[i] |= np.where(regime > 0, ev.REGIME, 0).astype(np.uint16)
+            if new_nlos:
+                nl, bi, ra = ev.regime_nlos(t, regime, sky.el[i], rg, subs[i][_SUB_REGIME_NLOS])
+                nl &= visible[i]
+                nlos2_sat[i] |= nl
+                bias2_sat[i] = np.where(nl, bi, bias2_sat[i])
+                rate2_sat[i] = np.where(nl, ra, rate2_sat[i])
+    if events.zones is not None:
+        for i in range(B):
+            kind, zid, windows = ev.draw_zone_schedule(t, events.zones, subs[i][_SUB_ZONES])
+            blocked, nl, bi, ra, att = ev.zone_effects(
+                t, kind, zid, windows, sky.el[i], sky.az[i], v_e[i], None if heading is None else heading[i],
+                events.zones, subs[i][_SUB_ZONE_GEOM], subs[i][_SUB_ZONE_SAT])
+            visible[i] &= ~blocked
+            nl &= visible[i]
+            nlos2_sat[i] |= nl
+            bias2_sat[i] = np.where(nl, bi, bias2_sat[i])
+            rate2_sat[i] = np.where(nl, ra, rate2_sat[i])
+            att_sat[i] = np.where(visible[i], att, 0.0)
+            zb = np.zeros(M, dtype=np.uint16)
+            zb[kind == ev.ZONE_CANYON] = ev.NLOS_ZONE
+            zb[kind == ev.ZONE_TREES] = ev.NLOS_ZONE | ev.TREES
+            zb[kind == ev.ZONE_OVERPASS] = ev.OVERPASS
+            bits[i] |= zb
+    if new_nlos:                                           # the regimes' NLOS carry the measured C/N0 deficit too
+        att_sat = np.where(nlos2_sat & (att_sat == 0.0), ev.NLOS_DEFICIT_DB, att_sat)
+        sat.zone = (nlos2_sat, bias2_sat, rate2_sat, att_sat)
+
+
+def scheduled_events(t, sat: SatelliteEvents, events) -> None:
+    """Stage 4: the scheduled events into ``sat`` (in place): full outages, the event bits of the noise-scale and
+    canyon intervals, and the re-acquisition transient (after every blockage is known)."""
+    M = t.size
+    if events.outages:
+        in_out = _in_intervals(t, events.outages)
+        sat.visible &= ~in_out[None, :, None]
+        sat.bits |= np.where(in_out, ev.OUTAGE, 0).astype(np.uint16)[None]
+    for iv in events.noise_scale:
+        if iv[2] != 1.0:
+            sat.bits |= np.where((t >= iv[0]) & (t < iv[1]), ev.NOISE, 0).astype(np.uint16)[None]
+    if events.canyon is not None:
+        in_c = _in_intervals(t, events.canyon.intervals) if events.canyon.intervals else np.ones(M, bool)
+        sat.bits |= np.where(in_c, ev.NLOS_ZONE, 0).astype(np.uint16)[None]
+    if events.reacquisition is not None:
+        sat.reacq = ev.reacquisition_multiplier(t, sat.visible, events.reacquisition)
+
+
+def allocate_channels(sky: Sky, visible, n_channels: int, subs) -> Channels:
+    """Stage 5: the visible satellites on the C channels by elevation, descending (stable), and each channel's
+    C/N0 (:func:`envs.sim.events.cn0_los` plus the jitter, drawn per satellite from the row's C/N0 stream)."""
+    B, M, S = sky.el.shape
+    C = n_channels
+    key = np.where(visible, sky.el, -np.inf)
+    order = np.argsort(-key, axis=-1, kind="stable")
+    if C <= S:
+        sel = order[..., :C].copy()
+    else:
+        sel = np.concatenate([order, np.zeros((B, M, C - S), dtype=order.dtype)], axis=-1)
+    # one flat index into (B, M, S) arrays serves every gather (one np.take instead of take_along_axis)
+    flat_sel = sel + (S * np.arange(B * M)).reshape(B, M, 1)
+    ch = Channels(sel=sel, mask=np.take(visible, flat_sel), el=np.take(sky.el, flat_sel),
+                  az=np.take(sky.az, flat_sel), cn0=None, flat_sel=flat_sel)
+    if C > S:
+        ch.mask[..., S:] = False
+    cn0_z = np.stack([s[_SUB_CN0].standard_normal((M, S)) for s in subs])     # C/N0 jitter, per satellite
+    ch.cn0 = ev.cn0_los(ch.el) + CN0_JITTER_DB * ch.gather(cn0_z)
+    return ch
+
+
+def channel_ranging(r_e, v_e, sky: Sky, ch: Channels, constellation: Constellation) -> Ranging:
+    """Stage 6: ephemeris at transmission time and true range / rate on the tracked channels only, in blocks of
+    ``_CHUNK_ELEMS`` channels (the others stay zero; every formula is elementwise, so a value does not depend on
+    which channels are evaluated with it). Range and rate: :func:`earth.ranging.range_and_rate`."""
+    B, M, C = ch.mask.shape
+    t_tx_ch = ch.gather(sky.t_tx)
+    sat_pos = np.zeros((B, M, C, 3))
+    sat_vel = np.zeros((B, M, C, 3))
+    rho = np.zeros((B, M, C))
+    rho_dot = np.zeros((B, M, C))
+    tracked = np.flatnonzero(ch.mask)                       # flat (b, k, c) index of the tracked channels
+    for k0 in range(0, tracked.size, _CHUNK_ELEMS):
+        idx = tracked[k0:k0 + _CHUNK_ELEMS]
+        epoch = idx // C                                    # flat (b, k) index
+        sp, sv = _orbit_at(constellation, t_tx_ch.reshape(-1)[idx], ch.sel.reshape(-1)[idx])
+        sat_pos.reshape(-1, 3)[idx], sat_vel.reshape(-1, 3)[idx] = sp, sv
+        rho_ch, rho_dot_ch, _ = range_and_rate(sp[:, None], sv[:, None], r_e.reshape(-1, 3)[epoch],
+                                               v_e.reshape(-1, 3)[epoch])
+        rho.reshape(-1)[idx], rho_dot.reshape(-1)[idx] = rho_ch[:, 0], rho_dot_ch[:, 0]
+    return Ranging(sat_pos=sat_pos, sat_vel=sat_vel, rho=rho, rho_dot=rho_dot)
+
+
+def channel_noise(t, ch: Channels, sat: SatelliteEvents, events) -> ChannelNoise:
+    """Stage 7: each channel's NLOS state and true noise multipliers: the NLOS factor ``k_nlos`` (or, for the
+    zones' and regimes' NLOS, their C/N0 loss ``10^(att/20)``), the noise-scale intervals, the re-acquisition
+    transient, the bursts and regimes. Subtracts the NLOS / zone C/N0 losses from ``ch.cn0`` and sets the
+    re-acquisition bit in ``sat.bits`` (in place)."""
+    M = t.size
+    mask = ch.mask
+    nlos = ch.gather(sat.nlos) & mask
+    nlos_bias, nlos_rate = ch.gather(sat.nlos_bias), ch.gather(sat.nlos_rate)
+    k_nlos = events.nlos.noise_factor if events.nlos is not None else 3.0
+    ch.cn0 -= np.where(nlos, ev.NLOS_DEFICIT_DB, 0.0)
+    scale = np.ones(M)
+    for iv in events.noise_scale:
+        scale = np.where((t >= iv[0]) & (t < iv[1]), scale * iv[2], scale)
+    noise_mult = scale[None, :, None] * np.where(nlos, k_nlos, 1.0)
+    noise_mult_prr = noise_mult
+    if sat.zone is not None:                               # zone / regime NLOS replace the old ones on a channel
+        nlos2_sat, bias2_sat, rate2_sat, att_sat = sat.zone
+        nlos2 = ch.gather(nlos2_sat) & mask
+        att = ch.gather(att_sat)
+        nlos_bias = np.where(nlos2, ch.gather(bias2_sat), nlos_bias)
+        nlos_rate = np.where(nlos2, ch.gather(rate2_sat), nlos_rate)
+        noise_mult = np.where(nlos2 & nlos, noise_mult / k_nlos, noise_mult) * 10.0 ** (att / 20.0)
+        nlos = nlos | nlos2
+        ch.cn0 -= att
+        noise_mult_prr = noise_mult
+    if sat.reacq is not None:
+        rq = ch.gather(sat.reacq)
+        noise_mult = noise_mult * rq
+        noise_mult_prr = noise_mult_prr * rq
+        sat.bits |= np.where((mask & (rq > 1.0)).any(axis=-1), ev.REACQUISITION, 0).astype(np.uint16)
+    if events.bursts is not None or events.regimes is not None:
+        noise_mult = noise_mult * sat.code_mult[..., None]
+        noise_mult_prr = noise_mult_prr * sat.doppler_mult[..., None]
+    return ChannelNoise(nlos=nlos, pr_bias=np.where(nlos, nlos_bias, 0.0), prr_bias=np.where(nlos, nlos_rate, 0.0),
+                        code_mult=noise_mult, doppler_mult=noise_mult_prr)
+
+
+def receiver_errors(t, ch: Channels, noise: ChannelNoise, sat: SatelliteEvents, receiver, subs) -> ReceiverErrors:
+    """Stage 8: the receiver clock, the residual troposphere (one Gauss-Markov process per row) and ionosphere
+    (one per satellite), the white code and Doppler noise, the reported sigmas (nominal, or the receiver's
+    :attr:`~envs.sim.receiver.ReceiverConfig.sigma_model`, times the mismatch factors) and the true variances
+    (the module docstring of :mod:`envs.sim.gnss`), from the rows' clock, troposphere, ionosphere, code and
+    Doppler streams."""
+    M = t.size
+    el, mask = ch.el, ch.mask
+    S = sat.visible.shape[-1]
+    bias_m, drift_mps = simulate_clock(t, [s[_SUB_CLOCK] for s in subs], receiver.clock)
+    s_el = np.sin(np.maximum(el, _MIN_EL_SIGMA))
+    m_t, f_i = tropo_mapping(el), iono_obliquity(el)
+    # the Gauss-Markov processes of all rows in one call each (time axis first; columns are independent)
+    tropo_z = _gauss_markov(t, receiver.tropo_tau_s, receiver.tropo_zenith_sigma_m,
+                            np.stack([s[_SUB_TROPO].standard_normal(M) for s in subs], axis=1)).T
+    iono_sat = _gauss_markov(t, receiver.iono_tau_s, receiver.iono_zenith_sigma_m,   # one process per satellite
+                             np.stack([s[_SUB_IONO].standard_normal((M, S)) for s in subs], axis=1))
+    iono_ch = ch.gather(iono_sat.transpose(1, 0, 2))
+    del iono_sat
+    C = mask.shape[-1]
+    code_z = np.stack([s[_SUB_CODE].standard_normal((M, C)) for s in subs])
+    rate_z = np.stack([s[_SUB_RATE].standard_normal((M, C)) for s in subs])
+    sig_pr_code = receiver.pr_sigma_m / s_el
+    sig_prr = receiver.prr_sigma_mps / s_el
+    pr_bias, prr_bias = noise.pr_bias, noise.prr_bias
+    pr_white = noise.code_mult * sig_pr_code
+    prr_white = noise.doppler_mult * sig_prr
+    pr_err = (m_t * tropo_z[..., None] + f_i * iono_ch + pr_bias + pr_white * code_z)
+    prr_err = prr_bias + prr_white * rate_z
+    atm_var = (m_t * receiver.tropo_zenith_sigma_m) ** 2 + (f_i * receiver.iono_zenith_sigma_m) ** 2
+    pr_sigma = np.sqrt(sig_pr_code**2 + (m_t * receiver.tropo_zenith_sigma_m) ** 2
+                       + (f_i * receiver.iono_zenith_sigma_m) ** 2)
+    if receiver.sigma_model.name != "receiver":             # a variance model replaces the nominal sigma
+        with np.errstate(over="ignore"):
+            pr_sigma = np.sqrt(receiver.sigma_model.variance(el, ch.cn0))
+    pr_var_true = np.where(mask, pr_white**2 + atm_var + pr_bias**2, 1.0)
+    prr_var_true = np.where(mask, prr_white**2 + prr_bias**2, 1.0)
+    if sat.code_rep is not None:                            # the reported-sigma mismatch
+        pr_sigma = pr_sigma * sat.code_rep[..., None]
+        sig_prr = sig_prr * sat.doppler_rep[..., None]
+    return ReceiverErrors(bias_m=bias_m, drift_mps=drift_mps, pr_err=pr_err, prr_err=prr_err, pr_sigma=pr_sigma,
+                          prr_sigma=sig_prr, pr_var_true=pr_var_true, prr_var_true=prr_var_true)
