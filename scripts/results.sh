@@ -7,7 +7,8 @@
 # configs/results.yml); on urban-transition and open-sky also PPO with 4 stacked observation frames and the
 # 'advantage' reward (configs/results_variants.yml) and RecurrentPPO (configs/results_recurrent.yml), 3 seeds
 # each, the same budget; then eval.py --headroom on 50 held-out paired episodes with kf, sage-husa (b = 0.98),
-# the group law, stkf, ma-stkf, the hand-designed rule and the oracles (--skip-missing leaves the variant and
+# the group law, stkf, ma-stkf, the robust methods (vb-akf, kf-fde, kf-igg3, kf-huber, sage-husa+fde), the
+# hand-designed rule and the oracles (--skip-missing leaves the variant and
 # RecurrentPPO out of the scenarios they were not trained on, and the note lists where).
 # About 2-3 hours on 2 CPU cores: PPO 3-4 min per run, RecurrentPPO ~10 min per run (WORKERS at once), tuning
 # ~3 min per scenario, the evaluation ~30 min.
@@ -48,5 +49,5 @@ for sweep in "$SWEEP" "$SWEEP_VARIANTS" "$SWEEP_RECURRENT"; do
 done
 K="$ENV[segment_s=10,lookahead_s=20,n=7]"
 $PY eval.py "${ARGS[@]}" --episodes $EPISODES --seed 0 --headroom --goal -20 --goal open-sky=2 --skip-missing \
-  --methods "tuned:$RUNS/{scenario}/tuning.json,kf,sage-husa,sage-husa-group,stkf,ma-stkf,rule:$ENV,ppo:$RUNS/{scenario}/ppo-s*/model.zip,ppo:$RUNS/{scenario}/ppo-h4adv-s*/model.zip,recurrentppo:$RUNS/{scenario}/recurrentppo-s*/model.zip,oracle-r,oracle-schedule:$K,crossfit-schedule:$K" \
+  --methods "tuned:$RUNS/{scenario}/tuning.json,kf,sage-husa,sage-husa-group,stkf,ma-stkf,vb-akf,kf-fde,kf-igg3,kf-huber,sage-husa+fde,rule:$ENV,ppo:$RUNS/{scenario}/ppo-s*/model.zip,ppo:$RUNS/{scenario}/ppo-h4adv-s*/model.zip,recurrentppo:$RUNS/{scenario}/recurrentppo-s*/model.zip,oracle-r,oracle-schedule:$K,crossfit-schedule:$K" \
   --reference "tuned:$RUNS/{scenario}/tuning.json" "${BACKEND[@]}" --out $OUT --note $NOTE
