@@ -128,6 +128,16 @@ def _tail(path: str, n: int) -> str:
     return ".../" + (out or parts[-1][-(n - 4):])
 
 
+def _value_text(v: float) -> str:
+    """``v`` to 3 significant digits, more where 3 would round it onto a different whole number (0.9999 is
+    ``0.9999``, not ``1``: a forgetting factor of 1 means no forgetting)."""
+    for p in range(3, 10):
+        s = f"{v:.{p}g}"
+        if float(s) != round(float(s)) or round(float(s)) == v:
+            return s
+    return repr(v)
+
+
 def short_label(label: str, scenario: str, n_seeds: int | None = None) -> str:
     """A short readable label of the eval.py method ``label`` on ``scenario``.
 
@@ -151,7 +161,7 @@ def short_label(label: str, scenario: str, n_seeds: int | None = None) -> str:
         r = training_record(label, scenario)
         if r is None or r.get("best") is None:
             return f"tuned ({_tail(str(Path(rest.replace('{scenario}', scenario)).parent), MAX_LABEL - 8)})"
-        return _cut(f"tuned {r['param']}={r['best']:.3g}")
+        return _cut(f"tuned {r['param']}={_value_text(float(r['best']))}")
     if kind.lower() in ALGOS:
         return _cut(kind.lower() + (f" ({n_seeds} seeds)" if n_seeds else ""))
     if kind == "rule":

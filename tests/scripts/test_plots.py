@@ -138,6 +138,9 @@ def test_short_labels_and_training_records(tmp_path):
     tuned = f"tuned:{tmp_path}/{{scenario}}/tuning.json"
     assert short_label(tuned, "urban") == "tuned b=0.944"
     assert short_label(tuned, "open-sky") == "tuned (.../open-sky)"  # no file there: its folder, cut at the left
+    (tmp_path / "edge").mkdir()
+    (tmp_path / "edge" / "tuning.json").write_text(json.dumps({"param": "b", "best": 0.9999}))
+    assert short_label(tuned, "edge") == "tuned b=0.9999"  # not 'b=1', which would mean no forgetting
     assert short_label("tuned:runs/main/tune-{scenario}/tuning.json", "urban") == "tuned (runs/main/tune-urban)"
     assert short_label("ppo:a/model.zip", "urban", n_seeds=3) == "ppo (3 seeds)"
     assert short_label("oracle: oracle-schedule:GnssIns/SageHusa-v1[n=7]", "urban") == "oracle: schedule"
