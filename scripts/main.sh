@@ -2,8 +2,9 @@
 # The main job on a fresh clone: set up, train a small tuning policy (PPO, --quick), tune the optimized
 # fixed forgetting factor on training seeds of each evaluated scenario, and compare both with the
 # hand-designed filters on held-out paired episodes, the best robust ones included (kf-igg3, vb-akf,
-# sage-husa+fde: a learned method is judged against the best hand-designed one, not a straw man). Outputs: runs/main/ (model, config.json,
-# tune-<scenario>/tuning.json), results/main/ (table, plots, NOTE.md).
+# sage-husa+fde: a learned method is judged against the best hand-designed one, not a straw man).
+# Outputs: runs/main/ (model, config.json, tune-<scenario>/tuning.json), results/main/ (table, plots, NOTE.md);
+# python scripts/readme_results.py then puts the table and one plot into README.md.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
