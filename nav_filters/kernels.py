@@ -383,7 +383,7 @@ PARALLEL_MIN_BATCH = 64
 """Below this batch size every row kernel of the package runs its serial variant (this module's, the forms'
 and the adaptive laws'): a parallel launch costs more than it saves, and on 2 cores its worker threads compete
 with BLAS threads still spinning after the caller's last matmul. The parallel variants need free cores: on a
-busy machine ``NUMBA_NUM_THREADS=1`` is faster (README)."""
+busy machine ``NUMBA_NUM_THREADS=1`` is faster (docs/usage.md, Benchmarks)."""
 
 
 def row_chunks(B: int) -> int:
