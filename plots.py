@@ -287,6 +287,8 @@ def plot_trajectory(scenario: str, logs: dict, truth_ne, path: Path, ref: str, l
         ax.set_title(f"{scenario}: episode 0, estimates against the truth", fontsize=10)
     ax.set_xlabel("east [m]")
     ax.set_ylabel("north [m]")
+    from matplotlib.ticker import MaxNLocator
+    ax.xaxis.set_major_locator(MaxNLocator(5))  # map coordinates are long numbers: few ticks stay readable
     ax.grid(alpha=0.3)
     plain_ticks(ax, "x"), plain_ticks(ax, "y")
     ax2.set_xlabel("east error [m]")
