@@ -278,9 +278,13 @@ def summary_lines(rows: list[dict]) -> list[str]:
             out.append(f"- {label}: no band holds both samples (all elevations: D = {_f(every['ks'])}).")
             continue
         worst = max(banded, key=lambda r: r["ks"])
-        out.append(f"- {label} [{unit}]: largest D = {worst['ks']:.2f} at {band_label(worst['band'])} deg (sim "
-                   f"median {_f(worst['sim'][2])}, std {_f(worst['sim'][3])}; smartLoc median {_f(worst['real'][2])}, "
-                   f"std {_f(worst['real'][3])}); all elevations D = {_f(every['ks'])}.")
+        if unit == "0/1":
+            sides = f"sim {_f(worst['sim'][1])}, smartLoc {_f(worst['real'][1])}"
+        else:
+            sides = (f"sim median {_f(worst['sim'][2])}, std {_f(worst['sim'][3])}; smartLoc median "
+                     f"{_f(worst['real'][2])}, std {_f(worst['real'][3])}")
+        out.append(f"- {label} [{unit}]: largest D = {worst['ks']:.2f} at {band_label(worst['band'])} deg "
+                   f"({sides}); all elevations D = {_f(every['ks'])}.")
     return out
 
 
