@@ -97,10 +97,10 @@ class LearnedRConfig:
     rows: int = 16
     explore_rows: float = 0.5
     hidden: tuple = (64, 64)
-    lr: float = 1e-3
-    batch_size: int = 1024
-    max_epochs: int = 60
-    patience: int = 8
+    lr: float = 3e-3
+    batch_size: int = 512
+    max_epochs: int = 100
+    patience: int = 10
 
     def __post_init__(self):
         ints = {"seed": (0, MAX_RUN_SEED), "n_train": (1, 1000), "n_val": (1, 100), "n_test": (1, 10_000),
@@ -126,8 +126,8 @@ class LearnedRConfig:
             raise ValueError(f"LearnedRConfig.hidden must be a non-empty tuple of ints >= 1, got {self.hidden!r}")
 
 
-QUICK = LearnedRConfig(episode_length_s=60.0, n_train=16, n_val=8, n_test=8, rows=8, max_epochs=20, patience=4,
-                       batch_size=256)
+QUICK = LearnedRConfig(episode_length_s=60.0, n_train=16, n_val=8, n_test=8, rows=8, max_epochs=40, patience=10,
+                       batch_size=128)
 """``--quick``: a small data set and few epochs (under a minute on 2 busy cores after compilation)."""
 
 
@@ -426,7 +426,7 @@ def train_learned_r(out, config: LearnedRConfig | None = None, quick: bool = Fal
     ----------
     out : output folder (created).
     config : settings (default :class:`LearnedRConfig`, or :data:`QUICK` with ``quick``; a given config wins).
-    quick : the small preset; progress : lines on stderr (data collection, epochs).
+    quick : the small preset (recorded in ``config.json``); progress : lines on stderr (collection, epochs).
     """
     import sys
     cfg = config if config is not None else (QUICK if quick else LearnedRConfig())
@@ -446,7 +446,7 @@ def train_learned_r(out, config: LearnedRConfig | None = None, quick: bool = Fal
     save_model(out / MODEL_FILE, net)
     test = heldout_metrics(predict_log_inflation(net, data["test"]["x"]), data["test"])
     val = heldout_metrics(predict_log_inflation(net, data["val"]["x"]), data["val"])
-    settings = {"env": ENV_ID, "seed": cfg.seed, "quick": bool(quick and config is None),
+    settings = {"env": ENV_ID, "seed": cfg.seed, "quick": bool(quick),
                 "input_features": list(INPUT_FEATURES), "excluded_features": list(EXCLUDED_FEATURES),
                 "label": "y = true pseudorange error (GnssData.pr_error_m) / reported sigma, per channel and epoch",
                 "output": "s = ln(predicted variance / reported variance); action log10_inflation = clip(s / ln 10, "
