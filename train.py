@@ -14,8 +14,9 @@ evaluation; with its ``best/vecnormalize.pkl``), ``checkpoints/`` and ``logs/`` 
 kept; Ctrl-C ends any subcommand with one line and exit status 130); eval.py takes
 any of the three models (``ppo:runs/DIR/best/best_model.zip``) with the statistics saved with it. ``tune`` writes ``runs/DIR/tuning.json``
 for ``eval.py --methods tuned:runs/DIR/tuning.json``. ``zupt`` writes the detector's weights and
-``metrics.json``. ``learned-r`` writes ``model.pt``, ``config.json`` and ``metrics.json`` of the per-satellite noise
-model (:mod:`agents.learned_r`) for ``eval.py --methods learned-r:runs/DIR/model.pt``. ``sweep`` runs a grid / random or Optuna search of ``rl`` runs (:mod:`agents.sweep`; on Ray Tune with
+``metrics.json``. ``learned-r`` writes ``model.pt``, ``config.json`` and ``metrics.json`` of the per-satellite
+noise model (:mod:`agents.learned_r`) for ``eval.py --methods learned-r:runs/DIR/model.pt``.
+``sweep`` runs a grid / random or Optuna search of ``rl`` runs (:mod:`agents.sweep`; on Ray Tune with
 ``--backend ray``) and writes ``sweep.csv`` / ``sweep.md`` beside the trials' run folders.
 
 The environments also train unchanged under RL Zoo, with navgym's hyperparameters from ``hyperparams/``:
