@@ -4,6 +4,7 @@
     python train.py rl   --env GnssIns/SageHusa-v1 --algo ppo --quick --out runs/quick
     python train.py tune --env GnssIns/SageHusa-v1 --out runs/DIR          # the optimized fixed parameter
     python train.py zupt --model lstm --seed S --out runs/DIR              # zero-velocity detector
+    python train.py learned-r --seed S --out runs/DIR [--quick]            # supervised per-satellite R
     python train.py sweep --config configs/sweep.yml --out runs/sweep [--backend ray [--address ADDR]]
 
 ``rl`` writes ``runs/DIR/model.zip`` (stable-baselines3), ``config.json`` (the exact settings),
@@ -13,7 +14,9 @@ evaluation; with its ``best/vecnormalize.pkl``), ``checkpoints/`` and ``logs/`` 
 kept; Ctrl-C ends any subcommand with one line and exit status 130); eval.py takes
 any of the three models (``ppo:runs/DIR/best/best_model.zip``) with the statistics saved with it. ``tune`` writes ``runs/DIR/tuning.json``
 for ``eval.py --methods tuned:runs/DIR/tuning.json``. ``zupt`` writes the detector's weights and
-``metrics.json``. ``sweep`` runs a grid / random or Optuna search of ``rl`` runs (:mod:`agents.sweep`; on Ray Tune with
+``metrics.json``. ``learned-r`` writes ``model.pt``, ``config.json`` and ``metrics.json`` of the per-satellite
+noise model (:mod:`agents.learned_r`) for ``eval.py --methods learned-r:runs/DIR/model.pt``.
+``sweep`` runs a grid / random or Optuna search of ``rl`` runs (:mod:`agents.sweep`; on Ray Tune with
 ``--backend ray``) and writes ``sweep.csv`` / ``sweep.md`` beside the trials' run folders.
 
 The environments also train unchanged under RL Zoo, with navgym's hyperparameters from ``hyperparams/``:
@@ -110,6 +113,12 @@ def build_parser():
     zu.add_argument("--seed", type=int, default=0, help="training seed")
     zu.add_argument("--quick", action="store_true", help="a small, fast run (smaller data set and fewer epochs)")
     zu.add_argument("--out", required=True, help="output directory: weights, metrics.json (required)")
+    lr = sub.add_parser("learned-r", help="train the supervised per-satellite noise model (the learned-r baseline)",
+                        formatter_class=HelpFormatter)
+    lr.add_argument("--seed", type=int, default=0, help="training seed (worlds, exploration, initialization), 0..79")
+    lr.add_argument("--quick", action="store_true", help="a small, fast run (fewer and shorter episodes, fewer epochs)")
+    lr.add_argument("--no-progress", action="store_true", help="no progress lines (default: show them)")
+    lr.add_argument("--out", required=True, help="output directory: model.pt, config.json, metrics.json (required)")
     sw = sub.add_parser("sweep", help="a grid / random or Optuna search of rl runs (Ray Tune with --backend ray)",
                         formatter_class=HelpFormatter)
     sw.add_argument("--config", required=True,
@@ -237,6 +246,21 @@ def _main(argv=None):
             fail(str(e))
         path = save_tuning(res, Path(args.out) / "tuning.json")
         print(f"wrote {path}")
+    elif args.cmd == "learned-r":
+        from agents.learned_r import MAX_RUN_SEED, QUICK, LearnedRConfig, train_learned_r
+        if args.seed > MAX_RUN_SEED:
+            fail(f"--seed must be in 0..{MAX_RUN_SEED} (the training seeds stay below the validation seeds), "
+                 f"got {args.seed}")
+        import dataclasses
+        cfg = dataclasses.replace(QUICK if args.quick else LearnedRConfig(), seed=args.seed)
+        check_out(args.out)
+        announce()
+        m = train_learned_r(args.out, cfg, quick=args.quick, progress=not args.no_progress)
+        t, auc = m["test"], m["test"]["auc_nlos"]
+        print(f"learned-r: held-out NLL {t['nll_m']:.3f} (reported sigmas {t['nll_reported_m']:.3f}, true variances "
+              f"{t['nll_true_var_m']:.3f}), NLOS AUC {'n/a' if auc is None else f'{auc:.3f}'}, best epoch "
+              f"{m['training']['best_epoch']} of {m['training']['epochs']}")
+        print(f"wrote {', '.join(str(p) for p in sorted(Path(args.out).iterdir()) if p.is_file())}")
     else:
         try:
             from agents.zupt_training import format_table, train_zupt_detector

@@ -17,6 +17,11 @@ spec                           meaning
                                per-satellite, per-epoch variances (:func:`envs.worlds.oracle_r_world`);
                                simulated worlds only
 ``oracle-nlos-excluded``       an oracle: ``kf`` with every NLOS channel removed
+``learned-r:<model.pt>``       the supervised per-satellite noise model of ``train.py learned-r``
+                               (:mod:`agents.learned_r`) as the fixed policy of ``GnssIns/SatelliteR-v0``: each
+                               channel's variance inflated to the predicted one (never below x1); option
+                               ``[method=<m>]`` (default ``kf``), e.g. ``learned-r:runs/lr/model.pt[method=kf-fde]``;
+                               the path may be the run folder
 ``rule:<env id>``              the hand-designed causal rule :class:`agents.policies.ReactiveRule` (low b while
                                the satellites look degraded); options ``[b_low=0.5,b_high=0.9999,nis=9,ema=3,
                                hold=5]``
@@ -103,6 +108,41 @@ _ORACLE_SPEC = re.compile(r"^(?P<env>[^\[\]]+?)(?:\[(?P<p>[^\]]*)\])?$")
 def is_oracle_label(label: str) -> bool:
     """Whether a method label is an oracle's (``'oracle: ...'`` here; ``'oracle-r...'``: the R oracle)."""
     return label.startswith("oracle")
+
+
+@dataclass
+class LearnedRMethod(PolicyMethod):
+    """``learned-r:<model.pt>[method=<m>]``: the per-satellite noise model (:class:`agents.learned_r.LearnedRPolicy`)
+    run through ``GnssIns/SatelliteR-v0`` with filter method ``method`` on the eval worlds. A learned method
+    (a :class:`PolicyMethod` for eval.py's tables and plots), trained by ``train.py learned-r``."""
+
+    method: str = "kf"
+
+    def run(self, world, dtype="float64", zupt: str = "none"):
+        from .learned_r import ENV_ID, LearnedRPolicy
+        kw = _eval_env_kwargs(world, dtype)
+        kw.update(zupt=zupt, method=self.method)
+        return run_policy_episodes(ENV_ID, kw, LearnedRPolicy.for_env(self.policy, kw), world.seeds)
+
+
+def parse_learned_r_spec(spec: str) -> LearnedRMethod:
+    """A :class:`LearnedRMethod` for ``'learned-r:<path>[method=<m>]'``; a one-line ``ValueError`` /
+    ``FileNotFoundError`` naming the culprit for a bad option, method or model file."""
+    m = _ORACLE_SPEC.match(spec.split(":", 1)[1].strip())
+    if not m or not m.group("env").strip():
+        raise ValueError(f"bad learned-r spec {spec!r}: expected 'learned-r:<model.pt>[method=<m>]'")
+    path, method = m.group("env").strip(), "kf"
+    for item in filter(None, (x.strip() for x in (m.group("p") or "").split(","))):
+        k, _, v = (x.strip() for x in item.partition("="))
+        if k != "method" or not v:
+            raise ValueError(f"unknown option {item!r} in {spec!r}; learned-r takes method=<filter method>")
+        try:
+            parse_method(v)
+        except ValueError as e:
+            raise ValueError(f"{spec}: {e}") from None
+        method = v
+    from .learned_r import load_model
+    return LearnedRMethod(spec, "learned-r", path, load_model(path), method)
 
 
 @dataclass
@@ -271,6 +311,8 @@ def parse_method_spec(spec: str):
             return parse_oracle_spec(spec)
         if kind == "rule":
             return parse_rule_spec(spec)
+        if kind == "learned-r":
+            return parse_learned_r_spec(spec)
         if kind == "tuned":
             t = load_tuning(path)
             params = dict(t.get("fixed", {}))
@@ -285,7 +327,7 @@ def parse_method_spec(spec: str):
             policy = Sb3Policy.load(path, kind.lower())
             check_policy_env(policy, path)
             return PolicyMethod(spec, kind.lower(), path, policy)
-        raise ValueError(f"unknown method prefix {kind!r} in {spec!r}; use 'tuned:', an oracle "
+        raise ValueError(f"unknown method prefix {kind!r} in {spec!r}; use 'tuned:', 'learned-r:', an oracle "
                          f"({', '.join(ORACLE_KINDS)}) or one of {', '.join(ALGOS)}")
     m = _PARAMS.match(spec)
     if m:
@@ -358,6 +400,11 @@ def expand_method_spec(spec: str, scenario: str) -> list:
     if ":" not in spec or spec.split(":", 1)[0] in tuple(ORACLE_KINDS) + ("oracle-r", "rule"):
         return [parse_method_spec(spec)]
     kind, path = spec.split(":", 1)
+    opts = ""
+    if kind == "learned-r":  # its options in brackets are not part of a glob pattern
+        m = _ORACLE_SPEC.match(path.strip())
+        if m and m.group("p") is not None:
+            path, opts = m.group("env").strip(), f"[{m.group('p')}]"
     concrete = path.replace("{scenario}", scenario)
     if any(c in concrete for c in "*?["):
         files = sorted(glob.glob(concrete))
@@ -367,8 +414,8 @@ def expand_method_spec(spec: str, scenario: str) -> list:
         files = [concrete]
     out = []
     for f in files:
-        m = parse_method_spec(f"{kind}:{f}")
+        m = parse_method_spec(f"{kind}:{f}{opts}")
         if "{scenario}" in path:
-            m.label = f"{kind}:{f.replace(scenario, '{scenario}')}"
+            m.label = f"{kind}:{f.replace(scenario, '{scenario}')}{opts}"
         out.append(m)
     return out

@@ -145,7 +145,8 @@ def short_label(label: str, scenario: str, n_seeds: int | None = None) -> str:
     its folder with ``{scenario}`` resolved, when it cannot be read); ``<algo>:<model.zip>`` -> ``'ppo'``; the
     pooled row of a pattern over ``n_seeds`` training seeds -> ``'ppo (3 seeds)'``, ``'tuned (3 seeds)'``; an
     oracle -> ``'oracle: schedule'``, ``'oracle: true R'``, ...; ``rule:<env id>[...]`` -> ``'rule'`` plus its
-    options; a filter spec stays as it is. At most :data:`MAX_LABEL` characters.
+    options; ``learned-r:<model.pt>[...]`` -> ``'learned-r'`` plus its options; a filter spec stays as it is.
+    At most :data:`MAX_LABEL` characters.
     """
     if label.startswith("oracle: "):
         kind = label.removeprefix("oracle: ").split(":", 1)[0]
@@ -164,6 +165,10 @@ def short_label(label: str, scenario: str, n_seeds: int | None = None) -> str:
         return _cut(f"tuned {r['param']}={_value_text(float(r['best']))}")
     if kind.lower() in ALGOS:
         return _cut(kind.lower() + (f" ({n_seeds} seeds)" if n_seeds else ""))
+    if kind == "learned-r":
+        opts = _BRACKETS.search(rest)
+        return _cut("learned-r" + (f" ({n_seeds} seeds)" if n_seeds else "") + (f" {opts.group(0)[1:-1]}" if opts
+                                                                                  else ""))
     if kind == "rule":
         opts = _BRACKETS.search(rest)
         return _cut("rule" + (f" {opts.group(0)[1:-1]}" if opts else ""))

@@ -28,7 +28,7 @@ def test_every_option_has_help():
     assert cli_help.undocumented_options(bare) == ["--x"]  # the check sees a missing help
 
 
-@pytest.mark.parametrize("name", ["eval.py", "train.py rl", "train.py tune", "train.py zupt"])
+@pytest.mark.parametrize("name", ["eval.py", "train.py rl", "train.py tune", "train.py zupt", "train.py learned-r"])
 def test_every_default_is_shown(name):
     p = _parsers()[name]
     fmt = p._get_formatter()
