@@ -20,7 +20,7 @@ def test_rounds_run_the_cells_in_turn_and_print_median_and_range(monkeypatch, ca
 
     monkeypatch.setattr(bench_envs, "_run_cell", fake_cell)
     bench_envs.main(["--rounds", "3", "--methods", "sage-husa", "stkf", "--batches", "1", "16", "--transitions",
-                     "fused", "--steps", "3", "--no-profile"])
+                     "fused", "--steps", "3", "--no-profile", "--no-headline"])
     # round by round: every cell once per round, in the same order
     assert order == [("sage-husa", 1), ("sage-husa", 16), ("stkf", 1), ("stkf", 16)] * 3
     rows = {tuple(line.split()[:3]): line.split() for line in capsys.readouterr().out.splitlines()
