@@ -23,12 +23,12 @@ if [ -n "${PERF_TINY:-}" ]; then
   )
 else
   BENCHES=(
-    # end-to-end env-steps/s (automatic resets included) beside step-only, B = 1 and 256
-    "benchmarks/bench_envs.py --headline-only --quick"
+    # end-to-end env-steps/s (automatic resets included) beside step-only, B = 1 and 1024
+    "benchmarks/bench_envs.py --headline-only --methods sage-husa stkf svd-akf satellite-r --e2e-batches 1 1024"
     # step time of the robust measurement screens against kf
-    "benchmarks/bench_robust.py --batches 1 256 --steps 20"
+    "benchmarks/bench_robust.py --batches 1 1024 --steps 20"
     # world generation per row (what a reset pays), by stage
-    "benchmarks/bench_worlds.py --batches 1 256"
+    "benchmarks/bench_worlds.py --batches 1 1024"
   )
 fi
 
