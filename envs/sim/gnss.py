@@ -539,15 +539,6 @@ def simulate_gnss(t, r_e, v_e, heading, constellation: Constellation, receiver: 
     -------
     GnssData
     """
-    try:
-        ok = np.dtype(dtype) in (np.dtype(np.float32), np.dtype(np.float64))
-    except TypeError:
-        ok = False
-    if not ok:
-        raise ValueError(f"dtype must be np.float32 or np.float64, got {dtype!r}")
-    dtype = np.dtype(dtype)
-    if not isinstance(constellation, Constellation):
-        raise ValueError(f"constellation must be a Constellation, got {type(constellation).__name__}")
     t, r_e, v_e, heading, rngs, t0_gps, dtype = _check_inputs(t, r_e, v_e, heading, constellation, receiver,
                                                                events, rngs, t0_gps, dtype)
     subs = [stages._row_children(g) for g in rngs]
