@@ -326,23 +326,7 @@ def test_compiled_satellite_law_matches_its_numpy_specification(sample, iters, g
         m[1, 3] = k < 5 or k > 12
         dz = rng.normal(size=(B, C)) * np.where(np.arange(C) == 1, 6.0, 1.0)
         if k == 24:
-            law._keys = keys
-            ctx = law._open_epoch()
-            active = m.any(-1)
-            d = law._weights(active)
-            from nav_filters.forms.base import prepare_measurement
-            dzp, Hp, Rp, mp = prepare_measurement(dz, H, np.ones((B, C)), m, np.float64)
-            r = dzp - (Hp @ law.x[..., None])[..., 0]
-            plan = law._plan_satellite(r, Hp, Rp, mp, ctx, d, active, {})
-            s_ref, n_ref, g_ref, R_ref = law._r_sat_reference(r, Hp, Rp, mp, ctx, keys, d, active)
-            _, s_rows, n_rows, _ = plan.pending["sat"]
-            used = mp & (keys >= 0)
-            np.testing.assert_allclose(np.where(used, s_rows, 1.0), s_ref, rtol=1e-9)
-            np.testing.assert_array_equal(np.where(used, n_rows, 0), n_ref)
-            np.testing.assert_allclose(plan.pending["r_scale"], g_ref, rtol=1e-12)
-            np.testing.assert_allclose(plan.R, R_ref, rtol=1e-9)
-            law._ctx = None
-            law._keys = None
+            _check_plan_against_reference(law, dz, H, m, keys, check_r_scale=True)
         else:
             law.update(dz, H, np.ones((B, C)), m, keys=keys)
 
@@ -579,22 +563,7 @@ def test_compiled_law_with_per_satellite_b_matches_its_numpy_specification(sampl
         m[:, k % C] = k % 5 != 0  # gaps: aging with each key's b
         dz = rng.normal(size=(B, C)) * np.where(np.arange(C) == 2, 5.0, 1.0)
         if k == 19:
-            from nav_filters.forms.base import prepare_measurement
-            law._keys = keys
-            ctx = law._open_epoch()
-            active = m.any(-1)
-            d = law._weights(active)
-            dzp, Hp, Rp, mp = prepare_measurement(dz, H, np.ones((B, C)), m, np.float64)
-            r = dzp - (Hp @ law.x[..., None])[..., 0]
-            plan = law._plan_satellite(r, Hp, Rp, mp, ctx, d, active, {})
-            s_ref, n_ref, _, R_ref = law._r_sat_reference(r, Hp, Rp, mp, ctx, keys, d, active)
-            _, s_rows, n_rows, _ = plan.pending["sat"]
-            used = mp & (keys >= 0)
-            np.testing.assert_allclose(np.where(used, s_rows, 1.0), s_ref, rtol=1e-9)
-            np.testing.assert_array_equal(np.where(used, n_rows, 0), n_ref)
-            np.testing.assert_allclose(plan.R, R_ref, rtol=1e-9)
-            law._ctx = None
-            law._keys = None
+            _check_plan_against_reference(law, dz, H, m, keys)
         else:
             law.update(dz, H, np.ones((B, C)), m, keys=keys)
 
@@ -623,3 +592,28 @@ def test_set_satellite_params_checks_its_arguments_and_the_law():
     for method in ("kf-fde", "ma-stkf"):
         with pytest.raises(ValueError, match="no per-satellite forgetting factor"):
             registry.make_form(method, P0).set_satellite_params(keys, np.full((B, C), 0.5))
+
+
+def _check_plan_against_reference(law, dz, H, m, keys, check_r_scale=False):
+    """The compiled per-satellite plan of the coming update (``law._plan_satellite``) against the numpy reference
+    (``law._r_sat_reference``): the rows' scales, their sample counts, R (and the group scale with
+    ``check_r_scale``). Leaves the law as it found it (no epoch open, no keys)."""
+    from nav_filters.forms.base import prepare_measurement
+    B, C = dz.shape
+    law._keys = keys
+    ctx = law._open_epoch()
+    active = m.any(-1)
+    d = law._weights(active)
+    dzp, Hp, Rp, mp = prepare_measurement(dz, H, np.ones((B, C)), m, np.float64)
+    r = dzp - (Hp @ law.x[..., None])[..., 0]
+    plan = law._plan_satellite(r, Hp, Rp, mp, ctx, d, active, {})
+    s_ref, n_ref, g_ref, R_ref = law._r_sat_reference(r, Hp, Rp, mp, ctx, keys, d, active)
+    _, s_rows, n_rows, _ = plan.pending["sat"]
+    used = mp & (keys >= 0)
+    np.testing.assert_allclose(np.where(used, s_rows, 1.0), s_ref, rtol=1e-9)
+    np.testing.assert_array_equal(np.where(used, n_rows, 0), n_ref)
+    if check_r_scale:
+        np.testing.assert_allclose(plan.pending["r_scale"], g_ref, rtol=1e-12)
+    np.testing.assert_allclose(plan.R, R_ref, rtol=1e-9)
+    law._ctx = None
+    law._keys = None
