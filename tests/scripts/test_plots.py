@@ -124,7 +124,7 @@ def test_no_actions_plot_without_a_policy(tmp_path):
     assert not (tmp_path / "a.png").exists()
 
 
-def test_short_labels_and_training_records(tmp_path):
+def test_short_labels_and_training_records(tmp_path, monkeypatch):
     (tmp_path / "urban").mkdir()
     (tmp_path / "urban" / "tuning.json").write_text(json.dumps({
         "env": "GnssIns/SageHusa-v1", "env_kwargs": {"scenario": "urban", "episode_length_s": 300},
@@ -141,6 +141,7 @@ def test_short_labels_and_training_records(tmp_path):
     (tmp_path / "edge").mkdir()
     (tmp_path / "edge" / "tuning.json").write_text(json.dumps({"param": "b", "best": 0.9999}))
     assert short_label(tuned, "edge") == "tuned b=0.9999"  # not 'b=1', which would mean no forgetting
+    monkeypatch.chdir(tmp_path)  # a relative path no run has written (a checkout's own runs/main may hold one)
     assert short_label("tuned:runs/main/tune-{scenario}/tuning.json", "urban") == "tuned (runs/main/tune-urban)"
     assert short_label("ppo:a/model.zip", "urban", n_seeds=3) == "ppo (3 seeds)"
     assert short_label("oracle: oracle-schedule:GnssIns/SageHusa-v1[n=7]", "urban") == "oracle: schedule"
