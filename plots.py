@@ -219,17 +219,22 @@ def plot_error_vs_time(scenario: str, logs: dict, path: Path, ref: str, labels: 
 
 ZOOM_MIN_HALF_M = 0.5
 """Smallest half-width of the trajectory plot's zoom [m]."""
+ZOOM_SKIP_FRACTION = 0.1
+"""Leading share of the epochs the zoom does not choose from: every filter starts from the same initial error,
+and their transients differ most there, which says little about the methods."""
 
 
 def zoom_epoch(logs: dict, shown: list, ref: str) -> tuple[int, float] | None:
     """``(epoch, distance [m])`` of episode 0 where a shown method's horizontal estimate lies farthest from the
-    reference's (the trajectory plot's zoom), or None when no other shown method has a finite track there."""
+    reference's (the trajectory plot's zoom) after the first :data:`ZOOM_SKIP_FRACTION` of the epochs (the
+    initial convergence), or None when no other shown method has a finite track there."""
     e_ref = logs[ref].pos_err_ned[0, :, :2]
     far = np.full(e_ref.shape[0], np.nan)
     for m in shown:
         if m == ref or logs[m].diverged[0]:
             continue
         far = np.fmax(far, np.hypot(*(logs[m].pos_err_ned[0, :, :2] - e_ref).T))
+    far[:int(ZOOM_SKIP_FRACTION * far.shape[0])] = np.nan
     if not np.isfinite(far).any():
         return None
     k = int(np.nanargmax(far))

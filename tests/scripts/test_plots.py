@@ -294,6 +294,10 @@ def test_trajectory_zooms_on_the_epoch_where_the_estimates_differ_most(tmp_path,
     other.pos_err_ned[0, 30, :2] += [3.0, 4.0]  # 5 m from the reference at epoch 30 of episode 0
     logs = {"kf": ref, "sage-husa": other}
     assert plots.zoom_epoch(logs, ["kf", "sage-husa"], "kf") == (30, pytest.approx(5.0))
+    early = fake_log(0.3, seed=1)
+    early.pos_err_ned[0, 2, :2] += [30.0, 40.0]  # larger, but inside the initial convergence: not the zoom
+    early.pos_err_ned[0, 30, :2] += [3.0, 4.0]
+    assert plots.zoom_epoch({"kf": ref, "sage-husa": early}, ["kf", "sage-husa"], "kf") == (30, pytest.approx(5.0))
     truth = np.cumsum(np.full((M, 2), 20.0), 0)  # 20 m between epochs: a km-scale track
     plots.plot_trajectory("urban", logs, truth, tmp_path / "t.png", "kf", {"kf": "kf", "sage-husa": "sage-husa"},
                           focus=["sage-husa"])
