@@ -42,7 +42,7 @@ import numpy as np
 
 from envs.outputs import write_atomic
 
-SIM_SCENARIOS = ("urban", "urban-transition")
+SIM_SCENARIOS = ("urban", "urban-transition", "urban-smartloc")
 """The simulated scenarios compared with the recording."""
 RECORDING = "smartloc-potsdamer-platz"
 """The recorded data set (dataset spec name)."""
@@ -50,6 +50,11 @@ BANDS_DEG = ((0.0, 15.0), (15.0, 30.0), (30.0, 45.0), (45.0, 90.0))
 """Elevation bands [deg], lower edge included, upper excluded (90 included in the last)."""
 LABEL_THRESHOLD_M = 3.0
 """``|e|`` above which a recorded channel is labelled NLOS-like [m]."""
+DWELL_GRID_S = 1.0
+"""Time grid of the dwell times [s]: a recording's epochs are decimated to it (every 5th of smartLoc's 0.2 s), so
+that both sides count runs at one resolution (the simulation's GNSS epoch)."""
+CALIBRATION_LAGS_S = (1.0, 5.0, 30.0)
+"""Lags of the LOS C/N0 scatter's autocorrelation in :func:`calibration` [s]."""
 
 
 @dataclass(frozen=True)
@@ -64,7 +69,8 @@ class ChannelSample:
     nlos : (N,) bool label (module docstring).
     true_error_m : (N,) the simulator's true error ``pr_error_m`` [m], or None for a recording.
     sats_per_epoch : (E, len(BANDS_DEG) + 1) int, satellites in view per epoch in each band, last column all.
-    dwell_s, dwell_elevation_deg : (R,) duration [s] and mean elevation [deg] of each NLOS run.
+    dwell_s, dwell_elevation_deg : (R,) duration [s] and mean elevation [deg] of each NLOS run, on the
+        :data:`DWELL_GRID_S` grid.
     epoch_s : median epoch interval [s].
     systems : the GNSS system letters seen (:data:`nav_filters.measurements.SYSTEMS`).
     """
@@ -167,7 +173,8 @@ def channel_sample(world, name: str | None = None) -> ChannelSample:
         cols["true"].append(np.asarray(g.pr_error_m[b], np.float64)[ok])
         band = np.where(ok, band_index(el), -1)
         counts.append(np.stack([(band == i).sum(1) for i in range(len(BANDS_DEG))] + [ok.sum(1)], 1))
-        d, de = _row_dwells(np.asarray(g.prn[b]), ok, lab, el, epoch_s)
+        step = max(1, int(round(DWELL_GRID_S / epoch_s)))
+        d, de = _row_dwells(np.asarray(g.prn[b])[::step], ok[::step], lab[::step], el[::step], epoch_s * step)
         dwell += d
         dwell_el += de
         systems |= {SYSTEMS[int(k)] for k in np.unique((np.asarray(g.prn[b])[ok] - 1) // MAX_PRN)}
@@ -353,22 +360,90 @@ def separability_lines(measured: dict) -> list[str]:
 
 
 def recording_lines(real: ChannelSample) -> list[str]:
-    """What the recording's labels depend on: the NLOS-like share at other thresholds, and the share of its NLOS
-    runs shorter than one simulated epoch (1 s; its own epochs are shorter, and a threshold label flickers)."""
+    """What the recording's labels depend on: the NLOS-like share at other thresholds, and the grid its dwell
+    times are counted on."""
     shares = ", ".join(f"{100 * np.mean(np.abs(real.residual_m) > t):.0f}% (> {t:g} m)" for t in (3.0, 5.0, 10.0))
-    short = 100 * np.mean(real.dwell_s < 1.0) if real.dwell_s.size else math.nan
-    return [f"smartLoc labels: channel-epochs with |residual| above a threshold {shares}. Its NLOS runs are "
-            f"counted at its own {real.epoch_s:.1f} s epochs: {_f(short, 0)}% of them are shorter than 1 s (one "
-            "simulated epoch), partly a threshold label flickering about 3 m, so its dwell times are a lower "
-            "bound of how long a reflection lasts."]
+    return [f"smartLoc labels: channel-epochs with |residual| above a threshold {shares}. Dwell times on both "
+            f"sides are counted on a {DWELL_GRID_S:g} s grid (smartLoc's {real.epoch_s:.1f} s epochs decimated), "
+            "the simulation's epoch: a threshold label flickers about 3 m at 5 Hz, and a run counted at the "
+            "recording's own rate would be cut by every flicker."]
+
+
+def calibration(world) -> dict:
+    """The recording's channel statistics that calibrate ``urban-smartloc`` (:data:`envs.sim.events.SMARTLOC3_*`),
+    with the 3 m label of :func:`channel_sample` on its first row.
+
+    Returns
+    -------
+    dict: ``p_nlos`` (a, b) of the least-squares line ``a - b sin(el)`` of the 0/1 label; ``bias`` (median of
+    ``|e| sin(el)`` [m], log-sigma) of the NLOS-like channels; ``positive`` their share of positive residuals;
+    ``share`` the NLOS-like share; ``stay`` / ``enter`` the probabilities that a tracked satellite is NLOS-like
+    :data:`DWELL_GRID_S` later given NLOS-like / LOS-like now; ``los_line`` (a, b) and ``los_std`` [dB] of the LOS
+    C/N0 about its line; ``acf`` {lag [s]: autocorrelation of that scatter, same satellite, both LOS};
+    ``nlos_mean`` / ``nlos_std`` [dB] of the NLOS-like C/N0 about the LOS line; ``los_rms_by_cn0`` the RMS ``|e|``
+    [m] of the LOS channels in the lowest and highest quartile of their C/N0 scatter.
+    """
+    from envs.datasets.truth_check import truth_errors
+    g = world.gnss
+    e, ok = truth_errors(world, 0)
+    el = np.asarray(g.elevation[0], np.float64)
+    cn0 = np.asarray(g.cn0_dbhz[0], np.float64)
+    prn = np.asarray(g.prn[0])
+    dt = float(np.median(np.diff(np.asarray(g.t, np.float64))))
+    ae = np.abs(np.nan_to_num(e))
+    nl, los = ok & (ae > LABEL_THRESHOLD_M), ok & (ae <= LABEL_THRESHOLD_M)
+    s = np.sin(np.maximum(el, 0.0))
+    a, b = np.linalg.lstsq(np.stack([np.ones(ok.sum()), s[ok]], 1), nl[ok].astype(float), rcond=None)[0]
+    x = ae[nl] * s[nl]
+    la, lb = np.linalg.lstsq(np.stack([np.ones(los.sum()), s[los]], 1), cn0[los], rcond=None)[0]
+    r = cn0 - (la + lb * s)
+    out = {"p_nlos": (float(a), float(-b)), "bias": (float(np.median(x)), float(np.std(np.log(x)))),
+           "positive": float(np.mean(np.nan_to_num(e)[nl] > 0)), "share": float(nl[ok].mean()),
+           "los_line": (float(la), float(lb)), "los_std": float(r[los].std()),
+           "nlos_mean": float(r[nl].mean()), "nlos_std": float(r[nl].std())}
+    lo, hi = np.percentile(r[los], [25, 75])
+    out["los_rms_by_cn0"] = tuple(float(np.sqrt(np.mean(ae[los & m] ** 2))) for m in (r <= lo, r >= hi))
+    # per satellite: epoch -> (C/N0 scatter, label)
+    sats: dict = {}
+    for k, c in zip(*np.nonzero(ok)):
+        sats.setdefault(int(prn[k, c]), {})[int(k)] = (r[k, c], bool(nl[k, c]))
+    acf = {}
+    for lag_s in CALIBRATION_LAGS_S:
+        L = int(round(lag_s / dt))
+        pairs = [(v, d[k + L][0]) for d in sats.values() for k, (v, n) in d.items()
+                 if not n and k + L in d and not d[k + L][1]]
+        acf[lag_s] = float(np.corrcoef(np.asarray(pairs).T)[0, 1])
+    out["acf"] = acf
+    L = int(round(DWELL_GRID_S / dt))
+    moves = np.asarray([(n, d[k + L][1]) for d in sats.values() for k, (v, n) in d.items() if k + L in d], bool)
+    out["stay"] = float(moves[moves[:, 0], 1].mean())
+    out["enter"] = float(moves[~moves[:, 0], 1].mean())
+    return out
+
+
+def calibration_lines(cal: dict) -> list[str]:
+    """:func:`calibration` as the note's lines."""
+    acf = ", ".join(f"{v:.2f} at {k:g} s" for k, v in cal["acf"].items())
+    return [f"- NLOS-like probability {cal['p_nlos'][0]:.2f} - {cal['p_nlos'][1]:.2f} sin(el) (share "
+            f"{100 * cal['share']:.0f}%); |e| sin(el) of NLOS-like channels: median {cal['bias'][0]:.1f} m, "
+            f"log-sigma {cal['bias'][1]:.2f}, {100 * cal['positive']:.0f}% positive.",
+            f"- A satellite NLOS-like now is NLOS-like {DWELL_GRID_S:g} s later with probability "
+            f"{cal['stay']:.2f}; LOS-like now, with {cal['enter']:.2f}.",
+            f"- LOS C/N0 = {cal['los_line'][0]:.1f} + {cal['los_line'][1]:.1f} sin(el) dB-Hz, scatter std "
+            f"{cal['los_std']:.1f} dB, autocorrelation {acf}; NLOS-like C/N0 {-cal['nlos_mean']:.1f} dB below that "
+            f"line, std {cal['nlos_std']:.1f} dB.",
+            f"- LOS |e| RMS in the lowest / highest quartile of the C/N0 scatter: {cal['los_rms_by_cn0'][0]:.2f} / "
+            f"{cal['los_rms_by_cn0'][1]:.2f} m (the scatter barely changes the error: `urban-smartloc` lets it "
+            "change the reported C/N0 only)."]
 
 
 def measure(seeds: list, scenarios=SIM_SCENARIOS) -> dict:
     """``{"real": ChannelSample, "sims": {scenario: ChannelSample}}``: smartLoc (:data:`RECORDING`) and each
     simulated scenario at full length over ``seeds``."""
     from envs.worlds import make_world
-    real = channel_sample(make_world(RECORDING, [0]), RECORDING)
-    return {"real": real, "sims": {sc: channel_sample(make_world(sc, seeds), sc) for sc in scenarios}}
+    world = make_world(RECORDING, [0])
+    return {"real": channel_sample(world, RECORDING), "calibration": calibration(world),
+            "sims": {sc: channel_sample(make_world(sc, seeds), sc) for sc in scenarios}}
 
 
 def format_note(measured: dict, seeds: list, elapsed: float, command: str) -> str:
@@ -385,6 +460,11 @@ def format_note(measured: dict, seeds: list, elapsed: float, command: str) -> st
              "distance (0 the same empirical law, 1 disjoint; for a share, the difference of the shares). Samples "
              "are correlated in time, so no p-values. `mean` of a 0/1 feature is its share.", "",
              f"smartLoc: {fit_line(real)}.", ""] + recording_lines(real) + [
+             "", "## Calibration of `urban-smartloc`", "",
+             "What the recording's channels do, with the 3 m label (`agents.sim_vs_real.calibration`); "
+             "`envs.sim.events.SMARTLOC3_*` hold these figures rounded (the test re-measures them), and "
+             "`urban-smartloc` is built from them (`envs/sim/scenarios.py`).", ""] + calibration_lines(
+                 measured["calibration"]) + [
              "", "## Headline: C/N0 scatter about each data set's own elevation fit [dB]", "",
              "Standard deviation of C/N0 minus the data set's least-squares line against sin(el): `LOS`: LOS "
              "channels about the line fitted to them; `all`: every channel about the line fitted to all; KS D of "

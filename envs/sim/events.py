@@ -53,11 +53,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from .constellation import _check_pair as _pair, _check_real
+from .receiver import _gauss_markov
 
 __all__ = [
     "OUTAGE", "NOISE", "MISMATCH", "NLOS_ZONE", "OVERPASS", "IMU_EVENT", "REACQUISITION", "REGIME", "TREES",
     "ROUGH_ROAD", "EVENT_BITS", "RandomBursts", "SigmaMismatch", "NoiseRegime", "NoiseRegimes", "UrbanZones",
-    "Reacquisition", "cn0_los", "nlos_probability", "draw_bursts", "draw_mismatch", "draw_regimes",
+    "Reacquisition", "Cn0Scatter", "cn0_scatter", "cn0_los", "nlos_probability", "draw_bursts", "draw_mismatch", "draw_regimes",
     "draw_zone_schedule", "reacquisition_multiplier", "zone_effects", "regime_nlos", "nlos_bias", "ZONE_OPEN", "ZONE_CANYON", "ZONE_TREES", "ZONE_OVERPASS",
 ]
 
@@ -87,6 +88,22 @@ BIAS_SIGMA_LN = 0.70
 """Log-sigma of the NLOS bias (smartLoc)."""
 BIAS_POSITIVE_FRACTION = 0.92
 """Share of positive NLOS-like residuals (smartLoc; a reflected path is longer)."""
+
+# ---- smartLoc with the 3 m label of agents.sim_vs_real (|truth residual| > 3 m, robust per-system clock of
+# envs.datasets.truth_check), measured by agents.sim_vs_real.calibration (docs/sim-vs-real.md, "Calibration";
+# tests/agents/test_sim_vs_real.py re-measures them when the data are present). Used by ``urban-smartloc``.
+SMARTLOC3_P_NLOS = (1.02, 0.56)
+"""``(a, b)``: NLOS-like probability ``a - b sin(el)`` with the 3 m label (least squares on the 0/1 label)."""
+SMARTLOC3_BIAS = (10.9, 0.97)
+"""``(median of |e| sin(el) [m], log-sigma)`` of the 3 m label's NLOS-like residuals."""
+SMARTLOC3_SEGMENT_S = (2.0, 6.0)
+"""NLOS segment length range [s]: independent segments of mean length L with NLOS share p stay NLOS from one
+second to the next with probability ``1 - (1 - p) / L``; smartLoc's 0.93 at its NLOS share 0.70 gives L = 4 s."""
+SMARTLOC3_CN0 = dict(offset_sigma_db=3.0, gm_sigma_db=3.0, gm_tau_s=3.0, white_sigma_db=1.4,
+                     nlos_deficit_db=7.2, nlos_deficit_sigma_db=4.9)
+""":class:`Cn0Scatter` of smartLoc: LOS C/N0 scatter about the elevation line 4.5 dB, autocorrelation 0.74 / 0.54 /
+0.45 at 1 / 5 / 30 s (a constant per satellite carrying 45% of the variance, a 3 s Gauss-Markov 45%, white 10%);
+NLOS C/N0 7.2 dB below the LOS line with a 6.7 dB scatter (4.9 dB on top of the LOS scatter)."""
 
 
 # =============================================================================
@@ -325,6 +342,12 @@ class UrbanZones:
         Probability that a satellite stays tracked under an overpass, in [0, 1].
     nlos_rate_sigma_mps : float
         Sigma of the NLOS pseudorange-rate error [m/s], >= 0 (the :class:`~envs.sim.gnss.NlosConfig` default).
+    nlos_probability : (float, float)
+        ``(a, b)`` of the canyon's NLOS probability ``a - b sin(el)`` (default smartLoc's 10 m label,
+        ``(P_NLOS_A, P_NLOS_B)``; ``urban-smartloc``: its 3 m label, :data:`SMARTLOC3_P_NLOS`), a in [0, 2].
+    nlos_bias : (float, float)
+        ``(median of |bias| sin(el) [m], log-sigma)`` of the NLOS bias (default ``(BIAS_SIN_MEDIAN_M,
+        BIAS_SIGMA_LN)``), both > 0.
     """
 
     open_s: tuple = (20.0, 60.0)
@@ -339,9 +362,19 @@ class UrbanZones:
     trees_bias_scale: float = 0.3
     overpass_pass_probability: float = 0.05
     nlos_rate_sigma_mps: float = 0.3
+    nlos_probability: tuple = (P_NLOS_A, P_NLOS_B)
+    nlos_bias: tuple = (BIAS_SIN_MEDIAN_M, BIAS_SIGMA_LN)
 
     def __post_init__(self):
         o = "UrbanZones"
+        for name in ("nlos_probability", "nlos_bias"):
+            v = getattr(self, name)
+            if not isinstance(v, tuple) or len(v) != 2:
+                raise ValueError(f"{o}.{name} must be a pair of floats, got {v!r}")
+        _check_real(o, "nlos_probability[0]", self.nlos_probability[0], lo=0.0, hi=2.0)
+        _check_real(o, "nlos_probability[1]", self.nlos_probability[1])
+        _check_real(o, "nlos_bias[0]", self.nlos_bias[0], lo=0.0, lo_open=True)
+        _check_real(o, "nlos_bias[1]", self.nlos_bias[1], lo=0.0, lo_open=True)
         for name in ("open_s", "canyon_s", "trees_s", "overpass_s", "segment_s"):
             _pair(o, name, getattr(self, name), lo=0.0, lo_open=True)
         if not isinstance(self.weights, tuple) or len(self.weights) != 3:
@@ -397,6 +430,47 @@ class Reacquisition:
         _check_real(o, "min_gap_s", self.min_gap_s, lo=0.0)
 
 
+@dataclass(frozen=True)
+class Cn0Scatter:
+    """Receiver C/N0 that scatters about its elevation line as a recording's does, and an NLOS C/N0 deficit that
+    varies (replaces the default 1 dB white jitter, :data:`envs.sim.receiver.CN0_JITTER_DB`, and the constant
+    :data:`NLOS_DEFICIT_DB`).
+
+    Reported C/N0 of a channel: ``cn0_los(el) + o_s + x_s(t) + w`` with ``o_s ~ N(0, offset_sigma_db^2)`` one
+    constant per satellite and episode (antenna pattern, the receiver's estimator bias), ``x_s`` a first-order
+    Gauss-Markov process per satellite (``gm_sigma_db``, ``gm_tau_s``: fading, near-field multipath; Brown &
+    Hwang 4th ed. ch. 2) and ``w`` white (``white_sigma_db``, the 1 s C/N0 estimate's noise); an NLOS channel
+    loses ``nlos_deficit_db + nlos_deficit_sigma_db y_s(t)`` dB instead, ``y_s`` a unit Gauss-Markov process
+    per satellite with the same ``gm_tau_s``. The scatter changes the reported C/N0 only, not the true noise:
+    on smartLoc the line-of-sight residual's RMS differs by 14% between the lowest and the highest quartile of
+    the C/N0 scatter (1.48 / 1.30 m), far less than the 2x that a -6 dB thermal loss would cause
+    (:data:`SMARTLOC3_CN0`).
+
+    Parameters
+    ----------
+    offset_sigma_db, gm_sigma_db, white_sigma_db, nlos_deficit_sigma_db : float
+        Standard deviations [dB], >= 0.
+    gm_tau_s : float
+        Correlation time of the Gauss-Markov parts [s], > 0.
+    nlos_deficit_db : float
+        Mean C/N0 loss of an NLOS channel [dB], >= 0.
+    """
+
+    offset_sigma_db: float = 3.0
+    gm_sigma_db: float = 3.0
+    gm_tau_s: float = 3.0
+    white_sigma_db: float = 1.4
+    nlos_deficit_db: float = 7.2
+    nlos_deficit_sigma_db: float = 4.9
+
+    def __post_init__(self):
+        o = "Cn0Scatter"
+        for name in ("offset_sigma_db", "gm_sigma_db", "white_sigma_db", "nlos_deficit_sigma_db",
+                     "nlos_deficit_db"):
+            _check_real(o, name, getattr(self, name), lo=0.0)
+        _check_real(o, "gm_tau_s", self.gm_tau_s, lo=0.0, lo_open=True)
+
+
 # =============================================================================
 # models and draws (one row)
 # =============================================================================
@@ -405,13 +479,15 @@ def cn0_los(el):
     return CN0_LOS_A + CN0_LOS_B * np.sin(np.maximum(el, 0.0))
 
 
-def nlos_probability(el):
-    """NLOS probability of a received signal in a dense canyon, ``P_NLOS_A - P_NLOS_B sin(el)`` (smartLoc)."""
-    return np.clip(P_NLOS_A - P_NLOS_B * np.sin(np.maximum(el, 0.0)), 0.0, 1.0)
+def nlos_probability(el, line=(P_NLOS_A, P_NLOS_B)):
+    """NLOS probability of a received signal in a dense canyon, ``a - b sin(el)`` with ``(a, b) = line``
+    (default ``(P_NLOS_A, P_NLOS_B)``, smartLoc's 10 m label), clipped to [0, 1]."""
+    return np.clip(line[0] - line[1] * np.sin(np.maximum(el, 0.0)), 0.0, 1.0)
 
 
-def nlos_bias(el, z, u_sign):
-    """NLOS pseudorange bias [m]: log-normal, median ``BIAS_SIN_MEDIAN_M / sin(el)`` (smartLoc).
+def nlos_bias(el, z, u_sign, sin_median_m=BIAS_SIN_MEDIAN_M, sigma_ln=BIAS_SIGMA_LN):
+    """NLOS pseudorange bias [m]: log-normal, median ``sin_median_m / sin(el)``, log-sigma ``sigma_ln``
+    (defaults: smartLoc's 10 m label, :data:`BIAS_SIN_MEDIAN_M`, :data:`BIAS_SIGMA_LN`).
 
     Parameters
     ----------
@@ -419,8 +495,27 @@ def nlos_bias(el, z, u_sign):
     (positive where ``u_sign < BIAS_POSITIVE_FRACTION``).
     """
     s = np.sin(np.maximum(el, math.radians(5.0)))
-    mag = BIAS_SIN_MEDIAN_M / s * np.exp(BIAS_SIGMA_LN * z)
+    mag = sin_median_m / s * np.exp(sigma_ln * z)
     return np.where(u_sign < BIAS_POSITIVE_FRACTION, mag, -mag)
+
+
+def cn0_scatter(t, S: int, C: int, cfg: Cn0Scatter, g: np.random.Generator):
+    """The C/N0 scatter of one row (see :class:`Cn0Scatter`).
+
+    Draw order: S offset normals, (M, S) Gauss-Markov normals, (M, S) deficit normals, (M, C) white normals.
+
+    Returns
+    -------
+    los_db : (M, S) per-satellite offset + Gauss-Markov part [dB]; deficit_db : (M, S) NLOS loss [dB];
+    white_db : (M, C) per-channel white part [dB].
+    """
+    M = t.size
+    offset = cfg.offset_sigma_db * g.standard_normal(S)
+    gm = _gauss_markov(t, cfg.gm_tau_s, cfg.gm_sigma_db, g.standard_normal((M, S)))
+    deficit = cfg.nlos_deficit_db + _gauss_markov(t, cfg.gm_tau_s, cfg.nlos_deficit_sigma_db,
+                                                  g.standard_normal((M, S)))
+    white = cfg.white_sigma_db * g.standard_normal((M, C))
+    return offset[None, :] + gm, deficit, white
 
 
 def draw_bursts(t: np.ndarray, cfg: RandomBursts, g: np.random.Generator):
@@ -626,10 +721,10 @@ def zone_effects(t, kind, zone_id, windows, el, az, v_e, heading, cfg: UrbanZone
         refl |= rf
     passes = u_pass[np.maximum(zone_id, 0)] < cfg.overpass_pass_probability           # (M, S)
     blocked |= in_o & ~passes
-    p_nlos = nlos_probability(el)
+    p_nlos = nlos_probability(el, cfg.nlos_probability)
     p = np.where(in_c, p_nlos, np.where(in_t, cfg.trees_multipath_scale * p_nlos, 0.0))
     nlos = ((at(u_nlos) < p) & ~blocked) | refl
-    bias = nlos_bias(el, at(z_bias), at(u_sign)) * np.where(in_t, cfg.trees_bias_scale, 1.0)
+    bias = nlos_bias(el, at(z_bias), at(u_sign), *cfg.nlos_bias) * np.where(in_t, cfg.trees_bias_scale, 1.0)
     bias = np.where(nlos, bias, 0.0)
     rate = np.where(nlos, cfg.nlos_rate_sigma_mps * at(z_rate), 0.0)
     lo, hi = cfg.trees_attenuation_db

@@ -70,7 +70,7 @@ import numpy as np
 
 from . import gnss_stages as stages
 from .constellation import Constellation, _check_pair, _check_real
-from .events import NoiseRegimes, RandomBursts, Reacquisition, SigmaMismatch, UrbanZones
+from .events import Cn0Scatter, NoiseRegimes, RandomBursts, Reacquisition, SigmaMismatch, UrbanZones
 # the receiver's models and the stages' stream indices live in their own modules (re-exported here)
 from .gnss_stages import (_N_SUB, _SUB_BURSTS, _SUB_CANYON, _SUB_CLOCK, _SUB_CN0, _SUB_CODE,  # noqa: F401
                           _SUB_IONO, _SUB_MISMATCH, _SUB_NLOS, _SUB_RATE, _SUB_REGIME, _SUB_REGIME_NLOS, _SUB_SKY,
@@ -232,6 +232,9 @@ class GnssEvents:
         without it only the zones' NLOS probabilities apply).
     reacquisition : Reacquisition or None
         Larger true noise after each (re-)acquisition of a satellite.
+    cn0 : Cn0Scatter or None
+        C/N0 scattering about its elevation line as a recording's does (None: 1 dB white jitter and a constant
+        NLOS deficit).
 
     Events compose: :meth:`combine` merges several (intervals concatenate,
     the last non-None ``nlos`` / ``canyon`` / ``bursts`` / ... wins).
@@ -246,6 +249,7 @@ class GnssEvents:
     regimes: NoiseRegimes | None = None
     zones: UrbanZones | None = None
     reacquisition: Reacquisition | None = None
+    cn0: Cn0Scatter | None = None
 
     def __post_init__(self):
         o = "GnssEvents"
@@ -317,7 +321,7 @@ class GnssEvents:
 
 
 _RANDOM_EVENT_TYPES = {"bursts": RandomBursts, "mismatch": SigmaMismatch, "regimes": NoiseRegimes,
-                       "zones": UrbanZones, "reacquisition": Reacquisition}
+                       "zones": UrbanZones, "reacquisition": Reacquisition, "cn0": Cn0Scatter}
 
 
 EVENT_PRESETS = {
@@ -546,7 +550,7 @@ def simulate_gnss(t, r_e, v_e, heading, constellation: Constellation, receiver: 
     sat = stages.canyon_and_bursts(t, v_e, heading, sky, receiver.elevation_mask_deg, events, subs)
     stages.random_events(t, v_e, heading, sky, sat, events, subs)
     stages.scheduled_events(t, sat, events)
-    ch = stages.allocate_channels(sky, sat.visible, receiver.n_channels, subs)
+    ch = stages.allocate_channels(sky, sat.visible, receiver.n_channels, subs, t, events.cn0)
     rng = stages.channel_ranging(r_e, v_e, sky, ch, constellation)
     noise = stages.channel_noise(t, ch, sat, events)
     err = stages.receiver_errors(t, ch, noise, sat, receiver, subs)

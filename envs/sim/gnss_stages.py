@@ -42,7 +42,8 @@ _SUB_SKY, _SUB_CLOCK, _SUB_TROPO, _SUB_IONO, _SUB_CODE, _SUB_RATE, _SUB_NLOS, _S
 # children leaves the first 8 streams, and every pre-existing draw, unchanged (tested).
 (_SUB_BURSTS, _SUB_MISMATCH, _SUB_REGIME, _SUB_REGIME_NLOS, _SUB_ZONES, _SUB_ZONE_GEOM, _SUB_ZONE_SAT,
  _SUB_CN0) = range(8, 16)
-_N_SUB = 16
+_SUB_CN0_SCATTER = 16      # issue 36: the recorded-like C/N0 scatter (events.cn0), drawn only when configured
+_N_SUB = 17
 _CHUNK_ELEMS = 50_000
 """Satellite-epochs per vectorized geometry block and tracked channels per ranging block (cache-sized; results
 do not depend on it)."""
@@ -301,6 +302,8 @@ class Channels:
     mask : (B, M, C) bool, the channel tracks a satellite.
     el, az : (B, M, C) [rad]; cn0 : (B, M, C) C/N0 before the NLOS and zone losses [dB-Hz].
     flat_sel : (B, M, C) flat index into a (B, M, S) array (:meth:`gather`).
+    nlos_deficit : (B, M, C) C/N0 loss of an NLOS channel [dB] (:class:`envs.sim.events.Cn0Scatter`), or None:
+        the constant :data:`envs.sim.events.NLOS_DEFICIT_DB`.
     """
 
     sel: np.ndarray
@@ -309,6 +312,7 @@ class Channels:
     az: np.ndarray
     cn0: np.ndarray
     flat_sel: np.ndarray
+    nlos_deficit: np.ndarray | None = None
 
     def gather(self, a: np.ndarray) -> np.ndarray:
         """(B, M, S) per-satellite array -> (B, M, C) per-channel array (``a[b, k, sel[b, k, c]]``)."""
@@ -494,9 +498,11 @@ def scheduled_events(t, sat: SatelliteEvents, events) -> None:
         sat.reacq = ev.reacquisition_multiplier(t, sat.visible, events.reacquisition)
 
 
-def allocate_channels(sky: Sky, visible, n_channels: int, subs) -> Channels:
+def allocate_channels(sky: Sky, visible, n_channels: int, subs, t=None, cn0_cfg=None) -> Channels:
     """Stage 5: the visible satellites on the C channels by elevation, descending (stable), and each channel's
-    C/N0 (:func:`envs.sim.events.cn0_los` plus the jitter, drawn per satellite from the row's C/N0 stream)."""
+    C/N0: :func:`envs.sim.events.cn0_los` plus the jitter, drawn per satellite from the row's C/N0 stream, or,
+    with ``cn0_cfg`` (:class:`envs.sim.events.Cn0Scatter`, epochs ``t`` (M,) [s]), its scatter
+    (:func:`envs.sim.events.cn0_scatter`, from the row's C/N0-scatter stream) and NLOS deficit."""
     B, M, S = sky.el.shape
     C = n_channels
     key = np.where(visible, sky.el, -np.inf)
@@ -511,8 +517,13 @@ def allocate_channels(sky: Sky, visible, n_channels: int, subs) -> Channels:
                   az=np.take(sky.az, flat_sel), cn0=None, flat_sel=flat_sel)
     if C > S:
         ch.mask[..., S:] = False
-    cn0_z = np.stack([s[_SUB_CN0].standard_normal((M, S)) for s in subs])     # C/N0 jitter, per satellite
-    ch.cn0 = ev.cn0_los(ch.el) + CN0_JITTER_DB * ch.gather(cn0_z)
+    if cn0_cfg is None:
+        cn0_z = np.stack([s[_SUB_CN0].standard_normal((M, S)) for s in subs])     # C/N0 jitter, per satellite
+        ch.cn0 = ev.cn0_los(ch.el) + CN0_JITTER_DB * ch.gather(cn0_z)
+        return ch
+    draws = [ev.cn0_scatter(t, S, C, cn0_cfg, s[_SUB_CN0_SCATTER]) for s in subs]
+    ch.cn0 = ev.cn0_los(ch.el) + ch.gather(np.stack([d[0] for d in draws])) + np.stack([d[2] for d in draws])
+    ch.nlos_deficit = ch.gather(np.stack([d[1] for d in draws]))
     return ch
 
 
@@ -548,7 +559,8 @@ def channel_noise(t, ch: Channels, sat: SatelliteEvents, events) -> ChannelNoise
     nlos = ch.gather(sat.nlos) & mask
     nlos_bias, nlos_rate = ch.gather(sat.nlos_bias), ch.gather(sat.nlos_rate)
     k_nlos = events.nlos.noise_factor if events.nlos is not None else 3.0
-    ch.cn0 -= np.where(nlos, ev.NLOS_DEFICIT_DB, 0.0)
+    deficit = ev.NLOS_DEFICIT_DB if ch.nlos_deficit is None else ch.nlos_deficit
+    ch.cn0 -= np.where(nlos, deficit, 0.0)
     scale = np.ones(M)
     for iv in events.noise_scale:
         scale = np.where((t >= iv[0]) & (t < iv[1]), scale * iv[2], scale)
@@ -562,7 +574,9 @@ def channel_noise(t, ch: Channels, sat: SatelliteEvents, events) -> ChannelNoise
         nlos_rate = np.where(nlos2, ch.gather(rate2_sat), nlos_rate)
         noise_mult = np.where(nlos2 & nlos, noise_mult / k_nlos, noise_mult) * 10.0 ** (att / 20.0)
         nlos = nlos | nlos2
-        ch.cn0 -= att
+        ch.cn0 -= att                                      # att holds NLOS_DEFICIT_DB on an NLOS channel
+        if ch.nlos_deficit is not None:
+            ch.cn0 += np.where(nlos2, ev.NLOS_DEFICIT_DB - ch.nlos_deficit, 0.0)
         noise_mult_prr = noise_mult
     if sat.reacq is not None:
         rq = ch.gather(sat.reacq)

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 from scipy.stats import ks_2samp
 
-from agents.sim_vs_real import (BANDS_DEG, FEATURES, LABEL_THRESHOLD_M, _row_dwells, band_index, channel_sample,
+from agents.sim_vs_real import (BANDS_DEG, FEATURES, LABEL_THRESHOLD_M, _row_dwells, band_index, calibration,
+                                channel_sample,
                                 cn0_fit, compare, feature_values, ks_distance, main, nlos_runs, separability)
 from envs.datasets.errors import shared_data_dir
 from envs.worlds import make_world
@@ -117,4 +118,38 @@ def test_main_writes_the_note(tmp_path):
     text = out.read_text()
     assert text.startswith("# Simulated urban channels against smartLoc")
     assert "--seeds 1 --seed 3" in text and "## urban vs smartLoc" in text and "## urban-transition vs smartLoc" in text
-    assert text.count("| C/N0, LOS [dB-Hz] |") == 2 * (len(BANDS_DEG) + 1)
+    assert text.count("| C/N0, LOS [dB-Hz] |") == 3 * (len(BANDS_DEG) + 1)
+    assert "## urban-smartloc vs smartLoc" in text and "## Calibration of `urban-smartloc`" in text
+
+
+@needs_smartloc
+def test_urban_smartloc_constants_are_the_measured_calibration():
+    """envs.sim.events.SMARTLOC3_* are the recording's figures (agents.sim_vs_real.calibration), rounded."""
+    from envs.sim import events as ev
+    cal = calibration(make_world("smartloc-potsdamer-platz", [0]))
+    np.testing.assert_allclose(cal["p_nlos"], ev.SMARTLOC3_P_NLOS, atol=0.006)
+    assert cal["bias"][0] == pytest.approx(ev.SMARTLOC3_BIAS[0], abs=0.06)
+    assert cal["bias"][1] == pytest.approx(ev.SMARTLOC3_BIAS[1], abs=0.006)
+    c = ev.SMARTLOC3_CN0
+    los_std = np.sqrt(c["offset_sigma_db"] ** 2 + c["gm_sigma_db"] ** 2 + c["white_sigma_db"] ** 2)
+    assert los_std == pytest.approx(cal["los_std"], abs=0.1)
+    for lag, want in cal["acf"].items():   # the model's autocorrelation at each lag, within 0.05
+        model = (c["offset_sigma_db"] ** 2 + c["gm_sigma_db"] ** 2 * np.exp(-lag / c["gm_tau_s"])) / los_std ** 2
+        assert model == pytest.approx(want, abs=0.05), lag
+    assert c["nlos_deficit_db"] == pytest.approx(-cal["nlos_mean"], abs=0.06)
+    assert np.hypot(los_std, c["nlos_deficit_sigma_db"]) == pytest.approx(cal["nlos_std"], abs=0.1)
+    lo, hi = ev.SMARTLOC3_SEGMENT_S
+    stay = 1.0 - (1.0 - cal["share"]) / (0.5 * (lo + hi))    # independent segments, mean length (lo + hi) / 2
+    assert stay == pytest.approx(cal["stay"], abs=0.02)
+
+
+def test_urban_smartloc_reproduces_the_calibration_it_was_built_from():
+    """A simulated urban-smartloc world shows the recording's figures it was built from: NLOS share, how long
+    NLOS lasts, the LOS C/N0 scatter and its autocorrelation, the C/N0 separability (8 full episodes)."""
+    from envs.sim import events as ev
+    s = channel_sample(make_world("urban-smartloc", list(range(8))), "urban-smartloc")
+    assert 0.55 < s.nlos.mean() < 0.75                      # smartLoc 0.70 with its 3 m label
+    r = s.cn0_dbhz[~s.nlos] - ev.cn0_los(np.radians(s.elevation_deg[~s.nlos]))
+    assert 4.0 < r.std() < 5.0                              # smartLoc 4.5 dB
+    assert 0.40 < separability(s, None) < 0.65              # smartLoc 0.52; urban 1.00
+    assert 3.0 < np.median(s.dwell_s) < 12.0 and 5.0 < s.sats_per_epoch[:, -1].mean() < 9.0

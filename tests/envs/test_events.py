@@ -507,3 +507,34 @@ def test_zone_constants_are_the_measured_smartloc_statistics():
     assert abs(s.bias_sin_median_m - ev.BIAS_SIN_MEDIAN_M) < 0.1 and abs(s.bias_sigma_ln - ev.BIAS_SIGMA_LN) < 0.01
     assert abs(s.bias_positive_fraction - ev.BIAS_POSITIVE_FRACTION) < 0.01
     assert ev.UrbanZones().segment_s[0] >= 0.5 * s.nlos_mean_run_s
+
+
+def test_cn0_scatter_and_zone_calibration_fields_are_validated():
+    with pytest.raises(ValueError, match="Cn0Scatter.gm_tau_s"):
+        ev.Cn0Scatter(gm_tau_s=0.0)
+    with pytest.raises(ValueError, match="Cn0Scatter.white_sigma_db"):
+        ev.Cn0Scatter(white_sigma_db=-1.0)
+    with pytest.raises(ValueError, match=r"UrbanZones.nlos_bias\[0\]"):
+        ev.UrbanZones(nlos_bias=(0.0, 1.0))
+    with pytest.raises(ValueError, match="UrbanZones.nlos_probability must be a pair"):
+        ev.UrbanZones(nlos_probability=(1.0,))
+    with pytest.raises(ValueError, match="GnssEvents.cn0 must be a Cn0Scatter"):
+        GnssEvents(cn0=3.0)
+
+
+def test_cn0_scatter_draws_its_model():
+    """Offset + Gauss-Markov + white: the LOS scatter's variance and its autocorrelation at lag 1 s and 30 s, and
+    the NLOS deficit's mean and spread (many satellites, one long row)."""
+    cfg = ev.Cn0Scatter()
+    t = np.arange(3000.0)
+    los, deficit, white = ev.cn0_scatter(t, 400, 12, cfg, np.random.default_rng(5))
+    assert los.shape == deficit.shape == (3000, 400) and white.shape == (3000, 12)
+    var = cfg.offset_sigma_db ** 2 + cfg.gm_sigma_db ** 2
+    assert los.var() == pytest.approx(var, rel=0.08)
+    assert white.std() == pytest.approx(cfg.white_sigma_db, rel=0.03)
+    for lag in (1, 30):
+        c = np.mean((los[lag:] * los[:-lag])) / var
+        want = (cfg.offset_sigma_db ** 2 + cfg.gm_sigma_db ** 2 * np.exp(-lag / cfg.gm_tau_s)) / var
+        assert c == pytest.approx(want, abs=0.06)
+    assert deficit.mean() == pytest.approx(cfg.nlos_deficit_db, abs=0.1)
+    assert deficit.std() == pytest.approx(cfg.nlos_deficit_sigma_db, rel=0.03)
