@@ -117,6 +117,9 @@ def build_parser():
                         formatter_class=HelpFormatter)
     lr.add_argument("--seed", type=int, default=0, help="training seed (worlds, exploration, initialization), 0..79")
     lr.add_argument("--quick", action="store_true", help="a small, fast run (fewer and shorter episodes, fewer epochs)")
+    lr.add_argument("--scenarios", default=None, metavar="A,B",
+                    help="simulated scenarios the training episodes are drawn from, comma-separated (default "
+                         "urban,urban-transition; urban-smartloc is calibrated to the smartLoc recording)")
     lr.add_argument("--no-progress", action="store_true", help="no progress lines (default: show them)")
     lr.add_argument("--out", required=True, help="output directory: model.pt, config.json, metrics.json (required)")
     sw = sub.add_parser("sweep", help="a grid / random or Optuna search of rl runs (Ray Tune with --backend ray)",
@@ -253,6 +256,11 @@ def _main(argv=None):
                  f"got {args.seed}")
         import dataclasses
         cfg = dataclasses.replace(QUICK if args.quick else LearnedRConfig(), seed=args.seed)
+        if args.scenarios is not None:
+            try:
+                cfg = dataclasses.replace(cfg, scenarios=tuple(x.strip() for x in args.scenarios.split(",")))
+            except ValueError as e:
+                fail(f"--scenarios: {e}")
         check_out(args.out)
         announce()
         m = train_learned_r(args.out, cfg, quick=args.quick, progress=not args.no_progress)

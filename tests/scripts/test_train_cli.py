@@ -84,6 +84,8 @@ def test_tune_progress_line_eta_leaves_out_the_first_value():
     (("tune", "--env-kwargs", "method=kf", "episode_length_s=5", "--n-train", "1", "--grid-size", "2", "--out", "x"),
      "method 'kf' does not take the parameter(s) b this env sets"),
     (("rl", "--out", "README.md"), "is a file, not a directory"),
+    (("learned-r", "--scenarios", "urban,mars", "--out", "x"), "--scenarios: LearnedRConfig.scenarios: 'mars' is not"),
+    (("learned-r", "--scenarios", "smartloc-potsdamer-platz", "--out", "x"), "is not a simulated scenario"),
 ])
 def test_train_cli_errors(args, msg):
     p = run("train.py", *args)
