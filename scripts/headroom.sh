@@ -12,7 +12,9 @@
 # docs/headroom.md holds all ten scenarios (the default SCENARIOS), seed003-sim with its odometer + NHC. Set PY to
 # use another interpreter, SCENARIOS / FDE_SCENARIOS to run a subset (the notes then hold only that subset), NOTE,
 # FDE_NOTE and OUT for the notes and the results folder (defaults docs/headroom.md, docs/headroom-fde.md,
-# results/headroom).
+# results/headroom). docs/headroom-urban-smartloc*.md (issue 36's calibrated scenario) come from
+#   SCENARIOS=urban-smartloc FDE_SCENARIOS=urban-smartloc NOTE=docs/headroom-urban-smartloc.md \
+#   FDE_NOTE=docs/headroom-urban-smartloc-fde.md OUT=results/headroom-urban-smartloc bash scripts/headroom.sh
 set -euo pipefail
 cd "$(dirname "$0")/.."
 if [ -z "${PY:-}" ]; then bash scripts/setup.sh; PY=.venv/bin/python; fi
