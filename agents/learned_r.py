@@ -9,7 +9,8 @@ R, it is the learned counterpart of ``oracle-r`` (which is handed the true varia
 per-satellite env must beat it to show that acting on the filter adds something to estimating the noise.
 
 Data (:func:`collect_channel_data`): B rows of the env core on simulated worlds (scenarios ``urban`` and
-``urban-transition`` by default), every valid channel at every step: its features as the env observes them
+``urban-transition`` by default; ``train.py learned-r --scenarios urban-smartloc`` for the scenario calibrated to
+the smartLoc channels, whose C/N0 separates NLOS no better than the recording's), every valid channel at every step: its features as the env observes them
 before the epoch's update, and its label ``y = e / sigma_rep``: the simulator's true pseudorange error of that
 channel and epoch (``GnssData.pr_error_m``: atmosphere + NLOS / multipath bias + noise, without the receiver
 clock) over the sigma the receiver reports for it. The rows run with the default action (x1, the kf as the
