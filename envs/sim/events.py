@@ -446,6 +446,8 @@ class Cn0Scatter:
     the C/N0 scatter (1.48 / 1.30 m), far less than the 2x that a -6 dB thermal loss would cause
     (:data:`SMARTLOC3_CN0`).
 
+    The defaults are smartLoc's (:data:`SMARTLOC3_CN0`).
+
     Parameters
     ----------
     offset_sigma_db, gm_sigma_db, white_sigma_db, nlos_deficit_sigma_db : float
@@ -456,12 +458,12 @@ class Cn0Scatter:
         Mean C/N0 loss of an NLOS channel [dB], >= 0.
     """
 
-    offset_sigma_db: float = 3.0
-    gm_sigma_db: float = 3.0
-    gm_tau_s: float = 3.0
-    white_sigma_db: float = 1.4
-    nlos_deficit_db: float = 7.2
-    nlos_deficit_sigma_db: float = 4.9
+    offset_sigma_db: float = SMARTLOC3_CN0["offset_sigma_db"]
+    gm_sigma_db: float = SMARTLOC3_CN0["gm_sigma_db"]
+    gm_tau_s: float = SMARTLOC3_CN0["gm_tau_s"]
+    white_sigma_db: float = SMARTLOC3_CN0["white_sigma_db"]
+    nlos_deficit_db: float = SMARTLOC3_CN0["nlos_deficit_db"]
+    nlos_deficit_sigma_db: float = SMARTLOC3_CN0["nlos_deficit_sigma_db"]
 
     def __post_init__(self):
         o = "Cn0Scatter"

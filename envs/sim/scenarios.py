@@ -119,7 +119,7 @@ from typing import Sequence
 import numpy as np
 
 from .constellation import Constellation
-from .events import (SMARTLOC3_BIAS, SMARTLOC3_CN0, SMARTLOC3_P_NLOS, SMARTLOC3_SEGMENT_S, Cn0Scatter, NoiseRegimes,
+from .events import (SMARTLOC3_BIAS, SMARTLOC3_P_NLOS, SMARTLOC3_SEGMENT_S, Cn0Scatter, NoiseRegimes,
                      Reacquisition, SigmaMismatch, UrbanZones)
 from .gnss import GnssEvents, ReceiverConfig, UrbanCanyon
 from .imu import IMU_GRADES, ImuEvents, Vibration
@@ -338,7 +338,7 @@ def _presets() -> dict[str, Scenario]:
                                                canyon=UrbanCanyon(street_width_m=40.0, blockage_probability=0.5),
                                                segment_s=SMARTLOC3_SEGMENT_S, nlos_probability=SMARTLOC3_P_NLOS,
                                                nlos_bias=SMARTLOC3_BIAS),
-                              reacquisition=Reacquisition(), cn0=Cn0Scatter(**SMARTLOC3_CN0)),
+                              reacquisition=Reacquisition(), cn0=Cn0Scatter()),
             description="dense street canyon calibrated to the smartLoc recording's channels: NLOS share, "
                         "dwell, bias and C/N0 scatter (docs/sim-vs-real.md)"),
         "low-noise": Scenario(name="low-noise", drive="open", receiver=ReceiverConfig.geodetic(),
