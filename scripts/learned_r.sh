@@ -44,7 +44,25 @@ run smartloc-potsdamer-platz-odometry kf-igg3 "$REAL_EPISODES"
   echo "\`$R/urban-0\` (seed 0 on the default scenarios \`urban\`, \`urban-transition\`); none saw the recording."
   echo "Each section is one eval.py run whose reference is the scenario's best hand-designed method, fixed"
   echo "before this script ran (docs/headroom-urban-smartloc.md, docs/real-data.md). On the recordings the"
-  echo "episodes differ only by the synthesized IMU's noise. Held-out metrics of each model: its metrics.json."
+  echo "episodes differ only by the synthesized IMU's noise."
+  echo
+  echo "Held-out metrics of each model (its metrics.json: test episodes of its own training scenarios; NLL of the"
+  echo "normalized error under the predicted variance, beside the receiver's reported and the true variances):"
+  echo
+  $PY - "$R" <<'PYEOF'
+import json, sys
+from pathlib import Path
+print("| model | scenarios | NLL | NLL reported | NLL true | NLOS AUC | rank corr. true variance |")
+print("|---|---|---|---|---|---|---|")
+for d in sorted(Path(sys.argv[1]).iterdir()):
+    if not (d / "metrics.json").is_file():
+        continue
+    t = json.loads((d / "metrics.json").read_text())["test"]
+    sc = ", ".join(json.loads((d / "config.json").read_text())["train_config"]["scenarios"])
+    auc = "n/a" if t["auc_nlos"] is None else f"{t['auc_nlos']:.3f}"
+    print(f"| {d.name} | {sc} | {t['nll_m']:.3f} | {t['nll_reported_m']:.3f} | {t['nll_true_var_m']:.3f} | {auc} "
+          f"| {t['spearman_true_var']:.3f} |")
+PYEOF
   for s in urban-smartloc smartloc-potsdamer-platz smartloc-potsdamer-platz-nhc smartloc-potsdamer-platz-odometry; do
     echo
     echo "## $s"
