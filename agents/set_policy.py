@@ -27,7 +27,9 @@ SB3 classes (usable by ``train.py rl`` and RL Zoo by name, ``policy: agents.set_
   and twin critics ``Q = w^T [mean_i q([z_i, a_i]), ctx]`` pooling over the valid channels.
 
 ``policy_kwargs``: ``channel_net`` (hidden sizes of ``phi``, default [64, 64]), ``context_net`` (of ``gamma`` and
-``rho``, [64]), ``latent_dim`` (``z_i`` and ``ctx``, 64), ``channels`` (the channel count, default: found from the
+``rho``, [64]), ``latent_dim`` (``z_i`` and ``ctx``, 64), ``action_init`` (PPO / RecurrentPPO: the initial mean
+action of every channel, the head's bias, in [-1, 1], default 0; -1 on ``GnssIns/SatelliteR-v0`` starts at x1,
+the running method itself, and explores from there), ``channels`` (the channel count, default: found from the
 observation space, :func:`envs.satellite_env.channel_layout`), ``activation_fn``; SAC also ``net_arch`` (the
 per-channel hidden sizes of each Q, [64, 64]).
 
@@ -196,9 +198,12 @@ class ChannelHead(nn.Module):
 
 
 def _set_policy_kwargs(owner: str, kwargs: dict, channels, channel_net, context_net, latent_dim,
-                       activation_default) -> dict:
+                       activation_default, action_init: float = 0.0) -> dict:
     """Check an actor-critic set policy's ``kwargs`` and put the extractor's arguments in (in place); returns the
     set arguments to save with the policy."""
+    if not (isinstance(action_init, (int, float)) and not isinstance(action_init, bool)
+            and -1.0 <= float(action_init) <= 1.0):
+        raise ValueError(f"{owner}: action_init must be a number in [-1, 1] (the action space), got {action_init!r}")
     if kwargs.get("use_sde"):
         raise ValueError(f"{owner}: use_sde is not supported (a Gaussian with one shared log-std)")
     if kwargs.get("net_arch"):
@@ -209,7 +214,8 @@ def _set_policy_kwargs(owner: str, kwargs: dict, channels, channel_net, context_
     fe.update(kwargs.pop("features_extractor_kwargs", None) or {})
     kwargs["features_extractor_kwargs"] = fe
     kwargs.setdefault("features_extractor_class", ChannelSetExtractor)
-    return dict(channels=channels, channel_net=channel_net, context_net=context_net, latent_dim=latent_dim)
+    return dict(channels=channels, channel_net=channel_net, context_net=context_net, latent_dim=latent_dim,
+                action_init=float(action_init))
 
 
 class _ChannelActorCritic:
@@ -231,6 +237,8 @@ class _ChannelActorCritic:
         self.log_std = nn.Parameter(th.full((1,), float(self.log_std_init)), requires_grad=True)
         if self.ortho_init:
             self.action_net.apply(lambda m: self.init_weights(m, gain=0.01))
+        with th.no_grad():   # the initial mean action of every valid channel (policy_kwargs action_init)
+            self.action_net.linear.bias.fill_(self._set_kwargs["action_init"])
         self.optimizer = self.optimizer_class(self.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)
 
     def _get_constructor_parameters(self) -> dict:
@@ -247,9 +255,9 @@ class ChannelSetPolicy(_ChannelActorCritic, ActorCriticPolicy):
 
     def __init__(self, observation_space, action_space, lr_schedule, channels: int | None = None,
                  channel_net=DEFAULT_CHANNEL_NET, context_net=DEFAULT_CONTEXT_NET, latent_dim: int = DEFAULT_LATENT_DIM,
-                 **kwargs):
+                 action_init: float = 0.0, **kwargs):
         self._set_kwargs = _set_policy_kwargs(type(self).__name__, kwargs, channels, channel_net, context_net,
-                                              latent_dim, nn.Tanh)
+                                              latent_dim, nn.Tanh, action_init)
         super().__init__(observation_space, action_space, lr_schedule, net_arch=[], **kwargs)
         self._check_channels(action_space)
 
@@ -267,9 +275,9 @@ class ChannelSetRecurrentPolicy(_ChannelActorCritic, RecurrentActorCriticPolicy)
 
     def __init__(self, observation_space, action_space, lr_schedule, channels: int | None = None,
                  channel_net=DEFAULT_CHANNEL_NET, context_net=DEFAULT_CONTEXT_NET, latent_dim: int = DEFAULT_LATENT_DIM,
-                 **kwargs):
+                 action_init: float = 0.0, **kwargs):
         self._set_kwargs = _set_policy_kwargs(type(self).__name__, kwargs, channels, channel_net, context_net,
-                                              latent_dim, nn.Tanh)
+                                              latent_dim, nn.Tanh, action_init)
         super().__init__(observation_space, action_space, lr_schedule, net_arch=[], **kwargs)
         self._check_channels(action_space)
         d, H = self._channel_extractor().latent_dim, self.lstm_output_dim

@@ -161,3 +161,24 @@ def test_train_rl_trains_the_set_policy_and_eval_loads_it(tmp_path, algo):
     act = pol.act(obs)
     assert act.shape == (3, core.n_channels) and np.all(np.abs(act) <= 1)
     core.step(act)
+
+
+def test_action_init_sets_the_initial_mean_action_and_survives_save_and_load(tmp_path):
+    """action_init = -1 (x1 on GnssIns/SatelliteR-v0: the running method itself) is every valid channel's initial
+    mean action (the head's weights start at gain 0.01, so to about 0.05); empty channels stay at 0; the value is
+    saved with the policy; outside [-1, 1] it is refused."""
+    obs_space, act_space, layout = _spaces()
+    o, valid = _observations(obs_space, layout, 6, np.random.default_rng(1))
+    th.manual_seed(0)
+    pol = ChannelSetPolicy(obs_space, act_space, _lr, action_init=-1.0)
+    mean, _, _ = _ppo_parts(pol, o)
+    assert np.all(np.abs(mean[valid] + 1.0) < 0.05) and np.all(mean[~valid] == 0.0)
+    assert np.all(np.abs(_ppo_parts(ChannelSetPolicy(obs_space, act_space, _lr), o)[0][valid]) < 0.05)
+    pol.save(tmp_path / "p.pt")
+    loaded = ChannelSetPolicy.load(tmp_path / "p.pt")
+    assert loaded._set_kwargs["action_init"] == -1.0
+    np.testing.assert_allclose(_ppo_parts(loaded, o)[0], mean, atol=1e-6)
+    rec = ChannelSetRecurrentPolicy(obs_space, act_space, _lr, lstm_hidden_size=8, action_init=0.5)
+    assert float(rec.action_net.linear.bias.detach()) == 0.5
+    with pytest.raises(ValueError, match="action_init must be a number in"):
+        ChannelSetPolicy(obs_space, act_space, _lr, action_init=-2.0)

@@ -91,6 +91,19 @@ def test_shipped_small_sweep_file_is_valid_and_small():
     assert cfg.env_kwargs["episode_length_s"] <= 60 and cfg.search == "grid"
 
 
+def test_every_shipped_sweep_file_is_valid():
+    """Every configs/*.yml sweep file loads (names, envs, methods checked by load_sweep) and expands to trials;
+    the per-satellite one runs the set policy's env on top of kf-huber with 3 seeds."""
+    from pathlib import Path
+    files = sorted((Path(__file__).resolve().parents[2] / "configs").glob("*.yml"))
+    assert len(files) >= 6
+    for f in files:
+        assert expand_trials(load_sweep(f), "runs/x"), f
+    sat = expand_trials(load_sweep(files[0].parent / "satellite_r.yml"), "runs/satellite-r")
+    assert [t.seed for t in sat] == [0, 1, 2] and {t.env for t in sat} == {"GnssIns/SatelliteR-v0"}
+    assert all(t.env_kwargs["method"] == "kf-huber" for t in sat)
+
+
 def test_a_run_finished_by_train_rl_with_the_same_settings_counts_as_done(tmp_path):
     import json
     from agents.sweep import trial_status
