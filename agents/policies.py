@@ -262,6 +262,27 @@ class Sb3Policy:
         return np.clip((obs - self.obs_rms.mean) / np.sqrt(self.obs_rms.var + self.epsilon),
                        -self.clip_obs, self.clip_obs).astype(np.float32)
 
+    def _fit_channels(self, n_obs: int) -> None:
+        """A per-satellite policy given observations of another channel count than it was trained on (a recording's
+        receiver has its own): its set policy is rebuilt for that count with the same weights
+        (:func:`agents.set_policy.with_channels`); any other size mismatch is a ``ValueError`` naming both sizes."""
+        have = int(self.model.observation_space.shape[0])
+        if n_obs == have:
+            return
+        from envs.satellite_env import channel_layout
+
+        from .set_policy import CHANNEL_SET_POLICIES, with_channels
+        if not isinstance(self.model.policy, CHANNEL_SET_POLICIES) or self.obs_rms is not None:
+            raise ValueError(f"the policy observes {have} values, the env gives {n_obs}")
+        lay = channel_layout(self.model.observation_space)
+        channels, rest = divmod(n_obs - lay.global_dim, lay.features + 1)
+        if rest or channels < 1:
+            raise ValueError(f"the policy observes {have} values, the env gives {n_obs}: not a channel count of "
+                             f"its layout ({lay.global_dim} + C x {lay.features + 1})")
+        pol = with_channels(self.model.policy, channels)
+        self.model.policy, self.model.observation_space, self.model.action_space = \
+            pol, pol.observation_space, pol.action_space
+
     def act(self, obs):
         """(B, k) deterministic actions for the observations (B, obs_dim), one row at a time.
 
@@ -270,7 +291,9 @@ class Sb3Policy:
         pass changed the first layer's outputs by up to 6e-7 between B = 64 and B = 1 (measured on an MLP
         policy), which made ``eval.py --batch-size 1`` and ``--batch-size 64`` differ in the last digits.
         The recurrent state is kept and sliced per row."""
-        o = self._normalize(np.asarray(obs, np.float32))
+        obs = np.asarray(obs, np.float32)
+        self._fit_channels(obs.shape[-1])
+        o = self._normalize(obs)
         B = o.shape[0]
         if self.algo == "recurrentppo":
             acts, states = [], []

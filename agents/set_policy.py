@@ -37,6 +37,7 @@ Reward shaping with truth is not used here; the policy never sees the truth (the
 """
 from __future__ import annotations
 
+import numpy as np
 import torch as th
 from sb3_contrib.common.recurrent.policies import RecurrentActorCriticPolicy
 from stable_baselines3.common.policies import ActorCriticPolicy, ContinuousCritic
@@ -409,5 +410,46 @@ class ChannelSetSACPolicy(SACPolicy):
         return data
 
 
-__all__ = ["ChannelSetExtractor", "ChannelSetPolicy", "ChannelSetRecurrentPolicy", "ChannelSetSACPolicy",
+def with_channels(policy, channels: int):
+    """The set policy ``policy`` (any of this module's SB3 policies) rebuilt for observations and actions of
+    ``channels`` receiver channels, with the same weights: every weight is shared by the channels or acts on pooled
+    quantities, so the policy is defined for any channel count (a recording whose receiver has more channels than
+    the simulated one the policy was trained on). The frames and the per-channel bounds are the policy's own.
+
+    Parameters
+    ----------
+    policy : a ChannelSetPolicy, ChannelSetRecurrentPolicy or ChannelSetSACPolicy; channels : int >= 1.
+
+    Returns
+    -------
+    A new policy of the same class in evaluation mode (``policy`` is left as it is).
+    """
+    from gymnasium import spaces
+    if not isinstance(policy, CHANNEL_SET_POLICIES):
+        raise ValueError(f"with_channels: {type(policy).__name__} is not a channel-set policy")
+    if isinstance(channels, bool) or not isinstance(channels, int) or channels < 1:
+        raise ValueError(f"with_channels: channels must be an int >= 1, got {channels!r}")
+    old = policy.observation_space
+    lay = channel_layout(old)
+    G, F, C = lay.global_dim, lay.features, lay.channels
+
+    def tile(a):
+        return np.concatenate([a[:G], np.tile(a[G:G + F], channels), np.repeat(a[G + C * F:G + C * F + 1], channels)])
+
+    obs = spaces.Box(tile(old.low), tile(old.high), dtype=old.dtype)
+    act = spaces.Box(float(policy.action_space.low[0]), float(policy.action_space.high[0]), (channels,),
+                     dtype=policy.action_space.dtype)
+    params = policy._get_constructor_parameters()
+    params.update(observation_space=obs, action_space=act, channels=channels)
+    params["features_extractor_kwargs"] = {**(params.get("features_extractor_kwargs") or {}), "channels": channels}
+    new = type(policy)(**params)
+    new.load_state_dict(policy.state_dict())
+    new.set_training_mode(False)
+    return new
+
+
+__all__ = ["with_channels", "ChannelSetExtractor", "ChannelSetPolicy", "ChannelSetRecurrentPolicy", "ChannelSetSACPolicy",
            "ChannelSetActor", "ChannelSetCritic", "ChannelHead", "split_features"]
+
+CHANNEL_SET_POLICIES = (ChannelSetPolicy, ChannelSetRecurrentPolicy, ChannelSetSACPolicy)
+"""The SB3 policy classes of this module (:func:`with_channels` rebuilds any of them)."""

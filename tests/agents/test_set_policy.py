@@ -161,6 +161,16 @@ def test_train_rl_trains_the_set_policy_and_eval_loads_it(tmp_path, algo):
     act = pol.act(obs)
     assert act.shape == (3, core.n_channels) and np.all(np.abs(act) <= 1)
     core.step(act)
+    if algo == "ppo":   # a receiver with more channels (a recording's): the same policy, rebuilt for them
+        big = SatelliteCore(SatelliteEnvConfig(method="kf", episode_length_s=4.0, scenario="urban",
+                                               channels=core.n_channels + 2), "inflation", 3)
+        obs = big.reset_rows(np.arange(3), [1, 2, 3])
+        pol.reset(3)
+        act = pol.act(obs)
+        assert act.shape == (3, core.n_channels + 2) and np.all(np.abs(act) <= 1)
+        big.step(act)
+        with pytest.raises(ValueError, match="not a channel count of its layout"):
+            pol.act(obs[:, :-1])
 
 
 def test_action_init_sets_the_initial_mean_action_and_survives_save_and_load(tmp_path):
@@ -182,3 +192,25 @@ def test_action_init_sets_the_initial_mean_action_and_survives_save_and_load(tmp
     assert float(rec.action_net.linear.bias.detach()) == 0.5
     with pytest.raises(ValueError, match="action_init must be a number in"):
         ChannelSetPolicy(obs_space, act_space, _lr, action_init=-2.0)
+
+
+@pytest.mark.parametrize("kind", ["ppo", "sac"])
+def test_with_channels_acts_the_same_on_padded_channels(kind):
+    """A set policy rebuilt for more channels (a recording's receiver has more than the simulated one) keeps its
+    weights: on the same observation padded with empty channels, the original channels' actions are unchanged."""
+    from agents.set_policy import with_channels
+    obs_space, act_space, layout = _spaces()
+    pol = _make(kind, obs_space, act_space)
+    o, mask = _observations(obs_space, layout, 5, np.random.default_rng(2))
+    G, C, F = layout.global_dim, layout.channels, layout.features
+    big = with_channels(pol, C + 3)
+    assert big.action_space.shape == (C + 3,) and big.observation_space.shape == (G + (C + 3) * (F + 1),)
+    pad = np.zeros((5, G + (C + 3) * (F + 1)), np.float32)
+    pad[:, :G + C * F] = o[:, :G + C * F]
+    pad[:, G + (C + 3) * F:G + (C + 3) * F + C] = o[:, G + C * F:]
+    with th.no_grad():
+        a = pol.predict(o, deterministic=True)[0]
+        b = big.predict(pad, deterministic=True)[0]
+    np.testing.assert_allclose(b[:, :C], a, atol=1e-5)
+    with pytest.raises(ValueError, match="channels must be an int >= 1"):
+        with_channels(pol, 0)
