@@ -9,7 +9,7 @@
   without measurements, per-state fading, serial and parallel kernels; the kernel decided every row (the numpy
   update is never called);
 * what the kernel does not decide (an indefinite Q, a non-finite factor) goes to the numpy path, which raises as
-  before and commits nothing;
+  before and commits nothing, and in the navigator the failing row alone is flagged;
 * ``svd-akf`` and ``svd-asrkf`` take the compiled path in the navigator's fused mode and run the same episodes as
   without it.
 """
@@ -175,3 +175,28 @@ def test_svd_laws_take_the_compiled_path_and_run_the_same_episodes(short_world, 
     atol, rtol = (1e-7, 1e-6) if dtype == "float64" else (1e-2, 0.15)
     np.testing.assert_allclose(fast.pos_err_ned, base.pos_err_ned, rtol=0, atol=atol)
     np.testing.assert_allclose(fast.nis, base.nis, rtol=rtol, atol=rtol)
+
+
+@pytest.mark.parametrize("method", ["svd-akf", "svd-asrkf"])
+def test_a_failing_row_is_isolated_on_the_fused_path(method):
+    """A row whose SVD factors are not finite: the kernel leaves the batch to numpy, whose SVD raises; the navigator
+    flags that row alone (the update failed) and the others end bit for bit where a clean fused run ends (the
+    kernel's rows are independent)."""
+    from nav_filters.navigator import REASON_UPDATE
+    from tests.nav_filters.test_failure_isolation import _run
+
+    w = generate_world("seed000-sim", [0, 1, 2])
+    kw = dict(exact_transition=False, fused_update=True)
+    clean = _run(navigator_for(w, method, **kw), w, 8)
+
+    def poison(nav):
+        nav.flush_prediction()
+        inner = nav.form.inner
+        inner.U = inner.U.copy()
+        inner.U[1, 2, 2] = np.nan
+
+    nav = _run(navigator_for(w, method, **kw), w, 8, poison)
+    assert nav.divergence_code.tolist() == [0, REASON_UPDATE, 0]
+    for name in ("r", "v", "C", "clk", "drift"):
+        np.testing.assert_array_equal(getattr(nav, name)[[0, 2]], getattr(clean, name)[[0, 2]], err_msg=name)
+    np.testing.assert_array_equal(nav.covariance[[0, 2]], clean.covariance[[0, 2]])
