@@ -140,8 +140,9 @@ class EnvConfig:
         sample, the reference (:class:`nav_filters.navigator.NavigatorConfig`'s default, what eval.py runs
         every method with). :mod:`nav_filters.averaged_transition` gives the equations;
         ``benchmarks/bench_envs.py --accuracy`` the paired RMSE of the two on every built-in scenario.
-    fused_update : ``True`` (default): the fused compiled predict + Joseph update of ``kf`` and the adaptive
-        laws' fast kernels (same equations, different rounding); ``False``: the form computes as the
+    fused_update : ``True`` (default): the fused compiled predict + Joseph update of ``kf`` (and the compiled
+        updates of the SVD forms, ``svd-akf`` / ``svd-asrkf``'s inner forms) and the adaptive laws' fast kernels
+        (same equations, different rounding); ``False``: the form computes as the
         navigator's default does. The defaults of the two make the fastest configuration (issue 11).
     divergence_bound_m : horizontal error [m] beyond which an episode terminates as diverged (at least
         :data:`MIN_DIVERGENCE_BOUND_M`).

@@ -103,13 +103,16 @@ class NavigatorConfig:
         the ``Phi`` is the same and ``Q = S`` (seed 001's summed noise).
 
     fused_update : ``False`` (default): the filter form computes as it always did (numpy recursion, the
-        compiled Joseph update). ``True``: the fast path of the forms that have one (``kf``, and the adaptive
-        laws around it: ``sage-husa``, ``stkf``, ``ma-stkf``, ...; :meth:`~nav_filters.forms.base.FilterForm.set_fused`):
-        an adaptive law's deferred prediction and the Joseph update run as one compiled kernel per epoch
+        compiled Joseph update). ``True``: the fast path of the forms that have one (``kf``, ``svd-kf``,
+        ``svd-srkf``, and the adaptive laws around them: ``sage-husa``, ``stkf``, ``ma-stkf``, ``svd-akf``,
+        ``svd-asrkf``, ...; :meth:`~nav_filters.forms.base.FilterForm.set_fused`): an adaptive law's deferred
+        prediction and the inner form's update run as one compiled kernel per epoch
         (:func:`nav_filters.forms.kf.fused_update`: masked rows left out, no allocation per row, the law's
-        prior ``Phi P Phi^T`` reused) and the laws' row kernels run parallel over rows. The same equations
-        with a different rounding (checked against the numpy recursion in ``tests/nav_filters/test_fused_update.py``);
-        forms without a fused path ignore it. Independent of ``exact_transition``.
+        prior ``Phi P Phi^T`` reused; :func:`nav_filters.forms.svd_rows.svd_fused_update` for the SVD forms) and
+        the laws' row kernels run parallel over rows. The same equations with a different rounding (checked
+        against the numpy recursion in ``tests/nav_filters/test_fused_update.py`` and
+        ``tests/nav_filters/test_svd_fused.py``); forms without a fused path ignore it. Independent of
+        ``exact_transition``.
 
     The transition of one IMU sample is ``Phi = I + F dt`` with the first-order process noise
     ``Q = G Q_c G^T dt`` (Groves eq 3.46 truncated; the trapezoidal form differs by O(F dt) ~ 1e-4

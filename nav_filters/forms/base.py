@@ -343,9 +343,10 @@ class FilterForm(ABC):
     def set_fused(self, on: bool = True) -> bool:
         """Switch the fused fast path on or off; returns whether it is on (False for a form without one).
 
-        With it on, a form that has one (:attr:`HAS_FUSED`: ``kf``) runs its time and measurement updates
-        through compiled kernels that fuse what the readable numpy recursion does in several calls
-        (:func:`nav_filters.forms.kf.fused_update`): same equations, different rounding. Off (the default),
+        With it on, a form that has one (:attr:`HAS_FUSED`: ``kf``, ``svd-kf``, ``svd-srkf``) runs its time and
+        measurement updates through compiled kernels that fuse what the readable numpy recursion does in several
+        calls (:func:`nav_filters.forms.kf.fused_update`, :func:`nav_filters.forms.svd_rows.svd_fused_update`):
+        same equations, different rounding. Off (the default),
         the form computes exactly as before. Adaptive laws pass it on to their inner form."""
         self.fused = bool(on) and self.HAS_FUSED
         return self.fused

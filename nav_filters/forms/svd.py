@@ -51,6 +51,7 @@ from __future__ import annotations
 import numpy as np
 
 from .base import FilterForm, UpdateResult, symmetrize
+from .svd_rows import svd_fused_update
 
 _PSD_TOL = 10.0  # negative eigenvalues summing to at most _PSD_TOL * n * eps * max|lambda| count as round-off
 
@@ -215,6 +216,8 @@ class _SvdForm(FilterForm):
 
     name = "svd-base"
     _cholesky_q = False  # factor Q by Cholesky first (svd-srkf, eq 7) or by its SVD (svd-kf)
+    HAS_FUSED = True
+    """The fused path (:meth:`FilterForm.set_fused`): the time and measurement updates of :mod:`.svd_rows`."""
 
     def _init_uncertainty(self, P0):
         """Seed 000 eq 4: ``P0 = U D^2 U^T`` (SVD of the symmetric PSD P0); ``ValueError`` naming P0 if indefinite."""
@@ -267,6 +270,45 @@ class _SvdForm(FilterForm):
         self._q_cache = (Qb.copy(), LQt)
         return LQt
 
+    def _update(self, dz, H, R, mask):
+        """Measurement update on prepared arrays: the compiled :func:`~.svd_rows.svd_fused_update` on the fused
+        path (where it decides every row), else the numpy recursion (:meth:`_update_reference`)."""
+        if self.fused:
+            out = svd_fused_update(self.U, self.D, self.x, H, R, dz, mask, self._cholesky_q)
+            if out is not None:
+                return self._commit_fused(out, mask)
+        return self._update_reference(dz, H, R, mask)
+
+    def _predicted_update(self, Phi, Q, dz, H, R, mask, fade=None, prior=None):
+        """:meth:`FilterForm.predicted_update` on prepared arrays. Fused path: the time update (eqs 8-11, Q's square
+        root formed per row) and the measurement update in one compiled call (:func:`~.svd_rows.svd_fused_update`;
+        ``prior`` is not needed); where it leaves a row to numpy, the numpy predict and update, committing nothing
+        if they raise (an adaptive law retries a failed epoch). Off: the generic predict, then update."""
+        if not self.fused:
+            return super()._predicted_update(Phi, Q, dz, H, R, mask, fade, prior)
+        B, n = self.batch_size, self.n
+        Phi = _batched_base(Phi, B, n, "Phi", self.dtype)
+        Q = _batched_base(Q, B, n, "Q", self.dtype)
+        out = svd_fused_update(self.U, self.D, self.x, H, R, dz, mask, self._cholesky_q, Phi=Phi, Q=Q, fade=fade)
+        if out is not None:
+            return self._commit_fused(out, mask)
+        saved = self.x, self.U, self.D, self.last_correction
+        try:
+            if fade is not None:
+                f = np.asarray(fade, np.float64)
+                Phi = np.sqrt(f if f.ndim == 2 else f[:, None]).astype(self.dtype)[:, :, None] * Phi
+            self.predict(Phi, Q)
+            return self._update_reference(dz, H, R, mask)
+        except Exception:
+            self.x, self.U, self.D, self.last_correction = saved
+            raise
+
+    def _commit_fused(self, out, mask):
+        """Commit the outputs of :func:`~.svd_rows.svd_fused_update` and pack the :class:`UpdateResult`."""
+        self.U, self.D, self.x, self.last_correction, r, ivar, nis = out
+        n_used = mask.sum(-1)
+        return UpdateResult(nis=nis, n_used=n_used, innovation=r, innovation_var=ivar, applied=n_used > 0)
+
     def _finish(self, r, dx, nis, ivar, mask):
         """Apply the state correction ``dx = K r`` and pack the :class:`UpdateResult`."""
         self.x = self.x + dx
@@ -293,8 +335,9 @@ class SvdSquareRootKF(_SvdForm):
     name = "svd-srkf"
     _cholesky_q = True
 
-    def _update(self, dz, H, R, mask):
-        """Measurement update, seed 000 eqs 6 and 12-16.
+    def _update_reference(self, dz, H, R, mask):
+        """Measurement update, seed 000 eqs 6 and 12-16 (numpy specification of the fused path's
+        :func:`~.svd_rows._srkf_update_row`).
 
         With ``L_R L_R^T = R^-1`` (eq 6), ``G = L_R^T H U`` (m x n) and ``e = L_R^T r`` (whitened residual
         ``r = dz - H x``), the pre-array ``[G ; D^-1]`` ((m + n) x n) has SVD ``W diag(s) V^T`` (eq 12);
@@ -361,8 +404,9 @@ class SvdKalmanFilter(_SvdForm):
     name = "svd-kf"
     _cholesky_q = False
 
-    def _update(self, dz, H, R, mask):
-        """Measurement update (Kulikova & Tsyganova 2017, IET CTA 11(15); seed 000 eq 17).
+    def _update_reference(self, dz, H, R, mask):
+        """Measurement update (Kulikova & Tsyganova 2017, IET CTA 11(15); seed 000 eq 17); numpy specification of
+        the fused path's :func:`~.svd_rows._kf_update_row`.
 
         1. ``R = U_R D_R U_R^T`` (SVD); innovation pre-array ``[D_R^{1/2} U_R^T ; D U^T H^T]`` ((m + n) x m)
            with SVD ``W diag(sig) V_S^T``, so ``S = H P H^T + R = V_S diag(sig)^2 V_S^T``.

@@ -114,7 +114,7 @@ def test_transition_prior_equals_numpy(dtype, B):
 
 def test_kalman_filter_fused_methods_agree_with_the_plain_form():
     """``set_fused`` switches kf's update and predicted_update to the kernel; the results agree with the plain
-    form's; a form without a fused path (svd-kf) reports False and computes as before."""
+    form's; the SVD forms have one too (issue 37: tests/nav_filters/test_svd_fused.py)."""
     P, x, H, R, dz, mask, Phi, Q, fade = _problem(70, seed=3)
     Rd = np.diagonal(R, axis1=1, axis2=2)
     plain, fused = KalmanFilter(P, x0=x), KalmanFilter(P, x0=x)
@@ -126,10 +126,10 @@ def test_kalman_filter_fused_methods_agree_with_the_plain_form():
     np.testing.assert_allclose(fused.P, plain.P, rtol=1e-10, atol=1e-12)
     np.testing.assert_allclose(fused.x, plain.x, rtol=1e-10, atol=1e-12)
     svd = SvdKalmanFilter(P)
-    assert svd.set_fused(True) is False and svd.fused is False
+    assert svd.set_fused(True) is True and svd.fused is True
     from nav_filters.registry import make_form
-    akf = make_form("svd-akf", P)  # the law's own fast kernels on, its SVD inner form unchanged
-    assert akf.set_fused(True) is True and akf.fused and not akf.inner.fused
+    akf = make_form("svd-akf", P)  # the law's own fast kernels on, and its SVD inner form's
+    assert akf.set_fused(True) is True and akf.fused and akf.inner.fused
 
 
 def test_not_positive_definite_row_raises_and_commits_nothing():
@@ -158,7 +158,7 @@ def test_adaptive_laws_give_the_same_episodes_fused(method):
     np.testing.assert_allclose(fast.pos_err_ned, base.pos_err_ned, rtol=0, atol=1e-4)
     np.testing.assert_allclose(fast.nis, base.nis, rtol=1e-5, atol=1e-8)
     nav = navigator_for(w, method, exact_transition=False, fused_update=True)
-    assert nav.form.fused and nav.form.inner.fused == (method != "svd-akf")
+    assert nav.form.fused and nav.form.inner.fused
 
 
 def test_satellite_r_parallel_kernel_gives_the_serial_bits(monkeypatch):
