@@ -85,6 +85,24 @@ def _triangularize(X, nr):
 
 
 @nb.njit(cache=True, error_model="numpy")
+def _reflect_rows(X, k, c, A, hi, w):
+    """The right reflection of step k (``I - c u u^T``, ``u = X[k+1:, k]``) as a row operation on ``A``'s rows
+    ``k+1 ..`` and columns ``k+1 .. hi-1``: ``A[i, t] -= c u_i (u^T A[:, t])``; ``w`` (>= hi,) scratch. ``A`` may
+    be ``X`` itself (column k is not touched)."""
+    nc = X.shape[0]
+    for t in range(k + 1, hi):
+        w[t] = 0.0
+    for i in range(k + 1, nc):
+        u = X[i, k]
+        for t in range(k + 1, hi):
+            w[t] += u * A[i, t]
+    for i in range(k + 1, nc):
+        cu = c * X[i, k]
+        for t in range(k + 1, hi):
+            A[i, t] -= cu * w[t]
+
+
+@nb.njit(cache=True, error_model="numpy")
 def _bidiagonalize(X, nr, d, f, wk):
     """Householder bidiagonalization ``A = W B V_B^T`` of the (nr x nc) array ``A`` stored transposed,
     ``X[j, t] = A[t, j]`` (X (nc, >= nr), its rows the columns of A: every reflection is a row operation).
@@ -126,16 +144,7 @@ def _bidiagonalize(X, nr, d, f, wk):
             X[k + 1, k] = y0 - beta
             c = 1.0 / (alpha * (alpha + abs(y0)))
             wk[nr + k] = c
-            for t in range(k + 1, nr):
-                wk[t] = 0.0
-            for i in range(k + 1, nc):
-                u = X[i, k]
-                for t in range(k + 1, nr):
-                    wk[t] += u * X[i, t]
-            for i in range(k + 1, nc):
-                cu = c * X[i, k]
-                for t in range(k + 1, nr):
-                    X[i, t] -= cu * wk[t]
+            _reflect_rows(X, k, c, X, nr, wk)
             f[k + 1] = beta
         elif k + 1 < nc:
             f[k + 1] = X[k + 1, k]
@@ -157,16 +166,7 @@ def _right_vectors(X, nr, Vt, Mv, wk):
         c = wk[nr + k]
         if c == 0.0:
             continue
-        for j in range(k + 1, nc):
-            wk[j] = 0.0
-        for i in range(k + 1, nc):
-            u = X[i, k]
-            for j in range(k + 1, nc):
-                wk[j] += u * Mv[i, j]
-        for i in range(k + 1, nc):
-            cu = c * X[i, k]
-            for j in range(k + 1, nc):
-                Mv[i, j] -= cu * wk[j]
+        _reflect_rows(X, k, c, Mv, nc, wk)
     for i in range(nc):
         for j in range(W):
             Vt[i, j] = Mv[j, i] if j < nc else 0.0
