@@ -362,6 +362,9 @@ def _main(argv=None) -> dict:
                 for spec, ms in groups.items()}
     if args.headroom:
         results["headroom"] = compute_headroom(results, curves, plan, fixed_spec)
+    gap = compute_gap_to_oracle_r(results, curves, plan)
+    if gap:
+        results["gap_to_oracle_r"] = gap
     write_atomic(out / "results.json", dumps(results, indent=2) + "\n")
     timing["scenarios"] = {s: {"methods": {label: {k: r[k] for k in TIMING_KEYS if k in r} for label, r in per.items()}}
                            for s, per in results["scenarios"].items()}
@@ -369,6 +372,9 @@ def _main(argv=None) -> dict:
     table = format_table(results)
     print(table)
     write_atomic(out / "results.md", table + "\n")
+    if gap:
+        print("\nShare of the gap from the reference to oracle-r closed\n\n"
+              + format_gap_to_oracle_r(gap, {s: method_labels(results, s) for s in gap}))
     if args.headroom:
         htable = format_headroom(results["headroom"], {s: method_labels(results, s) for s in results["scenarios"]})
         print("\nHeadroom\n\n" + htable)
@@ -673,6 +679,13 @@ HEADROOM_INTRO = ("Headroom = (optimized fixed - oracle) / optimized fixed, from
                   "truth: they bound what a policy could reach, they are not methods a user could run.")
 
 
+GAP_INTRO = ("Share of the gap closed = (reference - method) / (reference - oracle-r), from the pooled horizontal "
+             "RMSEs of the paired episodes (oracle-r: the filter given the simulator's true variance of every "
+             "satellite and epoch, the floor of the per-satellite action space): 1 reaches the oracle, 0 the "
+             "reference, below 0 worse than the reference. Paired bootstrap 95% CIs over episodes; none where the "
+             "gap's own CI includes 0.")
+
+
 def _oracle_kind(label: str) -> str:
     """``'oracle-schedule'``, ``'best-per-episode'``, ``'crossfit-schedule'``, ``'oracle-r'`` (the R oracle)."""
     if label.startswith("oracle-r"):
@@ -797,6 +810,75 @@ def compute_headroom(results: dict, curves: dict, plan: dict, fixed_spec: str) -
             entry["methods"][label] = row
         out["scenarios"][s] = entry
     return out
+
+
+def compute_gap_to_oracle_r(results: dict, curves: dict, plan: dict) -> dict:
+    """The ``"gap_to_oracle_r"`` section of results.json: per scenario with an ``oracle-r`` row (the R oracle,
+    the floor of the per-satellite action space), the share of the gap from the reference to it that each other
+    method closed, ``(R_ref - R_m) / (R_ref - R_oracle)`` (:func:`envs.metrics.headroom_share`, no placebo):
+    1 reaches the oracle, 0 the reference, < 0 worse than the reference. With the scenario's best hand-designed
+    method as ``--reference``, the share of the per-satellite headroom a method closed (docs/results-satellite.md).
+
+    Schema (RMSEs in metres, shares as fractions, CIs ``[lo, hi]`` or null below ``min_ci_episodes``)::
+
+        {"<scenario>": {"reference": "<label>", "oracle": "<oracle-r label>",
+                        "methods": {"<label>": {"learned", "pooled", "rmse_h_m", "episodes", "share",
+                                                "share_ci95", "gap_m", "gap_ci95_m", "note"}}}}
+
+    Rows: every method that is neither an oracle nor the reference (each training seed and the pooled row of a
+    seed group, as :func:`compute_headroom`). Episodes where the reference, the method or the oracle diverged
+    leave that comparison. Scenarios without an ``oracle-r`` row are absent.
+    """
+    from agents.methods import PolicyMethod, is_oracle_label
+    from envs.metrics import episode_mse, headroom_share
+
+    def mse(log):
+        a = episode_mse(log)
+        return a, log.diverged | ~np.isfinite(a)
+
+    out = {}
+    for s, per in curves.items():
+        oracle = next((lab for lab in per if _oracle_kind(lab) == "oracle-r"), None)
+        if oracle is None:
+            continue
+        ref = results["config"]["reference_labels"][s]
+        (R, dR), (O, dO) = mse(per[ref]), mse(per[oracle])
+        rows = []
+        for spec, ms in plan[s]:
+            live = [m for m in ms if not is_oracle_label(m.label) and m.label != ref]
+            rows += [(m.label, *mse(per[m.label]), isinstance(m, PolicyMethod), False,
+                      results["scenarios"][s][m.label]["rmse_h_m"]) for m in live]
+            if len(live) > 1:
+                parts = [mse(per[m.label]) for m in live]
+                rows.append((f"{spec} (pooled over {len(live)} seeds)", np.mean([p[0] for p in parts], 0),
+                             np.any([p[1] for p in parts], 0), isinstance(live[0], PolicyMethod), True,
+                             results["seed_groups"][s][spec]["rmse_h_m"]))
+        methods = {}
+        for label, a, d, learned, pooled, rmse in rows:
+            ok = ~(dR | d | dO)
+            row = {"learned": learned, "pooled": pooled, "rmse_h_m": rmse}
+            row.update(headroom_share(R[ok], a[ok], O[ok]) if ok.any() else
+                       {"episodes": 0, "share": None, "share_ci95": None, "note": "no episode without a divergence"})
+            row.pop("net", None)
+            methods[label] = row
+        out[s] = {"reference": ref, "oracle": oracle, "methods": methods}
+    return out
+
+
+def format_gap_to_oracle_r(g: dict, labels: dict | None = None) -> str:
+    """Markdown table of the ``"gap_to_oracle_r"`` section (:func:`compute_gap_to_oracle_r`); ``labels`` as in
+    :func:`format_headroom`."""
+    rows = ["| scenario | method | episodes | RMSE h [m] | gap reference - oracle-r [m] (95% CI) | "
+            "share of the gap closed (95% CI) |", "|" + "---|" * 6]
+    for s, e in g.items():
+        lab = (labels or {}).get(s, {})
+        for m_lab, m in e["methods"].items():
+            gap = ("-" if m.get("gap_m") is None else f"{m['gap_m']:.2f}" + (
+                "" if m.get("gap_ci95_m") is None else f" [{m['gap_ci95_m'][0]:.2f}, {m['gap_ci95_m'][1]:.2f}]"))
+            kind = " (learned)" if m["learned"] else ""
+            rows.append(f"| {s} | {lab.get(m_lab, m_lab)}{kind} | {m['episodes']} | {m['rmse_h_m']:.3f} | {gap} | "
+                        f"{_pct_ci(m['share'], m['share_ci95'], m.get('note'))} |")
+    return "\n".join(rows)
 
 
 def best_hand_designed(plan_s: list, summ: dict) -> dict | None:
@@ -950,6 +1032,9 @@ def write_note(results: dict, path: Path, out: Path, cmd: str) -> None:
              format_table(results), "", *_label_key(results),
              "## Reading", "", *reading(results, results["config"].get("goal")), "",
              *_trained_on(results), *_skipped(results),
+             *(["## Share of the gap to oracle-r", "", GAP_INTRO, "",
+                format_gap_to_oracle_r(results["gap_to_oracle_r"], all_labels), ""]
+               if "gap_to_oracle_r" in results else []),
              *(["## Headroom", "", HEADROOM_INTRO, "", format_headroom(results["headroom"], all_labels), ""]
                if "headroom" in results else []),
              f"Plots and raw numbers: `{out}` (results.json, results.csv, *.png).", ""]

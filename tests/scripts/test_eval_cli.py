@@ -423,3 +423,39 @@ def test_headroom_from_the_best_below_the_minimum_episodes_and_with_divergences(
     assert o["episodes"] == E and o["headroom_ci95"] is not None  # the column against the fixed row: all 10
     table = ev.format_headroom({"placebo": None, "scenarios": {"urban": e}})
     assert "| +20.0% (n < 10: no CI) |" in table and "diverged in 1 of 10 episodes" in table
+
+
+def test_gap_to_oracle_r_shares_against_the_reference():
+    """compute_gap_to_oracle_r: (ref - method) / (ref - oracle-r) with the analytic value and a degenerate CI on
+    errors that are scale multiples of one draw, for a method, a seed group's members and their pooled row; the
+    reference and the oracles get no row; no oracle-r row, no section; the table shows the share."""
+    import eval as ev
+    from agents.methods import PolicyMethod
+    M = _methods()
+    p1 = PolicyMethod("ppo:runs/q/model.zip", "ppo", "runs/q/model.zip", None)
+    rows = [(M["vb"], 1.5, None), (M["kf"], 3.0, None), (M["ppo"], 1.0, None), (p1, 1.25, None),
+            (M["knob"], 1.2, None), (M["oracle-r"], 0.5, None)]
+    results, curves, plan, _ = _headroom_inputs(rows)
+    results["config"] = {"reference_labels": {"urban": "vb-akf"}}
+    plan["urban"] = [("vb-akf", [M["vb"]]), ("kf", [M["kf"]]), ("ppo:runs/*/model.zip", [M["ppo"], p1]),
+                     ("oracle-schedule:GnssIns/SageHusa-v1", [M["knob"]]), ("oracle-r", [M["oracle-r"]])]
+    results["seed_groups"] = {"urban": {"ppo:runs/*/model.zip": {"rmse_h_m": 1.0}}}
+    g = ev.compute_gap_to_oracle_r(results, curves, plan)["urban"]
+    assert g["reference"] == "vb-akf" and g["oracle"] == "oracle-r"
+    m = g["methods"]
+    assert set(m) == {"kf", "ppo:runs/p/model.zip", "ppo:runs/q/model.zip",
+                      "ppo:runs/*/model.zip (pooled over 2 seeds)"}
+    for lab, scale in (("kf", 3.0), ("ppo:runs/p/model.zip", 1.0), ("ppo:runs/q/model.zip", 1.25)):
+        want = (1.5 - scale) / (1.5 - 0.5)
+        assert m[lab]["share"] == pytest.approx(want, rel=1e-9, abs=1e-12)
+        assert m[lab]["share_ci95"] == pytest.approx([want, want], rel=1e-6, abs=1e-9)
+        assert m[lab]["gap_m"] == pytest.approx(results["scenarios"]["urban"]["vb-akf"]["rmse_h_m"] * 2 / 3, rel=1e-9)
+    pooled = m["ppo:runs/*/model.zip (pooled over 2 seeds)"]
+    assert pooled["pooled"] and pooled["learned"]  # pooled MSE: the mean of the seeds' squared errors
+    assert pooled["share"] == pytest.approx(1.5 - ((1.0 ** 2 + 1.25 ** 2) / 2) ** 0.5, rel=1e-9)
+    assert not m["kf"]["learned"]
+    table = ev.format_gap_to_oracle_r({"urban": g})
+    assert "| urban | ppo:runs/p/model.zip (learned) | 12 |" in table and "+50.0% [+50.0%, +50.0%]" in table
+    assert "-150.0%" in table  # kf: three times the reference's gap worse
+    del curves["urban"]["oracle-r"]
+    assert ev.compute_gap_to_oracle_r(results, curves, plan) == {}
