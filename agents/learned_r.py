@@ -142,7 +142,7 @@ def split_seeds(config: LearnedRConfig) -> dict:
 
 # --------------------------------------------------------------------------------------------------- data
 def collect_channel_data(scenario: str, seeds, episode_length_s: float, explore_rows: float = 0.0,
-                         rng: np.random.Generator | None = None) -> dict:
+                         rng: np.random.Generator | None = None, policy=None, env_kwargs: dict | None = None) -> dict:
     """Per-channel samples of ``GnssIns/SatelliteR-v0`` episodes (one batched core over ``seeds``).
 
     Parameters
@@ -151,6 +151,10 @@ def collect_channel_data(scenario: str, seeds, episode_length_s: float, explore_
     explore_rows : fraction of the rows (the last ``round(explore_rows * B)``) that act with a uniform random
         log10 inflation in [0, 4] per channel and step; the others act with x1.
     rng : the exploration's generator (default: seeded by the first seed).
+    policy : optional, acts instead of x1 on the rows that do not explore: ``policy.act(obs)`` -> (B, C)
+        actions in [-1, 1] (:class:`agents.policies.Sb3Policy`, reset to ``B`` rows here); the samples then
+        also hold ``action`` (N,), the action each channel got at that epoch.
+    env_kwargs : further env arguments (e.g. ``method``), beside ``scenario`` and ``episode_length_s``.
 
     Returns
     -------
@@ -166,7 +170,7 @@ def collect_channel_data(scenario: str, seeds, episode_length_s: float, explore_
     B = len(seeds)
     rng = np.random.default_rng(seeds[0]) if rng is None else rng
     cls = env_class(ENV_ID)
-    cfg = cls.config_from({"scenario": scenario, "episode_length_s": float(episode_length_s)})
+    cfg = cls.config_from({**(env_kwargs or {}), "scenario": scenario, "episode_length_s": float(episode_length_s)})
     world = cfg.make_world(seeds)
     g = world.gnss
     if g.pr_var_true is None or g.pr_error_m is None:
@@ -180,7 +184,9 @@ def collect_channel_data(scenario: str, seeds, episode_length_s: float, explore_
     nlos = _pad(g.nlos, C, False)
     explore = np.arange(B) >= B - int(round(explore_rows * B))
     lo = float(core.default_channel_action)
-    xs, ys, ss, vs, ns, es = [], [], [], [], [], []
+    xs, ys, ss, vs, ns, es, acts = [], [], [], [], [], [], []
+    if policy is not None:
+        policy.reset(B)
     for _ in range(M):
         e = np.minimum(core.t, M - 1)
         _, ch, mask = core.channel_view(obs)
@@ -193,12 +199,16 @@ def collect_channel_data(scenario: str, seeds, episode_length_s: float, explore_
         vs.append(vtrue[b, e[b], i] / sg ** 2)
         ns.append(nlos[b, e[b], i])
         es.append(b)
-        a = np.full((B, C), lo)
+        a = np.full((B, C), lo) if policy is None else np.clip(np.asarray(policy.act(obs), np.float64), -1.0, 1.0)
         a[explore] = rng.uniform(-1.0, 1.0, (int(explore.sum()), C))
+        acts.append(a[b, i])
         obs = core.step(a).obs
-    return {"x": np.concatenate(xs).astype(np.float32), "y": np.concatenate(ys), "sigma": np.concatenate(ss),
-            "var_ratio": np.concatenate(vs), "nlos": np.concatenate(ns).astype(bool),
-            "episode": np.concatenate(es).astype(np.int64)}
+    out = {"x": np.concatenate(xs).astype(np.float32), "y": np.concatenate(ys), "sigma": np.concatenate(ss),
+           "var_ratio": np.concatenate(vs), "nlos": np.concatenate(ns).astype(bool),
+           "episode": np.concatenate(es).astype(np.int64)}
+    if policy is not None:
+        out["action"] = np.concatenate(acts)
+    return out
 
 
 def _pad(x, C: int, fill=0.0) -> np.ndarray:
@@ -347,7 +357,7 @@ def heldout_metrics(s, data: dict) -> dict:
     variances ``sigma^2 exp(s)``, beside ``nll_reported_m`` (the receiver's sigmas, ``s = 0``) and
     ``nll_true_var_m`` (the simulator's true variances, the floor of a variance model); ``auc_nlos`` the
     probability that an NLOS channel gets a larger ``s`` than a clean one (None without both classes);
-    ``spearman_true_var`` the rank correlation of ``s`` with the true variance ratio; ``frac_below_reported``
+    ``spearman_true_var`` the rank correlation of ``s`` with the true variance ratio (NaN for a constant ``s``); ``frac_below_reported``
     the share of channels with ``s < 0`` (deflation: clipped to x1 in the env); ``mean_log10_inflation`` of
     the clipped action; ``samples``, ``nlos_fraction``.
     """
@@ -362,7 +372,7 @@ def heldout_metrics(s, data: dict) -> dict:
     if n1 and n0:
         r = rankdata(s)
         auc = float((r[nl].sum() - n1 * (n1 + 1) / 2) / (n1 * n0))
-    rho = spearmanr(s, vr).statistic if s.size > 2 else float("nan")
+    rho = spearmanr(s, vr).statistic if s.size > 2 and np.ptp(s) > 0 else float("nan")  # constant s: no rank order
     return {"samples": int(s.size), "nlos_fraction": float(nl.mean()) if s.size else None,
             "nll_m": nll(s), "nll_reported_m": nll(np.zeros_like(s)), "nll_true_var_m": nll(np.log(vr)),
             "auc_nlos": auc, "spearman_true_var": float(rho),
