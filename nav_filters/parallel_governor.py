@@ -67,7 +67,8 @@ class ParallelGovernor:
       mode within a few units of the first winning probe, not within ``window`` probe intervals.
     * Units marked not comparable (``unit.comparable = False``: a step that also reset episodes, whose time
       holds a world generation) enter neither median; their times are kept apart (:attr:`excluded`). A probe
-      that falls on one is repeated at the next unit.
+      that falls on one is repeated at the next unit. Where more than ``2 window`` units in a row are marked so
+      (one-step episodes: every step resets), they are the usual unit and enter the medians.
 
     ``'always'`` runs every unit with the package's fixed rule (parallel from
     :data:`~nav_filters.kernels.PARALLEL_MIN_BATCH` rows) and ``'never'`` every unit serial
@@ -142,6 +143,7 @@ class ParallelGovernor:
         self._warm = set()
         self._until_probe = 0
         self._confirm = False
+        self._apart = 0  # consecutive units marked not comparable
         self.units = self.probes = self.switches = 0
 
     @staticmethod
@@ -176,7 +178,8 @@ class ParallelGovernor:
         starting = self._starting()
         probe = not starting and mode != self.preferred
         self.probes += probe
-        if not comparable:
+        self._apart = 0 if comparable else self._apart + 1
+        if not comparable and self._apart <= 2 * self.window:
             self.excluded[mode].append(float(seconds))
             if not probe and not self._confirm:
                 self._until_probe -= 1  # (a due probe that fell here stays due: the next unit probes)

@@ -167,6 +167,16 @@ def test_units_marked_not_comparable_are_left_out():
     assert gov.probes > 5 and repeated >= 1
 
 
+def test_where_every_unit_is_marked_not_comparable_they_are_compared():
+    """One-step episodes: every step resets. After 2 x window such units in a row the governor takes them as the
+    usual unit (else it would alternate the modes for ever) and settles on the faster mode."""
+    gov, clock = _gov(probe_every=20)
+    modes = _drive(gov, clock, 100, lambda i, m: 1.0 if m == "serial" else 3.0, comparable=lambda i, m: False)
+    assert set(gov.samples["serial"]) == {1.0} and set(gov.samples["parallel"]) == {3.0}
+    assert len(gov.excluded["parallel"]) + len(gov.excluded["serial"]) > 0  # the first ones were kept apart
+    assert gov.preferred == "serial" and modes[40:].count("serial") >= 58
+
+
 def test_one_outlier_does_not_flip_the_mode():
     gov, clock = _gov(probe_every=20)
     _drive(gov, clock, 30, lambda i, m: 1.0 if m == "parallel" else 2.0)
