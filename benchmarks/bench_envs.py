@@ -130,9 +130,11 @@ def _label(method, transition):
     return method + _SHORT[transition]
 
 
-def _make(method, B, episode_s, scenario, transition="exact"):
+def _make(method, B, episode_s, scenario, transition="exact", **env_kwargs):
+    """The env of a cell (``env_kwargs``: more arguments, e.g. the vector env's ``parallel_kernels``)."""
     from envs.config import EnvConfig
-    kw = dict(method=SATELLITE_METHODS.get(method, method), episode_length_s=float(episode_s), scenario=scenario)
+    kw = dict(method=SATELLITE_METHODS.get(method, method), episode_length_s=float(episode_s), scenario=scenario,
+              **env_kwargs)
     fields = EnvConfig.__dataclass_fields__  # an earlier tree (--compare) may lack the arguments (exact only)
     for name, value in (("exact_transition", transition == "exact"), ("fused_update", transition == "fused")):
         if name in fields:
@@ -148,14 +150,16 @@ def _core(env):
     return env.unwrapped.core if hasattr(env, "unwrapped") and hasattr(env.unwrapped, "core") else env.core
 
 
-def bench_env(method, B, steps, episode_s, scenario, transition="exact", warmup=WARMUP_STEPS, stat="mean"):
+def bench_env(method, B, steps, episode_s, scenario, transition="exact", warmup=WARMUP_STEPS, stat="mean",
+              env_kwargs=None, before_close=None):
     """(reset seconds, steps/s, CPU ms per batched step) over ``steps`` timed steps after ``warmup`` ones.
 
     ``stat``: ``'mean'`` (steps/s from the total wall time) or ``'median'`` (from the median wall time of one
-    step: robust to the load spikes of other jobs on a shared machine)."""
+    step: robust to the load spikes of other jobs on a shared machine). ``env_kwargs``: more env arguments;
+    ``before_close(env)`` is called after the timed steps (to read the env's state)."""
     if warmup + steps >= episode_s:  # 1 Hz GNSS in every benchmarked scenario: stay inside one episode
         raise ValueError(f"warmup + steps ({warmup + steps}) must stay below the episode length ({episode_s} epochs)")
-    env = _make(method, B, episode_s, scenario, transition)
+    env = _make(method, B, episode_s, scenario, transition, **(env_kwargs or {}))
     t0 = time.perf_counter()
     env.reset(seed=0)
     t_reset = time.perf_counter() - t0
@@ -169,6 +173,8 @@ def bench_env(method, B, steps, episode_s, scenario, transition="exact", warmup=
         env.step(a)
         ts.append(time.perf_counter() - t1)
     dt, dc = time.perf_counter() - t0, time.process_time() - c0
+    if before_close is not None:
+        before_close(env)
     env.close()
     rate = B / float(np.median(ts)) if stat == "median" else B * steps / dt
     return t_reset, rate, 1e3 * dc / steps
@@ -178,16 +184,18 @@ E2E_WARMUP_STEPS = 3
 """Untimed steps of :func:`bench_end_to_end` after the first reset: the compiled step kernels load from numba's cache."""
 
 
-def bench_end_to_end(method, B, episode_s, scenario, transition="fused", steps=None):
+def bench_end_to_end(method, B, episode_s, scenario, transition="fused", steps=None, env_kwargs=None,
+                     before_close=None):
     """End-to-end env-steps/s as a training loop pays it: resets included, no prefetch.
 
     After ``reset(seed=0)`` and :data:`E2E_WARMUP_STEPS` untimed steps, ``steps`` steps with zero actions are
     timed (default ``2 M + 5`` for M epochs per episode: two automatic resets fall inside, each drawing its rows'
     new worlds; the single env, B = 1, is reset by the loop when its episode ends, as a user's loop does).
+    ``env_kwargs``: more env arguments; ``before_close(env)`` is called after the timed steps.
 
     Returns (env-steps/s = B x steps / wall time, the resets' share of that time, CPU ms per batched step).
     """
-    env = _make(method, B, episode_s, scenario, transition)
+    env = _make(method, B, episode_s, scenario, transition, **(env_kwargs or {}))
     env.reset(seed=0)
     core = _core(env)
     M = core.M
@@ -203,6 +211,8 @@ def bench_end_to_end(method, B, episode_s, scenario, transition="fused", steps=N
         if B == 1 and (out[2] or out[3]):
             env.reset()
     dt, dc = time.perf_counter() - t0, time.process_time() - c0
+    if before_close is not None:
+        before_close(env)
     env.close()
     return B * n / dt, acc["reset"] / dt, 1e3 * dc / n
 

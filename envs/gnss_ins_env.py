@@ -90,12 +90,18 @@ fast kernels, same equations with a different rounding; ``False``: the navigator
 ``divergence_bound_m``; plus
 ``render_mode`` (``'ansi'``, ``'rgb_array'``). The vector env (``gym.make_vec(..., vectorization_mode=
 "vector_entry_point")``) also takes ``prefetch_worlds`` (default 0): draw the worlds of that many coming automatic
-resets ahead in a background process at the lowest CPU priority (the same episodes; :mod:`envs.vector_env`).
+resets ahead in a background process at the lowest CPU priority (the same episodes; :mod:`envs.vector_env`), and
+``parallel_kernels`` (default ``'auto'``): how the filter's row kernels run at ``num_envs`` >= 64
+(:data:`nav_filters.kernels.PARALLEL_MIN_BATCH`), ``'auto'`` parallel or serial, whichever its measurements of both
+found faster (where numba has more than one thread; :class:`nav_filters.parallel_governor.ParallelGovernor`: a
+core busy with another process makes the parallel kernels several times slower), ``'always'`` parallel,
+``'never'`` serial; the same bits in every mode, only the wall time differs.
 Limits (a ``ValueError`` naming the argument at construction): ``episode_length_s`` at most
 :data:`envs.config.MAX_EPISODE_S` (3600 s: the world is generated whole at reset), ``history`` at most
 :data:`envs.config.MAX_HISTORY` (64), the vector env's ``num_envs`` an int in [1, :data:`envs.core.MAX_BATCH`]
-(16384), ``prefetch_worlds`` an int >= 0, ``divergence_bound_m`` at least :data:`envs.config.MIN_DIVERGENCE_BOUND_M`
-(50 m); numbers must not be bools; ``method`` must run this env's adaptive law (its forms, ``+fde``, ``+onestep``:
+(16384), ``prefetch_worlds`` an int >= 0, ``parallel_kernels`` one of ``'auto'``, ``'always'``, ``'never'``,
+``divergence_bound_m`` at least :data:`envs.config.MIN_DIVERGENCE_BOUND_M` (50 m); numbers must not be bools;
+``method`` must run this env's adaptive law (its forms, ``+fde``, ``+onestep``:
 ``ma-stkf`` takes a ``softening`` too, but it is not the STKF env's; :func:`envs.core.check_method_law`). Actions must be real numbers
 (complex, string, bool or object arrays are refused); a NaN or inf action names the first rows and the count.
 

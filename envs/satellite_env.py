@@ -78,7 +78,8 @@ As :mod:`envs.gnss_ins_env` (world seeds, divergence, truncation at ``episode_le
 Those of the scalar envs (:class:`envs.config.EnvConfig`) plus ``channels`` (int or None): the action's and the
 observation's channel count; a world with fewer channels is padded with empty ones, one with more raises
 ``ValueError`` at reset. The vector env (``gym.make_vec(..., vectorization_mode="vector_entry_point")``) takes
-``num_envs`` and ``prefetch_worlds``; row i of a vector env seeded s is the single env seeded s + i.
+``num_envs``, ``prefetch_worlds`` and ``parallel_kernels``; row i of a vector env seeded s is the single env seeded
+s + i.
 
 ## Version History
 

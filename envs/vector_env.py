@@ -17,6 +17,17 @@ in a background process at the lowest CPU priority (:class:`envs.prefetch.WorldP
 whose world is ready only copies it in: the same bits, less time where a core is idle (PPO's gradient
 epochs). It pays when the rows finish together (episodes of one length, the default time limit); a reset of
 another grouping of rows draws its world itself. ``train.py rl`` turns it on.
+
+``parallel_kernels`` (default ``'auto'``) picks how the filter's row kernels run in ``step``: ``'auto'`` measures
+both the parallel and the serial variants and runs the faster (:class:`nav_filters.parallel_governor.
+ParallelGovernor`: the mode that has been faster, the other probed for one step every 32 or more steps and at the
+start, steps with automatic resets left out of the comparison); it is active from
+:data:`nav_filters.kernels.PARALLEL_MIN_BATCH` rows on where numba has more than one thread, and otherwise does
+nothing. ``'always'``: parallel from that many rows (the fixed rule); ``'never'``: serial. The variants give the
+same bits (a row's arithmetic does not depend on the chunking), so the setting changes the wall time only: on a
+machine where another process keeps a core busy a parallel launch waits on the thread that shares it, several
+times slower than the serial one (``benchmarks/bench_contention.py``). ``reset`` and the automatic resets run in
+the mode ``step`` prefers.
 """
 from __future__ import annotations
 
@@ -27,6 +38,8 @@ from gymnasium import spaces
 from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
+
+from nav_filters.parallel_governor import ParallelGovernor, check_policy
 
 from .config import EnvConfig
 from .core import TuningCore, check_batch_size, draw_world_seed
@@ -46,9 +59,11 @@ class GnssInsTuningVectorEnv(VectorEnv):
         """The batched core of this env (a subclass may run another)."""
         return TuningCore(self.config, self.PARAMS, batch_size, self.DEFAULTS["method"])
 
-    def __init__(self, num_envs: int = 1, prefetch_worlds: int = 0, **kwargs):
+    def __init__(self, num_envs: int = 1, prefetch_worlds: int = 0, parallel_kernels: str = "auto", **kwargs):
         kwargs.pop("render_mode", None)
         self.num_envs = check_batch_size(num_envs, "num_envs")
+        self.parallel_governor = ParallelGovernor(check_policy(parallel_kernels, "parallel_kernels"),
+                                                  batch_size=self.num_envs)
         if isinstance(prefetch_worlds, bool) or not isinstance(prefetch_worlds, (int, np.integer)) \
                 or prefetch_worlds < 0:
             raise ValueError(f"prefetch_worlds must be an int >= 0 (worlds drawn ahead; 0: off), got "
@@ -115,28 +130,31 @@ class GnssInsTuningVectorEnv(VectorEnv):
         # else every row's stream goes on: the seeds drawn ahead, and the worlds prefetched for them, stay valid
         rows = np.arange(self.num_envs)
         world_seeds = self._coming_seeds(rows, 1)
-        obs = self._reset_rows(rows)
+        with self.parallel_governor.preferred_mode():
+            obs = self._reset_rows(rows)
         return obs, {"seed": np.array(world_seeds), "_seed": np.ones(self.num_envs, bool)}
 
     def step(self, actions):
-        res = self.core.step(actions)
-        infos = dict(res.info)
-        for key in list(infos):
-            infos["_" + key] = np.ones(self.num_envs, bool)
-        done = res.terminated | res.truncated
-        obs = res.obs
-        if done.any():
-            rows = np.flatnonzero(done)
-            final_obs = np.empty(self.num_envs, dtype=object)
-            final_info = np.empty(self.num_envs, dtype=object)
-            metrics = self.core.episode_metrics(rows)
-            for r, m in zip(rows, metrics):
-                final_obs[r] = obs[r].copy()
-                final_info[r] = {"episode_metrics": m}
-            infos["final_obs"], infos["_final_obs"] = final_obs, done.copy()
-            infos["final_info"], infos["_final_info"] = final_info, done.copy()
-            obs = obs.copy()
-            obs[rows] = self._reset_rows(rows)
+        with self.parallel_governor.unit() as unit:  # the row kernels parallel or serial (module docstring)
+            res = self.core.step(actions)
+            infos = dict(res.info)
+            for key in list(infos):
+                infos["_" + key] = np.ones(self.num_envs, bool)
+            done = res.terminated | res.truncated
+            obs = res.obs
+            if done.any():
+                unit.comparable = False  # its time holds the resets' world generation: not a plain step's
+                rows = np.flatnonzero(done)
+                final_obs = np.empty(self.num_envs, dtype=object)
+                final_info = np.empty(self.num_envs, dtype=object)
+                metrics = self.core.episode_metrics(rows)
+                for r, m in zip(rows, metrics):
+                    final_obs[r] = obs[r].copy()
+                    final_info[r] = {"episode_metrics": m}
+                infos["final_obs"], infos["_final_obs"] = final_obs, done.copy()
+                infos["final_info"], infos["_final_info"] = final_info, done.copy()
+                obs = obs.copy()
+                obs[rows] = self._reset_rows(rows)
         return obs, res.reward.astype(np.float64), res.terminated.copy(), res.truncated.copy(), infos
 
     def close_extras(self, **kwargs):

@@ -42,6 +42,8 @@ Products with ``F`` use its fixed sparsity pattern (:data:`F_NONZERO`).
 """
 from __future__ import annotations
 
+from contextlib import contextmanager
+
 import numpy as np
 import numba as nb
 
@@ -383,14 +385,50 @@ PARALLEL_MIN_BATCH = 64
 """Below this batch size every row kernel of the package runs its serial variant (this module's, the forms'
 and the adaptive laws'): a parallel launch costs more than it saves, and on 2 cores its worker threads compete
 with BLAS threads still spinning after the caller's last matmul. The parallel variants need free cores: on a
-busy machine ``NUMBA_NUM_THREADS=1`` is faster (docs/usage.md, Benchmarks)."""
+busy machine the serial ones are faster (:func:`serial_rows` forces them; the native vector env picks between the
+two by measuring both, :class:`~nav_filters.parallel_governor.ParallelGovernor`; docs/usage.md, Benchmarks)."""
+
+
+_serial_only = False
+"""Whether every row kernel runs its serial variant whatever the batch size (:func:`serial_rows`). Plain
+process-wide Python state, read by :func:`row_chunks` at each launch (the kernels are launched from Python)."""
+
+
+@contextmanager
+def serial_rows(enabled: bool = True):
+    """Context manager: inside it every row kernel of the package runs its serial variant in one chunk
+    (:func:`row_chunks` returns 1), at any batch size; the previous setting comes back on exit, also when the
+    body raises. ``enabled=False`` leaves the setting as it is (``with serial_rows(mode == "serial")``).
+
+    A row's arithmetic does not depend on the chunking, so the results are the same bits either way; what
+    changes is the wall time: the parallel variants wait for their slowest thread, which on a core that another
+    process keeps busy is several times slower (:class:`~nav_filters.parallel_governor.ParallelGovernor` picks
+    between the two by measuring them). The setting is process-wide, not per thread.
+
+    Parameters
+    ----------
+    enabled : bool
+        Force the serial variants (True) or change nothing (False).
+    """
+    global _serial_only
+    previous = _serial_only
+    _serial_only = previous or bool(enabled)
+    try:
+        yield
+    finally:
+        _serial_only = previous
+
+
+def rows_forced_serial() -> bool:
+    """Whether :func:`serial_rows` is in force (every row kernel serial)."""
+    return _serial_only
 
 
 def row_chunks(B: int) -> int:
     """The number of row chunks a row kernel over ``B`` rows runs in: 1 (its serial variant) below
-    :data:`PARALLEL_MIN_BATCH` rows, else ``4 x threads`` chunks of its parallel variant (each chunk allocates its
-    scratch once; a row's arithmetic does not depend on the chunking)."""
-    return min(B, 4 * nb.get_num_threads()) if B >= PARALLEL_MIN_BATCH else 1
+    :data:`PARALLEL_MIN_BATCH` rows or inside :func:`serial_rows`, else ``4 x threads`` chunks of its parallel
+    variant (each chunk allocates its scratch once; a row's arithmetic does not depend on the chunking)."""
+    return min(B, 4 * nb.get_num_threads()) if B >= PARALLEL_MIN_BATCH and not _serial_only else 1
 
 
 def row_kernel(serial, parallel, B: int):
@@ -518,14 +556,14 @@ def scale_symmetric(R, s, keep=None):
 
     Returns
     -------
-    (B, m, m) new array of dtype ``result_type(R, s)``, parallel over rows for B >= 64.
+    (B, m, m) new array of dtype ``result_type(R, s)``, parallel over rows for B >= 64 (:func:`row_chunks`).
     """
     R = np.ascontiguousarray(R)
     s = np.ascontiguousarray(s)
     B, m = s.shape
     out = np.empty(R.shape, np.result_type(R.dtype, s.dtype))
     k = np.ones((B, m), np.bool_) if keep is None else np.ascontiguousarray(keep, np.bool_)
-    kern = _scale_parallel if B >= PARALLEL_MIN_BATCH else _scale_serial
+    kern = _scale_parallel if row_chunks(B) > 1 else _scale_serial  # (serial inside serial_rows too)
     kern(R, s, k, out)
     return out
 

@@ -22,7 +22,8 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from ..kernels import PARALLEL_MIN_BATCH, padded_width, row_kernel, row_nonzeros as _row_nonzeros, serial_and_parallel
+from ..kernels import PARALLEL_MIN_BATCH  # noqa: F401  (imported from here by tests)
+from ..kernels import padded_width, row_chunks, row_kernel, row_nonzeros as _row_nonzeros, serial_and_parallel
 from .base import FilterForm, UpdateResult, symmetrize
 
 
@@ -239,7 +240,7 @@ def joseph_update(P, x, H, R, dz):
     Sd = np.empty((B, m), dt)
     nis = np.zeros(B, dt)
     ok = np.empty(B, bool)
-    kern = _joseph_parallel if B >= PARALLEL_MIN_BATCH else _joseph_serial
+    kern = _joseph_parallel if row_chunks(B) > 1 else _joseph_serial  # (serial inside serial_rows too)
     kern(*args, Pn, xn, r, Sd, nis, ok)
     if np.count_nonzero(ok) != B:  # = not ok.all(), cheaper
         raise np.linalg.LinAlgError("Matrix is not positive definite")
