@@ -865,6 +865,14 @@ def compute_gap_to_oracle_r(results: dict, curves: dict, plan: dict) -> dict:
     return out
 
 
+def gap_share_text(share, ci, note) -> str:
+    """A gap share with its CI as table text; where the gap's own CI includes 0 the ratio is unbounded and only
+    the reason is shown (the point value of a ratio to a gap near 0 means nothing)."""
+    if share is not None and ci is None and note and "includes 0" in note:
+        return "not defined: the gap's 95% CI includes 0"
+    return _pct_ci(share, ci, note)
+
+
 def format_gap_to_oracle_r(g: dict, labels: dict | None = None) -> str:
     """Markdown table of the ``"gap_to_oracle_r"`` section (:func:`compute_gap_to_oracle_r`); ``labels`` as in
     :func:`format_headroom`."""
@@ -877,7 +885,7 @@ def format_gap_to_oracle_r(g: dict, labels: dict | None = None) -> str:
                 "" if m.get("gap_ci95_m") is None else f" [{m['gap_ci95_m'][0]:.2f}, {m['gap_ci95_m'][1]:.2f}]"))
             kind = " (learned)" if m["learned"] else ""
             rows.append(f"| {s} | {lab.get(m_lab, m_lab)}{kind} | {m['episodes']} | {m['rmse_h_m']:.3f} | {gap} | "
-                        f"{_pct_ci(m['share'], m['share_ci95'], m.get('note'))} |")
+                        f"{gap_share_text(m['share'], m['share_ci95'], m.get('note'))} |")
     return "\n".join(rows)
 
 
