@@ -693,6 +693,31 @@ def _oracle_kind(label: str) -> str:
     return label.removeprefix("oracle: ").split(":", 1)[0]
 
 
+def _episode_mse(log):
+    """``(per-episode MSE, excluded)`` of one method's log: excluded where it diverged or the MSE is not finite."""
+    from envs.metrics import episode_mse
+    a = episode_mse(log)
+    return a, log.diverged | ~np.isfinite(a)
+
+
+def _compared_mse_rows(results: dict, per: dict, plan_s: list, s: str, base_label: str) -> list:
+    """The rows a headroom or gap table compares with its base: every method of scenario ``s`` that is neither an
+    oracle nor ``base_label``, and the pooled row of each seed group (the mean of its members' per-episode MSEs,
+    excluded where any member is). Items ``(label, mse (E,), excluded (E,), learned, pooled, rmse_h_m)``."""
+    from agents.methods import PolicyMethod, is_oracle_label
+    rows = []
+    for spec, ms in plan_s:
+        live = [m for m in ms if not is_oracle_label(m.label) and m.label != base_label]
+        rows += [(m.label, *_episode_mse(per[m.label]), isinstance(m, PolicyMethod), False,
+                  results["scenarios"][s][m.label]["rmse_h_m"]) for m in live]
+        if len(live) > 1:
+            parts = [_episode_mse(per[m.label]) for m in live]
+            rows.append((f"{spec} (pooled over {len(live)} seeds)", np.mean([p[0] for p in parts], 0),
+                         np.any([p[1] for p in parts], 0), isinstance(live[0], PolicyMethod), True,
+                         results["seed_groups"][s][spec]["rmse_h_m"]))
+    return rows
+
+
 def compute_headroom(results: dict, curves: dict, plan: dict, fixed_spec: str) -> dict:
     """The ``"headroom"`` section of results.json.
 
@@ -729,14 +754,11 @@ def compute_headroom(results: dict, curves: dict, plan: dict, fixed_spec: str) -
     ``min_ci_episodes`` episodes (``ci_note`` says so below). ``headroom`` beside it stays the headroom over
     the optimized fixed parameter.
     """
-    from agents.methods import PolicyMethod, is_oracle_label
-    from envs.metrics import MIN_CI_EPISODES, episode_mse, headroom, headroom_share
+    from agents.methods import is_oracle_label
+    from envs.metrics import MIN_CI_EPISODES, headroom, headroom_share
 
     placebo = PLACEBO_SCENARIO if PLACEBO_SCENARIO in curves else None
-
-    def mse(log):
-        a = episode_mse(log)
-        return a, log.diverged | ~np.isfinite(a)
+    mse = _episode_mse
 
     def fixed_of(s):
         return mse(curves[s][dict(plan[s])[fixed_spec][0].label])
@@ -779,20 +801,7 @@ def compute_headroom(results: dict, curves: dict, plan: dict, fixed_spec: str) -
                       {"episodes": 0, "headroom": None, "headroom_ci95": None,
                        "ci_note": "no episode without a divergence"})
             entry["oracles"][lab]["from_best"] = fb
-        rows = []
-        for spec, ms in plan[s]:
-            for m in ms:
-                if not is_oracle_label(m.label) and m.label != fixed_label:
-                    a, d = mse(per[m.label])
-                    rows.append((m.label, a, d, isinstance(m, PolicyMethod), False, summ[m.label]["rmse_h_m"]))
-            if len(ms) > 1:
-                parts = [mse(per[m.label]) for m in ms]
-                a = np.mean([p[0] for p in parts], 0)
-                d = np.any([p[1] for p in parts], 0)
-                g = results["seed_groups"][s][spec]
-                rows.append((f"{spec} (pooled over {len(ms)} seeds)", a, d, isinstance(ms[0], PolicyMethod), True,
-                             g["rmse_h_m"]))
-        for label, a, d, learned, pooled, rmse in rows:
+        for label, a, d, learned, pooled, rmse in _compared_mse_rows(results, per, plan[s], s, fixed_label):
             row = {"learned": learned, "pooled": pooled, "rmse_h_m": rmse}
             if knob is None:
                 row.update(episodes=int(a.size), share=None, share_ci95=None, note="no knob oracle: add "
@@ -829,13 +838,8 @@ def compute_gap_to_oracle_r(results: dict, curves: dict, plan: dict) -> dict:
     seed group, as :func:`compute_headroom`). Episodes where the reference, the method or the oracle diverged
     leave that comparison. Scenarios without an ``oracle-r`` row are absent.
     """
-    from agents.methods import PolicyMethod, is_oracle_label
-    from envs.metrics import episode_mse, headroom_share
-
-    def mse(log):
-        a = episode_mse(log)
-        return a, log.diverged | ~np.isfinite(a)
-
+    from envs.metrics import headroom_share
+    mse = _episode_mse
     out = {}
     for s, per in curves.items():
         oracle = next((lab for lab in per if _oracle_kind(lab) == "oracle-r"), None)
@@ -843,18 +847,8 @@ def compute_gap_to_oracle_r(results: dict, curves: dict, plan: dict) -> dict:
             continue
         ref = results["config"]["reference_labels"][s]
         (R, dR), (O, dO) = mse(per[ref]), mse(per[oracle])
-        rows = []
-        for spec, ms in plan[s]:
-            live = [m for m in ms if not is_oracle_label(m.label) and m.label != ref]
-            rows += [(m.label, *mse(per[m.label]), isinstance(m, PolicyMethod), False,
-                      results["scenarios"][s][m.label]["rmse_h_m"]) for m in live]
-            if len(live) > 1:
-                parts = [mse(per[m.label]) for m in live]
-                rows.append((f"{spec} (pooled over {len(live)} seeds)", np.mean([p[0] for p in parts], 0),
-                             np.any([p[1] for p in parts], 0), isinstance(live[0], PolicyMethod), True,
-                             results["seed_groups"][s][spec]["rmse_h_m"]))
         methods = {}
-        for label, a, d, learned, pooled, rmse in rows:
+        for label, a, d, learned, pooled, rmse in _compared_mse_rows(results, per, plan[s], s, ref):
             ok = ~(dR | d | dO)
             row = {"learned": learned, "pooled": pooled, "rmse_h_m": rmse}
             row.update(headroom_share(R[ok], a[ok], O[ok]) if ok.any() else
