@@ -22,6 +22,10 @@ one figure, or ``--cpu``: the process CPU time (all threads) instead of the wall
 with the other jobs' load (a stage that runs rows on threads counts their CPU time, not the wall time they
 overlap in).
 
+``--draw-floor`` adds, per cell, the cost of the IMU stage's random draws alone (:func:`draw_floor`): the
+normal variates it draws, counted on the world's own streams, drawn again by numpy one row per thread. A stage
+that keeps the episodes bit for bit pays at least that, whatever else it speeds up.
+
 ``--compare DIR`` runs every cell twice, in this tree and in the source tree ``DIR`` (e.g. ``git worktree add
 /tmp/before <commit>``), alternately in fresh processes (``--rounds`` times, median over the rounds), and
 prints both with the speed-up: before/after figures measured under the same machine load. ``DIR`` need not
@@ -126,6 +130,84 @@ def bench_cell(scenario, B, duration_s, reps, dtype="float64", cpu=False):
     return out
 
 
+class _CountingGenerator(np.random.Generator):
+    """A Generator on another one's bit generator (the very same stream) that records how many normal variates
+    it hands out (:func:`draw_floor`)."""
+
+    drawn: list = []
+
+    def standard_normal(self, size=None, dtype=np.float64, out=None):
+        _CountingGenerator.drawn.append(out.size if out is not None else int(np.prod(size or 1)))
+        return super().standard_normal(size, dtype, out)
+
+    def normal(self, loc=0.0, scale=1.0, size=None):
+        _CountingGenerator.drawn.append(int(np.prod(size)) if size is not None else np.broadcast(loc, scale).size)
+        return super().normal(loc, scale, size)
+
+
+def _count_imu_normals(scenario, B, duration_s, dtype) -> tuple:
+    """``(count, world)``: the normal variates :func:`envs.sim.imu.simulate_imu` draws for the world of seeds
+    0..B-1 (its row streams and their child streams counted), and that world (the same bits as without counting)."""
+    from envs.sim import rng, world
+    counting = lambda g: _CountingGenerator(g.bit_generator)  # noqa: E731
+    orig_rows, orig_item = world.row_generators, rng.ChildStreams.__getitem__
+
+    def rows(seeds, stream):
+        gens = orig_rows(seeds, stream)
+        return [counting(g) for g in gens] if stream in ("imu", "vibration") else gens
+
+    def item(self, k):
+        got = orig_item(self, k)
+        return [counting(g) for g in got] if isinstance(got, list) else counting(got)
+
+    orig_sim = world.simulate_imu
+
+    def sim(*a, **kw):
+        rng.ChildStreams.__getitem__ = item  # only the IMU's children while it runs
+        try:
+            return orig_sim(*a, **kw)
+        finally:
+            rng.ChildStreams.__getitem__ = orig_item
+
+    world.row_generators, world.simulate_imu = rows, sim
+    _CountingGenerator.drawn = []
+    try:
+        w = _make_world(scenario, list(range(B)), duration_s, np.dtype(dtype))
+    finally:
+        world.row_generators, world.simulate_imu = orig_rows, orig_sim
+    return int(sum(_CountingGenerator.drawn)), w
+
+
+def draw_floor(scenario, B, duration_s, dtype="float64", reps=3) -> dict:
+    """What the IMU stage's random draws alone cost: the normal variates it draws for B rows
+    (:func:`_count_imu_normals`), drawn again with numpy's SFC64 (the IMU's child bit generator) one row per task
+    on the IMU's thread count, in (N, 3) blocks. Any bit-identical IMU stage pays at least this.
+
+    Returns ``{"normals_per_sample", "ms_per_row", "samples_per_s", "threads"}`` (median of ``reps``)."""
+    from concurrent.futures import ThreadPoolExecutor
+    total, w = _count_imu_normals(scenario, B, duration_s, dtype)
+    n = w.truth.t.shape[0]
+    per_row = total // B
+    threads = max(1, min(B, os.cpu_count() or 1, 8))
+    gens = [np.random.Generator(np.random.SFC64(k)) for k in range(B)]
+
+    def row(i):
+        g, left = gens[i], per_row
+        while left > 0:
+            m = min(left, 3 * n)
+            g.standard_normal(m)
+            left -= m
+
+    times = []
+    with ThreadPoolExecutor(threads) as ex:
+        for _ in range(reps):
+            t0 = time.perf_counter()
+            list(ex.map(row, range(B)))
+            times.append(time.perf_counter() - t0)
+    t = float(np.median(times)) / B
+    return {"normals_per_sample": per_row / n, "ms_per_row": 1e3 * t, "samples_per_s": n / t, "threads": threads}
+
+
 def _run_cell(root, scenario, B, duration_s, reps, dtype, cpu):
     """One cell in a fresh process on the source tree ``root``; returns its JSON result."""
     env = dict(os.environ, NAVGYM_BENCH_ROOT=root)
@@ -161,6 +243,9 @@ def main(argv=None):
                    help="also run every cell in the source tree DIR, alternately in fresh processes")
     p.add_argument("--rounds", type=int, default=1, help="alternating rounds per cell with --compare (median)")
     p.add_argument("--cpu", action="store_true", help="process CPU time (all threads) instead of wall time")
+    p.add_argument("--draw-floor", action="store_true",
+                   help="also print, per cell, what the IMU stage's normal draws alone cost (draw_floor): the "
+                        "bound of any bit-identical IMU stage")
     args = p.parse_args(argv)
     reps = lambda B: args.reps or (20 if B == 1 else 5)  # noqa: E731
     here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -194,6 +279,11 @@ def main(argv=None):
                 r = bench_cell(*cell)
                 parts = " ".join(_with_share(r, s) for s in STAGES)
                 print(f"{scen:14s} {B:4d} {1e3 * r['total']:8.3f} {r['n'] / r['total']:11.3g} {parts}", flush=True)
+            if args.draw_floor:
+                f = draw_floor(scen, B, args.duration_s, args.dtype)
+                print(f"{scen:14s} {B:4d} draw floor: {f['normals_per_sample']:.1f} normals per IMU sample; "
+                      f"drawing them alone (SFC64, {f['threads']} threads) {f['ms_per_row']:.3f} ms/row, "
+                      f"{f['samples_per_s']:.3g} samples/s at most", flush=True)
 
 
 if __name__ == "__main__":
