@@ -2,8 +2,8 @@
 
 A per-satellite method on ``GnssIns/SatelliteR-v0`` (a PPO policy or ``learned-r``) runs closed loop on held-out
 simulated worlds (:func:`agents.learned_r.collect_channel_data` with the method acting); each valid channel and
-epoch is one sample of its action, read as a log variance inflation ``s = ln(10) * 2 (a + 1)`` (the env's map,
--1: x1, 1: x10^4), scored against the simulator's truth by :func:`agents.learned_r.heldout_metrics`:
+epoch is one sample of its action, read as a log variance inflation ``s = ln(10) log10_inflation(a)`` (the env's
+map, :data:`envs.satellite_env.INFLATION_SPEC`: -1: x1, 1: x10^4), scored against the simulator's truth by :func:`agents.learned_r.heldout_metrics`:
 
 | figure | meaning |
 |---|---|
@@ -56,11 +56,10 @@ def method_diagnostics(spec: str, scenario: str = "urban-smartloc", episodes: in
     pol, kw = load_method(spec)
     data = collect_channel_data(scenario, [SEED_BASE + k for k in range(episodes)], episode_length_s,
                                 policy=pol, env_kwargs=kw)
-    a = data["action"]
-    s = math.log(10) * 2.0 * (a + 1.0)
-    m = heldout_metrics(s, data)
+    from envs.satellite_env import INFLATION_SPEC
+    l10 = INFLATION_SPEC.to_value(data["action"])  # the env's own map: log10 inflation in [0, 4]
+    m = heldout_metrics(math.log(10) * l10, data)
     nl = data["nlos"]
-    l10 = 2.0 * (a + 1.0)
     m.update(mean_log10_inflation_los=float(l10[~nl].mean()) if (~nl).any() else None,
              mean_log10_inflation_nlos=float(l10[nl].mean()) if nl.any() else None,
              env_kwargs=kw, episodes=episodes, scenario=scenario)
