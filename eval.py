@@ -62,6 +62,8 @@ from pathlib import Path
 
 import numpy as np
 
+from agents.satellite_results import gap_share_text  # the gap table's cells (a stdlib-only module)
+
 DEFAULT_SCENARIOS = ("noise-burst", "urban", "open-sky")
 DEFAULT_METHODS = ("kf", "sage-husa", "stkf", "ma-stkf")
 
@@ -857,14 +859,6 @@ def compute_gap_to_oracle_r(results: dict, curves: dict, plan: dict) -> dict:
             methods[label] = row
         out[s] = {"reference": ref, "oracle": oracle, "methods": methods}
     return out
-
-
-def gap_share_text(share, ci, note) -> str:
-    """A gap share with its CI as table text; where the gap's own CI includes 0 the ratio is unbounded and only
-    the reason is shown (the point value of a ratio to a gap near 0 means nothing)."""
-    if share is not None and ci is None and note and "includes 0" in note:
-        return "not defined: the gap's 95% CI includes 0"
-    return _pct_ci(share, ci, note)
 
 
 def format_gap_to_oracle_r(g: dict, labels: dict | None = None) -> str:

@@ -93,10 +93,17 @@ def _ci_pct(v, ci, note=None):
     return f"{_pct(v)} [{_pct(ci[0])}, {_pct(ci[1])}]" if ci else f"{_pct(v)} ({note or 'no CI'})"
 
 
-def _share_text(r: dict) -> str:
-    if r["share"] is not None and r["share_ci"] is None and r["share_note"] and "includes 0" in r["share_note"]:
+def gap_share_text(share, ci, note) -> str:
+    """A gap share (:func:`envs.metrics.headroom_share`) with its CI as table text; where the gap's own CI includes
+    0 the ratio is unbounded and only the reason is shown (a ratio to a gap near 0 means nothing). Used by this
+    note and by eval.py's gap table."""
+    if share is not None and ci is None and note and "includes 0" in note:
         return "not defined: the gap's 95% CI includes 0"
-    return _ci_pct(r["share"], r["share_ci"], r["share_note"])
+    return _ci_pct(share, ci, note)
+
+
+def _share_text(r: dict) -> str:
+    return gap_share_text(r["share"], r["share_ci"], r["share_note"])
 
 
 def summary_table(results: dict) -> list[str]:
