@@ -412,7 +412,7 @@ def write_all_plots(out: Path, results: dict, curves: dict, tracks: dict, events
 
 def run_experiment_cli(args, out: Path) -> dict:
     try:
-        from envs.experiments import EXPERIMENTS, run_experiment
+        from experiments import EXPERIMENTS, run_experiment
     except ImportError as e:  # pragma: no cover
         fail(f"experiments are not available: {e}")
     if args.experiment not in EXPERIMENTS:

@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from envs.episodes import run_episodes
-from envs.experiments import episode_seeds
+from experiments import episode_seeds
 from envs.sim.scenarios import URBAN_LIKE
 from envs.worlds import make_world
 from nav_filters.registry import ADAPTIVE_METHODS

@@ -3,7 +3,7 @@ eval.py's run_episodes, the env core, and the seed003 experiment's own loop, wit
 import numpy as np
 import pytest
 
-import envs.experiments as X
+import experiments as X
 from envs.config import EnvConfig
 from envs.core import TuningCore
 from envs.episodes import run_episodes

@@ -10,11 +10,11 @@ import numpy as np
 from earth import ecef_to_geodetic
 from earth.wgs84 import C_en
 
-from ..aiding import odometer_rows
-from ..episodes import EpisodeLog, navigator_for, run_episodes, satellite_keys
-from ..sim.odometer import SEED003_ODOMETER, OdometerModel
-from ..sim.odometer import simulate_odometer as _simulate_odometer
-from ..sim.world import World, generate_world
+from envs.aiding import odometer_rows
+from envs.episodes import EpisodeLog, navigator_for, run_episodes, satellite_keys
+from envs.sim.odometer import SEED003_ODOMETER, OdometerModel
+from envs.sim.odometer import simulate_odometer as _simulate_odometer
+from envs.sim.world import World, generate_world
 
 def episode_seeds(seed: int, episodes: int) -> list[int]:
     """Seeds of the paired episodes, as eval.py: episode k gets ``seed * 1_000_003 + k``."""

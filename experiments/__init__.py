@@ -63,7 +63,7 @@ core imports it).
 """
 from __future__ import annotations
 
-from ..sim.odometer import SEED003_ODOMETER, OdometerModel
+from envs.sim.odometer import SEED003_ODOMETER, OdometerModel
 from .claims import (N_BOOT, VERDICTS, _ci_pct, _claims_table, make_claim, paired_change,  # noqa: F401
                      verdict, verdict_summary)
 from .navigation import Run, episode_seeds, run_navigation, simulate_odometer

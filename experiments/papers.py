@@ -1,8 +1,8 @@
 """The seed papers' figures, typed from their tables (never computed here), and the experiments' setups
-(method lists, scenarios, events) that :mod:`envs.experiments` compares them with."""
+(method lists, scenarios, events) that :mod:`experiments` compares them with."""
 from __future__ import annotations
 
-from ..sim.gnss import GnssEvents
+from envs.sim.gnss import GnssEvents
 
 SEED000_TABLE2_RMSE_M = {
     # seed paper 000, Table 2 "Position RMSE comparison of different approaches in 32-bit":

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..json_io import jsonable
+from envs.json_io import jsonable
 from .claims import verdict_summary
 from .navigation import episode_seeds
 from .seed000 import run_seed000
@@ -73,7 +73,7 @@ def run_experiment(name: str, episodes: int | None = None, seed: int = 0, out_di
     if out_dir is not None:
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
-        from ..outputs import write_atomic
+        from envs.outputs import write_atomic
         write_atomic(out / f"{name}.json", json.dumps(jsonable(results), indent=2))
         write_atomic(out / f"{name}.md", report)
     return results, report

@@ -6,7 +6,7 @@ import dataclasses
 
 import numpy as np
 
-from ..worlds import make_world
+from envs.worlds import make_world
 from .claims import _ci_or_none, _ci_pct, _claims_table, _max_dev, _md_header, _md_row, _pct, _rmse, make_claim, \
     paired_change
 from .navigation import Run, _chunks, _ok, _say, run_navigation

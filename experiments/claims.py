@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..metrics import MIN_CI_EPISODES, no_ci_text
+from envs.metrics import MIN_CI_EPISODES, no_ci_text
 
 N_BOOT = 2000
 """Bootstrap resamples of the paired confidence intervals."""

@@ -1,4 +1,4 @@
-"""The seed-paper reproduction experiments (envs.experiments): structure, the loop they add, the statistics.
+"""The seed-paper reproduction experiments (the top-level package experiments): structure, the loop they add, the statistics.
 
 The experiments themselves are run at full size by ``eval.py --experiment NAME``
 (figures in the issue-3 closing note); here each runs with 2 episodes on
@@ -12,7 +12,7 @@ import math
 import numpy as np
 import pytest
 
-from envs import experiments as X
+import experiments as X
 from envs.episodes import run_episodes
 from envs.metrics import MIN_CI_EPISODES, no_ci_text
 from envs.sim.scenarios import get_scenario

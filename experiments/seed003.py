@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..sim.odometer import SEED003_ODOMETER
-from ..sim.scenarios import get_scenario
-from ..sim.world import generate_world
+from envs.sim.odometer import SEED003_ODOMETER
+from envs.sim.scenarios import get_scenario
+from envs.sim.world import generate_world
 from .claims import _claims_table, _md_header, _md_row, _pct, _rmse, _smaller, make_claim, paired_change, verdict
 from .navigation import Run, _chunks, _dur, _ok, _say, run_navigation
 from .papers import SEED003_METHODS, SEED003_QUANTITIES, SEED003_TABLE2

@@ -5,10 +5,10 @@ import math
 
 import numpy as np
 
-from ..metrics import MIN_CI_EPISODES, no_ci_text
-from ..sim.scenarios import get_scenario
-from ..sim.world import generate_world
-from ..episodes import run_episodes
+from envs.metrics import MIN_CI_EPISODES, no_ci_text
+from envs.sim.scenarios import get_scenario
+from envs.sim.world import generate_world
+from envs.episodes import run_episodes
 from .claims import _claims_table, _max_dev, _md_header, _rmse, _smaller, make_claim, paired_change, verdict
 from .navigation import _dur, _ok, _run_variants
 from .papers import (SEED000_EVENTS, SEED000_EXTRA_METHODS, SEED000_MAX_ERROR_M, SEED000_METHODS,
