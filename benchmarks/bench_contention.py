@@ -109,7 +109,7 @@ def cell_main(cell: dict) -> dict:
     kw = dict(env_kwargs={"parallel_kernels": cell["policy"]}, before_close=lambda env: seen.update(
         governor=env.unwrapped.parallel_governor.summary()))
     if cell["kind"] == "e2e":
-        rate, _, cpu = bench_envs.bench_end_to_end(cell["method"], cell["B"], cell["episode_s"], cell["scenario"],
+        rate, _, cpu, _ = bench_envs.bench_end_to_end(cell["method"], cell["B"], cell["episode_s"], cell["scenario"],
                                                    "fused", **kw)
     else:
         _, rate, cpu = bench_envs.bench_env(cell["method"], cell["B"], cell["steps"], cell["episode_s"],

@@ -8,7 +8,9 @@ Prints, in one run:
 * the headline: **end to end** env-steps/s, what a training loop pays (:func:`bench_end_to_end`: zero actions,
   ``2 M + 5`` steps for M epochs per episode, so two automatic resets fall inside the timed steps, each drawing
   its rows' new worlds; no prefetch process), beside the step-only figure of the same cell and the resets'
-  share of the end-to-end time, at B = 1 and 1024 (``--e2e-batches``), in the env default (fused) mode;
+  share of the end-to-end time, at B = 1 and 1024 (``--e2e-batches``), in the env default (fused) mode; and
+  what the CPU allows: the resets' share of the CPU time, the cores busy on average, and the bound of
+  :func:`cpu_bound` (the e2e rate if that CPU work kept every usable core busy);
 * env steps/s of the single env (``gym.make``, B = 1) and of the native vector env
   (``gym.make_vec(..., vectorization_mode="vector_entry_point")``) at B = 16, 256, 1024, for the methods
   ``sage-husa``, ``stkf``, ``ma-stkf`` and ``svd-akf`` (the Sage-Husa law around the SVD form; ``--methods satellite-r
@@ -193,7 +195,8 @@ def bench_end_to_end(method, B, episode_s, scenario, transition="fused", steps=N
     new worlds; the single env, B = 1, is reset by the loop when its episode ends, as a user's loop does).
     ``env_kwargs``: more env arguments; ``before_close(env)`` is called after the timed steps.
 
-    Returns (env-steps/s = B x steps / wall time, the resets' share of that time, CPU ms per batched step).
+    Returns (env-steps/s = B x steps / wall time, the resets' share of that time, CPU ms per batched step, the
+    resets' share of that CPU time); CPU time is the process's, all threads (``time.process_time``).
     """
     env = _make(method, B, episode_s, scenario, transition, **(env_kwargs or {}))
     env.reset(seed=0)
@@ -203,8 +206,9 @@ def bench_end_to_end(method, B, episode_s, scenario, transition="fused", steps=N
     zero = np.zeros(env.action_space.shape, np.float32)
     for _ in range(E2E_WARMUP_STEPS):
         env.step(zero)
-    acc = {"reset": 0.0}
-    core.reset_rows = timed(core.reset_rows, acc, "reset")   # an instance attribute: the core's own reset
+    acc = {"reset": 0.0, "reset_cpu": 0.0}
+    # an instance attribute: the core's own reset, in wall and in CPU time
+    core.reset_rows = timed(timed(core.reset_rows, acc, "reset"), acc, "reset_cpu", clock=time.process_time)
     t0, c0 = time.perf_counter(), time.process_time()
     for _ in range(n):
         out = env.step(zero)
@@ -214,7 +218,21 @@ def bench_end_to_end(method, B, episode_s, scenario, transition="fused", steps=N
     if before_close is not None:
         before_close(env)
     env.close()
-    return B * n / dt, acc["reset"] / dt, 1e3 * dc / n
+    return B * n / dt, acc["reset"] / dt, 1e3 * dc / n, acc["reset_cpu"] / dc
+
+
+def usable_cpus() -> int:
+    """The CPUs this process may run on (its affinity mask where the OS has one, else ``os.cpu_count()``)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - macOS, Windows
+        return os.cpu_count() or 1
+
+
+def cpu_bound(B: int, cpu_ms_per_step: float, cpus: int) -> float:
+    """Env-steps/s if the same CPU work per batched step (``cpu_ms_per_step`` [ms], all threads) kept all ``cpus``
+    busy all the time: ``cpus x B / CPU seconds per step``, the most any scheduling of that work can reach here."""
+    return cpus * B * 1e3 / cpu_ms_per_step
 
 
 class StageTimer:
@@ -424,12 +442,18 @@ def _print_headline(args, n_steps, here, other=None):
     """The end-to-end headline (:func:`bench_end_to_end`) beside the step-only rate of the same cell, for each
     method and B of ``--e2e-batches``, in the env default (fused) mode; every figure from fresh processes, the
     median of ``--rounds`` (with ``other``: alternately in that tree too, and the speed-up)."""
+    cpus = usable_cpus()
     print(f"\nend to end, the headline: {args.scenario}, {args.episode_s:g} s episodes, zero actions, automatic "
           f"resets included (each draws its rows' new worlds), no prefetch, env default mode (fused); "
           f"{'median of ' + str(args.rounds) + ' runs' if args.rounds > 1 else 'one run'} per cell")
+    if not other:
+        print(f"resets: their share of the e2e wall time and of its CPU time (all threads); cores busy: CPU time / "
+              f"wall time; {cpus}-core bound: the e2e steps/s if the same CPU work kept all {cpus} cores busy "
+              f"(no scheduling of it does better here)")
     cols = ("e2e steps/s", "step-only", "resets")
     hdr = (f"{'method':16s} {'B':>5s} " + (" ".join(f"{c + ' before':>18s} {'after':>9s}" for c in cols) + " e2e speed-up"
-                                           if other else " ".join(f"{c:>12s}" for c in cols)))
+                                           if other else " ".join(f"{c:>12s}" for c in cols)
+                                           + f" {'reset CPU':>10s} {'cores busy':>11s} {f'{cpus}-core bound':>13s}"))
     print(hdr + "\n" + "-" * len(hdr))
     for m in args.methods:
         for B in args.e2e_batches:
@@ -438,7 +462,8 @@ def _print_headline(args, n_steps, here, other=None):
                 for tree in ([other] if other else []) + [here]:
                     e2e = _run_cell(tree, "e2e", m, B, 0, args.episode_s, args.scenario, "fused")
                     rate = _run_cell(tree, "rate", m, B, n_steps(B), args.episode_s, args.scenario, "fused", args.stat)
-                    runs.setdefault(tree, []).append((e2e[0], rate[1], e2e[1]))
+                    runs.setdefault(tree, []).append((e2e[0], rate[1], e2e[1], e2e[3], e2e[0] * e2e[2] / (1e3 * B),
+                                                      cpu_bound(B, e2e[2], cpus)))
             med = {tree: np.median(np.asarray(v, float), axis=0) for tree, v in runs.items()}
             a = med[here]
             if other:
@@ -446,7 +471,8 @@ def _print_headline(args, n_steps, here, other=None):
                 print(f"{m:16s} {B:5d} {b[0]:18.0f} {a[0]:9.0f} {b[1]:18.0f} {a[1]:9.0f} {100 * b[2]:17.0f}% "
                       f"{100 * a[2]:8.0f}% {a[0] / b[0]:11.2f}x", flush=True)
             else:
-                print(f"{m:16s} {B:5d} {a[0]:12.0f} {a[1]:12.0f} {100 * a[2]:11.0f}%", flush=True)
+                print(f"{m:16s} {B:5d} {a[0]:12.0f} {a[1]:12.0f} {100 * a[2]:11.0f}% {100 * a[3]:9.0f}% "
+                      f"{a[4]:11.2f} {a[5]:13.0f}", flush=True)
     print()
 
 
