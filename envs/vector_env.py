@@ -20,8 +20,9 @@ another grouping of rows draws its world itself. ``train.py rl`` turns it on.
 
 ``parallel_kernels`` (default ``'auto'``) picks how the filter's row kernels run in ``step``: ``'auto'`` measures
 both the parallel and the serial variants and runs the faster (:class:`nav_filters.parallel_governor.
-ParallelGovernor`: the mode that has been faster, the other probed for one step every 32 or more steps and at the
-start, steps with automatic resets left out of the comparison); it is active from
+ParallelGovernor`: the mode that has been faster, the other probed for one step every 32 or more steps, sooner
+after a switch, and at the start; it switches only after two probes in a row beat the current mode; steps with
+automatic resets are left out of the comparison); it is active from
 :data:`nav_filters.kernels.PARALLEL_MIN_BATCH` rows on where numba has more than one thread, and otherwise does
 nothing. ``'always'``: parallel from that many rows (the fixed rule); ``'never'``: serial. The variants give the
 same bits (a row's arithmetic does not depend on the chunking), so the setting changes the wall time only: on a

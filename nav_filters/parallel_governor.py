@@ -53,18 +53,26 @@ class ParallelGovernor:
     """Runs a repeated unit of work with the row kernels parallel or serial, whichever has been faster.
 
     Policy ``'auto'``: each mode keeps the wall times of its last ``window`` comparable units; the governor
-    runs the mode whose median is lower (the *preferred* mode) and every ``probe_every`` units runs one unit in
-    the other mode. The preferred mode changes only when the other mode's median is lower by more than
-    ``margin`` (hysteresis), and a median over ``window`` samples does not move for one slow or fast unit.
+    runs the *preferred* mode and now and then runs one unit in the other mode (a *probe*). The preferred mode
+    changes only on fresh evidence: ``confirmations`` probes in a row, each faster than the preferred mode's
+    median by more than ``margin`` (hysteresis). A median over ``window`` samples does not move for one slow or
+    fast unit, and the other mode's older samples never switch the mode by themselves: where the machine's
+    load changes, they are out of date (measured: on an idle machine a burst of slow parallel steps made the
+    parallel median exceed the serial one of the start, and a rule that compared the two switched to a serial
+    mode that was then twice as slow).
 
     * Start: the first unit in each mode is a warm-up (numba loads each kernel variant from its cache at its
       first call) and is not recorded; then the modes alternate until each has ``start_samples`` samples, and
       the faster one is preferred (parallel until then, the package's default).
-    * Probes: the interval is ``probe_every`` units stretched by the other mode's slowdown (the ratio of the
-      medians, at most ``max_stretch``), which keeps the probes' cost near ``1 / probe_every`` of a unit's time
-      however slow the other mode is. A probe that beats the preferred median by ``margin`` is confirmed by a
-      probe at the next unit (again while they keep winning), so a change of the machine's load switches the
-      mode within a few units of the first winning probe, not within ``window`` probe intervals.
+    * Probes: in steady state the interval is ``probe_every`` units stretched by the other mode's slowdown (the
+      ratio of the medians, at most ``max_stretch``), which keeps the probes' cost near ``1 / probe_every`` of a
+      unit's time however slow the other mode is. A probe that wins is confirmed at the next unit. A probe
+      that loses replaces the other mode's samples (the latest word on it) and doubles the interval up to the
+      steady one. After a switch the first probe of the mode left comes after ``probe_min`` units, so a burst
+      of load that ends soon costs a few units in the slower mode, not a whole interval.
+    * Early probes: where the preferred mode's median rises above the other mode's (older) median by the
+      margin, the other mode is probed at the next unit, so a lasting change of load switches the mode within
+      ``window // 2 + 1 + confirmations`` units.
     * Units marked not comparable (``unit.comparable = False``: a step that also reset episodes, whose time
       holds a world generation) enter neither median; their times are kept apart (:attr:`excluded`). A probe
       that falls on one is repeated at the next unit. Where more than ``2 window`` units in a row are marked so
@@ -93,6 +101,10 @@ class ParallelGovernor:
         Relative hysteresis: the other mode must be faster by this fraction of the preferred median, in [0, 1).
     max_stretch : float, default 8
         Largest stretch of the probe interval, >= 1.
+    probe_min : int, default 4
+        Units from a switch to the first probe of the mode left, >= 1.
+    confirmations : int, default 2
+        Winning probes in a row that switch the mode, >= 1.
     threads : int, optional
         Numba's thread count; default ``numba.get_num_threads()`` (asked only where ``'auto'`` could be active:
         it starts numba's threading layer).
@@ -115,7 +127,7 @@ class ParallelGovernor:
 
     def __init__(self, policy: str = "auto", batch_size: int | None = None, probe_every: int = 32,
                  window: int = 5, start_samples: int = 3, margin: float = 0.05, max_stretch: float = 8.0,
-                 threads: int | None = None, clock=time.perf_counter):
+                 probe_min: int = 4, confirmations: int = 2, threads: int | None = None, clock=time.perf_counter):
         self.policy = check_policy(policy)
         if isinstance(probe_every, bool) or not isinstance(probe_every, int) or probe_every < 2:
             raise ValueError(f"probe_every must be an int >= 2 (units between probes), got {probe_every!r}")
@@ -128,6 +140,13 @@ class ParallelGovernor:
             raise ValueError(f"margin must be in [0, 1) (relative hysteresis), got {margin!r}")
         if not max_stretch >= 1.0:
             raise ValueError(f"max_stretch must be >= 1, got {max_stretch!r}")
+        if isinstance(probe_min, bool) or not isinstance(probe_min, int) or probe_min < 1:
+            raise ValueError(f"probe_min must be an int >= 1 (units to the first probe after a switch), got "
+                             f"{probe_min!r}")
+        if isinstance(confirmations, bool) or not isinstance(confirmations, int) or confirmations < 1:
+            raise ValueError(f"confirmations must be an int >= 1 (winning probes in a row to switch), got "
+                             f"{confirmations!r}")
+        self.probe_min, self.confirmations = probe_min, confirmations
         self.probe_every, self.window, self.start_samples = probe_every, window, start_samples
         self.margin, self.max_stretch, self.clock = float(margin), float(max_stretch), clock
         self.batch_size = batch_size
@@ -142,6 +161,9 @@ class ParallelGovernor:
         self.excluded = {m: deque(maxlen=window) for m in MODES}
         self._warm = set()
         self._until_probe = 0
+        self._gap = probe_every  # the current interval between probes (shortened after a switch, then doubled)
+        self._wins = 0  # probes in a row that beat the preferred mode
+        self._started = False  # the start's samples are in (a lost probe later leaves the other mode one sample)
         self._confirm = False
         self._apart = 0  # consecutive units marked not comparable
         self.units = self.probes = self.switches = 0
@@ -151,7 +173,10 @@ class ParallelGovernor:
         return "serial" if mode == "parallel" else "parallel"
 
     def _starting(self) -> bool:
-        return any(len(self.samples[m]) < self.start_samples for m in MODES)
+        if self._started:
+            return False
+        self._started = all(len(self.samples[m]) >= self.start_samples for m in MODES)
+        return not self._started
 
     def next_mode(self) -> str:
         """The mode the next unit runs in (no side effect)."""
@@ -184,33 +209,51 @@ class ParallelGovernor:
             if not probe and not self._confirm:
                 self._until_probe -= 1  # (a due probe that fell here stays due: the next unit probes)
             return
-        self.samples[mode].append(float(seconds))
         if starting:
-            if not self._starting():  # the start's last sample: the first decision
-                self._decide()
-                self._until_probe = self._interval()
+            self.samples[mode].append(float(seconds))
+            if not self._starting():  # the start's last sample: the first decision, on samples of the same time
+                if self._beats(self._other(self.preferred)):
+                    self._switch()
+                self._gap = self._until_probe = self._interval()
             return
-        if self._decide():
-            self._until_probe = self._interval()
-        elif probe:  # lost: back to the schedule; won without a switch yet: confirm at the next unit
-            self._confirm = seconds < (1.0 - self.margin) * _median(self.samples[self.preferred])
-            if not self._confirm:
-                self._until_probe = self._interval()
-        else:
-            self._until_probe -= 1
+        if probe:
+            self._probed(float(seconds))
+            return
+        self.samples[mode].append(float(seconds))
+        self._until_probe -= 1
+        if self._until_probe > 0 and not self._confirm and self._beats(self._other(mode)):
+            self._until_probe = 0  # the other mode's (older) median is lower now: measure it afresh at once
 
-    def _decide(self) -> bool:
-        """Switch the preferred mode where the other's median is lower by more than the margin; whether it did."""
-        cur, oth = self.preferred, self._other(self.preferred)
-        if _median(self.samples[oth]) >= (1.0 - self.margin) * _median(self.samples[cur]):
-            return False
-        self.preferred = oth
+    def _probed(self, seconds: float) -> None:
+        """A probe's time: it replaces the other mode's older samples where it loses (it is the latest word on that
+        mode); :attr:`confirmations` wins in a row switch the mode; else back to the schedule, its gap doubled."""
+        other = self._other(self.preferred)
+        if seconds < (1.0 - self.margin) * _median(self.samples[self.preferred]):
+            self.samples[other].append(seconds)
+            self._wins += 1
+            self._confirm = self._wins < self.confirmations
+            if not self._confirm:
+                self._switch()
+                self._gap = self._until_probe = min(self.probe_min, self._interval())
+            return
+        self.samples[other].clear()
+        self.samples[other].append(seconds)
+        self._wins, self._confirm = 0, False
+        self._gap = min(2 * self._gap, self._interval())
+        self._until_probe = self._gap
+
+    def _beats(self, mode: str) -> bool:
+        """Whether ``mode``'s median is lower than the other mode's by more than the margin."""
+        return _median(self.samples[mode]) < (1.0 - self.margin) * _median(self.samples[self._other(mode)])
+
+    def _switch(self) -> None:
+        self.preferred = self._other(self.preferred)
         self.switches += 1
-        self._confirm = False
-        return True
+        self._wins, self._confirm = 0, False
 
     def _interval(self) -> int:
-        """Units until the next probe: ``probe_every`` x the other mode's slowdown, clipped to [1, max_stretch]."""
+        """Units between probes in steady state: ``probe_every`` x the other mode's slowdown, clipped to
+        [1, max_stretch]."""
         ratio = _median(self.samples[self._other(self.preferred)]) / max(_median(self.samples[self.preferred]),
                                                                         1e-12)
         return max(1, round(self.probe_every * min(self.max_stretch, max(1.0, ratio))))

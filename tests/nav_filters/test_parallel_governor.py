@@ -206,6 +206,29 @@ def test_a_sustained_faster_probe_switches():
     assert modes[first:first + 4] == ["serial"] * 4  # the probe, two confirmations, then serial as preferred
 
 
+def test_an_old_median_of_the_other_mode_does_not_switch_by_itself():
+    """Serial was measured at 2.0 at the start and is 3.0 now (unknown to the governor); a burst makes parallel
+    2.5 for 6 units. A rule comparing the medians would switch to serial (2.5 > 2.0 / 0.95); the governor probes
+    serial afresh instead, sees 3.0, and stays parallel."""
+    gov, clock = _gov(probe_every=20)
+    _drive(gov, clock, 30, lambda i, m: 1.0 if m == "parallel" else 2.0)
+    modes = _drive(gov, clock, 40, lambda i, m: 3.0 if m == "serial" else (2.5 if 30 <= i < 36 else 1.0))
+    assert gov.switches == 0 and gov.preferred == "parallel"
+    assert 1 <= modes[:10].count("serial") <= 2  # the early probe (and none other inside the burst)
+    assert list(gov.samples["serial"])[-1] == 3.0
+
+
+def test_a_short_burst_costs_a_few_units_not_a_probe_interval():
+    """Parallel 1.0, serial 2.0; parallel 4.0 during units 100-109. The governor switches to serial within the
+    burst and, probing the mode it left after probe_min units (then 2x, 4x, ...), is back on parallel within a
+    dozen units of the burst's end, not one steady interval (20 x 2 = 40 units) later."""
+    gov, clock = _gov(probe_every=20, probe_min=4)
+    modes = _drive(gov, clock, 200, lambda i, m: 2.0 if m == "serial" else (4.0 if 100 <= i < 110 else 1.0))
+    assert "serial" in modes[100:110] and gov.switches == 2 and gov.preferred == "parallel"
+    back = next(i for i in range(110, 200) if modes[i:i + 5] == ["parallel"] * 5)
+    assert back <= 110 + 12
+
+
 @pytest.mark.parametrize("policy, mode", [("always", "parallel"), ("never", "serial")])
 def test_always_and_never_are_fixed_and_measure_nothing(policy, mode):
     def no_clock():
@@ -261,7 +284,8 @@ def test_an_unknown_policy_is_one_clear_error(bad):
 
 @pytest.mark.parametrize("kw, name", [(dict(probe_every=1), "probe_every"), (dict(window=0), "window"),
                                       (dict(start_samples=6), "start_samples"), (dict(margin=1.0), "margin"),
-                                      (dict(max_stretch=0.5), "max_stretch")])
+                                      (dict(max_stretch=0.5), "max_stretch"), (dict(probe_min=0), "probe_min"),
+                                      (dict(confirmations=0), "confirmations")])
 def test_bad_settings_name_the_argument(kw, name):
     with pytest.raises(ValueError, match=f"^{name} must be"):
         ParallelGovernor("auto", threads=2, **kw)
