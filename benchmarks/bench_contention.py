@@ -15,8 +15,8 @@ Cells (``--methods``, default sage-husa, in the env default fused mode, at ``--b
 * ``end to end``: env-steps/s as a training loop pays it, automatic resets included (``bench_envs.
   bench_end_to_end``: ``2 M + 5`` zero-action steps for M epochs per episode after 3 untimed ones; two
   automatic resets inside, each drawing its rows' new worlds; the governor's start and probes inside);
-* ``step-only``: steps inside one episode after 12 untimed ones (``bench_envs.bench_env``; ``auto`` has made
-  its first decision by then).
+* ``step-only``: 30 steps (``--steps``) inside one episode after 12 untimed ones (``bench_envs.bench_env``;
+  ``auto`` has made its first decision by then, and 30 steps hold its probes in their share).
 
 Threading layers and OpenMP's wait policy (numba picks its layer once per process; tbb is not a dependency):
 the cells of ``--policies`` run under numba's default layer (whatever the environment says: ``omp`` where libgomp
@@ -197,7 +197,7 @@ def parse_args(argv=None):
     p.add_argument("--methods", nargs="+", default=["sage-husa"], choices=list(METHOD_ENV))
     p.add_argument("--batch", type=int, default=None, help="rows of the vector env (default 1024; --quick 128)")
     p.add_argument("--episode-s", type=float, default=None, help="episode length [s] (default 60; --quick 20)")
-    p.add_argument("--steps", type=int, default=None, help="timed step-only steps (default 8; --quick 3)")
+    p.add_argument("--steps", type=int, default=None, help="timed step-only steps (default 30; --quick 3)")
     p.add_argument("--scenario", default="noise-burst")
     p.add_argument("--policies", nargs="+", default=list(POLICIES), choices=POLICIES,
                    help="parallel_kernels of the cells under numba's default layer")
@@ -217,7 +217,7 @@ def parse_args(argv=None):
         p.error(f"--competitors must be at least 1, got {args.competitors}")
     args.batch = args.batch or (128 if args.quick else 1024)
     args.episode_s = args.episode_s or (20.0 if args.quick else 60.0)
-    args.steps = args.steps or (3 if args.quick else 8)
+    args.steps = args.steps or (3 if args.quick else 30)
     if args.batch < 64:
         p.error(f"--batch must be at least 64 (PARALLEL_MIN_BATCH: below it every mode is serial), got {args.batch}")
     if 12 + args.steps >= args.episode_s and "step" in args.kinds:
