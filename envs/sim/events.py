@@ -48,10 +48,11 @@ them and checks these constants):
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from .canyon import UrbanCanyon, canyon_visibility
 from .constellation import _check_pair as _pair, _check_real
 from .receiver import _gauss_markov
 
@@ -298,7 +299,7 @@ class UrbanZones:
 
     Inside a zone:
 
-    * **canyon**: the blockage geometry of :class:`~envs.sim.gnss.UrbanCanyon`
+    * **canyon**: the blockage geometry of :class:`~envs.sim.canyon.UrbanCanyon`
       (``canyon``; its ``intervals`` are replaced by the canyon windows); a
       satellite the walls block is lost, or received by reflection (NLOS) with
       the canyon's ``nlos_probability``. A received LOS-geometry satellite is
@@ -329,7 +330,7 @@ class UrbanZones:
     weights : (float, float, float)
         Relative probabilities of canyon, trees, overpass, >= 0, not all zero.
     canyon : UrbanCanyon or None
-        Canyon geometry (None: the :class:`~envs.sim.gnss.UrbanCanyon` defaults).
+        Canyon geometry (None: the :class:`~envs.sim.canyon.UrbanCanyon` defaults).
     segment_s : (float, float)
         Per-satellite segment length range of the NLOS / attenuation draws [s]
         (smartLoc: the mean NLOS-like run at 5 Hz is 1.4 s, a lower bound since
@@ -383,7 +384,6 @@ class UrbanZones:
             _check_real(o, f"weights[{k}]", w, lo=0.0)
         if sum(self.weights) <= 0.0:
             raise ValueError(f"{o}.weights must not all be zero")
-        from .gnss import UrbanCanyon  # the geometry lives beside the receiver model
         if self.canyon is None:
             object.__setattr__(self, "canyon", UrbanCanyon())
         if not isinstance(self.canyon, UrbanCanyon):
@@ -695,9 +695,6 @@ def zone_effects(t, kind, zone_id, windows, el, az, v_e, heading, cfg: UrbanZone
     blocked : (M, S) bool (lost); nlos : (M, S) bool; bias_m : (M, S) [m]; rate_mps : (M, S) [m/s];
     atten_db : (M, S) C/N0 loss [dB] (foliage + NLOS deficit).
     """
-    from dataclasses import replace
-
-    from .gnss_stages import _canyon
     M, S = el.shape
     in_c = (kind == ZONE_CANYON)[:, None]
     in_t = (kind == ZONE_TREES)[:, None]
@@ -718,7 +715,7 @@ def zone_effects(t, kind, zone_id, windows, el, az, v_e, heading, cfg: UrbanZone
     refl = np.zeros((M, S), dtype=bool)
     canyon_iv = tuple((a, b) for a, b, k in windows if k == ZONE_CANYON)
     if canyon_iv and heading is not None:
-        bl, rf, _ = _canyon(t, v_e, heading, el, az, replace(cfg.canyon, intervals=canyon_iv), g_geom)
+        bl, rf, _ = canyon_visibility(t, v_e, heading, el, az, replace(cfg.canyon, intervals=canyon_iv), g_geom)
         blocked |= bl
         refl |= rf
     passes = u_pass[np.maximum(zone_id, 0)] < cfg.overpass_pass_probability           # (M, S)

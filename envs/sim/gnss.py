@@ -69,13 +69,14 @@ from dataclasses import dataclass, fields, replace
 import numpy as np
 
 from . import gnss_stages as stages
+from .canyon import UrbanCanyon, _check_intervals
 from .constellation import Constellation, _check_pair, _check_real
 from .events import Cn0Scatter, NoiseRegimes, RandomBursts, Reacquisition, SigmaMismatch, UrbanZones
 # the receiver's models and the stages' stream indices live in their own modules (re-exported here)
 from .gnss_stages import (_N_SUB, _SUB_BURSTS, _SUB_CANYON, _SUB_CLOCK, _SUB_CN0, _SUB_CODE,  # noqa: F401
                           _SUB_IONO, _SUB_MISMATCH, _SUB_NLOS, _SUB_RATE, _SUB_REGIME, _SUB_REGIME_NLOS, _SUB_SKY,
-                          _SUB_TROPO, _SUB_ZONE_GEOM, _SUB_ZONE_SAT, _SUB_ZONES, GPS_WEEK_S, _canyon,
-                          _entropy_words, _in_intervals, _nlos_bursts, _row_children)
+                          _SUB_TROPO, _SUB_ZONE_GEOM, _SUB_ZONE_SAT, _SUB_ZONES, GPS_WEEK_S,
+                          _entropy_words, _nlos_bursts, _row_children)
 from .receiver import (CN0_JITTER_DB, ClockModel, ReceiverConfig, _check_rngs, _check_times,  # noqa: F401
                        _gauss_markov, iono_obliquity, simulate_clock, tropo_mapping)
 
@@ -84,25 +85,6 @@ __all__ = [
     "GnssData", "simulate_clock", "simulate_gnss", "tropo_mapping", "iono_obliquity", "EVENT_PRESETS",
     "GPS_WEEK_S", "RandomBursts", "SigmaMismatch", "NoiseRegimes", "UrbanZones", "Reacquisition",
 ]
-
-
-# =============================================================================
-# validation helpers
-# =============================================================================
-def _check_intervals(owner: str, name: str, value, with_scale: bool) -> None:
-    """A tuple of (t0_s, t1_s) or (t0_s, t1_s, scale) with t1 >= t0 and scale >= 0."""
-    n = 3 if with_scale else 2
-    if not isinstance(value, tuple):
-        raise ValueError(f"{owner}.{name} must be a tuple of {n}-tuples, got {type(value).__name__}")
-    for k, iv in enumerate(value):
-        if not isinstance(iv, tuple) or len(iv) != n:
-            raise ValueError(f"{owner}.{name}[{k}] must be a {n}-tuple, got {iv!r}")
-        _check_real(owner, f"{name}[{k}].t0_s", iv[0], lo=None)
-        _check_real(owner, f"{name}[{k}].t1_s", iv[1], lo=None)
-        if iv[1] < iv[0]:
-            raise ValueError(f"{owner}.{name}[{k}]: t1 < t0 in {iv!r}")
-        if with_scale:
-            _check_real(owner, f"{name}[{k}].scale", iv[2], lo=0.0)
 
 
 # =============================================================================
@@ -146,63 +128,6 @@ class NlosConfig:
         _check_pair(o, "bias_m", self.bias_m, lo=0.0)
         _check_real(o, "rate_sigma_mps", self.rate_sigma_mps, lo=0.0)
         _check_real(o, "noise_factor", self.noise_factor, lo=1.0)
-
-
-@dataclass(frozen=True)
-class UrbanCanyon:
-    """Street-canyon blockage along the drive.
-
-    The vehicle drives along the middle of a straight street of width ``w``
-    (the street follows the vehicle heading). A wall of height ``h`` at the
-    lateral distance ``w/2`` blocks a satellite at elevation ``el`` and
-    azimuth ``alpha`` relative to the heading when::
-
-        tan(el) < h |sin alpha| / (w / 2)
-
-    (across the street, ``|sin alpha| = 1``: ``el < atan(h / (w/2))``; along
-    the street nothing is blocked). The street is cut into blocks of
-    ``block_length_m`` of driven distance; each block side is lined by a
-    building with probability ``blockage_probability`` (else a gap / cross
-    street) of height ``U(building_height_m)``. A blocked satellite is still
-    tracked, via a reflection off the opposite facade, with probability
-    ``nlos_probability`` per (block, satellite): it is then flagged NLOS with
-    the excess path of a specular reflection off a wall at distance ``w/2``
-    on the other side, ``w cos(el) |sin alpha|`` [m] (the classic two-ray
-    geometry, cf. Groves 2nd ed. ch. 10 on multipath / NLOS), plus the NLOS noise factor of
-    :class:`NlosConfig` (3 if no NLOS bursts are configured).
-
-    Parameters
-    ----------
-    street_width_m : float
-        Street width (facade to facade) [m], > 0.
-    building_height_m : (float, float)
-        Range of building heights [m], 0 <= min <= max.
-    block_length_m : float
-        Driven distance per building block [m], > 0.
-    blockage_probability : float
-        Probability that a block side has a building, in [0, 1].
-    nlos_probability : float
-        Probability that a blocked satellite is received by reflection, in [0, 1].
-    intervals : tuple of (t0_s, t1_s)
-        Time intervals [s since start, half-open] where the canyon applies;
-        empty = the whole run.
-    """
-
-    street_width_m: float = 20.0
-    building_height_m: tuple = (10.0, 40.0)
-    block_length_m: float = 50.0
-    blockage_probability: float = 0.8
-    nlos_probability: float = 0.3
-    intervals: tuple = ()
-
-    def __post_init__(self):
-        o = "UrbanCanyon"
-        _check_real(o, "street_width_m", self.street_width_m, lo=0.0, lo_open=True)
-        _check_pair(o, "building_height_m", self.building_height_m, lo=0.0)
-        _check_real(o, "block_length_m", self.block_length_m, lo=0.0, lo_open=True)
-        _check_real(o, "blockage_probability", self.blockage_probability, lo=0.0, hi=1.0)
-        _check_real(o, "nlos_probability", self.nlos_probability, lo=0.0, hi=1.0)
-        _check_intervals(o, "intervals", self.intervals, with_scale=False)
 
 
 @dataclass(frozen=True)

@@ -27,6 +27,7 @@ from earth.ranging import range_and_rate
 from earth.wgs84 import C_LIGHT, OMEGA_IE, ecef_to_geodetic
 
 from . import events as ev
+from .canyon import canyon_visibility, in_intervals
 from .constellation import Constellation
 from .receiver import _MIN_EL_SIGMA, CN0_JITTER_DB, _gauss_markov, iono_obliquity, simulate_clock, tropo_mapping
 from .rng import ChildStreams
@@ -47,15 +48,6 @@ _N_SUB = 17
 _CHUNK_ELEMS = 50_000
 """Satellite-epochs per vectorized geometry block and tracked channels per ranging block (cache-sized; results
 do not depend on it)."""
-
-
-def _in_intervals(t: np.ndarray, intervals) -> np.ndarray:
-    """Boolean (M,) : ``t`` lies in any half-open interval ``[t0, t1)``."""
-    out = np.zeros(t.shape, dtype=bool)
-    for iv in intervals:
-        out |= (t >= iv[0]) & (t < iv[1])
-    return out
-
 
 
 def _row_children(rng: np.random.Generator) -> ChildStreams:
@@ -207,39 +199,6 @@ def _nlos_bursts(t: np.ndarray, n_sats: int, cfg: NlosConfig, g: np.random.Gener
     bias = np.where(active, bs.ravel()[k], 0.0)
     rate = np.where(active, rs.ravel()[k], 0.0)
     return active, bias, rate
-
-
-def _canyon(t, v_e, heading, el, az, cfg: UrbanCanyon, g: np.random.Generator):
-    """Street-canyon visibility of one row (see :class:`~envs.sim.gnss.UrbanCanyon`).
-
-    Parameters
-    ----------
-    t : (M,) [s]; v_e : (M, 3) [m/s]; heading : (M,) [rad]; el, az : (M, S) [rad].
-
-    Returns
-    -------
-    blocked : (M, S) bool (not received at all); reflected : (M, S) bool
-    (received as NLOS); excess_m : (M, S) reflection excess path [m].
-    """
-    M, S = el.shape
-    speed = np.linalg.norm(v_e, axis=-1)
-    dist = np.concatenate([[0.0], np.cumsum(0.5 * (speed[1:] + speed[:-1]) * np.diff(t))])
-    blk = np.floor(dist / cfg.block_length_m).astype(np.int64)
-    K = int(blk.max()) + 1
-    heights = g.uniform(cfg.building_height_m[0], cfg.building_height_m[1], size=(K, 2))
-    present = g.random((K, 2)) < cfg.blockage_probability
-    reflect = g.random((K, S)) < cfg.nlos_probability
-    h = np.where(present, heights, 0.0)[blk]                # (M, 2): [left, right]
-    sa = np.sin(az - heading[:, None])                      # > 0: right side
-    h_side = np.where(sa > 0.0, h[:, 1:2], h[:, 0:1])       # (M, S)
-    half_w = 0.5 * cfg.street_width_m
-    under = np.tan(np.clip(el, -1.5, 1.5)) * half_w < h_side * np.abs(sa)
-    if cfg.intervals:
-        under &= _in_intervals(t, cfg.intervals)[:, None]
-    refl = under & reflect[blk]
-    excess = np.zeros((M, S))
-    excess[refl] = cfg.street_width_m * np.cos(el[refl]) * np.abs(sa[refl])   # the reflected few only
-    return under & ~refl, refl, excess
 
 
 # =============================================================================
@@ -394,7 +353,7 @@ def sky_geometry(t, r_e, constellation: Constellation, subs, t0_gps=None) -> Sky
 
 def canyon_and_bursts(t, v_e, heading, sky: Sky, mask_deg: float, events, subs) -> SatelliteEvents:
     """Stage 2: visibility above the elevation mask, the street canyon's blockage and reflections and the NLOS
-    bursts (:class:`~envs.sim.gnss.UrbanCanyon`, :class:`~envs.sim.gnss.NlosConfig`), per row from its canyon and
+    bursts (:class:`~envs.sim.canyon.UrbanCanyon`, :class:`~envs.sim.gnss.NlosConfig`), per row from its canyon and
     NLOS streams; the other fields start neutral (multipliers 1, no bits)."""
     B, M, S = sky.el.shape
     visible = sky.el >= math.radians(mask_deg)
@@ -403,7 +362,7 @@ def canyon_and_bursts(t, v_e, heading, sky: Sky, mask_deg: float, events, subs) 
     nlos_rate_sat = np.zeros((B, M, S))
     if events.canyon is not None:
         for i in range(B):
-            blocked, refl, excess = _canyon(t, v_e[i], heading[i], sky.el[i], sky.az[i], events.canyon,
+            blocked, refl, excess = canyon_visibility(t, v_e[i], heading[i], sky.el[i], sky.az[i], events.canyon,
                                             subs[i][_SUB_CANYON])
             visible[i] &= ~blocked
             nlos_sat[i] |= refl
@@ -485,14 +444,14 @@ def scheduled_events(t, sat: SatelliteEvents, events) -> None:
     canyon intervals, and the re-acquisition transient (after every blockage is known)."""
     M = t.size
     if events.outages:
-        in_out = _in_intervals(t, events.outages)
+        in_out = in_intervals(t, events.outages)
         sat.visible &= ~in_out[None, :, None]
         sat.bits |= np.where(in_out, ev.OUTAGE, 0).astype(np.uint16)[None]
     for iv in events.noise_scale:
         if iv[2] != 1.0:
             sat.bits |= np.where((t >= iv[0]) & (t < iv[1]), ev.NOISE, 0).astype(np.uint16)[None]
     if events.canyon is not None:
-        in_c = _in_intervals(t, events.canyon.intervals) if events.canyon.intervals else np.ones(M, bool)
+        in_c = in_intervals(t, events.canyon.intervals) if events.canyon.intervals else np.ones(M, bool)
         sat.bits |= np.where(in_c, ev.NLOS_ZONE, 0).astype(np.uint16)[None]
     if events.reacquisition is not None:
         sat.reacq = ev.reacquisition_multiplier(t, sat.visible, events.reacquisition)

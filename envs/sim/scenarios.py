@@ -51,7 +51,7 @@ parameters and sources:
 * ``urban-transition``: :class:`~envs.sim.events.UrbanZones` defaults: open
   sky U(20, 60) s, then a zone (canyon 45 %, U(20, 60) s; tree cover 35 %,
   U(10, 40) s; overpass 20 %, U(2, 6) s), repeated (about 4-6 zones per 300
-  s). Canyon geometry :class:`~envs.sim.gnss.UrbanCanyon` defaults (20 m
+  s). Canyon geometry :class:`~envs.sim.canyon.UrbanCanyon` defaults (20 m
   street, 10-40 m buildings); inside zones NLOS probability ``0.88 - 0.71
   sin el``, bias log-normal (median ``16.4 m / sin el``, log-sigma 0.70, 92 %
   positive) and LOS C/N0 ``39.2 + 6.2 sin el`` dB-Hz with an 11 dB NLOS

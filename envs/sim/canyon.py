@@ -1,0 +1,125 @@
+"""The street canyon: its configuration (:class:`UrbanCanyon`) and its blockage and reflection geometry along one
+row's drive (:func:`canyon_visibility`), used by the GNSS stages (:mod:`envs.sim.gnss_stages`) and by the urban
+zones' own canyons (:mod:`envs.sim.events`). It imports neither, so that the world's GNSS modules import one way:
+``canyon`` <- ``events`` <- ``gnss_stages`` <- ``gnss``."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .constellation import _check_pair, _check_real
+
+
+def _check_intervals(owner: str, name: str, value, with_scale: bool) -> None:
+    """A tuple of (t0_s, t1_s) or (t0_s, t1_s, scale) with t1 >= t0 and scale >= 0."""
+    n = 3 if with_scale else 2
+    if not isinstance(value, tuple):
+        raise ValueError(f"{owner}.{name} must be a tuple of {n}-tuples, got {type(value).__name__}")
+    for k, iv in enumerate(value):
+        if not isinstance(iv, tuple) or len(iv) != n:
+            raise ValueError(f"{owner}.{name}[{k}] must be a {n}-tuple, got {iv!r}")
+        _check_real(owner, f"{name}[{k}].t0_s", iv[0], lo=None)
+        _check_real(owner, f"{name}[{k}].t1_s", iv[1], lo=None)
+        if iv[1] < iv[0]:
+            raise ValueError(f"{owner}.{name}[{k}]: t1 < t0 in {iv!r}")
+        if with_scale:
+            _check_real(owner, f"{name}[{k}].scale", iv[2], lo=0.0)
+
+
+def in_intervals(t: np.ndarray, intervals) -> np.ndarray:
+    """Boolean (M,) : ``t`` lies in any half-open interval ``[t0, t1)``."""
+    out = np.zeros(t.shape, dtype=bool)
+    for iv in intervals:
+        out |= (t >= iv[0]) & (t < iv[1])
+    return out
+
+
+@dataclass(frozen=True)
+class UrbanCanyon:
+    """Street-canyon blockage along the drive.
+
+    The vehicle drives along the middle of a straight street of width ``w``
+    (the street follows the vehicle heading). A wall of height ``h`` at the
+    lateral distance ``w/2`` blocks a satellite at elevation ``el`` and
+    azimuth ``alpha`` relative to the heading when::
+
+        tan(el) < h |sin alpha| / (w / 2)
+
+    (across the street, ``|sin alpha| = 1``: ``el < atan(h / (w/2))``; along
+    the street nothing is blocked). The street is cut into blocks of
+    ``block_length_m`` of driven distance; each block side is lined by a
+    building with probability ``blockage_probability`` (else a gap / cross
+    street) of height ``U(building_height_m)``. A blocked satellite is still
+    tracked, via a reflection off the opposite facade, with probability
+    ``nlos_probability`` per (block, satellite): it is then flagged NLOS with
+    the excess path of a specular reflection off a wall at distance ``w/2``
+    on the other side, ``w cos(el) |sin alpha|`` [m] (the classic two-ray
+    geometry, cf. Groves 2nd ed. ch. 10 on multipath / NLOS), plus the NLOS noise factor of
+    :class:`~envs.sim.gnss.NlosConfig` (3 if no NLOS bursts are configured).
+
+    Parameters
+    ----------
+    street_width_m : float
+        Street width (facade to facade) [m], > 0.
+    building_height_m : (float, float)
+        Range of building heights [m], 0 <= min <= max.
+    block_length_m : float
+        Driven distance per building block [m], > 0.
+    blockage_probability : float
+        Probability that a block side has a building, in [0, 1].
+    nlos_probability : float
+        Probability that a blocked satellite is received by reflection, in [0, 1].
+    intervals : tuple of (t0_s, t1_s)
+        Time intervals [s since start, half-open] where the canyon applies;
+        empty = the whole run.
+    """
+
+    street_width_m: float = 20.0
+    building_height_m: tuple = (10.0, 40.0)
+    block_length_m: float = 50.0
+    blockage_probability: float = 0.8
+    nlos_probability: float = 0.3
+    intervals: tuple = ()
+
+    def __post_init__(self):
+        o = "UrbanCanyon"
+        _check_real(o, "street_width_m", self.street_width_m, lo=0.0, lo_open=True)
+        _check_pair(o, "building_height_m", self.building_height_m, lo=0.0)
+        _check_real(o, "block_length_m", self.block_length_m, lo=0.0, lo_open=True)
+        _check_real(o, "blockage_probability", self.blockage_probability, lo=0.0, hi=1.0)
+        _check_real(o, "nlos_probability", self.nlos_probability, lo=0.0, hi=1.0)
+        _check_intervals(o, "intervals", self.intervals, with_scale=False)
+
+
+def canyon_visibility(t, v_e, heading, el, az, cfg: UrbanCanyon, g: np.random.Generator):
+    """Street-canyon visibility of one row (see :class:`UrbanCanyon`).
+
+    Parameters
+    ----------
+    t : (M,) [s]; v_e : (M, 3) [m/s]; heading : (M,) [rad]; el, az : (M, S) [rad].
+
+    Returns
+    -------
+    blocked : (M, S) bool (not received at all); reflected : (M, S) bool
+    (received as NLOS); excess_m : (M, S) reflection excess path [m].
+    """
+    M, S = el.shape
+    speed = np.linalg.norm(v_e, axis=-1)
+    dist = np.concatenate([[0.0], np.cumsum(0.5 * (speed[1:] + speed[:-1]) * np.diff(t))])
+    blk = np.floor(dist / cfg.block_length_m).astype(np.int64)
+    K = int(blk.max()) + 1
+    heights = g.uniform(cfg.building_height_m[0], cfg.building_height_m[1], size=(K, 2))
+    present = g.random((K, 2)) < cfg.blockage_probability
+    reflect = g.random((K, S)) < cfg.nlos_probability
+    h = np.where(present, heights, 0.0)[blk]                # (M, 2): [left, right]
+    sa = np.sin(az - heading[:, None])                      # > 0: right side
+    h_side = np.where(sa > 0.0, h[:, 1:2], h[:, 0:1])       # (M, S)
+    half_w = 0.5 * cfg.street_width_m
+    under = np.tan(np.clip(el, -1.5, 1.5)) * half_w < h_side * np.abs(sa)
+    if cfg.intervals:
+        under &= in_intervals(t, cfg.intervals)[:, None]
+    refl = under & reflect[blk]
+    excess = np.zeros((M, S))
+    excess[refl] = cfg.street_width_m * np.cos(el[refl]) * np.abs(sa[refl])   # the reflected few only
+    return under & ~refl, refl, excess
