@@ -42,7 +42,7 @@ import numpy as np  # noqa: E402
 from envs.episodes import navigator_for  # noqa: E402
 from envs.sim.scenarios import get_scenario  # noqa: E402
 from envs.sim.world import generate_world  # noqa: E402
-from nav_filters import kernels  # noqa: E402
+from nav_filters import propagation  # noqa: E402
 from nav_filters.registry import FORMS  # noqa: E402
 
 MODES = ("per-sample", "epoch", "onestep")
@@ -123,12 +123,12 @@ def ins_floor_ms(world, reps=5):
     args = lambda: (nav.r.copy(), nav.v.copy(), nav.C.copy(), nav.bg, nav.ba, nav.clk.copy(), nav.drift,  # noqa: E731
                     np.ascontiguousarray(f), np.ascontiguousarray(w), 0.01, *mats, nav._qg, nav._qa, nav._qdiag,
                     nav._kg, nav._ka, nav._Phi_acc.copy(), nav._Q_acc.copy(), False, False, empty)
-    kernels.propagate_epoch(*args())
+    propagation.propagate_epoch(*args())
     best = np.inf
     for _ in range(reps):
         a = args()
         t0 = time.perf_counter()
-        kernels.propagate_epoch(*a)
+        propagation.propagate_epoch(*a)
         best = min(best, time.perf_counter() - t0)
     return 1e3 * best
 

@@ -1,4 +1,4 @@
-"""The averaged-dynamics epoch propagation (``integrate=True`` of :func:`~nav_filters.kernels.propagate_epoch`)
+"""The averaged-dynamics epoch propagation (``integrate=True`` of :func:`~nav_filters.propagation.propagate_epoch`)
 with the batch rows in SIMD lanes.
 
 The row kernel (:func:`~nav_filters.kernels._propagate_epoch`) advances one row at a time through its IMU samples:
@@ -46,7 +46,7 @@ _NQ = 76
 
 def _propagate_lanes(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, Cz, qg, qa, qdiag, kg, ka,
                      A_acc, S_acc, orthonormalize, start, nchunk):
-    """:func:`~nav_filters.kernels.propagate_epoch` with ``integrate=True`` (arguments as there), in blocks of
+    """:func:`~nav_filters.propagation.propagate_epoch` with ``integrate=True`` (arguments as there), in blocks of
     :data:`LANES` rows; the blocks run in ``nchunk`` chunks (parallel in the parallel variant)."""
     B = f_raw.shape[0]
     n = f_raw.shape[1]

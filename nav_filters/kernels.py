@@ -5,7 +5,7 @@ covariance check, the filter forms and the adaptive laws' residuals.
 The per-IMU-sample work of a tightly coupled navigator (bias compensation,
 strapdown mechanization, error-model transition) runs 100 times per GNSS epoch
 and cannot be made fast with numpy calls (each costs ~1 us of overhead, and a
-step needs dozens). :func:`propagate_epoch` does it in one compiled call,
+step needs dozens). :func:`nav_filters.propagation.propagate_epoch` does it in one compiled call,
 parallel over the batch rows.
 
 It implements *the same equations* as the numpy reference functions, which
@@ -134,7 +134,7 @@ def _mechanize_sample(r0, r1, r2, v0, v1, v2, c00, c01, c02, c10, c11, c12, c20,
     Position ``r``, velocity ``v``, attitude ``C`` (row-major), the bias-compensated specific force ``f``
     [m/s^2], the rotation increment ``d = w h`` [rad] with ``rot = (th2, ca, cb, cc)``: ``th2 = |d|^2`` and its
     coefficients (:func:`_small_angle` or :func:`_large_angle`); ``Av``, ``Au``, ``Ag``, ``Cz`` the (3, 3)
-    matrices of :func:`propagate_epoch` as row-major 9-tuples (:func:`_tuple9`: constants in registers, no loads
+    matrices of :func:`~nav_filters.propagation.propagate_epoch` as row-major 9-tuples (:func:`_tuple9`: constants in registers, no loads
     that a store might alias). Returns the new ``(r, v, C)`` as 15 scalars. Scalars in and out, no branch but the
     loop-invariant ``orthonormalize``, so a loop over rows of it vectorizes (:mod:`nav_filters.imu_lanes`). At
     most 30 arguments: CPython passes more as ``*args``, which numba's inlining does not take."""
@@ -445,25 +445,6 @@ def padded_width(n):
     columns is most of the loop; over the padded width there is none. The padding stays zero, so every kept entry
     is the same sum in the same order (used by the fused kf update, the averaged series, the per-satellite R law)."""
     return (n + 3) // 4 * 4
-
-
-def propagate_epoch(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, Cz, qg, qa, qdiag, kg, ka,
-                    Phi_acc, Q_acc, exact, orthonormalize, nz, integrate=False, start=False):
-    """Compiled epoch propagation (see :func:`_propagate_epoch`); parallel over rows for B >= 64.
-
-    ``integrate``: the averaged-dynamics mode (module docstring), :func:`nav_filters.imu_lanes.propagate_lanes`:
-    ``Phi_acc`` accumulates ``sum_i F_i h`` (zero outside ``nz``) instead of the transition, and ``Q_acc`` the
-    summed process noise (``exact`` must then be False; ``start`` sets both to 0 first)."""
-    if integrate and exact:
-        raise ValueError("propagate_epoch: integrate (averaged dynamics) needs exact=False")
-    if integrate:
-        from .imu_lanes import propagate_lanes  # (imu_lanes builds on this module's helpers)
-        propagate_lanes(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, Cz, qg, qa, qdiag, kg, ka,
-                        Phi_acc, Q_acc, orthonormalize, start)
-        return
-    kern, nchunk = row_kernel(_serial, _parallel, f_raw.shape[0])
-    kern(r, v, C, bg, ba, clk, drift, f_raw, w_raw, h, Av, Au, Ag, Cz, qg, qa, qdiag, kg, ka,
-         Phi_acc, Q_acc, exact, orthonormalize, nz, bool(start), nchunk)
 
 
 # ----------------------------------------------------------------------------- small dense helpers

@@ -64,8 +64,9 @@ from .ins import _earth_rate_matrices_np, apply_correction
 from .averaged_transition import SERIES_ORDER, averaged_transition_into, _serial as _averaged_serial
 from .forms.base import _prepare_serial
 from .forms.kf import _prior_serial
-from .kernels import (F_NONZERO, PARALLEL_MIN_BATCH, cholesky_inplace, propagate_epoch, row_kernel,
+from .kernels import (F_NONZERO, PARALLEL_MIN_BATCH, cholesky_inplace, row_kernel,
                       serial_and_parallel)
+from .propagation import propagate_epoch
 from .measurements import (_dop_kernel, _innovations_serial, _measurement_keys_kernel, dop, gnss_innovations,
                            measurement_keys)
 from .rows import check_row_pairs, copy_rows_generic

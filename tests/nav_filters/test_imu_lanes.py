@@ -10,6 +10,7 @@ import pytest
 
 from nav_filters import imu_lanes as IL
 from nav_filters import kernels as K
+from nav_filters.propagation import propagate_epoch
 from nav_filters.ins import _earth_rate_matrices_np
 
 
@@ -33,8 +34,8 @@ def _run(inp, h, integrate, orthonormalize=False, start=True, acc=None):
     qg, qa = np.array([1e-8, 2e-8, 3e-8]), np.array([1e-4, 1e-4, 2e-4])
     qd = np.r_[qg, qa, np.zeros(3), np.full(6, 1e-12), 0.01, 0.04]
     A, S = (np.full((B, 17, 17), np.nan), np.full((B, 17, 17), np.nan)) if acc is None else acc
-    K.propagate_epoch(r, v, C, inp["bg"], inp["ba"], clk, inp["drift"], inp["f"], inp["w"], h, P, QH, Qh, Cz,
-                      qg, qa, qd, -1 / 300, -1 / 600, A, S, False, orthonormalize, K.F_NONZERO, integrate, start)
+    propagate_epoch(r, v, C, inp["bg"], inp["ba"], clk, inp["drift"], inp["f"], inp["w"], h, P, QH, Qh, Cz,
+                    qg, qa, qd, -1 / 300, -1 / 600, A, S, False, orthonormalize, K.F_NONZERO, integrate, start)
     return r, v, C, clk, A, S
 
 

@@ -4,6 +4,7 @@ import pytest
 
 from earth.wgs84 import gravity_ecef
 from nav_filters import kernels as K
+from nav_filters.propagation import propagate_epoch
 from nav_filters.error_model import system_matrix
 from nav_filters.ins import _earth_rate_matrices_np, mechanize
 
@@ -26,8 +27,8 @@ def _run_kernel(st, bg, ba, f, w, h, qg, qa, qd, kg, ka, exact, integrate=False)
     Cz, P, QH, Qh = _earth_rate_matrices_np(h)
     Phi = np.zeros((B, 17, 17)) if integrate else np.broadcast_to(np.eye(17), (B, 17, 17)).copy()
     Q = np.zeros((B, 17, 17))
-    K.propagate_epoch(r, v, C, bg, ba, clk, drift, f, w, h, P, QH, Qh, Cz, qg, qa, qd, kg, ka, Phi, Q, exact,
-                      False, K.F_NONZERO, integrate)
+    propagate_epoch(r, v, C, bg, ba, clk, drift, f, w, h, P, QH, Qh, Cz, qg, qa, qd, kg, ka, Phi, Q, exact,
+                    False, K.F_NONZERO, integrate)
     return r, v, C, clk, Phi, Q
 
 
