@@ -22,6 +22,9 @@ one figure, or ``--cpu``: the process CPU time (all threads) instead of the wall
 with the other jobs' load (a stage that runs rows on threads counts their CPU time, not the wall time they
 overlap in).
 
+``--cores`` adds, per cell, the cores busy in the world and in each stage: its process CPU time (all threads)
+over its wall time, both read around the same calls (1.00: one core throughout; on 2 cores, 2.00 at most).
+
 ``--draw-floor`` adds, per cell, the cost of the IMU stage's random draws alone (:func:`draw_floor`): the
 normal variates it draws, counted on the world's own streams, drawn again by numpy one row per thread. A stage
 that keeps the episodes bit for bit pays at least that, whatever else it speeds up.
@@ -100,33 +103,45 @@ def _make_world(scenario, seeds, duration_s, dtype):
     return generate_world(get_scenario(scenario, duration_s=duration_s), seeds, dtype=dtype)
 
 
-def bench_cell(scenario, B, duration_s, reps, dtype="float64", cpu=False):
+def bench_cell(scenario, B, duration_s, reps, dtype="float64", cpu=False, cores=False):
     """Median wall time (``cpu``: process CPU time) per row [s] of the world and of each stage over ``reps`` draws
     of B rows, and N.
 
     Returns ``{"total": s, "<stage>": s or None, ..., "rest": s, "n": N}`` (per row; each stage the median of its
-    own times, None where this tree lacks it; ``rest`` the median of the per-draw remainders).
+    own times, None where this tree lacks it; ``rest`` the median of the per-draw remainders). ``cores``: also
+    ``"cores": {"total" or stage: cores busy}``, the stage's process CPU time (all threads) over its wall time,
+    both clocks read around the same calls of the same draws (1: one core; 2: two cores throughout).
     """
     acc = dict.fromkeys(_WRAPPED, 0.0)
+    acc_cpu = dict.fromkeys(_WRAPPED, 0.0)
     clock = time.process_time if cpu else time.perf_counter
     found = _install_timers(acc, clock)
+    if cores:
+        cpu, clock = False, time.perf_counter
+        _install_timers(acc_cpu, time.process_time)  # around the wall timers: the same calls
     w = _make_world(scenario, list(range(B)), duration_s, np.dtype(dtype))  # untimed: loads compiled kernels
     n = w.truth.t.shape[0]
     del w
-    rows = []
+    rows, cpu_rows = [], []
     for r in range(reps):
         for k in acc:
-            acc[k] = 0.0
+            acc[k] = acc_cpu[k] = 0.0
         seeds = list(range((r + 1) * B, (r + 2) * B))
-        t0 = clock()
+        t0, c0 = clock(), time.process_time()
         _make_world(scenario, seeds, duration_s, np.dtype(dtype))
-        total = clock() - t0
+        total, total_cpu = clock() - t0, time.process_time() - c0
         rows.append((total, *(acc[k] for k in _WRAPPED), total - sum(acc.values())))
+        cpu_rows.append((total_cpu, *(acc_cpu[k] for k in _WRAPPED), total_cpu - sum(acc_cpu.values())))
     med = np.median(np.array(rows), axis=0) / B
     out = dict(zip(("total",) + STAGES, map(float, med)), n=n)
+    if cores:
+        med_cpu = np.median(np.array(cpu_rows), axis=0) / B
+        out["cores"] = {k: (float(c / w) if w > 0 else None) for k, c, w in zip(("total",) + STAGES, med_cpu, med)}
     for stage in _WRAPPED:
         if stage not in found:
             out[stage] = None
+            if cores:
+                out["cores"][stage] = None
     return out
 
 
@@ -243,6 +258,9 @@ def main(argv=None):
                    help="also run every cell in the source tree DIR, alternately in fresh processes")
     p.add_argument("--rounds", type=int, default=1, help="alternating rounds per cell with --compare (median)")
     p.add_argument("--cpu", action="store_true", help="process CPU time (all threads) instead of wall time")
+    p.add_argument("--cores", action="store_true",
+                   help="also print, per cell, the cores busy in each stage (its CPU time over its wall time, "
+                        "from the same draws): where the world leaves a core idle")
     p.add_argument("--draw-floor", action="store_true",
                    help="also print, per cell, what the IMU stage's normal draws alone cost (draw_floor): the "
                         "bound of any bit-identical IMU stage")
@@ -276,9 +294,13 @@ def main(argv=None):
                 print(f"{scen:14s} {B:4d} {'Msa/s':10s} {1e-6 * rb['n'] / rb['total']:14.3f} "
                       f"{1e-6 * ra['n'] / ra['total']:8.3f} {rb['total'] / ra['total']:8.2f}x", flush=True)
             else:
-                r = bench_cell(*cell)
+                r = bench_cell(*cell, cores=args.cores and not args.cpu)
                 parts = " ".join(_with_share(r, s) for s in STAGES)
                 print(f"{scen:14s} {B:4d} {1e3 * r['total']:8.3f} {r['n'] / r['total']:11.3g} {parts}", flush=True)
+                if "cores" in r:
+                    c = r["cores"]
+                    print(f"{scen:14s} {B:4d} {'cores busy':>8s} {c['total']:11.2f} "
+                          + " ".join(f"{'-' if c[s] is None else f'{c[s]:.2f}':>16s}" for s in STAGES), flush=True)
             if args.draw_floor:
                 f = draw_floor(scen, B, args.duration_s, args.dtype)
                 print(f"{scen:14s} {B:4d} draw floor: {f['normals_per_sample']:.1f} normals per IMU sample; "

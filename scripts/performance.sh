@@ -27,8 +27,8 @@ else
     "benchmarks/bench_envs.py --headline-only --methods sage-husa stkf svd-akf satellite-r --e2e-batches 1 1024"
     # step time of the robust measurement screens against kf
     "benchmarks/bench_robust.py --batches 1 1024 --steps 20"
-    # world generation per row (what a reset pays), by stage
-    "benchmarks/bench_worlds.py --batches 1 1024"
+    # world generation per row (what a reset pays), by stage, with the cores busy in each
+    "benchmarks/bench_worlds.py --batches 1 1024 --cores"
   )
 fi
 

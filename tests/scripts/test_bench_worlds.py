@@ -1,8 +1,9 @@
-"""benchmarks/bench_worlds.py --draw-floor: the IMU's normal draws counted on the world's own streams."""
+"""benchmarks/bench_worlds.py: --draw-floor (the IMU's normal draws counted on the world's own streams) and --cores."""
 import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
 
@@ -24,3 +25,39 @@ def test_counted_draws_leave_the_world_unchanged_and_match_the_noise_model():
     assert count >= 12 * n * B
     f = bw.draw_floor(scen, B, dur, reps=1)
     assert f["normals_per_sample"] >= 12 and f["ms_per_row"] > 0 and f["threads"] >= 1
+
+
+def test_cores_are_each_stages_cpu_time_over_its_wall_time(monkeypatch):
+    """``--cores`` on fake clocks: a stage that spends 1 s wall and 2 s CPU per call is 2.00 cores busy; the rest of
+    the world (1 s wall, 1 s CPU per draw) is 1.00; the world's total is (1 + 2) / (1 + 1) = 1.50 cores."""
+    import types
+
+    import bench_worlds as bw
+
+    clocks = {"wall": 0.0, "cpu": 0.0}
+    fake_time = types.SimpleNamespace(perf_counter=lambda: clocks["wall"], process_time=lambda: clocks["cpu"])
+    stage_mod = types.ModuleType("fake_stage_mod")
+
+    def imu_stage():
+        clocks["wall"] += 1.0
+        clocks["cpu"] += 2.0
+
+    stage_mod.simulate_imu = imu_stage
+    monkeypatch.setitem(sys.modules, "fake_stage_mod", stage_mod)
+    # every stage of the real table, all but imu in a module that does not exist (a tree that lacks them)
+    monkeypatch.setattr(bw, "_WRAPPED", {s: ((("fake_stage_mod", "simulate_imu"),) if s == "imu" else
+                                             (("no_such_module_navgym", "f"),)) for s in bw._WRAPPED})
+    monkeypatch.setattr(bw, "time", fake_time)
+
+    def fake_world(scenario, seeds, duration_s, dtype):
+        stage_mod.simulate_imu()  # looked up at call time: the wrapped stage
+        clocks["wall"] += 1.0
+        clocks["cpu"] += 1.0
+        return types.SimpleNamespace(truth=types.SimpleNamespace(t=np.zeros(11)))
+
+    monkeypatch.setattr(bw, "_make_world", fake_world)
+    r = bw.bench_cell("x", 1, 0.1, reps=3, cores=True)
+    assert r["cores"]["imu"] == pytest.approx(2.0) and r["cores"]["rest"] == pytest.approx(1.0)
+    assert r["cores"]["total"] == pytest.approx(1.5)
+    assert r["imu"] == pytest.approx(1.0) and r["total"] == pytest.approx(2.0)  # wall seconds per row
+    assert r["trajectory"] is None and r["cores"]["trajectory"] is None  # a stage this "tree" lacks
