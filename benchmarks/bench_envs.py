@@ -6,8 +6,8 @@ mechanization + covariance accumulation) + one tightly coupled update + feedback
 Prints, in one run:
 
 * the headline: **end to end** env-steps/s, what a training loop pays (:func:`bench_end_to_end`: zero actions,
-  ``2 M + 5`` steps for M epochs per episode, so two automatic resets fall inside the timed steps, each drawing
-  its rows' new worlds; no prefetch process), beside the step-only figure of the same cell and the resets'
+  ``k M + 5`` steps for M epochs per episode, so k automatic resets fall inside the timed steps, each drawing
+  its rows' new worlds, k = 2 from B = 20 on and 40 at B = 1 (:func:`e2e_episodes`); no prefetch process), beside the step-only figure of the same cell and the resets'
   share of the end-to-end time, at B = 1 and 1024 (``--e2e-batches``), in the env default (fused) mode; and
   what the CPU allows: the resets' share of the CPU time, the cores busy on average, and the bound of
   :func:`cpu_bound` (the e2e rate if that CPU work kept every usable core busy);
@@ -182,6 +182,18 @@ def bench_env(method, B, steps, episode_s, scenario, transition="exact", warmup=
     return t_reset, rate, 1e3 * dc / steps
 
 
+E2E_MIN_ROW_EPISODES = 40
+"""Fewest row-episodes (B x episodes) one end-to-end cell times. At B = 1 two episodes take ~0.1 s, where one pause
+halves the figure. Seen: a process's first automatic reset took 70 ms instead of 10 (55 ms of it inside an
+``isinstance`` check against an ABC, in one process of several); the B = 1 cells then read 740-1090 env-steps/s
+against 2200-2500. Over 40 episodes such a pause is a few percent, as in a long run."""
+
+
+def e2e_episodes(B: int) -> int:
+    """Episodes an end-to-end cell times at B rows: 2, or enough for :data:`E2E_MIN_ROW_EPISODES` row-episodes."""
+    return max(2, -(-E2E_MIN_ROW_EPISODES // B))
+
+
 E2E_WARMUP_STEPS = 3
 """Untimed steps of :func:`bench_end_to_end` after the first reset: the compiled step kernels load from numba's cache."""
 
@@ -191,7 +203,8 @@ def bench_end_to_end(method, B, episode_s, scenario, transition="fused", steps=N
     """End-to-end env-steps/s as a training loop pays it: resets included, no prefetch.
 
     After ``reset(seed=0)`` and :data:`E2E_WARMUP_STEPS` untimed steps, ``steps`` steps with zero actions are
-    timed (default ``2 M + 5`` for M epochs per episode: two automatic resets fall inside, each drawing its rows'
+    timed (default ``k M + 5`` for M epochs per episode, k = :func:`e2e_episodes`: k automatic resets fall inside,
+    each drawing its rows'
     new worlds; the single env, B = 1, is reset by the loop when its episode ends, as a user's loop does).
     ``env_kwargs``: more env arguments; ``before_close(env)`` is called after the timed steps.
 
@@ -202,7 +215,7 @@ def bench_end_to_end(method, B, episode_s, scenario, transition="fused", steps=N
     env.reset(seed=0)
     core = _core(env)
     M = core.M
-    n = steps or 2 * M + 5
+    n = steps or e2e_episodes(B) * M + 5
     zero = np.zeros(env.action_space.shape, np.float32)
     for _ in range(E2E_WARMUP_STEPS):
         env.step(zero)

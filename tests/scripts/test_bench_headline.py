@@ -31,3 +31,8 @@ def test_headline_prints_the_cpu_columns_from_the_cells(monkeypatch, capsys):
     assert row[1:6] == ["1024", "8000", "30000", "60%", "50%"]
     # cores busy: 0.160 CPU s per step x 8000 / 1024 steps per s = 1.25; bound: 2 x 1024 / 0.160 s = 12800
     assert row[6] == "1.25" and row[7] == "12800"
+
+
+def test_small_batches_time_enough_episodes_to_hold_a_pause_at_its_share():
+    # at least 40 row-episodes per cell, and never fewer than the two automatic resets of the large batches
+    assert [bench_envs.e2e_episodes(B) for B in (1, 16, 20, 64, 1024)] == [40, 3, 2, 2, 2]
