@@ -13,8 +13,9 @@ and kind.
 Cells (``--methods``, default sage-husa, in the env default fused mode, at ``--batch`` rows, default 1024):
 
 * ``end to end``: env-steps/s as a training loop pays it, automatic resets included (``bench_envs.
-  bench_end_to_end``: ``2 M + 5`` zero-action steps for M epochs per episode after 3 untimed ones at B >= 20
-  (more episodes below, ``bench_envs.e2e_episodes``); two automatic resets inside, each drawing its rows' new worlds; the governor's start and probes inside);
+  bench_end_to_end``: ``2 M + 5`` zero-action steps for M epochs per episode after an untimed first episode, at
+  B >= 20 (more episodes below, ``bench_envs.e2e_episodes``); two automatic resets inside, each drawing its rows'
+  new worlds; the governor's probes inside, its start in the untimed episode);
 * ``step-only``: 30 steps (``--steps``) inside one episode after 12 untimed ones (``bench_envs.bench_env``;
   ``auto`` has made its first decision by then, and 30 steps hold its probes in their share).
 

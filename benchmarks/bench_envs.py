@@ -7,7 +7,8 @@ Prints, in one run:
 
 * the headline: **end to end** env-steps/s, what a training loop pays (:func:`bench_end_to_end`: zero actions,
   ``k M + 5`` steps for M epochs per episode, so k automatic resets fall inside the timed steps, each drawing
-  its rows' new worlds, k = 2 from B = 20 on and 40 at B = 1 (:func:`e2e_episodes`); no prefetch process), beside the step-only figure of the same cell and the resets'
+  its rows' new worlds, k = 2 from B = 20 on and 40 at B = 1 (:func:`e2e_episodes`), after the first episode
+  untimed; no prefetch process), beside the step-only figure of the same cell and the resets'
   share of the end-to-end time, at B = 1 and 1024 (``--e2e-batches``), in the env default (fused) mode; and
   what the CPU allows: the resets' share of the CPU time, the cores busy on average, and the bound of
   :func:`cpu_bound` (the e2e rate if that CPU work kept every usable core busy);
@@ -195,17 +196,19 @@ def e2e_episodes(B: int) -> int:
 
 
 E2E_WARMUP_STEPS = 3
-"""Untimed steps of :func:`bench_end_to_end` after the first reset: the compiled step kernels load from numba's cache."""
+"""Untimed steps of :func:`bench_end_to_end` after the first reset where the caller gives ``steps``; else the whole
+first episode is untimed: numba loads each compiled kernel from its cache at its first use, over the first
+episode (measured at B = 1: 17 loads, that episode at 354 env-steps/s, the next ones at 2200-2700)."""
 
 
 def bench_end_to_end(method, B, episode_s, scenario, transition="fused", steps=None, env_kwargs=None,
                      before_close=None):
     """End-to-end env-steps/s as a training loop pays it: resets included, no prefetch.
 
-    After ``reset(seed=0)`` and :data:`E2E_WARMUP_STEPS` untimed steps, ``steps`` steps with zero actions are
-    timed (default ``k M + 5`` for M epochs per episode, k = :func:`e2e_episodes`: k automatic resets fall inside,
-    each drawing its rows'
-    new worlds; the single env, B = 1, is reset by the loop when its episode ends, as a user's loop does).
+    After ``reset(seed=0)`` and the first episode untimed (M steps for M epochs per episode and the reset that
+    follows; :data:`E2E_WARMUP_STEPS` with ``steps`` given), ``steps`` steps with zero actions are timed (default
+    ``k M + 5``, k = :func:`e2e_episodes`: k automatic resets fall inside, each drawing its rows' new worlds; the
+    single env, B = 1, is reset by the loop when its episode ends, as a user's loop does).
     ``env_kwargs``: more env arguments; ``before_close(env)`` is called after the timed steps.
 
     Returns (env-steps/s = B x steps / wall time, the resets' share of that time, CPU ms per batched step, the
@@ -217,8 +220,10 @@ def bench_end_to_end(method, B, episode_s, scenario, transition="fused", steps=N
     M = core.M
     n = steps or e2e_episodes(B) * M + 5
     zero = np.zeros(env.action_space.shape, np.float32)
-    for _ in range(E2E_WARMUP_STEPS):
-        env.step(zero)
+    for _ in range(E2E_WARMUP_STEPS if steps else M):
+        out = env.step(zero)
+        if B == 1 and (out[2] or out[3]):
+            env.reset()
     acc = {"reset": 0.0, "reset_cpu": 0.0}
     # an instance attribute: the core's own reset, in wall and in CPU time
     core.reset_rows = timed(timed(core.reset_rows, acc, "reset"), acc, "reset_cpu", clock=time.process_time)
@@ -457,7 +462,8 @@ def _print_headline(args, n_steps, here, other=None):
     median of ``--rounds`` (with ``other``: alternately in that tree too, and the speed-up)."""
     cpus = usable_cpus()
     print(f"\nend to end, the headline: {args.scenario}, {args.episode_s:g} s episodes, zero actions, automatic "
-          f"resets included (each draws its rows' new worlds), no prefetch, env default mode (fused); "
+          f"resets included (each draws its rows' new worlds), the first episode untimed, no prefetch, env default mode "
+          f"(fused); "
           f"{'median of ' + str(args.rounds) + ' runs' if args.rounds > 1 else 'one run'} per cell")
     if not other:
         print(f"resets: their share of the e2e wall time and of its CPU time (all threads); cores busy: CPU time / "

@@ -73,7 +73,8 @@ def test_a_real_cell_in_this_process_and_a_layer_in_a_fresh_one():
     assert res["rate"] > 0 and res["governor"]["policy"] == "auto"
     assert res["governor"]["active"] == (numba.get_num_threads() > 1)
     if res["governor"]["active"]:
-        assert res["governor"]["units"] == 3 + 2 * 4 + 5  # every step of the run went through the governor
+        # every step of the run went through the governor: the untimed first episode (4 steps), then 2 x 4 + 5
+        assert res["governor"]["units"] == 4 + 2 * 4 + 5
     res = bc.run_cell(dict(method="sage-husa", B=64, kind="step", policy="always", episode_s=14.0,
                            scenario="noise-burst", steps=1), "workqueue")
     assert "error" not in res, res
