@@ -220,18 +220,19 @@ def bench_end_to_end(method, B, episode_s, scenario, transition="fused", steps=N
     M = core.M
     n = steps or e2e_episodes(B) * M + 5
     zero = np.zeros(env.action_space.shape, np.float32)
-    for _ in range(E2E_WARMUP_STEPS if steps else M):
-        out = env.step(zero)
-        if B == 1 and (out[2] or out[3]):
-            env.reset()
+
+    def run(k):  # k zero-action steps; the single env is reset by the loop, the vector env resets itself
+        for _ in range(k):
+            out = env.step(zero)
+            if B == 1 and (out[2] or out[3]):
+                env.reset()
+
+    run(E2E_WARMUP_STEPS if steps else M)
     acc = {"reset": 0.0, "reset_cpu": 0.0}
     # an instance attribute: the core's own reset, in wall and in CPU time
     core.reset_rows = timed(timed(core.reset_rows, acc, "reset"), acc, "reset_cpu", clock=time.process_time)
     t0, c0 = time.perf_counter(), time.process_time()
-    for _ in range(n):
-        out = env.step(zero)
-        if B == 1 and (out[2] or out[3]):
-            env.reset()
+    run(n)
     dt, dc = time.perf_counter() - t0, time.process_time() - c0
     if before_close is not None:
         before_close(env)

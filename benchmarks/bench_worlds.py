@@ -104,7 +104,7 @@ def _make_world(scenario, seeds, duration_s, dtype):
 
 
 def bench_cell(scenario, B, duration_s, reps, dtype="float64", cpu=False, cores=False):
-    """Median wall time (``cpu``: process CPU time) per row [s] of the world and of each stage over ``reps`` draws
+    """Median wall time (``cpu`` without ``cores``: process CPU time) per row [s] of the world and of each stage over ``reps`` draws
     of B rows, and N.
 
     Returns ``{"total": s, "<stage>": s or None, ..., "rest": s, "n": N}`` (per row; each stage the median of its
@@ -114,10 +114,9 @@ def bench_cell(scenario, B, duration_s, reps, dtype="float64", cpu=False, cores=
     """
     acc = dict.fromkeys(_WRAPPED, 0.0)
     acc_cpu = dict.fromkeys(_WRAPPED, 0.0)
-    clock = time.process_time if cpu else time.perf_counter
+    clock = time.process_time if cpu and not cores else time.perf_counter  # cores: wall beside CPU
     found = _install_timers(acc, clock)
     if cores:
-        cpu, clock = False, time.perf_counter
         _install_timers(acc_cpu, time.process_time)  # around the wall timers: the same calls
     w = _make_world(scenario, list(range(B)), duration_s, np.dtype(dtype))  # untimed: loads compiled kernels
     n = w.truth.t.shape[0]
