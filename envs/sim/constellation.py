@@ -154,6 +154,12 @@ class Constellation:
         trig.setflags(write=False)
         return trig
 
+    def kernel_constants(self) -> tuple:
+        """The satellite arrays and orbit constants of :func:`walker_point`: ``(cu0, su0, cr, sr, a, ci, si, n)``
+        (the first four (T,) read-only, from :attr:`_satellite_trig`)."""
+        inc = np.deg2rad(self.inclination_deg)
+        return (*self._satellite_trig, self.semi_major_axis_m, math.cos(inc), math.sin(inc), self.mean_motion)
+
     # ---------------------------------------------------------------- positions
     def positions_velocities(self, t_gps, sat_index=None):
         """Satellite ECEF positions and velocities at GPS time ``t_gps``.
@@ -192,7 +198,6 @@ class Constellation:
             if idx.size and (idx.min() < 0 or idx.max() >= self.n_sats):
                 raise ValueError(f"sat_index must lie in 0..{self.n_sats - 1}")
         shape = np.broadcast_shapes(t.shape + (1,), idx.shape)
-        inc = np.deg2rad(self.inclination_deg)
         # angle-sum identities: the trigonometry runs on the time axes and the
         # satellite axis separately (u = u0 + n t, Om_e = Om_p - OMEGA_IE t)
         n = self.mean_motion
@@ -201,8 +206,7 @@ class Constellation:
                       for x in (np.cos(nt), np.sin(nt), np.cos(wt), np.sin(wt))]
         pos = np.empty(shape + (3,))
         vel = np.empty(shape + (3,))
-        _walker_kernel(*time_terms, np.broadcast_to(idx, shape).reshape(-1, shape[-1]), *self._satellite_trig,
-                       self.semi_major_axis_m, math.cos(inc), math.sin(inc), n,
+        _walker_kernel(*time_terms, np.broadcast_to(idx, shape).reshape(-1, shape[-1]), *self.kernel_constants(),
                        pos.reshape(-1, shape[-1], 3), vel.reshape(-1, shape[-1], 3))
         return pos, vel
 
@@ -224,24 +228,39 @@ def _walker_kernel(cnt, snt, cwt, swt, idx, cu0, su0, cr, sr, a, ci, si, n, pos,
     a : orbit radius [m]; ci, si : cos / sin of the inclination; n : mean motion [rad/s].
     pos, vel : (N, K, 3) outputs, ECEF position [m] and velocity [m/s].
     """
-    a_ci, a_si, a_n_si = a * ci, a * si, a * n * si
     for j in range(idx.shape[0]):
         for k in range(idx.shape[1]):
             i = idx[j, k]
-            cu = cu0[i] * cnt[j] - su0[i] * snt[j]
-            su = su0[i] * cnt[j] + cu0[i] * snt[j]
-            co = cr[i] * cwt[j] + sr[i] * swt[j]
-            so = sr[i] * cwt[j] - cr[i] * swt[j]
-            a_ci_su = a_ci * su
-            a_cu = a * cu
-            x = co * a_cu - so * a_ci_su
-            y = so * a_cu + co * a_ci_su
-            pos[j, k, 0] = x
-            pos[j, k, 1] = y
-            pos[j, k, 2] = a_si * su
-            # inertial velocity rotated into ECEF (same rotation as the position) minus Omega_ie x r_e
-            a_ci_cu = ci * a_cu
-            a_su = a * su
-            vel[j, k, 0] = (co * a_su + so * a_ci_cu) * -n + OMEGA_IE * y
-            vel[j, k, 1] = (co * a_ci_cu - so * a_su) * n - OMEGA_IE * x
-            vel[j, k, 2] = a_n_si * cu
+            (pos[j, k, 0], pos[j, k, 1], pos[j, k, 2], vel[j, k, 0], vel[j, k, 1],
+             vel[j, k, 2]) = walker_point(cnt[j], snt[j], cwt[j], swt[j], cu0[i], su0[i], cr[i], sr[i], a, ci, si, n)
+
+
+@nb.njit(cache=True, nogil=True)
+def walker_point(cnt, snt, cwt, swt, cu0, su0, cr, sr, a, ci, si, n):
+    """One satellite at one time: the arithmetic of :meth:`Constellation.positions_velocities` (the compiled
+    geometry stages call it per satellite-epoch; one copy of the formulas, one order of operations).
+
+    Parameters
+    ----------
+    cnt, snt, cwt, swt : cos / sin of ``n t`` and of ``OMEGA_IE t``.
+    cu0, su0, cr, sr : cos / sin of the satellite's argument of latitude at t = 0 and of its RAAN.
+    a : orbit radius [m]; ci, si : cos / sin of the inclination; n : mean motion [rad/s].
+
+    Returns
+    -------
+    x, y, z : ECEF position [m]; vx, vy, vz : ECEF velocity [m/s].
+    """
+    cu = cu0 * cnt - su0 * snt
+    su = su0 * cnt + cu0 * snt
+    co = cr * cwt + sr * swt
+    so = sr * cwt - cr * swt
+    a_ci_su = a * ci * su
+    a_cu = a * cu
+    x = co * a_cu - so * a_ci_su
+    y = so * a_cu + co * a_ci_su
+    # inertial velocity rotated into ECEF (same rotation as the position) minus Omega_ie x r_e
+    a_ci_cu = ci * a_cu
+    a_su = a * su
+    vx = (co * a_su + so * a_ci_cu) * -n + OMEGA_IE * y
+    vy = (co * a_ci_cu - so * a_su) * n - OMEGA_IE * x
+    return x, y, a * si * su, vx, vy, a * n * si * cu

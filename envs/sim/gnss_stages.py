@@ -20,18 +20,18 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import numba as nb
 import numpy as np
 
-from earth.ranging import range_and_rate
-from earth.wgs84 import C_LIGHT, OMEGA_IE, ecef_to_geodetic
+from earth.wgs84 import ecef_to_geodetic
 
 from . import events as ev
 from .canyon import canyon_visibility, in_intervals
 from .constellation import Constellation
+from .geometry_kernels import ranging_rows, sky_rows
 from .receiver import _MIN_EL_SIGMA, CN0_JITTER_DB, _gauss_markov, iono_obliquity, simulate_clock, tropo_mapping
 from .rng import ChildStreams
 from .rng import entropy_words as _entropy_words  # noqa: F401  (re-exported by envs.sim.gnss)
+from .row_threads import run_row_ranges
 
 GPS_WEEK_S = 604_800.0
 """Seconds in a GPS week: ``t0_gps`` is drawn uniformly in [0, GPS_WEEK_S)."""
@@ -45,9 +45,6 @@ _SUB_SKY, _SUB_CLOCK, _SUB_TROPO, _SUB_IONO, _SUB_CODE, _SUB_RATE, _SUB_NLOS, _S
  _SUB_CN0) = range(8, 16)
 _SUB_CN0_SCATTER = 16      # issue 36: the recorded-like C/N0 scatter (events.cn0), drawn only when configured
 _N_SUB = 17
-_CHUNK_ELEMS = 50_000
-"""Satellite-epochs per vectorized geometry block and tracked channels per ranging block (cache-sized; results
-do not depend on it)."""
 
 
 def _row_children(rng: np.random.Generator) -> ChildStreams:
@@ -58,97 +55,6 @@ def _row_children(rng: np.random.Generator) -> ChildStreams:
     """
     entropy = rng.integers(0, 2**63, size=4, dtype=np.int64)
     return ChildStreams([int(x) for x in entropy], _N_SUB)
-
-
-def _geometry(t_rx: np.ndarray, r_e: np.ndarray, constellation: Constellation, lat: np.ndarray,
-              lon: np.ndarray):
-    """Transmission time, elevation and azimuth of all satellites (one time chunk).
-
-    The transmission time is ``t_tx = t_rx - tau`` with ``tau = |r_s(t_rx) -
-    r_r| / c``, one light-time iteration: ``tau`` is off by < 0.5 us (the
-    range changes by <~ 150 m during the ~70 ms flight), i.e. < 2 mm of
-    satellite motion, and the ephemeris position at ``t_tx`` is exactly the
-    one the pseudorange is generated from, so the data stay self-consistent.
-
-    Elevation and azimuth use the line of sight to ``C_z(OMEGA_IE tau)
-    (r_s - v_s tau)`` (Groves eq 8.36 with a first-order satellite back
-    propagation; < 2 mm of position, < 1e-9 rad of direction).
-
-    Parameters
-    ----------
-    t_rx : (B, m) GPS reception time [s]; r_e : (B, m, 3) [m]; lat, lon : (B, m) [rad].
-
-    Returns
-    -------
-    t_tx, el, az : (B, m, S) [s, rad, rad]
-    """
-    p, v = constellation.positions_velocities(t_rx)        # (B, m, S, 3)
-    d = p - r_e[..., None, :]
-    tau = np.sqrt(np.einsum("...i,...i->...", d, d)) / C_LIGHT
-    t_tx = t_rx[..., None] - tau
-    th = OMEGA_IE * tau
-    # elevation / azimuth from the NED components of the (unnormalized) line of sight
-    n, e, up = _los_ned(p, v, tau, np.cos(th), np.sin(th), r_e,
-                        np.sin(lat), np.cos(lat), np.sin(lon), np.cos(lon))
-    el = np.arctan2(up, np.hypot(n, e))
-    az = _wrap_2pi(np.arctan2(e, n))
-    return t_tx, el, az
-
-
-@nb.njit(cache=True)
-def _los_ned(p, v, tau, c, s, r, sl, cl, so, co):
-    """NED components of the line of sight of :func:`_geometry`, one pass (numpy's operation order).
-
-    ``d = C_z(OMEGA_IE tau) (r_s - v_s tau) - r_r`` resolved in the local NED frame:
-    ``h = cos(lon) d_x + sin(lon) d_y``, ``n = -sin(lat) h + cos(lat) d_z``,
-    ``e = -sin(lon) d_x + cos(lon) d_y``, ``up = cos(lat) h + sin(lat) d_z``.
-
-    Parameters
-    ----------
-    p, v : (B, m, S, 3) satellite ECEF position [m] / velocity [m/s] at the reception time.
-    tau : (B, m, S) signal flight time [s]; c, s : (B, m, S) cos / sin of ``OMEGA_IE tau``.
-    r : (B, m, 3) receiver ECEF position [m]; sl, cl, so, co : (B, m) sin / cos of latitude and longitude.
-
-    Returns
-    -------
-    n, e, up : (B, m, S) [m].
-    """
-    B, m, S = tau.shape
-    n = np.empty((B, m, S))
-    e = np.empty((B, m, S))
-    up = np.empty((B, m, S))
-    for b in range(B):
-        for j in range(m):
-            for k in range(S):
-                px = p[b, j, k, 0] - v[b, j, k, 0] * tau[b, j, k]
-                py = p[b, j, k, 1] - v[b, j, k, 1] * tau[b, j, k]
-                pz = p[b, j, k, 2] - v[b, j, k, 2] * tau[b, j, k]
-                dx = c[b, j, k] * px + s[b, j, k] * py - r[b, j, 0]
-                dy = -s[b, j, k] * px + c[b, j, k] * py - r[b, j, 1]
-                dz = pz - r[b, j, 2]
-                h1 = co[b, j] * dx + so[b, j] * dy
-                n[b, j, k] = -sl[b, j] * h1 + cl[b, j] * dz
-                e[b, j, k] = -so[b, j] * dx + co[b, j] * dy
-                up[b, j, k] = cl[b, j] * h1 + sl[b, j] * dz
-    return n, e, up
-
-
-def _wrap_2pi(x: np.ndarray) -> np.ndarray:
-    """``np.mod(x, 2 pi)`` for ``x`` in [-pi, pi] (arctan2's range), without its fmod.
-
-    There ``fmod(x, 2 pi) = x``: np.mod adds ``2 pi`` to a negative ``x`` and turns ``-0.0`` into ``+0.0``
-    (``x + 0.0`` does the same), so the result is the same to the bit.
-    """
-    return np.where(x < 0.0, x + 2.0 * np.pi, x + 0.0)
-
-
-def _orbit_at(constellation: Constellation, t_sat: np.ndarray, sat_index=None):
-    """Positions / velocities of satellite ``s`` at its own time ``t_sat[..., s]``: (..., S) -> (..., S, 3)."""
-    if sat_index is None:
-        sat_index = np.broadcast_to(np.arange(constellation.n_sats), t_sat.shape)
-    # evaluate each (time, satellite) pair: flatten to a trailing axis of length 1
-    p, v = constellation.positions_velocities(t_sat, sat_index[..., None])
-    return p[..., 0, :], v[..., 0, :]
 
 
 def _nlos_bursts(t: np.ndarray, n_sats: int, cfg: NlosConfig, g: np.random.Generator):
@@ -326,8 +232,8 @@ class ReceiverErrors:
 # stages
 # =============================================================================
 def sky_geometry(t, r_e, constellation: Constellation, subs, t0_gps=None) -> Sky:
-    """Stage 1: the GPS time of each row and the geometry of all satellites, chunked over time (bounded memory,
-    cache-sized blocks; results do not depend on the chunking).
+    """Stage 1: the GPS time of each row and the transmission time, elevation and azimuth of all satellites
+    (:func:`envs.sim.geometry_kernels.sky_rows`, row ranges on threads; the result does not depend on the split).
 
     Parameters
     ----------
@@ -340,14 +246,10 @@ def sky_geometry(t, r_e, constellation: Constellation, subs, t0_gps=None) -> Sky
     S = constellation.n_sats
     lat, lon, _ = ecef_to_geodetic(r_e)
     t_rx = t0_gps[:, None] + t[None, :]                     # (B, M)
-    t_tx = np.empty((B, M, S))
-    el_all = np.empty((B, M, S))
-    az_all = np.empty((B, M, S))
-    chunk = max(1, _CHUNK_ELEMS // (B * S))
-    for k0 in range(0, M, chunk):
-        sl_ = slice(k0, min(M, k0 + chunk))
-        t_tx[:, sl_], el_all[:, sl_], az_all[:, sl_] = _geometry(
-            t_rx[:, sl_], r_e[:, sl_], constellation, lat[:, sl_], lon[:, sl_])
+    t_tx, el_all, az_all = (np.empty((B, M, S)) for _ in range(3))
+    trig = (np.sin(lat), np.cos(lat), np.sin(lon), np.cos(lon))
+    consts = constellation.kernel_constants()
+    run_row_ranges(lambda r0, r1: sky_rows(r0, r1, t_rx, r_e, *trig, *consts, t_tx, el_all, az_all), B)
     return Sky(t0_gps=t0_gps, t_tx=t_tx, el=el_all, az=az_all)
 
 
@@ -487,24 +389,19 @@ def allocate_channels(sky: Sky, visible, n_channels: int, subs, t=None, cn0_cfg=
 
 
 def channel_ranging(r_e, v_e, sky: Sky, ch: Channels, constellation: Constellation) -> Ranging:
-    """Stage 6: ephemeris at transmission time and true range / rate on the tracked channels only, in blocks of
-    ``_CHUNK_ELEMS`` channels (the others stay zero; every formula is elementwise, so a value does not depend on
-    which channels are evaluated with it). Range and rate: :func:`earth.ranging.range_and_rate`."""
+    """Stage 6: ephemeris at transmission time and true range / rate on the tracked channels only (the others
+    stay zero): :func:`envs.sim.geometry_kernels.ranging_rows` (range and rate as
+    :func:`earth.ranging.range_and_rate`), row ranges on threads."""
     B, M, C = ch.mask.shape
     t_tx_ch = ch.gather(sky.t_tx)
     sat_pos = np.zeros((B, M, C, 3))
     sat_vel = np.zeros((B, M, C, 3))
     rho = np.zeros((B, M, C))
     rho_dot = np.zeros((B, M, C))
-    tracked = np.flatnonzero(ch.mask)                       # flat (b, k, c) index of the tracked channels
-    for k0 in range(0, tracked.size, _CHUNK_ELEMS):
-        idx = tracked[k0:k0 + _CHUNK_ELEMS]
-        epoch = idx // C                                    # flat (b, k) index
-        sp, sv = _orbit_at(constellation, t_tx_ch.reshape(-1)[idx], ch.sel.reshape(-1)[idx])
-        sat_pos.reshape(-1, 3)[idx], sat_vel.reshape(-1, 3)[idx] = sp, sv
-        rho_ch, rho_dot_ch, _ = range_and_rate(sp[:, None], sv[:, None], r_e.reshape(-1, 3)[epoch],
-                                               v_e.reshape(-1, 3)[epoch])
-        rho.reshape(-1)[idx], rho_dot.reshape(-1)[idx] = rho_ch[:, 0], rho_dot_ch[:, 0]
+    consts = constellation.kernel_constants()
+    r_e, v_e = np.ascontiguousarray(r_e, dtype=np.float64), np.ascontiguousarray(v_e, dtype=np.float64)
+    run_row_ranges(lambda r0, r1: ranging_rows(r0, r1, t_tx_ch, ch.sel, ch.mask, r_e, v_e, *consts, sat_pos, sat_vel,
+                                               rho, rho_dot), B)
     return Ranging(sat_pos=sat_pos, sat_vel=sat_vel, rho=rho, rho_dot=rho_dot)
 
 

@@ -100,8 +100,6 @@ drawn by :func:`random_drive` from the row's own generator.
 from __future__ import annotations
 
 import math
-import os
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import NamedTuple, Sequence, Union
 
@@ -110,6 +108,8 @@ import numpy as np
 
 from earth import C_en, OMEGA_IE_E, dcm_from_euler, geodetic_to_ecef, gravity_ecef
 from earth.units import DEG
+
+from .row_threads import run_row_ranges
 
 __all__ = [
     "Static", "Accelerate", "Decelerate", "Cruise", "Turn", "Climb", "Stop", "Segment",
@@ -963,24 +963,8 @@ def _node_rows(args, U: int, n: int, ia, gm, workers: int | None = None) -> None
     the arc nodes and of the arc nodes that start an interval on one piece, whose ranks are the kernel's entries
     into its arc inputs. The same bits as one call over all rows (rows are independent).
     """
-    workers = max(1, min(os.cpu_count() or 1, 8)) if workers is None else workers
-    nchunk = 1 if workers == 1 or U < 2 * _ROWS_PER_TASK else min(4 * workers, U // _ROWS_PER_TASK)
-    bounds = np.linspace(0, U, nchunk + 1).astype(np.int64)
-
-    def run(c):
-        u0, u1 = int(bounds[c]), int(bounds[c + 1])
-        _node_kernel(*args, u0, u1, int(np.searchsorted(ia, u0 * n)), int(np.searchsorted(gm, u0 * n)))
-
-    if nchunk == 1:
-        run(0)
-        return
-    with ThreadPoolExecutor(max_workers=workers) as ex:
-        for _ in ex.map(run, range(nchunk)):
-            pass
-
-
-_ROWS_PER_TASK = 8
-"""Fewest rows per thread task of :func:`_node_rows` (a task costs tens of microseconds to hand over)."""
+    run_row_ranges(lambda u0, u1: _node_kernel(*args, u0, u1, int(np.searchsorted(ia, u0 * n)),
+                                               int(np.searchsorted(gm, u0 * n))), U, workers)
 
 
 def _evaluate(pc: _Pieces, t, grav, linear_gravity: bool, dtype) -> dict:

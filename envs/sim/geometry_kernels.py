@@ -1,0 +1,108 @@
+"""Compiled row kernels of the GNSS geometry stages (:func:`envs.sim.gnss_stages.sky_geometry` and
+:func:`~envs.sim.gnss_stages.channel_ranging`).
+
+Each kernel runs rows ``r0 .. r1-1`` in one pass without the GIL, so the stages run row ranges on threads
+(:func:`envs.sim.row_threads.run_row_ranges`). They evaluate the same formulas in the same order as the numpy
+chain they replace (:meth:`~envs.sim.constellation.Constellation.positions_velocities`, the line of sight of
+Groves eq 8.36, :func:`earth.ranging.range_and_rate`), so the worlds stay the same bit for bit
+(``tests/envs/test_geometry_kernels.py`` compares them with that chain).
+"""
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+
+from earth.ranging import range_rate_pair
+from earth.wgs84 import C_LIGHT, OMEGA_IE
+
+from .constellation import walker_point
+
+_TWO_PI = 2.0 * np.pi
+
+
+@nb.njit(cache=True, nogil=True)
+def sky_rows(r0, r1, t_rx, r_e, sl, cl, so, co, cu0, su0, cr, sr, a, ci, si, n, t_tx, el, az):
+    """Transmission time, elevation and azimuth of all satellites at every epoch of rows ``r0 .. r1-1``.
+
+    Per satellite-epoch: the Walker orbit at the reception time (:func:`~envs.sim.constellation.walker_point`),
+    the flight time ``tau = |r_s - r_r| / c`` (one light-time pass: < 0.5 us, < 2 mm of satellite motion),
+    ``t_tx = t_rx - tau``, and the line of sight to ``C_z(OMEGA_IE tau) (r_s - v_s tau) - r_r`` (Groves eq 8.36
+    with a first-order satellite back propagation) resolved in NED: ``h = cos(lon) d_x + sin(lon) d_y``,
+    ``n = -sin(lat) h + cos(lat) d_z``, ``e = -sin(lon) d_x + cos(lon) d_y``, ``up = cos(lat) h + sin(lat) d_z``;
+    ``el = atan2(up, hypot(n, e))``, ``az = atan2(e, n)`` wrapped to [0, 2 pi).
+
+    Parameters
+    ----------
+    r0, r1 : the rows to evaluate.
+    t_rx : (B, M) GPS reception time [s]; r_e : (B, M, 3) receiver ECEF position [m].
+    sl, cl, so, co : (B, M) sin / cos of the receiver's latitude and longitude.
+    cu0 .. n : :meth:`~envs.sim.constellation.Constellation.kernel_constants` (S satellites).
+    t_tx, el, az : (B, M, S) outputs [s, rad, rad]; only rows ``r0 .. r1-1`` are written.
+    """
+    M = t_rx.shape[1]
+    S = cu0.shape[0]
+    for b in range(r0, r1):
+        for j in range(M):
+            t = t_rx[b, j]
+            cnt, snt = np.cos(n * t), np.sin(n * t)
+            cwt, swt = np.cos(OMEGA_IE * t), np.sin(OMEGA_IE * t)
+            rx, ry, rz = r_e[b, j, 0], r_e[b, j, 1], r_e[b, j, 2]
+            for k in range(S):
+                x, y, z, vx, vy, vz = walker_point(cnt, snt, cwt, swt, cu0[k], su0[k], cr[k], sr[k], a, ci, si, n)
+                dx, dy, dz = x - rx, y - ry, z - rz
+                # (x^2 + z^2) + y^2: the order in which numpy's einsum("...i,...i") summed the squares in the
+                # numpy chain this kernel replaced (its two-lane inner loop), so the worlds keep their bits
+                tau = math.sqrt((dx * dx + dz * dz) + dy * dy) / C_LIGHT
+                t_tx[b, j, k] = t - tau
+                th = OMEGA_IE * tau
+                c, s = np.cos(th), np.sin(th)
+                px, py, pz = x - vx * tau, y - vy * tau, z - vz * tau
+                ex = c * px + s * py - rx
+                ey = -s * px + c * py - ry
+                ez = pz - rz
+                h1 = co[b, j] * ex + so[b, j] * ey
+                nn = -sl[b, j] * h1 + cl[b, j] * ez
+                ee = -so[b, j] * ex + co[b, j] * ey
+                up = cl[b, j] * h1 + sl[b, j] * ez
+                el[b, j, k] = math.atan2(up, math.hypot(nn, ee))
+                w = math.atan2(ee, nn)
+                az[b, j, k] = w + _TWO_PI if w < 0.0 else w + 0.0
+
+
+@nb.njit(cache=True, nogil=True)
+def ranging_rows(r0, r1, t_tx, sel, mask, r_e, v_e, cu0, su0, cr, sr, a, ci, si, n, sat_pos, sat_vel, rho,
+                 rho_dot):
+    """Ephemeris at transmission time and true range / rate on the tracked channels of rows ``r0 .. r1-1``.
+
+    Per tracked channel: the Walker orbit of satellite ``sel`` at its transmission time ``t_tx``
+    (:func:`~envs.sim.constellation.walker_point`), then range and rate with the Sagnac correction
+    (Groves eqs 8.36, 8.46; :func:`earth.ranging.range_rate_pair`, 3 light-time iterations). Channels not
+    tracked are left as they are (zeros from the caller).
+
+    Parameters
+    ----------
+    r0, r1 : the rows to evaluate.
+    t_tx : (B, M, C) transmission time of each channel's satellite [s]; sel : (B, M, C) its index (0 .. T-1);
+    mask : (B, M, C) bool, tracked.
+    r_e, v_e : (B, M, 3) receiver ECEF position [m] / velocity [m/s].
+    cu0 .. n : :meth:`~envs.sim.constellation.Constellation.kernel_constants`.
+    sat_pos, sat_vel : (B, M, C, 3) outputs [m, m/s]; rho, rho_dot : (B, M, C) outputs [m, m/s].
+    """
+    M, C = mask.shape[1], mask.shape[2]
+    u = np.empty(3)
+    for b in range(r0, r1):
+        for j in range(M):
+            for k in range(C):
+                if not mask[b, j, k]:
+                    continue
+                t = t_tx[b, j, k]
+                i = sel[b, j, k]
+                x, y, z, vx, vy, vz = walker_point(np.cos(n * t), np.sin(n * t), np.cos(OMEGA_IE * t),
+                                                   np.sin(OMEGA_IE * t), cu0[i], su0[i], cr[i], sr[i], a, ci, si, n)
+                sat_pos[b, j, k, 0], sat_pos[b, j, k, 1], sat_pos[b, j, k, 2] = x, y, z
+                sat_vel[b, j, k, 0], sat_vel[b, j, k, 1], sat_vel[b, j, k, 2] = vx, vy, vz
+                rho[b, j, k], rho_dot[b, j, k] = range_rate_pair(
+                    x, y, z, vx, vy, vz, r_e[b, j, 0], r_e[b, j, 1], r_e[b, j, 2], v_e[b, j, 0], v_e[b, j, 1],
+                    v_e[b, j, 2], 3, u)
