@@ -1,0 +1,80 @@
+"""envs.sim.rng's compiled SeedSequence (FastSeedSequence) against numpy's SeedSequence: the same pool, the same
+state words, the same streams from PCG64 and SFC64, and numpy's behaviour for everything it does not compute."""
+from __future__ import annotations
+
+import pickle
+
+import numpy as np
+import pytest
+
+from envs.sim.rng import ChildStreams, FastSeedSequence, entropy_words, row_generators
+
+
+def _entropies(rng, n):
+    """Entropy word arrays of 1 .. 11 words, with zeros and the extremes mixed in."""
+    out = [np.array([0], np.uint32), np.array([2**32 - 1] * 9, np.uint32), np.array([0, 0, 0, 0], np.uint32)]
+    for _ in range(n):
+        w = rng.integers(0, 2**32, int(rng.integers(1, 12)), dtype=np.uint64).astype(np.uint32)
+        w[rng.random(w.size) < 0.2] = 0
+        out.append(w)
+    return out
+
+
+def test_state_words_equal_seed_sequence():
+    """The state words (uint32 and uint64, every length a bit generator asks for) and the pool of 600 entropies
+    with spawn keys 0 .. 2^32-1 equal SeedSequence's."""
+    rng = np.random.default_rng(123)
+    for words in _entropies(rng, 600):
+        key = int(rng.choice([0, 1, 16, 101, int(rng.integers(0, 2**32))]))
+        ref = np.random.SeedSequence(words, spawn_key=(key,))
+        fast = FastSeedSequence(words, key)
+        for n in (1, 3, 4):
+            np.testing.assert_array_equal(fast.generate_state(n, np.uint64), ref.generate_state(n, np.uint64))
+        for n in (1, 6, 8, 9, 20):                            # 9 and 20: past the words computed ahead
+            np.testing.assert_array_equal(fast.generate_state(n), ref.generate_state(n))
+        np.testing.assert_array_equal(fast.pool, ref.pool)
+
+
+@pytest.mark.parametrize("bit_generator", [np.random.PCG64, np.random.SFC64])
+def test_streams_equal_seed_sequence(bit_generator):
+    """A generator seeded through FastSeedSequence draws what the SeedSequence-seeded one draws."""
+    rng = np.random.default_rng(5)
+    for words in _entropies(rng, 30):
+        a = np.random.Generator(bit_generator(FastSeedSequence(words, 7)))
+        b = np.random.Generator(bit_generator(np.random.SeedSequence(words, spawn_key=(7,))))
+        np.testing.assert_array_equal(a.standard_normal(50), b.standard_normal(50))
+        np.testing.assert_array_equal(a.integers(0, 2**63, 5), b.integers(0, 2**63, 5))
+
+
+def test_row_generators_and_children_keep_their_streams():
+    """row_generators and ChildStreams give the streams of their documented SeedSequence recipes."""
+    seeds = [0, 1, 2**32 - 1, 2**32, 2**40 + 3, 123456789]
+    for g, s in zip(row_generators(seeds, "gnss"), seeds):
+        ref = np.random.default_rng(np.random.SeedSequence(s, spawn_key=(3,)))
+        np.testing.assert_array_equal(g.random(20), ref.random(20))
+    ent = [2**63 - 5, 7, 0, 2**40]
+    cs = ChildStreams(ent, 17)
+    for k in (0, 5, -1):
+        ref = np.random.default_rng(np.random.SeedSequence(ent, spawn_key=(range(17)[k],)))
+        np.testing.assert_array_equal(cs[k].random(20), ref.random(20))
+    assert cs[16] is cs[-1]                                   # built once, then the same generator
+    sfc = ChildStreams(ent, 4, np.random.SFC64)
+    ref = np.random.Generator(np.random.SFC64(np.random.SeedSequence(ent).spawn(4)[2]))
+    np.testing.assert_array_equal(sfc[2].standard_normal(20), ref.standard_normal(20))
+
+
+def test_spawn_attributes_and_pickle_behave_like_seed_sequence():
+    """spawn, entropy and spawn_key come from the real SeedSequence; a generator survives pickling."""
+    words = entropy_words([99, 2**50])
+    fast, ref = FastSeedSequence(words, 4), np.random.SeedSequence(words, spawn_key=(4,))
+    for a, b in zip(fast.spawn(3), ref.spawn(3)):
+        np.testing.assert_array_equal(a.generate_state(4), b.generate_state(4))
+    assert fast.spawn_key == (4,) and fast.n_children_spawned == 3
+    np.testing.assert_array_equal(np.asarray(fast.entropy, np.uint32), words)
+    g = np.random.Generator(np.random.PCG64(FastSeedSequence(words, 4)))
+    g.random(3)
+    h = pickle.loads(pickle.dumps(g))
+    np.testing.assert_array_equal(g.random(10), h.random(10))
+    kids = g.spawn(2)
+    ref_kids = np.random.default_rng(np.random.SeedSequence(words, spawn_key=(4,))).spawn(2)
+    np.testing.assert_array_equal(kids[1].random(5), ref_kids[1].random(5))
