@@ -533,7 +533,7 @@ def print_filterpy(batches, episode_s, scenario, steps_of):
             print(f"{'navgym ' + _label('sage-husa', tr):28s} {B:5d} {rate:14.0f} {per_cpu:17.0f} {ratio}", flush=True)
 
 
-def main(argv=None):
+def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--quick", action="store_true", help="B up to 256, fewer steps")
     p.add_argument("--methods", nargs="+", default=DEFAULT_METHODS, choices=list(METHOD_ENV))
@@ -574,21 +574,22 @@ def main(argv=None):
                         "first of --methods, fused; default B = 1, 1024)")
     p.add_argument("--filterpy", action="store_true",
                    help="only the side-by-side figure against filterpy's KalmanFilter loop (default B = 1, 1024)")
-    args = p.parse_args(argv)
-    if args.rounds < 1:
-        p.error(f"--rounds must be at least 1, got {args.rounds}")
+    return p
+
+
+def _run_single_table(args, p) -> bool:
+    """The tables that run alone (``--accuracy``, ``--components``, ``--kernel-time``, ``--filterpy``): print the
+    one asked for and return True; False when none is."""
     if args.accuracy:
         from transition_accuracy import print_accuracy
         print_accuracy(episodes=args.accuracy_episodes, max_duration_s=args.accuracy_max_s,
                        scenarios=args.accuracy_scenarios, nees_runs=args.accuracy_nees_runs)
-        return
-    if args.components:
+    elif args.components:
         print("compiled kernels against their numpy references (min wall time, same inputs, one process)")
         print(f"{'component':42s} {'B':>5s} {'numpy [us]':>12s} {'compiled [us]':>14s} {'speed-up':>9s}")
         for name, B, t_ref, t_new in bench_components(tuple(args.batches or (1, 1024))):
             print(f"{name:42s} {B:5d} {t_ref:12.1f} {t_new:14.1f} {t_ref / t_new:8.1f}x", flush=True)
-        return
-    if args.kernel_time:
+    elif args.kernel_time:
         from kernel_time import kernel_share, print_kernel_share
         m = args.methods[0]
         for B in args.batches or [1, 1024]:
@@ -603,10 +604,81 @@ def main(argv=None):
             step, per_kernel = kernel_share(env, acts[WARMUP_STEPS:WARMUP_STEPS + n])
             print_kernel_share(f"{_label(m, 'fused')} ({args.scenario})", B, step, per_kernel)
             env.close()
-        return
-    if args.filterpy:
+    elif args.filterpy:
         steps = args.steps or (20 if args.quick else 30)
         print_filterpy(args.batches or [1, 1024], args.episode_s, args.scenario, lambda B: steps if B == 1 else 8)
+    else:
+        return False
+    return True
+
+
+def _print_rate_table(args, batches, n_steps, here, other) -> None:
+    """The step-only throughput table: each method x B x transition mode, here (and in ``other`` with
+    ``--compare``, alternately, ``--rounds`` times, medians)."""
+    if other:
+        hdr = (f"{'method':16s} {'B':>5s} {'steps/s before':>15s} {'after':>10s} {'speed-up':>9s} "
+               f"{'cpu ms before':>14s} {'after':>9s} {'reset s before':>15s} {'after':>7s}"
+               + (f" {'rounds: speed-ups':>18s}" if args.rounds > 1 else ""))
+    else:
+        hdr = (f"{'method':16s} {'B':>5s} {'reset [s]':>10s} {'steps/s':>12s} {'ms/step':>9s} {'cpu ms/step':>12s}"
+               + (f" {'rounds: steps/s':>18s}" if args.rounds > 1 else ""))
+    print("\n" + hdr + "\n" + "-" * len(hdr))
+    rounds_here = args.rounds > 1 and not other  # the table of _print_rounds instead of the loop below
+    if rounds_here:
+        _print_rounds(args, batches, n_steps, here)
+        return
+    for m in args.methods:
+        for B in batches:
+            cell = ("rate", m, B, n_steps(B), args.episode_s, args.scenario)
+            for tr in args.transitions:
+                lab = _label(m, tr)
+                if not other:
+                    t_reset, rate, cpu = bench_env(m, B, n_steps(B), args.episode_s, args.scenario, tr,
+                                                   stat=args.stat)
+                    _print_rate_row(lab, B, t_reset, rate, cpu)
+                    continue
+                before, after = [], []
+                for _ in range(args.rounds):
+                    rb, fell_back = _run_before(other, *cell, tr, args.stat)  # in the same mode if it has it
+                    before.append(rb)
+                    after.append(_run_cell(here, *cell, tr, args.stat))
+                lab += "*" if fell_back else ""
+                rb, ra = np.median(before, axis=0), np.median(after, axis=0)
+                ups = [a[1] / b[1] for a, b in zip(after, before)]
+                spread = f" {min(ups):12.2f}-{max(ups):.2f}x" if args.rounds > 1 else ""
+                print(f"{lab:16s} {B:5d} {rb[1]:15.0f} {ra[1]:10.0f} {ra[1] / rb[1]:8.2f}x {rb[2]:14.2f} "
+                      f"{ra[2]:9.2f} {rb[0]:15.2f} {ra[0]:7.2f}{spread}", flush=True)
+
+
+def _print_profile(args, batches, n_steps, here, other) -> None:
+    """The profile of one step by stage (sage-husa, or the first method) at B = 1 and the largest B, per
+    transition mode (and the ``--compare`` tree's first mode)."""
+    m = "sage-husa" if "sage-husa" in args.methods else args.methods[0]
+    cols = []
+    for B in sorted({1, max(batches)}):
+        cell = ("cpu-profile" if args.cpu_profile else "profile", m, B, n_steps(B), args.episode_s, args.scenario)
+        if other:
+            tr0 = args.transitions[0]
+            rb, fell_back = _run_before(other, *cell, tr0)
+            cols.append((f"B={B} before{'' if fell_back else _SHORT[tr0]}", rb))
+        for tr in args.transitions:
+            if other:
+                cols.append((f"B={B} after{_SHORT[tr]}", _run_cell(here, *cell, tr)))
+            else:
+                cols.append((f"B={B}{_SHORT[tr]}", profile_env(*cell[1:], tr, cpu=args.cpu_profile)))
+    print(f"\nprofile of one step, {m}: {'CPU' if args.cpu_profile else 'wall'} ms per step (share)")
+    print(f"{'stage':14s}" + "".join(f"{name:>20s}" for name, _ in cols))
+    for s in STAGES:
+        print(f"{s:14s}" + "".join(f"{r[0][s]:11.3f} ({100 * r[0][s] / r[1]:4.1f}%)" for _, r in cols))
+    print(f"{'total':14s}" + "".join(f"{r[1]:11.3f}         " for _, r in cols))
+
+
+def main(argv=None):
+    p = _parser()
+    args = p.parse_args(argv)
+    if args.rounds < 1:
+        p.error(f"--rounds must be at least 1, got {args.rounds}")
+    if _run_single_table(args, p):
         return
     batches = args.batches or ([1, 16, 256] if args.quick else [1, 16, 256, 1024])
     args.e2e_batches = args.e2e_batches or ([1, 256] if args.quick else [1, 1024])
@@ -622,73 +694,21 @@ def main(argv=None):
         return 40 if B == 1 else (20 if B <= 16 else 8)
 
     here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    if args.compare:
-        other = os.path.abspath(args.compare)
+    other = os.path.abspath(args.compare) if args.compare else None
+    if other:
         print(f"before = {other}\nafter  = {here}")
-        hdr = (f"{'method':16s} {'B':>5s} {'steps/s before':>15s} {'after':>10s} {'speed-up':>9s} "
-               f"{'cpu ms before':>14s} {'after':>9s} {'reset s before':>15s} {'after':>7s}"
-               + (f" {'rounds: speed-ups':>18s}" if args.rounds > 1 else ""))
         if args.rounds > 1:
             print(f"each figure the median of {args.rounds} alternating runs per tree")
-    else:
-        hdr = (f"{'method':16s} {'B':>5s} {'reset [s]':>10s} {'steps/s':>12s} {'ms/step':>9s} {'cpu ms/step':>12s}"
-               + (f" {'rounds: steps/s':>18s}" if args.rounds > 1 else ""))
-        if args.rounds > 1:
-            print(f"each figure the median of {args.rounds} runs in fresh processes, cells in turn; their range beside")
+    elif args.rounds > 1:
+        print(f"each figure the median of {args.rounds} runs in fresh processes, cells in turn; their range beside")
     if not args.no_headline and not args.profile_only:
-        _print_headline(args, n_steps, here, os.path.abspath(args.compare) if args.compare else None)
+        _print_headline(args, n_steps, here, other)
     if args.headline_only:
         return
-    print("\n" + hdr + "\n" + "-" * len(hdr))
-    rounds_here = args.rounds > 1 and not args.compare  # the table of _print_rounds instead of the loop below
-    if rounds_here and not args.profile_only:
-        _print_rounds(args, batches, n_steps, here)
-    for m in ([] if args.profile_only or rounds_here else args.methods):
-        for B in batches:
-            cell = ("rate", m, B, n_steps(B), args.episode_s, args.scenario)
-            for tr in args.transitions:
-                lab = _label(m, tr)
-                if args.compare:
-                    before, after = [], []
-                    for _ in range(args.rounds):
-                        # the before tree, in the same mode if it has it
-                        rb, fell_back = _run_before(other, *cell, tr, args.stat)
-                        before.append(rb)
-                        after.append(_run_cell(here, *cell, tr, args.stat))
-                    lab += "*" if fell_back else ""
-                    rb, ra = np.median(before, axis=0), np.median(after, axis=0)
-                    ups = [a[1] / b[1] for a, b in zip(after, before)]
-                    spread = f" {min(ups):12.2f}-{max(ups):.2f}x" if args.rounds > 1 else ""
-                    print(f"{lab:16s} {B:5d} {rb[1]:15.0f} {ra[1]:10.0f} {ra[1] / rb[1]:8.2f}x {rb[2]:14.2f} "
-                          f"{ra[2]:9.2f} {rb[0]:15.2f} {ra[0]:7.2f}{spread}", flush=True)
-                else:
-                    t_reset, rate, cpu = bench_env(m, B, n_steps(B), args.episode_s, args.scenario, tr,
-                                                   stat=args.stat)
-                    _print_rate_row(lab, B, t_reset, rate, cpu)
-
-    if args.no_profile:
-        return
-    m = "sage-husa" if "sage-husa" in args.methods else args.methods[0]
-    prof_b = sorted({1, max(batches)})
-    cols = []
-    short = _SHORT
-    for B in prof_b:
-        cell = ("cpu-profile" if args.cpu_profile else "profile", m, B, n_steps(B), args.episode_s, args.scenario)
-        if args.compare:
-            tr0 = args.transitions[0]
-            rb, fell_back = _run_before(other, *cell, tr0)
-            cols.append((f"B={B} before{'' if fell_back else _SHORT[tr0]}", rb))
-        for tr in args.transitions:
-            if args.compare:
-                cols.append((f"B={B} after{short[tr]}", _run_cell(here, *cell, tr)))
-            else:
-                cols.append((f"B={B}{short[tr]}", profile_env(*cell[1:], tr, cpu=args.cpu_profile)))
-    print(f"\nprofile of one step, {m}: {'CPU' if args.cpu_profile else 'wall'} ms per step (share)")
-    print(f"{'stage':14s}" + "".join(f"{name:>20s}" for name, _ in cols))
-    for s in STAGES:
-        print(f"{s:14s}" + "".join(f"{r[0][s]:11.3f} ({100 * r[0][s] / r[1]:4.1f}%)" for _, r in cols))
-    print(f"{'total':14s}" + "".join(f"{r[1]:11.3f}         " for _, r in cols))
-
+    if not args.profile_only:
+        _print_rate_table(args, batches, n_steps, here, other)
+    if not args.no_profile:
+        _print_profile(args, batches, n_steps, here, other)
 
 if __name__ == "__main__":
     if len(sys.argv) > 1 and sys.argv[1] == "--cell":
