@@ -45,7 +45,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import partial
@@ -57,6 +56,7 @@ import numpy as np
 from earth.units import DEG, deg, dph, dpsh, mg, mpsph, ppm, ugpsh, ugpshz
 
 from .rng import ChildStreams
+from .row_threads import default_workers
 
 __all__ = [
     "ImuGrade",
@@ -1016,7 +1016,7 @@ def _check_inputs(f_true, w_true, imu_rate_hz, grade, rngs, engine_on, speed, vi
     if events is not None and not isinstance(events, ImuEvents):
         raise ValueError(f"events must be an ImuEvents or None, got {type(events).__name__}")
     if workers is None:
-        workers = max(1, min(b, os.cpu_count() or 1, 8))
+        workers = default_workers(b)
     elif not isinstance(workers, (int, np.integer)) or isinstance(workers, bool) or workers < 1:
         raise ValueError(f"workers must be a positive int or None, got {workers!r}")
     return grade, dtype, dt, f_true, w_true, engine_on, speed, (vibration if vib_on else None), workers

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import os
 from concurrent.futures import ThreadPoolExecutor
+from functools import cache
 from typing import Callable
 
 import numpy as np
@@ -16,9 +17,15 @@ ROWS_PER_TASK = 8
 """Fewest rows per thread task (handing a task over costs tens of microseconds)."""
 
 
+@cache
+def _cpus() -> int:
+    """``os.cpu_count()``, read once (a call costs ~8 us, and a world of one row asked four times)."""
+    return os.cpu_count() or 1
+
+
 def default_workers(n_rows: int | None = None) -> int:
     """Threads a world stage uses by default: ``min(os.cpu_count(), 8)``, and no more than ``n_rows``."""
-    w = max(1, min(os.cpu_count() or 1, 8))
+    w = max(1, min(_cpus(), 8))
     return w if n_rows is None else max(1, min(w, int(n_rows)))
 
 
