@@ -28,6 +28,7 @@ from .config import EnvConfig, ParamSpec
 from .episodes import navigator_for
 from .aiding import odometer_rows, with_rows
 from .prepared import WORLD_ARRAY_NAMES, PreparedWorld, prepared_from
+from .sim.buffers import WorldBuffers
 from .zupt_source import STILL_SPEED_MPS, ZuptSource  # noqa: F401  (STILL_SPEED_MPS re-exported)
 
 #: World seeds the environments draw at reset, ``[low, high)``: kept apart from the small seeds that
@@ -393,6 +394,8 @@ class TuningCore:
         # zero-velocity decisions on the IMU samples of every epoch (EnvConfig.zupt)
         self._zupt = ZuptSource(config.zupt, self.scenario.imu_rate_hz, config.zupt_weights)
         self._zflags = None
+        # the bulk arrays of the worlds drawn at the resets, reused from one reset to the next (envs.sim.buffers)
+        self.world_buffers = WorldBuffers()
 
     # ------------------------------------------------------------------ reset
     def _make_nav(self, world, method):
@@ -427,7 +430,7 @@ class TuningCore:
             # bulk (truth at the IMU rate, IMU error records) earlier made the reset of 1024 rows ~1 s shorter
             # but gave 2-3 of the 15 steps after it +30 ms of wall time (no minor page faults, no GC run; cause
             # not pinned down), 0.74-0.82x in bench_envs' 8 timed steps at B = 1024
-            whole = self.config.make_world(seeds)
+            whole = self.config.make_world(seeds, buffers=self.world_buffers)
             prepared = prepared_from(whole)
         elif list(prepared.seeds) != seeds:
             raise ValueError(f"reset_rows: the prepared world holds seeds {list(prepared.seeds)[:4]}..., not the "

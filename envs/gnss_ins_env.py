@@ -236,6 +236,12 @@ class GnssInsTuningEnv(gym.Env):
             info["episode_metrics"] = self.core.episode_metrics([0])[0]
         return res.obs[0], float(res.reward[0]), terminated, truncated, info
 
+    def close(self):
+        """Release the world buffers (the bulk arrays its resets reuse, :mod:`envs.sim.buffers`)."""
+        if getattr(self, "core", None) is not None:
+            self.core.world_buffers.clear()
+        super().close()
+
     def render(self):
         if self.render_mode is None:
             gym.logger.warn("render() called without a render_mode")

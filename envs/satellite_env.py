@@ -207,7 +207,7 @@ class SatelliteCore(TuningCore):
     def reset_rows(self, rows, seeds, prepared: PreparedWorld | None = None) -> np.ndarray:
         if prepared is None:
             from .prepared import prepared_from
-            prepared = prepared_from(self.config.make_world([int(s) for s in seeds]))
+            prepared = prepared_from(self.config.make_world([int(s) for s in seeds], buffers=self.world_buffers))
         return super().reset_rows(rows, seeds, pad_channels(prepared, self.n_channels))
 
     def _alloc(self, prepared: PreparedWorld):

@@ -159,7 +159,9 @@ class GnssInsTuningVectorEnv(VectorEnv):
         return obs, res.reward.astype(np.float64), res.terminated.copy(), res.truncated.copy(), infos
 
     def close_extras(self, **kwargs):
-        """Stop the world prefetch process, if any."""
+        """Stop the world prefetch process, if any, and release the world buffers."""
+        if getattr(self, "core", None) is not None:
+            self.core.world_buffers.clear()
         if self._prefetch is not None:
             self._prefetch.close()
             self._prefetch = None

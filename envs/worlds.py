@@ -49,7 +49,7 @@ def replay_descriptor(scenario, imu_grade: str | None = None, duration_s: float 
 
 
 def make_world(scenario, seeds, dtype=np.float64, imu_grade: str | None = None,
-               duration_s: float | None = None) -> World:
+               duration_s: float | None = None, buffers=None) -> World:
     """A batched world for ``scenario`` and ``seeds``.
 
     ``scenario`` is a name of :func:`scenario_names`, a dataset spec path (``*.toml``,
@@ -57,6 +57,8 @@ def make_world(scenario, seeds, dtype=np.float64, imu_grade: str | None = None,
     :class:`~envs.datasets.spec.ReplayScenario` of a replay world (which replays it again; a plain Scenario
     describing a recording raises ``ValueError`` rather than simulating). ``imu_grade`` and ``duration_s``
     override the scenario's (for a recording: the synthesized IMU's grade, and a prefix of the recording).
+    ``buffers``: a simulated world's bulk arrays come from this :class:`envs.sim.buffers.WorldBuffers`
+    (:func:`envs.sim.world.generate_world`); a replayed world does not use it.
     """
     if not isinstance(scenario, (str, Scenario)) and not hasattr(scenario, "__fspath__"):
         raise ValueError(f"scenario must be a name, a dataset spec path or a Scenario, got {scenario!r}")
@@ -73,7 +75,7 @@ def make_world(scenario, seeds, dtype=np.float64, imu_grade: str | None = None,
     if duration_s is not None:
         over["duration_s"] = float(duration_s)
     from .sim.scenarios import get_scenario
-    return generate_world(get_scenario(scenario, **over), seeds, dtype=dtype)
+    return generate_world(get_scenario(scenario, **over), seeds, dtype=dtype, buffers=buffers)
 
 
 def oracle_r_world(world: World, exclude_nlos: bool = False) -> World:

@@ -56,6 +56,7 @@ import numpy as np
 from earth.units import DEG, deg, dph, dpsh, mg, mpsph, ppm, ugpsh, ugpshz
 
 from .rng import ChildStreams
+from .buffers import empty
 from .row_threads import default_workers
 
 __all__ = [
@@ -1129,7 +1130,7 @@ _ONES_CACHE: dict = {}
 def simulate_imu(f_true, w_true, imu_rate_hz: float, grade, rngs: Sequence[np.random.Generator],
                  engine_on=None, speed=None, vibration: Vibration | None = None, dtype=np.float64,
                  workers: int | None = None, vibration_rngs: Sequence[np.random.Generator] | None = None,
-                 events: ImuEvents | None = None) -> ImuData:
+                 events: ImuEvents | None = None, buffers=None) -> ImuData:
     """Corrupt ideal IMU interval means with the errors of an IMU grade (and vehicle vibration).
 
     Implements (Groves 2013 sec. 4.4; IEEE Std 952-1997 noise terms)::
@@ -1168,6 +1169,8 @@ def simulate_imu(f_true, w_true, imu_rate_hz: float, grade, rngs: Sequence[np.ra
         Random bias steps and rough-road regimes (:class:`ImuEvents`), drawn
         from their own child stream of ``rngs[i]`` (the other terms' draws do
         not change). None: none.
+    buffers : :class:`envs.sim.buffers.WorldBuffers` or None: the (B, N, 3) outputs come from it (reused from an
+        earlier draw that nobody holds any more). The values do not depend on it.
 
     Returns
     -------
@@ -1186,9 +1189,9 @@ def simulate_imu(f_true, w_true, imu_rate_hz: float, grade, rngs: Sequence[np.ra
     step_rates = (0.0, 0.0) if events is None else (events.gyro_step_rate_hz, events.accel_step_rate_hz)
     job = _RowJob(sensors=sensors, truth=(w_true, f_true), dt=dt, rngs=rngs, vibration_rngs=vibration_rngs,
                   engine_on=engine_on, speed=speed, vibration=vibration, events=events, step_rates=step_rates,
-                  outs=(np.empty((b, n, 3), dtype=dtype), np.empty((b, n, 3), dtype=dtype)),
-                  bias_full=tuple(np.empty((b, n, 3), dtype=dtype) if (s.gm_sigma > 0 or r > 0) else None
-                                  for s, r in zip(sensors, step_rates)),
+                  outs=(empty(buffers, "imu.w_b", (b, n, 3), dtype), empty(buffers, "imu.f_b", (b, n, 3), dtype)),
+                  bias_full=tuple(empty(buffers, f"imu.{name}", (b, n, 3), dtype) if (s.gm_sigma > 0 or r > 0)
+                                  else None for name, s, r in zip(("gyro_bias", "accel_bias"), sensors, step_rates)),
                   bias_const=(np.empty((b, 3)), np.empty((b, 3))), sm=(np.zeros((b, 3, 3)), np.zeros((b, 3, 3))),
                   ev_rows=[None] * b)
     if workers == 1 or b == 1:

@@ -109,6 +109,7 @@ import numpy as np
 from earth import C_en, OMEGA_IE_E, dcm_from_euler, geodetic_to_ecef, gravity_ecef
 from earth.units import DEG
 
+from .buffers import empty
 from .row_threads import run_row_ranges
 
 __all__ = [
@@ -967,8 +968,9 @@ def _node_rows(args, U: int, n: int, ia, gm, workers: int | None = None) -> None
                                                int(np.searchsorted(gm, u0 * n))), U, workers)
 
 
-def _evaluate(pc: _Pieces, t, grav, linear_gravity: bool, dtype) -> dict:
-    """All outputs of the U rows of ``pc`` on the grid ``t`` (N,): a dict of (U, N, ...) arrays of :class:`Truth`.
+def _evaluate(pc: _Pieces, t, grav, linear_gravity: bool, dtype, buffers=None) -> dict:
+    """All outputs of the U rows of ``pc`` on the grid ``t`` (N,): a dict of (U, N, ...) arrays of :class:`Truth`
+    (from ``buffers``, :class:`envs.sim.buffers.WorldBuffers`, when given).
 
     States and instantaneous IMU at the grid nodes; IMU means over the intervals ``(t_{k-1}, t_k]`` by
     Simpson's rule on each smooth sub-interval:
@@ -984,11 +986,9 @@ def _evaluate(pc: _Pieces, t, grav, linear_gravity: bool, dtype) -> dict:
     U = pc.C_eL.shape[0]
     pl = pc.pl
     out = {
-        "r_e": np.empty((U, n, 3), dtype), "v_e": np.empty((U, n, 3), dtype),
-        "C_eb": np.empty((U, n, 3, 3), dtype), "f_b": np.empty((U, n, 3), dtype),
-        "w_b": np.empty((U, n, 3), dtype), "speed": np.empty((U, n), dtype),
-        "heading": np.empty((U, n), dtype), "pitch": np.empty((U, n), dtype),
-        "engine_on": np.empty((U, n), bool),
+        key: empty(buffers, f"truth.{key}", (U, n) + tail, bool if key == "engine_on" else dtype)
+        for key, tail in (("r_e", (3,)), ("v_e", (3,)), ("C_eb", (3, 3)), ("f_b", (3,)), ("w_b", (3,)),
+                          ("speed", ()), ("heading", ()), ("pitch", ()), ("engine_on", ()))
     }
     starts, cnt, pn = _grid_pieces(pc, t)
     arcs = np.flatnonzero((pl.kind != _STRAIGHT) & (cnt > 0))
@@ -1036,7 +1036,8 @@ def _anchor_grid(n: int, rate: float):
     return np.arange((n - 1) * M + 1) / (rate * M), 1.0 / (rate * M), False
 
 
-def generate_truth(motions: Sequence[Motion], duration_s: float, imu_rate_hz: float, dtype=np.float64) -> Truth:
+def generate_truth(motions: Sequence[Motion], duration_s: float, imu_rate_hz: float, dtype=np.float64,
+                   buffers=None) -> Truth:
     """Truth trajectory and ideal IMU for a batch of motions on one time grid.
 
     Parameters
@@ -1050,6 +1051,8 @@ def generate_truth(motions: Sequence[Motion], duration_s: float, imu_rate_hz: fl
     dtype : np.float64 (default) or np.float32, the dtype of the float outputs other
         than ``t``, ``lat0``, ``lon0``, ``h0`` (float64 always); computed in float64,
         rounded once.
+    buffers : :class:`envs.sim.buffers.WorldBuffers` or None: the output arrays come from it (reused from an
+        earlier draw that nobody holds any more). The values do not depend on it.
 
     Returns
     -------
@@ -1099,7 +1102,7 @@ def generate_truth(motions: Sequence[Motion], duration_s: float, imu_rate_hz: fl
     ga_L = (ga_e @ C_eL).mT.copy()                                 # (U, 3, A): C_Le g_e
     dga_L = np.diff(ga_L, axis=-1)
 
-    out = _evaluate(pc, t, (ga_L, dga_L, 1.0 / h), on_nodes, dtype)
+    out = _evaluate(pc, t, (ga_L, dga_L, 1.0 / h), on_nodes, dtype, buffers)
     idx = np.array(row_of)
     if not np.array_equal(idx, np.arange(B)):                     # copy the rows of equal motions
         out = {key: val[idx] for key, val in out.items()}

@@ -137,7 +137,7 @@ def imu_event_bits(t, imu: ImuData, events: ImuEvents | None) -> np.ndarray:
     return bits
 
 
-def generate_world(scenario, seeds, dtype=np.float64) -> World:
+def generate_world(scenario, seeds, dtype=np.float64, buffers=None) -> World:
     """Draw B episodes of ``scenario`` (name or :class:`Scenario`) from ``seeds`` (B non-negative ints).
 
     Parameters
@@ -145,6 +145,9 @@ def generate_world(scenario, seeds, dtype=np.float64) -> World:
     scenario : str or Scenario
     seeds : int or sequence of int, one per row.
     dtype : float dtype of the IMU samples (the truth and GNSS geometry stay float64).
+    buffers : :class:`envs.sim.buffers.WorldBuffers` or None: the bulk arrays (truth at the IMU rate, IMU samples
+        and error records) come from it, reused from an earlier draw that nobody holds any more (an env core's
+        resets). The world does not depend on it.
     """
     scen = get_scenario(scenario)
     if getattr(scen, "dataset", None) is not None:   # envs.datasets.spec.ReplayScenario: never simulate it
@@ -155,11 +158,11 @@ def generate_world(scenario, seeds, dtype=np.float64) -> World:
                          f"only (the yaw rate comes with recorded odometry); set it to None for {scen.name!r}")
     seeds = as_seeds(seeds)
     motions = scen.motions(row_generators(seeds, "trajectory"))
-    truth = generate_truth(motions, scen.duration_s, scen.imu_rate_hz)
+    truth = generate_truth(motions, scen.duration_s, scen.imu_rate_hz, buffers=buffers)
     imu = simulate_imu(truth.f_b, truth.w_b, scen.imu_rate_hz, IMU_GRADES[scen.imu_grade],
                        row_generators(seeds, "imu"), engine_on=truth.engine_on, speed=truth.speed,
                        vibration=scen.vibration, dtype=dtype,
-                       vibration_rngs=row_generators(seeds, "vibration"), events=scen.imu_events)
+                       vibration_rngs=row_generators(seeds, "vibration"), events=scen.imu_events, buffers=buffers)
     spe = scen.samples_per_epoch
     epoch_idx = np.arange(spe, truth.t.size, spe)
     at = truth.take(epoch_idx)
