@@ -25,6 +25,9 @@ overlap in).
 ``--cores`` adds, per cell, the cores busy in the world and in each stage: its process CPU time (all threads)
 over its wall time, both read around the same calls (1.00: one core throughout; on 2 cores, 2.00 at most).
 
+The draws go through one :class:`envs.sim.buffers.WorldBuffers` (each reuses the arrays of the one before, as an
+env core's resets do; a ``--compare`` tree without it allocates them); ``--fresh`` allocates them at every draw.
+
 ``--draw-floor`` adds, per cell, the cost of the IMU stage's random draws alone (:func:`draw_floor`): the
 normal variates it draws, counted on the world's own streams, drawn again by numpy one row per thread. A stage
 that keeps the episodes bit for bit pays at least that, whatever else it speeds up.
@@ -97,15 +100,29 @@ def _install_timers(acc, clock) -> set:
     return found
 
 
-def _make_world(scenario, seeds, duration_s, dtype):
+def _make_world(scenario, seeds, duration_s, dtype, buffers=None):
     from envs.sim.scenarios import get_scenario
     from envs.sim.world import generate_world
-    return generate_world(get_scenario(scenario, duration_s=duration_s), seeds, dtype=dtype)
+    kw = {} if buffers is None else {"buffers": buffers}
+    return generate_world(get_scenario(scenario, duration_s=duration_s), seeds, dtype=dtype, **kw)
 
 
-def bench_cell(scenario, B, duration_s, reps, dtype="float64", cpu=False, cores=False):
+def _world_buffers(fresh: bool):
+    """An :class:`envs.sim.buffers.WorldBuffers` (the draws reuse the arrays of the one before, as an env's resets
+    do), or None with ``fresh`` or in a tree without it (each draw allocates its arrays)."""
+    if fresh:
+        return None
+    try:
+        from envs.sim.buffers import WorldBuffers
+    except ImportError:  # a tree before it (--compare)
+        return None
+    return WorldBuffers()
+
+
+def bench_cell(scenario, B, duration_s, reps, dtype="float64", cpu=False, cores=False, fresh=False):
     """Median wall time (``cpu`` without ``cores``: process CPU time) per row [s] of the world and of each stage over ``reps`` draws
-    of B rows, and N.
+    of B rows, and N. The draws go through one :class:`envs.sim.buffers.WorldBuffers`, as an env core's resets do
+    (``fresh``: without, each draw allocates its arrays).
 
     Returns ``{"total": s, "<stage>": s or None, ..., "rest": s, "n": N}`` (per row; each stage the median of its
     own times, None where this tree lacks it; ``rest`` the median of the per-draw remainders). ``cores``: also
@@ -118,7 +135,8 @@ def bench_cell(scenario, B, duration_s, reps, dtype="float64", cpu=False, cores=
     found = _install_timers(acc, clock)
     if cores:
         _install_timers(acc_cpu, time.process_time)  # around the wall timers: the same calls
-    w = _make_world(scenario, list(range(B)), duration_s, np.dtype(dtype))  # untimed: loads compiled kernels
+    buffers = _world_buffers(fresh)
+    w = _make_world(scenario, list(range(B)), duration_s, np.dtype(dtype), buffers)  # untimed: compiled kernels load
     n = w.truth.t.shape[0]
     del w
     rows, cpu_rows = [], []
@@ -127,7 +145,7 @@ def bench_cell(scenario, B, duration_s, reps, dtype="float64", cpu=False, cores=
             acc[k] = acc_cpu[k] = 0.0
         seeds = list(range((r + 1) * B, (r + 2) * B))
         t0, c0 = clock(), time.process_time()
-        _make_world(scenario, seeds, duration_s, np.dtype(dtype))
+        _make_world(scenario, seeds, duration_s, np.dtype(dtype), buffers)
         total, total_cpu = clock() - t0, time.process_time() - c0
         rows.append((total, *(acc[k] for k in _WRAPPED), total - sum(acc.values())))
         cpu_rows.append((total_cpu, *(acc_cpu[k] for k in _WRAPPED), total_cpu - sum(acc_cpu.values())))
@@ -222,11 +240,11 @@ def draw_floor(scenario, B, duration_s, dtype="float64", reps=3) -> dict:
     return {"normals_per_sample": per_row / n, "ms_per_row": 1e3 * t, "samples_per_s": n / t, "threads": threads}
 
 
-def _run_cell(root, scenario, B, duration_s, reps, dtype, cpu):
+def _run_cell(root, scenario, B, duration_s, reps, dtype, cpu, fresh=False):
     """One cell in a fresh process on the source tree ``root``; returns its JSON result."""
     env = dict(os.environ, NAVGYM_BENCH_ROOT=root)
     cmd = [sys.executable, os.path.abspath(__file__), "--cell", scenario, str(B), str(duration_s), str(reps), dtype,
-           "cpu" if cpu else "wall"]
+           "cpu" if cpu else "wall", "fresh" if fresh else "buffers"]
     out = subprocess.run(cmd, env=env, cwd=root, capture_output=True, text=True, check=True).stdout
     return json.loads(out.strip().splitlines()[-1])
 
@@ -260,6 +278,9 @@ def main(argv=None):
     p.add_argument("--cores", action="store_true",
                    help="also print, per cell, the cores busy in each stage (its CPU time over its wall time, "
                         "from the same draws): where the world leaves a core idle")
+    p.add_argument("--fresh", action="store_true",
+                   help="each draw allocates its arrays (default: the draws reuse them through one WorldBuffers, "
+                        "as an env's resets do)")
     p.add_argument("--draw-floor", action="store_true",
                    help="also print, per cell, what the IMU stage's normal draws alone cost (draw_floor): the "
                         "bound of any bit-identical IMU stage")
@@ -279,7 +300,7 @@ def main(argv=None):
     print("\n" + hdr + "\n" + "-" * len(hdr))
     for scen in args.scenarios:
         for B in args.batches:
-            cell = (scen, B, args.duration_s, reps(B), args.dtype, args.cpu)
+            cell = (scen, B, args.duration_s, reps(B), args.dtype, args.cpu, args.fresh)
             if args.compare:
                 before, after = [], []
                 for _ in range(args.rounds):
@@ -293,7 +314,7 @@ def main(argv=None):
                 print(f"{scen:14s} {B:4d} {'Msa/s':10s} {1e-6 * rb['n'] / rb['total']:14.3f} "
                       f"{1e-6 * ra['n'] / ra['total']:8.3f} {rb['total'] / ra['total']:8.2f}x", flush=True)
             else:
-                r = bench_cell(*cell, cores=args.cores and not args.cpu)
+                r = bench_cell(*cell[:6], cores=args.cores and not args.cpu, fresh=args.fresh)
                 parts = " ".join(_with_share(r, s) for s in STAGES)
                 print(f"{scen:14s} {B:4d} {1e3 * r['total']:8.3f} {r['n'] / r['total']:11.3g} {parts}", flush=True)
                 if "cores" in r:
@@ -309,7 +330,8 @@ def main(argv=None):
 
 if __name__ == "__main__":
     if len(sys.argv) > 1 and sys.argv[1] == "--cell":
-        scenario, B, duration_s, reps, dtype, clock = sys.argv[2:8]
-        print(json.dumps(bench_cell(scenario, int(B), float(duration_s), int(reps), dtype, clock == "cpu")))
+        scenario, B, duration_s, reps, dtype, clock, alloc = sys.argv[2:9]
+        print(json.dumps(bench_cell(scenario, int(B), float(duration_s), int(reps), dtype, clock == "cpu",
+                                    fresh=alloc == "fresh")))
     else:
         main()
