@@ -13,7 +13,8 @@
 
 Row ``i`` draws only from the fixed child streams of its own generator (:func:`_row_children`; indices
 ``_SUB_*``), each stage from its own streams, so the stages may run in any grouping without changing a draw.
-Each stage is vectorized over rows and epochs except the per-row event draws.
+Stages 1 and 6 run compiled row kernels on threads (:mod:`envs.sim.geometry_kernels`); the others are vectorized
+over rows and epochs except the per-row draws.
 """
 from __future__ import annotations
 
