@@ -142,7 +142,7 @@ def _seed_state(words, key, out):
         h = (h * mult_a) & m32
         v = (v * h) & m32
         pool[i] = v ^ (v >> sh)
-    for i_src in range(_POOL + max(0, n_ent - _POOL)):
+    for i_src in range(n_ent):                              # the pool words, then the entropy beyond them
         for i_dst in range(_POOL):
             if i_src == i_dst:
                 continue
@@ -179,7 +179,6 @@ class FastSeedSequence(ISpawnableSeedSequence):
         if self._words.size and 0 <= self._key < 2**32:
             self._state = np.empty(_STATE_WORDS, np.uint32)
             _seed_state(self._words, self._key, self._state)
-            self._state64 = self._state.view("<u8")
 
     def _real(self) -> np.random.SeedSequence:
         if self._seq is None:
@@ -188,13 +187,11 @@ class FastSeedSequence(ISpawnableSeedSequence):
 
     def generate_state(self, n_words: int, dtype=np.uint32) -> np.ndarray:
         """``SeedSequence.generate_state``: (n_words,) uint32 or uint64 (pairs of words, low word first)."""
-        if dtype is np.uint64 and self._state is not None and n_words <= _STATE_WORDS // 2:
-            return self._state64[:n_words].astype(np.uint64)    # what PCG64 and SFC64 ask for
-        dt = np.dtype(dtype)
-        n32 = n_words * (2 if dt == np.uint64 else 1)
-        if self._state is None or dt not in (np.uint32, np.uint64) or n32 > _STATE_WORDS:
+        wide = dtype is np.uint64 or np.dtype(dtype) == np.uint64   # PCG64 and SFC64 pass np.uint64 itself
+        n32 = n_words * (2 if wide else 1)
+        if self._state is None or not (wide or np.dtype(dtype) == np.uint32) or n32 > _STATE_WORDS:
             return self._real().generate_state(n_words, dtype)
-        return self._state[:n32].view("<u8" if dt == np.uint64 else "<u4").astype(dt)
+        return self._state[:n32].view("<u8" if wide else "<u4").astype(np.uint64 if wide else np.uint32)
 
     def spawn(self, n_children: int) -> list:
         """``SeedSequence.spawn``: the children of the real sequence."""
