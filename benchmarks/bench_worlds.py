@@ -29,8 +29,9 @@ The draws go through one :class:`envs.sim.buffers.WorldBuffers` (each reuses the
 env core's resets do; a ``--compare`` tree without it allocates them); ``--fresh`` allocates them at every draw.
 
 ``--draw-floor`` adds, per cell, the cost of the IMU stage's random draws alone (:func:`draw_floor`): the
-normal variates it draws, counted on the world's own streams, drawn again by numpy one row per thread. A stage
-that keeps the episodes bit for bit pays at least that, whatever else it speeds up.
+normal variates it draws, counted on the world's own streams by bit generator, drawn again as the stage draws
+them (:func:`envs.sim.normals.standard_normal`; numpy's own in a tree without it) one row per thread. The stage
+pays that however fast the rest of it gets.
 
 ``--compare DIR`` runs every cell twice, in this tree and in the source tree ``DIR`` (e.g. ``git worktree add
 /tmp/before <commit>``), alternately in fresh processes (``--rounds`` times, median over the rounds), and
@@ -164,25 +165,31 @@ def bench_cell(scenario, B, duration_s, reps, dtype="float64", cpu=False, cores=
 
 class _CountingGenerator(np.random.Generator):
     """A Generator on another one's bit generator (the very same stream) that records how many normal variates
-    it hands out (:func:`draw_floor`)."""
+    it hands out, by bit generator (:func:`draw_floor`)."""
 
-    drawn: list = []
+    drawn: list = []  # (bit generator name, variates)
 
     def standard_normal(self, size=None, dtype=np.float64, out=None):
-        _CountingGenerator.drawn.append(out.size if out is not None else int(np.prod(size or 1)))
+        _CountingGenerator.count(self, out.size if out is not None else int(np.prod(size or 1)))
         return super().standard_normal(size, dtype, out)
 
     def normal(self, loc=0.0, scale=1.0, size=None):
-        _CountingGenerator.drawn.append(int(np.prod(size)) if size is not None else np.broadcast(loc, scale).size)
+        _CountingGenerator.count(self, int(np.prod(size)) if size is not None else np.broadcast(loc, scale).size)
         return super().normal(loc, scale, size)
+
+    @staticmethod
+    def count(gen, n: int) -> None:
+        _CountingGenerator.drawn.append((type(gen.bit_generator).__name__, int(n)))
 
 
 def _count_imu_normals(scenario, B, duration_s, dtype) -> tuple:
-    """``(count, world)``: the normal variates :func:`envs.sim.imu.simulate_imu` draws for the world of seeds
-    0..B-1 (its row streams and their child streams counted), and that world (the same bits as without counting)."""
-    from envs.sim import rng, world
+    """``(counts, world)``: the normal variates :func:`envs.sim.imu.simulate_imu` draws for the world of seeds
+    0..B-1 (its row streams and their child streams counted, by numpy or by :mod:`envs.sim.normals`), as
+    ``{bit generator name: variates}``, and that world (the same bits as without counting)."""
+    from envs.sim import imu, rng, world
     counting = lambda g: _CountingGenerator(g.bit_generator)  # noqa: E731
     orig_rows, orig_item = world.row_generators, rng.ChildStreams.__getitem__
+    orig_normal = getattr(imu, "standard_normal", None)      # the compiled draws (a tree before them: none)
 
     def rows(seeds, stream):
         gens = orig_rows(seeds, stream)
@@ -191,6 +198,10 @@ def _count_imu_normals(scenario, B, duration_s, dtype) -> tuple:
     def item(self, k):
         got = orig_item(self, k)
         return [counting(g) for g in got] if isinstance(got, list) else counting(got)
+
+    def compiled(gen, size):
+        _CountingGenerator.count(gen, int(np.prod(size)))
+        return orig_normal(np.random.Generator(gen.bit_generator), size)  # the same stream, not counted again
 
     orig_sim = world.simulate_imu
 
@@ -202,33 +213,46 @@ def _count_imu_normals(scenario, B, duration_s, dtype) -> tuple:
             rng.ChildStreams.__getitem__ = orig_item
 
     world.row_generators, world.simulate_imu = rows, sim
+    if orig_normal is not None:
+        imu.standard_normal = compiled
     _CountingGenerator.drawn = []
     try:
         w = _make_world(scenario, list(range(B)), duration_s, np.dtype(dtype))
     finally:
         world.row_generators, world.simulate_imu = orig_rows, orig_sim
-    return int(sum(_CountingGenerator.drawn)), w
+        if orig_normal is not None:
+            imu.standard_normal = orig_normal
+    counts: dict = {}
+    for name, n in _CountingGenerator.drawn:
+        counts[name] = counts.get(name, 0) + n
+    return counts, w
 
 
 def draw_floor(scenario, B, duration_s, dtype="float64", reps=3) -> dict:
     """What the IMU stage's random draws alone cost: the normal variates it draws for B rows
-    (:func:`_count_imu_normals`), drawn again with numpy's SFC64 (the IMU's child bit generator) one row per task
-    on the IMU's thread count, in (N, 3) blocks. Any bit-identical IMU stage pays at least this.
+    (:func:`_count_imu_normals`), drawn again on generators of the same bit generators as the stage draws them
+    (:func:`envs.sim.normals.standard_normal`; numpy's in a tree without it), one row per task on the IMU's
+    thread count, in blocks of at most (N, 3). The stage pays at least this.
 
     Returns ``{"normals_per_sample", "ms_per_row", "samples_per_s", "threads"}`` (median of ``reps``)."""
     from concurrent.futures import ThreadPoolExecutor
-    total, w = _count_imu_normals(scenario, B, duration_s, dtype)
+    try:
+        from envs.sim.normals import standard_normal as draw
+    except ImportError:  # a tree before the compiled draws
+        def draw(g, size):
+            return g.standard_normal(size)
+    counts, w = _count_imu_normals(scenario, B, duration_s, dtype)
     n = w.truth.t.shape[0]
-    per_row = total // B
+    per_row = {name: c // B for name, c in counts.items()}
     threads = max(1, min(B, os.cpu_count() or 1, 8))
-    gens = [np.random.Generator(np.random.SFC64(k)) for k in range(B)]
+    gens = [{name: np.random.Generator(getattr(np.random, name)(k)) for name in per_row} for k in range(B)]
 
     def row(i):
-        g, left = gens[i], per_row
-        while left > 0:
-            m = min(left, 3 * n)
-            g.standard_normal(m)
-            left -= m
+        for name, left in per_row.items():
+            while left > 0:
+                m = min(left, 3 * n)
+                draw(gens[i][name], m)
+                left -= m
 
     times = []
     with ThreadPoolExecutor(threads) as ex:
@@ -237,7 +261,8 @@ def draw_floor(scenario, B, duration_s, dtype="float64", reps=3) -> dict:
             list(ex.map(row, range(B)))
             times.append(time.perf_counter() - t0)
     t = float(np.median(times)) / B
-    return {"normals_per_sample": per_row / n, "ms_per_row": 1e3 * t, "samples_per_s": n / t, "threads": threads}
+    return {"normals_per_sample": sum(per_row.values()) / n, "ms_per_row": 1e3 * t, "samples_per_s": n / t,
+            "threads": threads}
 
 
 def _run_cell(root, scenario, B, duration_s, reps, dtype, cpu, fresh=False):
@@ -282,8 +307,8 @@ def main(argv=None):
                    help="each draw allocates its arrays (default: the draws reuse them through one WorldBuffers, "
                         "as an env's resets do)")
     p.add_argument("--draw-floor", action="store_true",
-                   help="also print, per cell, what the IMU stage's normal draws alone cost (draw_floor): the "
-                        "bound of any bit-identical IMU stage")
+                   help="also print, per cell, what the IMU stage's normal draws alone cost (draw_floor), "
+                        "drawn as the stage draws them")
     args = p.parse_args(argv)
     reps = lambda B: args.reps or (20 if B == 1 else 5)  # noqa: E731
     here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -324,7 +349,7 @@ def main(argv=None):
             if args.draw_floor:
                 f = draw_floor(scen, B, args.duration_s, args.dtype)
                 print(f"{scen:14s} {B:4d} draw floor: {f['normals_per_sample']:.1f} normals per IMU sample; "
-                      f"drawing them alone (SFC64, {f['threads']} threads) {f['ms_per_row']:.3f} ms/row, "
+                      f"drawing them alone ({f['threads']} threads) {f['ms_per_row']:.3f} ms/row, "
                       f"{f['samples_per_s']:.3g} samples/s at most", flush=True)
 
 

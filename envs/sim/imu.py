@@ -55,6 +55,7 @@ import numpy as np
 
 from earth.units import DEG, deg, dph, dpsh, mg, mpsph, ppm, ugpsh, ugpshz
 
+from .normals import standard_normal
 from .rng import ChildStreams
 from .buffers import empty
 from .row_threads import default_workers
@@ -605,7 +606,7 @@ def _vibration_row(gen: np.random.Generator, dt: float, engine_on: np.ndarray | 
         ridx = np.flatnonzero(road)
         a1, a2, gamma0 = _ar2_coefficients(vib.road_center_hz, vib.road_damping, dt)
         z = gen.standard_normal((2, 6))
-        e = gen.standard_normal((ridx.size, 6))
+        e = standard_normal(gen, (ridx.size, 6))
         rho1 = a1 / (1.0 - a2)
         y1 = z[0]
         y2 = rho1 * z[0] + math.sqrt(max(1.0 - rho1 * rho1, 0.0)) * z[1]
@@ -1077,9 +1078,9 @@ def _sensor_row(s: _SensorSpec, truth, vib, rough, sm_row, const, step_bias, ch,
         phi = math.exp(-dt / s.gm_tau)
         g = ch[s.gm_stream]
         zi = phi * (g.standard_normal(3) * s.gm_sigma)        # phi b_0, b_0 ~ N(0, sigma^2)
-        gm_z = g.standard_normal((n, 3))
+        gm_z = standard_normal(g, (n, 3))
         gm_scale = s.gm_sigma * math.sqrt(-math.expm1(-2.0 * dt / s.gm_tau))
-    white_z = ch[s.white_stream].standard_normal((n, 3)) if s.white_sigma > 0 else _NONE
+    white_z = standard_normal(ch[s.white_stream], (n, 3)) if s.white_sigma > 0 else _NONE
     has_step = step_bias is not None
     _sensor_kernel(truth, _NONE if vib is None else vib, rough, np.eye(3) + sm_row, s.has_sm, const, bool(np.any(const)),
                    gm_z, gm_scale, zi, phi, has_gm, _NONE if step_bias is None else step_bias, has_step, white_z,
@@ -1157,8 +1158,8 @@ def simulate_imu(f_true, w_true, imu_rate_hz: float, grade, rngs: Sequence[np.ra
     dtype : np.float32 or np.float64, dtype of the output arrays (internal
         arithmetic is float64, so a float32 result is the float64 result rounded).
     workers : int or None
-        Threads over rows (numpy's random fills and scipy's filters release the
-        GIL). None: ``min(B, os.cpu_count(), 8)``; 1: serial. Results do not
+        Threads over rows (the compiled normal draws of :mod:`envs.sim.normals` and
+        the compiled kernels release the GIL). None: ``min(B, os.cpu_count(), 8)``; 1: serial. Results do not
         depend on it.
     vibration_rngs : list of B generators or None
         Streams of the vehicle vibration (e.g. ``row_generators(seeds,
