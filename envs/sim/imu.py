@@ -55,7 +55,7 @@ import numpy as np
 
 from earth.units import DEG, deg, dph, dpsh, mg, mpsph, ppm, ugpsh, ugpshz
 
-from .normals import standard_normal
+from .normals import normal_step, standard_normal, store_stream_state, stream_state
 from .rng import ChildStreams
 from .buffers import empty
 from .row_threads import default_workers
@@ -493,66 +493,106 @@ def _ar2_coefficients(center_hz: float, damping: float, dt: float) -> tuple[floa
     return a1, a2, gamma0
 
 
-@nb.njit(cache=True, nogil=True)
-def _all_pole_filter(a: np.ndarray, x: np.ndarray, zi: np.ndarray) -> np.ndarray:
-    """``scipy.signal.lfilter([1.0], a, x, axis=0, zi=zi)[0]``: the all-pole filter ``1 / A(z)`` along axis 0.
-
-    ``a`` (L,) with ``a[0] == 1``, ``x`` (n, c), ``zi`` (L - 1, c) the initial delay state; returns y (n, c).
-    lfilter's direct form II transposed recursion (its operations in its order, with the numerator padded
-    to ``[1, 0, ..., 0]`` as lfilter pads it), so the result is lfilter's to the bit; compiled, releasing the
-    GIL for the row threads, and the c columns' recursions interleaved (independent dependency chains):
-    1.5 to 3 times as fast as lfilter on these short filters.
-    """
-    n, c = x.shape
-    L = a.shape[0]
-    b = np.zeros(L)
-    b[0] = 1.0
-    y = np.empty((n, c))
-    z = zi.copy()
-    for k in range(n):
-        for j in range(c):
-            xn = x[k, j]
-            yn = z[0, j] + b[0] * xn
-            for i in range(L - 2):
-                z[i, j] = z[i + 1, j] + xn * b[i + 1] - yn * a[i + 1]
-            z[L - 2, j] = xn * b[L - 1] - yn * a[L - 1]
-            y[k, j] = yn
-    return y
+_NONE_SAMPLE, _IDLE, _ROAD = 0, 1, 2
+"""Vibration regime codes of a sample (:func:`_regimes`): engine off, engine idle, road."""
 
 
 @nb.njit(cache=True, nogil=True)
-def _sum_of_products(basis: np.ndarray, coef: np.ndarray) -> np.ndarray:
-    """``basis.T @ coef`` (M, c) for basis (m, M) and coef (m, c), each sum taken in order from 0.0:
-    ``((0 + b_0 c_0) + b_1 c_1) + ...``; compiled (no BLAS threads, see :func:`_apply_matrix`)."""
-    m, M = basis.shape
-    c = coef.shape[1]
-    out = np.empty((M, c))
-    for k in range(M):
-        for j in range(c):
-            s = 0.0
-            for i in range(m):
-                s += basis[i, k] * coef[i, j]
-            out[k, j] = s
-    return out
+def _regimes(speed, eng, has_eng, stationary, kinds):
+    """The vibration regime of each sample into ``kinds`` (n,) int8 (:data:`_IDLE` where the engine runs and
+    ``|speed| <= stationary``, :data:`_ROAD` where it runs faster, :data:`_NONE_SAMPLE` where it is off; ``eng``
+    (n,) bool read when ``has_eng``, else the engine runs throughout). Returns ``(n_idle, n_road)``."""
+    n_idle = n_road = 0
+    for k in range(speed.shape[0]):
+        if has_eng and not eng[k]:
+            kinds[k] = _NONE_SAMPLE
+        elif abs(speed[k]) > stationary:
+            kinds[k] = _ROAD
+            n_road += 1
+        else:
+            kinds[k] = _IDLE
+            n_idle += 1
+    return n_idle, n_road
 
 
 @nb.njit(cache=True, nogil=True)
-def _road_vibration(e, zi, a, level, scale, ridx, vib) -> None:
-    """The road samples of :func:`_vibration_row` into the rows ``ridx`` (m,) of ``vib`` (N, 6) (f_vib, w_vib).
+def _idle_samples(kinds, dt, w1, w2, coef, out):
+    """The idle samples of ``out`` (n, 6): at the interval midpoint ``t = (k + 1/2) dt`` the interval means of the
+    fundamental ``w1`` and the harmonic ``w2`` [rad/s], ``sum_i basis_i coef_i`` over the basis ``(sin w1 t,
+    cos w1 t, sin w2 t, cos w2 t)`` and the rows of ``coef`` (4, 6) (amplitude x sinc attenuation x the phase's
+    cosine or sine, :func:`sinusoid_interval_mean`), summed in that order from 0."""
+    for k in range(kinds.shape[0]):
+        if kinds[k] != _IDLE:
+            continue
+        t = (k + 0.5) * dt
+        th1 = w1 * t
+        th2 = w2 * t
+        b0, b1, b2, b3 = np.sin(th1), np.cos(th1), np.sin(th2), np.cos(th2)
+        for c in range(6):
+            acc = 0.0
+            acc += b0 * coef[0, c]
+            acc += b1 * coef[1, c]
+            acc += b2 * coef[2, c]
+            acc += b3 * coef[3, c]
+            out[k, c] = acc
 
-    ``y`` = :func:`_all_pole_filter` of the unit innovations ``e`` (m, 6) from the state ``zi`` (2, 6) (the
-    AR(2) resonance ``a``); the sample is ``(L_k y_k - L_(k-1) y_(k-1)) scale`` with the speed level ``L``
-    (m,) and ``L_(-1) y_(-1) = 0``: the operations of ``y *= level; np.diff(y, prepend=0); y *= scale`` in
-    their order (the same bits), in one pass.
-    """
-    y = _all_pole_filter(a, e, zi)
+
+@nb.njit(cache=True, nogil=True)
+def _road_samples(kinds, speed, inv_ref, exponent, a, zi, scale, kind, state, e, out):
+    """The road samples of ``out`` (n, 6): ``(L_k y_k - L_(k-1) y_(k-1)) scale`` over the road samples in order,
+    ``L_(-1) y_(-1) = 0``, with the speed level ``L = (|speed| inv_ref) ** exponent`` and ``y`` the AR(2)
+    resonance ``1 / A(z)``, ``a = [1, -a1, -a2]``, driven by unit normal innovations from the delay state ``zi``
+    (2, 6): ``scipy.signal.lfilter([1], a, e, axis=0, zi=zi)``'s direct form II transposed recursion, its
+    operations in its order (the numerator padded to ``[1, 0, 0]``).
+
+    The innovations (6 per road sample, C order) are drawn here from the stream ``(kind, state)``
+    (:mod:`envs.sim.normals`; ``state`` advanced) when ``kind >= 0``, else read from ``e`` (m, 6).
+    The level's power as numpy's ``**`` takes it: a square and a square root for 2 and 1/2."""
+    s0, s1, s2, s3 = state[0], state[1], state[2], state[3]
+    z0 = zi[0].copy()
+    z1 = zi[1].copy()
     prev = np.zeros(6)
-    for k in range(ridx.shape[0]):
-        r = ridx[k]
+    m = 0
+    for k in range(kinds.shape[0]):
+        if kinds[k] != _ROAD:
+            continue
+        lev = abs(speed[k]) * inv_ref
+        if exponent == 2.0:
+            lev = lev * lev
+        elif exponent == 0.5:
+            lev = np.sqrt(lev)
+        elif exponent != 1.0:
+            lev = lev ** exponent
         for j in range(6):
-            yl = y[k, j] * level[k]
-            vib[r, j] = (yl - prev[j]) * scale[j]
+            if kind >= 0:
+                xn, s0, s1, s2, s3 = normal_step(kind, s0, s1, s2, s3)
+            else:
+                xn = e[m, j]
+            yn = z0[j] + 1.0 * xn
+            z0[j] = z1[j] + xn * 0.0 - yn * a[1]
+            z1[j] = xn * 0.0 - yn * a[2]
+            yl = yn * lev
+            out[k, j] = (yl - prev[j]) * scale[j]
             prev[j] = yl
+        m += 1
+    state[0], state[1], state[2], state[3] = s0, s1, s2, s3
+
+
+def _idle_coefficients(gen_phases, f_e, a_rms, g_rms, weights, vib: Vibration, dt: float):
+    """``(w1, w2, coef)`` of :func:`_idle_samples`: per channel rms r -> fundamental amplitude ``sqrt(2) r /
+    sqrt(1 + h^2)``, the harmonic ``h`` times that, each attenuated by ``sinc(w dt / 2)``
+    (:func:`sinusoid_interval_mean`) and split on the random phase: ``A sin(th + phi) = A cos(phi) sin(th) +
+    A sin(phi) cos(th)``."""
+    rms = np.concatenate([a_rms * weights, g_rms * weights])
+    h = vib.harmonic_ratio
+    amp1 = math.sqrt(2.0) * rms / math.sqrt(1.0 + h * h)
+    ws, coef = [], []
+    for j, (mult, amp) in enumerate(((1.0, amp1), (2.0, h * amp1))):
+        w = 2.0 * math.pi * f_e * mult
+        atten = float(np.sinc(w * dt / (2.0 * math.pi)))  # sin(w dt/2) / (w dt/2)
+        ws.append(w)
+        coef += [amp * atten * np.cos(gen_phases[j]), amp * atten * np.sin(gen_phases[j])]
+    return ws[0], ws[1], np.stack(coef)
 
 
 def _vibration_row(gen: np.random.Generator, dt: float, engine_on: np.ndarray | None, speed: np.ndarray,
@@ -563,6 +603,8 @@ def _vibration_row(gen: np.random.Generator, dt: float, engine_on: np.ndarray | 
     Draw order (fixed, independent of the data): f_e, idle accel rms, idle gyro
     rms, 2 x 6 phases, road accel level, road gyro level, then (only if the run
     moves with the engine on) the road noise (2 + M) x 6, M = number of road samples.
+    The per-sample work runs compiled, releasing the GIL (:func:`_regimes`, :func:`_idle_samples`,
+    :func:`_road_samples`).
     """
     n = speed.shape[0]
     f_e = gen.uniform(*vib.engine_freq_hz_range)
@@ -572,48 +614,24 @@ def _vibration_row(gen: np.random.Generator, dt: float, engine_on: np.ndarray | 
     road_a = gen.uniform(*vib.road_accel_rms_ref_range)
     road_g = gen.uniform(*vib.road_gyro_rms_ref_range)
 
-    moving = np.abs(speed) > vib.stationary_speed_mps
-    eng = np.ones(n, dtype=bool) if engine_on is None else engine_on
-    idle = eng & ~moving
-    road = eng & moving
-    any_idle, any_road = idle.any(), road.any()
-    if not any_idle and not any_road:
+    kinds = np.empty(n, np.int8)
+    has_eng = engine_on is not None
+    n_idle, n_road = _regimes(speed, engine_on if has_eng else _NO_FLAGS, has_eng, vib.stationary_speed_mps, kinds)
+    if not n_idle and not n_road:
         return None
     weights = np.asarray(vib.axis_weights)
     out = np.zeros((n, 6))
-
-    if any_idle:
-        # per-channel rms r -> fundamental amplitude sqrt(2) r / sqrt(1 + h^2), harmonic h times that
-        rms = np.concatenate([a_rms * weights, g_rms * weights])
-        h = vib.harmonic_ratio
-        amp1 = math.sqrt(2.0) * rms / math.sqrt(1.0 + h * h)
-        idx = np.flatnonzero(idle)
-        t_mid = (idx + 0.5) * dt  # sample k = idx + 1 covers (idx dt, (idx + 1) dt]
-        basis = []
-        coef = []
-        for j, (mult, amp) in enumerate(((1.0, amp1), (2.0, h * amp1))):
-            w = 2.0 * math.pi * f_e * mult
-            atten = float(np.sinc(w * dt / (2.0 * math.pi)))  # sin(w dt/2) / (w dt/2), sinusoid_interval_mean
-            th = w * t_mid
-            basis += [np.sin(th), np.cos(th)]
-            # A sin(th + phi) = A cos(phi) sin(th) + A sin(phi) cos(th)
-            coef += [amp * atten * np.cos(phases[j]), amp * atten * np.sin(phases[j])]
-        out[idx] = _sum_of_products(np.stack(basis), np.stack(coef))  # (M, 4) x (4, 6)
-
-    if any_road and (road_a > 0.0 or road_g > 0.0):
+    if n_idle:
+        _idle_samples(kinds, dt, *_idle_coefficients(phases, f_e, a_rms, g_rms, weights, vib, dt), out)
+    if n_road and (road_a > 0.0 or road_g > 0.0):
         # The process runs only over the road samples (a stationary process
         # restarted from its carried-over state after a stop is still stationary).
-        ridx = np.flatnonzero(road)
         a1, a2, gamma0 = _ar2_coefficients(vib.road_center_hz, vib.road_damping, dt)
         z = gen.standard_normal((2, 6))
-        e = standard_normal(gen, (ridx.size, 6))
         rho1 = a1 / (1.0 - a2)
         y1 = z[0]
         y2 = rho1 * z[0] + math.sqrt(max(1.0 - rho1 * rho1, 0.0)) * z[1]
         zi = np.stack([a1 * y1 + a2 * y2, a2 * y1]) * math.sqrt(gamma0)  # state in the unscaled process
-        level = np.abs(speed[ridx]) * (1.0 / vib.road_ref_speed_mps)
-        if vib.road_speed_exponent != 1.0:
-            level **= vib.road_speed_exponent
         # y (stationary variance gamma0) is the vibration *displacement* (tilt angle, velocity) of the
         # resonance; the IMU senses its rate, and the interval mean of a rate is the displacement increment
         # over the interval divided by dt. So the sample is (L_k y_k - L_(k-1) y_(k-1)) / dt: its sum
@@ -623,8 +641,18 @@ def _vibration_row(gen: np.random.Generator, dt: float, engine_on: np.ndarray | 
         # process.
         unit = 1.0 / math.sqrt(2.0 * gamma0 * (1.0 - rho1))
         scale = np.concatenate([road_a * weights, road_g * weights]) * unit
-        _road_vibration(e, zi, np.array([1.0, -a1, -a2]), level, scale, ridx, out)
+        stream = stream_state(gen)
+        kind, state = stream if stream is not None else (-1, np.zeros(4, np.uint64))
+        e = gen.standard_normal((n_road, 6)) if stream is None else _NO_SAMPLES
+        _road_samples(kinds, speed, 1.0 / vib.road_ref_speed_mps, float(vib.road_speed_exponent),
+                      np.array([1.0, -a1, -a2]), zi, scale, kind, state, e, out)
+        if stream is not None:
+            store_stream_state(gen, kind, state)
     return out
+
+
+_NO_FLAGS = np.zeros(0, dtype=bool)
+_NO_SAMPLES = np.zeros((0, 6))
 
 
 def simulate_vibration(imu_rate_hz: float, rngs: Sequence[np.random.Generator], speed, engine_on=None,
@@ -875,8 +903,8 @@ def _sensor_kernel(truth, vib, rough, a, has_sm, const, add_const, gm_z, gm_scal
 
     * with ``has_gm`` the first-order Gauss-Markov process (Groves 2013 sec. 4.4; Brown & Hwang, first-order
       Gauss-Markov process): ``b_k = phi b_(k-1) + u_k``, ``u = gm_scale gm_z`` (``gm_scale = sigma
-      sqrt(1 - phi^2)``), from the state ``zi = phi b_0`` (:func:`_all_pole_filter`'s recursion with
-      ``a = [1, -phi]``, ``b = [1, 0]``, its operations in its order), plus ``const`` (3,), plus ``step`` (n, 3)
+      sqrt(1 - phi^2)``), from the state ``zi = phi b_0`` (``scipy.signal.lfilter``'s direct form II transposed
+      recursion with ``a = [1, -phi]``, ``b = [1, 0]``, its operations in its order), plus ``const`` (3,), plus ``step`` (n, 3)
       when ``has_step``;
     * else ``step + const`` when ``has_step``; else ``const`` when ``add_const`` (not at all when it is zero).
 

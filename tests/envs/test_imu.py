@@ -358,22 +358,83 @@ def test_simulate_imu_bad_inputs_name_the_argument():
         simulate_imu(bad, w, RATE, "consumer", r)
 
 
-def test_all_pole_filter_is_lfilter_to_the_bit():
+def _vibration_reference(gen, dt, engine_on, speed, vib):
+    """The vibration of one run by numpy and scipy, as :func:`envs.sim.imu._vibration_row` computed it before its
+    per-sample work was compiled: the specification it must equal bit for bit."""
     from scipy.signal import lfilter
 
-    from envs.sim.imu import _all_pole_filter
-    rng = np.random.default_rng(5)
-    for trial in range(40):
-        n, c = int(rng.integers(1, 3000)), int(rng.integers(1, 7))
-        x = rng.normal(size=(n, c)) * 10.0 ** rng.uniform(-6, 2)
-        if trial % 2:
-            a = np.array([1.0, -math.exp(-rng.uniform(1e-5, 1.0))])
-        else:  # a stable resonance
-            r, th = rng.uniform(0.05, 0.999), rng.uniform(0.0, math.pi)
-            a = np.array([1.0, -2.0 * r * math.cos(th), r * r])
-        zi = rng.normal(size=(a.size - 1, c))
-        y, _ = lfilter([1.0], a, x, axis=0, zi=zi)
-        np.testing.assert_array_equal(_all_pole_filter(a, x, zi), y)
+    from envs.sim.imu import _ar2_coefficients
+    n = speed.shape[0]
+    f_e = gen.uniform(*vib.engine_freq_hz_range)
+    a_rms, g_rms = gen.uniform(*vib.idle_accel_rms_range), gen.uniform(*vib.idle_gyro_rms_range)
+    phases = gen.uniform(0.0, 2.0 * math.pi, size=(2, 6))
+    road_a, road_g = gen.uniform(*vib.road_accel_rms_ref_range), gen.uniform(*vib.road_gyro_rms_ref_range)
+    moving = np.abs(speed) > vib.stationary_speed_mps
+    eng = np.ones(n, dtype=bool) if engine_on is None else engine_on
+    idle, road = eng & ~moving, eng & moving
+    if not idle.any() and not road.any():
+        return None
+    weights = np.asarray(vib.axis_weights)
+    out = np.zeros((n, 6))
+    if idle.any():
+        rms = np.concatenate([a_rms * weights, g_rms * weights])
+        h = vib.harmonic_ratio
+        amp1 = math.sqrt(2.0) * rms / math.sqrt(1.0 + h * h)
+        idx = np.flatnonzero(idle)
+        t_mid = (idx + 0.5) * dt
+        basis, coef = [], []
+        for j, (mult, amp) in enumerate(((1.0, amp1), (2.0, h * amp1))):
+            w = 2.0 * math.pi * f_e * mult
+            atten = float(np.sinc(w * dt / (2.0 * math.pi)))
+            basis += [np.sin(w * t_mid), np.cos(w * t_mid)]
+            coef += [amp * atten * np.cos(phases[j]), amp * atten * np.sin(phases[j])]
+        acc = np.zeros((idx.size, 6))
+        for bj, cj in zip(basis, coef):
+            acc += bj[:, None] * cj[None, :]
+        out[idx] = acc
+    if road.any() and (road_a > 0.0 or road_g > 0.0):
+        ridx = np.flatnonzero(road)
+        a1, a2, gamma0 = _ar2_coefficients(vib.road_center_hz, vib.road_damping, dt)
+        z = gen.standard_normal((2, 6))
+        e = gen.standard_normal((ridx.size, 6))
+        rho1 = a1 / (1.0 - a2)
+        y2 = rho1 * z[0] + math.sqrt(max(1.0 - rho1 * rho1, 0.0)) * z[1]
+        zi = np.stack([a1 * z[0] + a2 * y2, a2 * z[0]]) * math.sqrt(gamma0)
+        y, _ = lfilter([1.0], [1.0, -a1, -a2], e, axis=0, zi=zi)
+        level = np.abs(speed[ridx]) * (1.0 / vib.road_ref_speed_mps)
+        if vib.road_speed_exponent != 1.0:
+            level **= vib.road_speed_exponent
+        y *= level[:, None]
+        y = np.diff(y, axis=0, prepend=0.0)
+        unit = 1.0 / math.sqrt(2.0 * gamma0 * (1.0 - rho1))
+        y *= np.concatenate([road_a * weights, road_g * weights]) * unit
+        out[ridx] = y
+    return out
+
+
+@pytest.mark.parametrize("bit_generator", [np.random.SFC64, np.random.PCG64, np.random.MT19937])
+@pytest.mark.parametrize("exponent", [1.0, 2.0, 0.5, 1.37, 0.0])
+def test_vibration_row_is_its_numpy_specification_to_the_bit(bit_generator, exponent):
+    """The compiled vibration (regimes, idle tones, the road resonance with its innovations drawn inline) equals
+    the numpy / scipy chain, bit for bit, and leaves the stream where the chain does: with and without an engine
+    flag, on the compiled bit generators and on one drawn by numpy."""
+    from envs.sim.imu import Vibration, _vibration_row
+    rng = np.random.default_rng(int(exponent * 100))
+    dt = 0.01
+    for trial in range(6):
+        n = int(rng.integers(50, 3000))
+        speed = np.where(rng.uniform(size=n) < 0.3, 0.0, rng.uniform(-30, 30, n))
+        speed[: n // 7] = 0.0                                   # a stop
+        engine = None if trial % 2 else rng.uniform(size=n) < 0.8
+        vib = Vibration(road_speed_exponent=exponent, harmonic_ratio=0.3 * trial)
+        ref_gen, gen = bit_generator(trial), bit_generator(trial)
+        ref_gen, gen = np.random.Generator(ref_gen), np.random.Generator(gen)
+        ref = _vibration_reference(ref_gen, dt, engine, speed, vib)
+        got = _vibration_row(gen, dt, engine, speed, vib)
+        assert np.array_equal(got.view(np.uint64), ref.view(np.uint64))
+        assert ref_gen.random() == gen.random()
+    off = np.zeros(40, dtype=bool)
+    assert _vibration_row(np.random.default_rng(0), dt, off, np.ones(40), Vibration()) is None
 
 
 def test_apply_matrix_sums_in_order():
@@ -386,12 +447,3 @@ def test_apply_matrix_sums_in_order():
     np.testing.assert_array_equal(out, ref)
 
 
-def test_sum_of_products_sums_in_order():
-    from envs.sim.imu import _sum_of_products
-    rng = np.random.default_rng(7)
-    basis, coef = rng.normal(size=(4, 40)), rng.normal(size=(4, 6))
-    ref = np.zeros((40, 6))
-    for c in range(6):
-        for bj, cj in zip(basis, coef):
-            ref[:, c] += bj * cj[c]
-    np.testing.assert_array_equal(_sum_of_products(basis, coef), ref)
