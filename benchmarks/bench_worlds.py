@@ -184,12 +184,13 @@ class _CountingGenerator(np.random.Generator):
 
 def _count_imu_normals(scenario, B, duration_s, dtype) -> tuple:
     """``(counts, world)``: the normal variates :func:`envs.sim.imu.simulate_imu` draws for the world of seeds
-    0..B-1 (its row streams and their child streams counted, by numpy or by :mod:`envs.sim.normals`), as
-    ``{bit generator name: variates}``, and that world (the same bits as without counting)."""
+    0..B-1 (its row streams and their child streams counted, whether numpy or :mod:`envs.sim.normals` draws
+    them), as ``{bit generator name: variates}``, and that world (the same bits as without counting)."""
     from envs.sim import imu, rng, world
     counting = lambda g: _CountingGenerator(g.bit_generator)  # noqa: E731
     orig_rows, orig_item = world.row_generators, rng.ChildStreams.__getitem__
-    orig_normal = getattr(imu, "standard_normal", None)      # the compiled draws (a tree before them: none)
+    kinds = ("SFC64", "PCG64")                               # envs.sim.normals' kind codes
+    hooks = {}                                               # the compiled draws a tree has: name -> counter
 
     def rows(seeds, stream):
         gens = orig_rows(seeds, stream)
@@ -199,10 +200,30 @@ def _count_imu_normals(scenario, B, duration_s, dtype) -> tuple:
         got = orig_item(self, k)
         return [counting(g) for g in got] if isinstance(got, list) else counting(got)
 
-    def compiled(gen, size):
-        _CountingGenerator.count(gen, int(np.prod(size)))
-        return orig_normal(np.random.Generator(gen.bit_generator), size)  # the same stream, not counted again
+    def compiled(orig):
+        def normal(gen, size):              # envs.sim.normals.standard_normal
+            _CountingGenerator.count(gen, int(np.prod(size)))
+            return orig(np.random.Generator(gen.bit_generator), size)  # the same stream, not counted again
+        return normal
 
+    def filled(orig):
+        def fill(kind, state, out):         # envs.sim.normals.fill_normals on a raw state
+            _CountingGenerator.drawn.append((kinds[kind], out.size))
+            return orig(kind, state, out)
+        return fill
+
+    def road(orig):
+        def samples(kinds_, *a):            # imu._road_samples: 6 innovations per road sample, drawn inline
+            kind = a[6]
+            if kind >= 0:
+                _CountingGenerator.drawn.append((kinds[kind], 6 * int(np.count_nonzero(kinds_ == imu._ROAD))))
+            return orig(kinds_, *a)
+        return samples
+
+    for name, wrap in (("standard_normal", compiled), ("fill_normals", filled), ("_road_samples", road)):
+        if hasattr(imu, name):
+            hooks[name] = getattr(imu, name)
+            setattr(imu, name, wrap(hooks[name]))
     orig_sim = world.simulate_imu
 
     def sim(*a, **kw):
@@ -213,15 +234,13 @@ def _count_imu_normals(scenario, B, duration_s, dtype) -> tuple:
             rng.ChildStreams.__getitem__ = orig_item
 
     world.row_generators, world.simulate_imu = rows, sim
-    if orig_normal is not None:
-        imu.standard_normal = compiled
     _CountingGenerator.drawn = []
     try:
         w = _make_world(scenario, list(range(B)), duration_s, np.dtype(dtype))
     finally:
         world.row_generators, world.simulate_imu = orig_rows, orig_sim
-        if orig_normal is not None:
-            imu.standard_normal = orig_normal
+        for name, orig in hooks.items():
+            setattr(imu, name, orig)
     counts: dict = {}
     for name, n in _CountingGenerator.drawn:
         counts[name] = counts.get(name, 0) + n

@@ -55,7 +55,7 @@ import numpy as np
 
 from earth.units import DEG, deg, dph, dpsh, mg, mpsph, ppm, ugpsh, ugpshz
 
-from .normals import normal_step, standard_normal, store_stream_state, stream_state
+from .normals import SFC64, fill_normals, normal_step, store_stream_state, stream_state
 from .rng import ChildStreams
 from .buffers import empty
 from .row_threads import default_workers
@@ -884,9 +884,9 @@ def _children(rng: np.random.Generator) -> ChildStreams:
     return ChildStreams([int(w) for w in words], len(_COMPONENTS), np.random.SFC64, _COMPONENTS)
 
 
-def _error_matrix(gen: np.random.Generator, scale_sigma: float, mis_sigma: float) -> np.ndarray:
-    """``S + M`` (3, 3): diagonal scale errors, off-diagonal misalignments (9 draws, fixed order)."""
-    z = gen.standard_normal((3, 3))
+def _error_matrix(z: np.ndarray, scale_sigma: float, mis_sigma: float) -> np.ndarray:
+    """``S + M`` (3, 3) from 9 unit normals ``z`` (3, 3) (row-major draw order): diagonal scale errors,
+    off-diagonal misalignments."""
     e = z * mis_sigma
     np.fill_diagonal(e, np.diagonal(z) * scale_sigma)
     return e
@@ -1104,13 +1104,17 @@ def _sensor_row(s: _SensorSpec, truth, vib, rough, sm_row, const, step_bias, ch,
     gm_z, zi, phi, gm_scale = _NONE, np.zeros(3), 0.0, 0.0
     if has_gm:
         phi = math.exp(-dt / s.gm_tau)
-        g = ch[s.gm_stream]
-        zi = phi * (g.standard_normal(3) * s.gm_sigma)        # phi b_0, b_0 ~ N(0, sigma^2)
-        gm_z = standard_normal(g, (n, 3))
+        z = np.empty((n + 1, 3))
+        fill_normals(SFC64, ch.sfc64_state(s.gm_stream), z)
+        zi = phi * (z[0] * s.gm_sigma)                          # phi b_0, b_0 ~ N(0, sigma^2)
+        gm_z = z[1:]
         gm_scale = s.gm_sigma * math.sqrt(-math.expm1(-2.0 * dt / s.gm_tau))
-    white_z = standard_normal(ch[s.white_stream], (n, 3)) if s.white_sigma > 0 else _NONE
+    white_z = _NONE
+    if s.white_sigma > 0:
+        white_z = np.empty((n, 3))
+        fill_normals(SFC64, ch.sfc64_state(s.white_stream), white_z)
     has_step = step_bias is not None
-    _sensor_kernel(truth, _NONE if vib is None else vib, rough, np.eye(3) + sm_row, s.has_sm, const, bool(np.any(const)),
+    _sensor_kernel(truth, _NONE if vib is None else vib, rough, np.eye(3) + sm_row, s.has_sm, const, bool(const.any()),
                    gm_z, gm_scale, zi, phi, has_gm, _NONE if step_bias is None else step_bias, has_step, white_z,
                    s.white_sigma, s.white_sigma > 0, out, bias_out)
     return has_gm or has_step
@@ -1121,13 +1125,14 @@ def _imu_row(job: _RowJob, i: int) -> None:
     the job's outputs. Draws only from ``job.rngs[i]`` (its component streams, :func:`_children`) and
     ``job.vibration_rngs[i]``."""
     ch = _children(job.rngs[i])
-    c = ch["constants"]
     n = job.truth[0].shape[1]
     # per-run constants, fixed order: turn-on gyro (3), turn-on accel (3), S+M gyro (9), S+M accel (9)
+    z = np.empty(24)
+    fill_normals(SFC64, ch.sfc64_state("constants"), z)
     for k, s in enumerate(job.sensors):
-        job.bias_const[k][i] = s.fixed + c.standard_normal(3) * s.turn_on_sigma
+        job.bias_const[k][i] = s.fixed + z[3 * k:3 * k + 3] * s.turn_on_sigma
     for k, s in enumerate(job.sensors):
-        job.sm[k][i] = _error_matrix(c, s.scale_sigma, s.mis_sigma)
+        job.sm[k][i] = _error_matrix(z[6 + 9 * k:15 + 9 * k].reshape(3, 3), s.scale_sigma, s.mis_sigma)
     vib = None
     if job.vibration is not None:
         vgen = ch["vibration"] if job.vibration_rngs is None else job.vibration_rngs[i]

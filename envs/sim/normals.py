@@ -33,7 +33,7 @@ from numba import types
 from numba.extending import intrinsic
 from numba.np.random._constants import fi_double, ki_double, wi_double, ziggurat_nor_inv_r, ziggurat_nor_r
 
-__all__ = ["standard_normal", "stream_state", "store_stream_state", "SFC64", "PCG64"]
+__all__ = ["standard_normal", "fill_normals", "sfc64_seeded", "stream_state", "store_stream_state", "SFC64", "PCG64"]
 
 SFC64 = 0
 """Kind code of an SFC64 state ``[a, b, c, w]`` (uint64 words)."""
@@ -136,6 +136,31 @@ def _fill(kind, state, out):
     for i in range(out.shape[0]):
         out[i], s0, s1, s2, s3 = normal_step(kind, s0, s1, s2, s3)
     state[0], state[1], state[2], state[3] = s0, s1, s2, s3
+
+
+@nb.njit(cache=True)
+def _sfc64_seed(seed, state):
+    """SFC64's seeding (numpy's ``SFC64(seed_seq)``): ``(a, b, c, w) = (s0, s1, s2, 1)`` from the three words
+    ``seed`` (3,) uint64, then 12 steps discarded; into ``state`` (4,) uint64."""
+    a, b, c, w = seed[0], seed[1], seed[2], _1
+    for _ in range(12):
+        _, a, b, c, w = _sfc64_next(a, b, c, w)
+    state[0], state[1], state[2], state[3] = a, b, c, w
+
+
+def sfc64_seeded(seed_seq) -> np.ndarray:
+    """The (4,) uint64 state of ``numpy.random.SFC64(seed_seq)`` (kind :data:`SFC64`), without building the bit
+    generator: for a stream that only :func:`fill_normals` draws from."""
+    state = np.empty(4, dtype=np.uint64)
+    _sfc64_seed(np.ascontiguousarray(seed_seq.generate_state(3, np.uint64)), state)
+    return state
+
+
+def fill_normals(kind: int, state: np.ndarray, out: np.ndarray) -> None:
+    """Fill the C-contiguous float64 array ``out`` with standard normal variates in C order, from the stream
+    ``(kind, state)`` (:func:`stream_state`, :func:`sfc64_seeded`; ``state`` advanced in place): what a generator
+    in that state draws as ``standard_normal(out.shape)``. Releases the GIL."""
+    _fill(kind, state, out.reshape(-1))
 
 
 def stream_state(gen: np.random.Generator):

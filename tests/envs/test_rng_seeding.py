@@ -63,6 +63,32 @@ def test_row_generators_and_children_keep_their_streams():
     np.testing.assert_array_equal(sfc[2].standard_normal(20), ref.standard_normal(20))
 
 
+def test_child_taken_as_a_raw_sfc64_state_is_the_child_stream():
+    """ChildStreams.sfc64_state: numpy's SFC64 state of that child (compiled draws from it equal the child
+    generator's), the child then has no generator; a built child, or children of another bit generator, cannot
+    be taken."""
+    from envs.sim.normals import SFC64, fill_normals, sfc64_seeded
+    ent = [2**63 - 5, 7, 0, 2**40]
+    for seed in ([0], [2**32 + 1], ent):
+        seq = np.random.SeedSequence(seed, spawn_key=(5,))
+        np.testing.assert_array_equal(sfc64_seeded(seq), np.random.SFC64(seq).state["state"]["state"])
+    taken, built = ChildStreams(ent, 4, np.random.SFC64, ("a", "b", "c", "d")), ChildStreams(ent, 4, np.random.SFC64)
+    state = taken.sfc64_state("c")
+    out = np.empty((300, 3))
+    fill_normals(SFC64, state, out)
+    np.testing.assert_array_equal(out, built[2].standard_normal((300, 3)))
+    np.testing.assert_array_equal(state, built[2].bit_generator.state["state"]["state"])
+    with pytest.raises(RuntimeError, match="taken as a raw state"):
+        taken[2]
+    with pytest.raises(RuntimeError, match="already in use"):
+        taken.sfc64_state(2)
+    taken[0]
+    with pytest.raises(RuntimeError, match="already in use"):
+        taken.sfc64_state("a")
+    with pytest.raises(ValueError, match="PCG64, not SFC64"):
+        ChildStreams(ent, 4).sfc64_state(0)
+
+
 def test_spawn_attributes_and_pickle_behave_like_seed_sequence():
     """spawn, entropy and spawn_key come from the real SeedSequence; a generator survives pickling."""
     words = entropy_words([99, 2**50])
