@@ -586,13 +586,16 @@ def _idle_coefficients(gen_phases, f_e, a_rms, g_rms, weights, vib: Vibration, d
     rms = np.concatenate([a_rms * weights, g_rms * weights])
     h = vib.harmonic_ratio
     amp1 = math.sqrt(2.0) * rms / math.sqrt(1.0 + h * h)
-    ws, coef = [], []
+    cos_ph, sin_ph = np.cos(gen_phases), np.sin(gen_phases)
+    ws, coef = [], np.empty((4, 6))
     for j, (mult, amp) in enumerate(((1.0, amp1), (2.0, h * amp1))):
         w = 2.0 * math.pi * f_e * mult
-        atten = float(np.sinc(w * dt / (2.0 * math.pi)))  # sin(w dt/2) / (w dt/2)
+        y = math.pi * (w * dt / (2.0 * math.pi))
+        atten = math.sin(y) / y if y else 1.0       # numpy's sinc(w dt / 2pi) = sin(w dt/2) / (w dt/2)
         ws.append(w)
-        coef += [amp * atten * np.cos(gen_phases[j]), amp * atten * np.sin(gen_phases[j])]
-    return ws[0], ws[1], np.stack(coef)
+        coef[2 * j] = amp * atten * cos_ph[j]
+        coef[2 * j + 1] = amp * atten * sin_ph[j]
+    return ws[0], ws[1], coef
 
 
 def _vibration_row(gen: np.random.Generator, dt: float, engine_on: np.ndarray | None, speed: np.ndarray,

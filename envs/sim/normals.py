@@ -33,7 +33,7 @@ from numba import types
 from numba.extending import intrinsic
 from numba.np.random._constants import fi_double, ki_double, wi_double, ziggurat_nor_inv_r, ziggurat_nor_r
 
-__all__ = ["standard_normal", "fill_normals", "sfc64_seeded", "stream_state", "store_stream_state", "SFC64", "PCG64"]
+__all__ = ["standard_normal", "fill_normals", "sfc64_seed", "sfc64_seeded", "stream_state", "store_stream_state", "SFC64", "PCG64"]
 
 SFC64 = 0
 """Kind code of an SFC64 state ``[a, b, c, w]`` (uint64 words)."""
@@ -138,8 +138,8 @@ def _fill(kind, state, out):
     state[0], state[1], state[2], state[3] = s0, s1, s2, s3
 
 
-@nb.njit(cache=True)
-def _sfc64_seed(seed, state):
+@nb.njit(cache=True, nogil=True)
+def sfc64_seed(seed, state):
     """SFC64's seeding (numpy's ``SFC64(seed_seq)``): ``(a, b, c, w) = (s0, s1, s2, 1)`` from the three words
     ``seed`` (3,) uint64, then 12 steps discarded; into ``state`` (4,) uint64."""
     a, b, c, w = seed[0], seed[1], seed[2], _1
@@ -152,7 +152,7 @@ def sfc64_seeded(seed_seq) -> np.ndarray:
     """The (4,) uint64 state of ``numpy.random.SFC64(seed_seq)`` (kind :data:`SFC64`), without building the bit
     generator: for a stream that only :func:`fill_normals` draws from."""
     state = np.empty(4, dtype=np.uint64)
-    _sfc64_seed(np.ascontiguousarray(seed_seq.generate_state(3, np.uint64)), state)
+    sfc64_seed(np.ascontiguousarray(seed_seq.generate_state(3, np.uint64)), state)
     return state
 
 

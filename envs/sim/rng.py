@@ -14,6 +14,8 @@ import numba as nb
 import numpy as np
 from numpy.random.bit_generator import ISpawnableSeedSequence
 
+from .normals import sfc64_seed, sfc64_seeded
+
 STREAMS = {"trajectory": 1, "imu": 2, "gnss": 3, "init": 4, "events": 5, "vibration": 6, "odometer": 101}
 """Fixed stream ids: adding a component never shifts another component's draws (``odometer``: 101, the id
 the seed003 experiment drew its odometer from before the odometer became part of the world)."""
@@ -110,14 +112,17 @@ class ChildStreams:
         :mod:`envs.sim.normals` (kind ``SFC64``), its generator never built (~1 us instead of ~6). The stream is
         then the caller's: the child has no generator afterwards (``__getitem__`` raises), and a child whose
         generator was built cannot be taken."""
-        from .normals import sfc64_seeded
         if self._bit_generator is not np.random.SFC64:
             raise ValueError(f"sfc64_state: the children are {self._bit_generator.__name__}, not SFC64")
         k = self._index(k)
         if self._gens[k] is not None:
             raise RuntimeError(f"child stream {k} is already in use (its generator or its state was taken)")
         self._gens[k] = _TAKEN
-        return sfc64_seeded(FastSeedSequence(self._words, k))
+        if not self._words.size:                            # no entropy words: numpy's own SeedSequence path
+            return sfc64_seeded(FastSeedSequence(self._words, k))
+        state = np.empty(4, dtype=np.uint64)
+        _sfc64_child_state(self._words, k, state)
+        return state
 
 
 _TAKEN = object()
@@ -181,6 +186,18 @@ def _seed_state(words, key, out):
         h = (h * mult_b) & m32
         v = (v * h) & m32
         out[i] = np.uint32(v ^ (v >> sh))
+
+
+@nb.njit(cache=True, nogil=True)
+def _sfc64_child_state(words, key, state):
+    """``SFC64(SeedSequence(words, spawn_key=(key,)))``'s state into ``state`` (4,) uint64: the three seed words
+    (pairs of :func:`_seed_state`'s uint32 words, low word first) through :func:`~.normals.sfc64_seed`."""
+    w32 = np.empty(_STATE_WORDS, np.uint32)
+    _seed_state(words, key, w32)
+    seed = np.empty(3, np.uint64)
+    for i in range(3):
+        seed[i] = np.uint64(w32[2 * i]) | (np.uint64(w32[2 * i + 1]) << np.uint64(32))
+    sfc64_seed(seed, state)
 
 
 class FastSeedSequence(ISpawnableSeedSequence):
