@@ -30,7 +30,7 @@ from .canyon import canyon_visibility, in_intervals
 from .constellation import Constellation
 from .geometry_kernels import ranging_rows, sky_rows
 from .receiver import _MIN_EL_SIGMA, CN0_JITTER_DB, _gauss_markov, iono_obliquity, simulate_clock, tropo_mapping
-from .rng import ChildStreams
+from .rng import ChildStreams, row_normals
 from .rng import entropy_words as _entropy_words  # noqa: F401  (re-exported by envs.sim.gnss)
 from .row_threads import run_row_ranges
 
@@ -380,7 +380,7 @@ def allocate_channels(sky: Sky, visible, n_channels: int, subs, t=None, cn0_cfg=
     if C > S:
         ch.mask[..., S:] = False
     if cn0_cfg is None:
-        cn0_z = np.stack([s[_SUB_CN0].standard_normal((M, S)) for s in subs])     # C/N0 jitter, per satellite
+        cn0_z = row_normals(subs, _SUB_CN0, (M, S))                                # C/N0 jitter, per satellite
         ch.cn0 = ev.cn0_los(ch.el) + CN0_JITTER_DB * ch.gather(cn0_z)
         return ch
     draws = [ev.cn0_scatter(t, S, C, cn0_cfg, s[_SUB_CN0_SCATTER]) for s in subs]
@@ -461,14 +461,14 @@ def receiver_errors(t, ch: Channels, noise: ChannelNoise, sat: SatelliteEvents, 
     m_t, f_i = tropo_mapping(el), iono_obliquity(el)
     # the Gauss-Markov processes of all rows in one call each (time axis first; columns are independent)
     tropo_z = _gauss_markov(t, receiver.tropo_tau_s, receiver.tropo_zenith_sigma_m,
-                            np.stack([s[_SUB_TROPO].standard_normal(M) for s in subs], axis=1)).T
+                            np.ascontiguousarray(row_normals(subs, _SUB_TROPO, (M,)).T)).T
     iono_sat = _gauss_markov(t, receiver.iono_tau_s, receiver.iono_zenith_sigma_m,   # one process per satellite
-                             np.stack([s[_SUB_IONO].standard_normal((M, S)) for s in subs], axis=1))
+                             np.ascontiguousarray(row_normals(subs, _SUB_IONO, (M, S)).transpose(1, 0, 2)))
     iono_ch = ch.gather(iono_sat.transpose(1, 0, 2))
     del iono_sat
     C = mask.shape[-1]
-    code_z = np.stack([s[_SUB_CODE].standard_normal((M, C)) for s in subs])
-    rate_z = np.stack([s[_SUB_RATE].standard_normal((M, C)) for s in subs])
+    code_z = row_normals(subs, _SUB_CODE, (M, C))
+    rate_z = row_normals(subs, _SUB_RATE, (M, C))
     sig_pr_code = receiver.pr_sigma_m / s_el
     sig_prr = receiver.prr_sigma_mps / s_el
     pr_bias, prr_bias = noise.pr_bias, noise.prr_bias

@@ -55,7 +55,7 @@ import numpy as np
 
 from earth.units import DEG, deg, dph, dpsh, mg, mpsph, ppm, ugpsh, ugpshz
 
-from .normals import SFC64, fill_normals, normal_step, store_stream_state, stream_state
+from .normals import fill_normals, normal_step, store_stream_state, stream_state
 from .rng import ChildStreams
 from .buffers import empty
 from .row_threads import default_workers
@@ -1108,14 +1108,14 @@ def _sensor_row(s: _SensorSpec, truth, vib, rough, sm_row, const, step_bias, ch,
     if has_gm:
         phi = math.exp(-dt / s.gm_tau)
         z = np.empty((n + 1, 3))
-        fill_normals(SFC64, ch.sfc64_state(s.gm_stream), z)
+        fill_normals(*ch.raw_state(s.gm_stream), z)
         zi = phi * (z[0] * s.gm_sigma)                          # phi b_0, b_0 ~ N(0, sigma^2)
         gm_z = z[1:]
         gm_scale = s.gm_sigma * math.sqrt(-math.expm1(-2.0 * dt / s.gm_tau))
     white_z = _NONE
     if s.white_sigma > 0:
         white_z = np.empty((n, 3))
-        fill_normals(SFC64, ch.sfc64_state(s.white_stream), white_z)
+        fill_normals(*ch.raw_state(s.white_stream), white_z)
     has_step = step_bias is not None
     _sensor_kernel(truth, _NONE if vib is None else vib, rough, np.eye(3) + sm_row, s.has_sm, const, bool(const.any()),
                    gm_z, gm_scale, zi, phi, has_gm, _NONE if step_bias is None else step_bias, has_step, white_z,
@@ -1131,7 +1131,7 @@ def _imu_row(job: _RowJob, i: int) -> None:
     n = job.truth[0].shape[1]
     # per-run constants, fixed order: turn-on gyro (3), turn-on accel (3), S+M gyro (9), S+M accel (9)
     z = np.empty(24)
-    fill_normals(SFC64, ch.sfc64_state("constants"), z)
+    fill_normals(*ch.raw_state("constants"), z)
     for k, s in enumerate(job.sensors):
         job.bias_const[k][i] = s.fixed + z[3 * k:3 * k + 3] * s.turn_on_sigma
     for k, s in enumerate(job.sensors):

@@ -33,7 +33,7 @@ from numba import types
 from numba.extending import intrinsic
 from numba.np.random._constants import fi_double, ki_double, wi_double, ziggurat_nor_inv_r, ziggurat_nor_r
 
-__all__ = ["standard_normal", "fill_normals", "sfc64_seed", "sfc64_seeded", "stream_state", "store_stream_state", "SFC64", "PCG64"]
+__all__ = ["standard_normal", "fill_normals", "fill_normals_rows", "pcg64_seed", "sfc64_seed", "sfc64_seeded", "stream_state", "store_stream_state", "SFC64", "PCG64"]
 
 SFC64 = 0
 """Kind code of an SFC64 state ``[a, b, c, w]`` (uint64 words)."""
@@ -146,6 +146,30 @@ def sfc64_seed(seed, state):
     for _ in range(12):
         _, a, b, c, w = _sfc64_next(a, b, c, w)
     state[0], state[1], state[2], state[3] = a, b, c, w
+
+
+@nb.njit(cache=True, nogil=True)
+def pcg64_seed(seed, state):
+    """PCG64's seeding (numpy's ``PCG64(seed_seq)``, O'Neill's ``srandom``) into ``state`` (4,) uint64 (kind
+    :data:`PCG64`): from the four words ``seed`` (4,) uint64, the initial state ``s0 = (seed[0], seed[1])`` and
+    the stream ``(seed[2], seed[3])`` (high word first), ``inc = 2 stream + 1``, ``s = 0``; one step, ``s += s0``,
+    one step."""
+    inc_hi = (seed[2] << _1) | (seed[3] >> np.uint64(63))
+    inc_lo = (seed[3] << _1) | _1
+    _, hi, lo, inc_hi, inc_lo = _pcg64_next(_ZERO, _ZERO, inc_hi, inc_lo)
+    lo2 = lo + seed[1]
+    hi = hi + seed[0] + (_1 if lo2 < lo else _ZERO)
+    _, hi, lo, inc_hi, inc_lo = _pcg64_next(hi, lo2, inc_hi, inc_lo)
+    state[0], state[1], state[2], state[3] = hi, lo, inc_hi, inc_lo
+
+
+@nb.njit(cache=True, nogil=True)
+def fill_normals_rows(kind, states, out):
+    """Row ``i`` of ``out`` (B, ...) C-contiguous float64 filled in C order with standard normal variates from the
+    stream ``(kind, states[i])`` (``states`` (B, 4) uint64, advanced in place): B streams in one call."""
+    flat = out.reshape(out.shape[0], -1)
+    for i in range(flat.shape[0]):
+        _fill(kind, states[i], flat[i])
 
 
 def sfc64_seeded(seed_seq) -> np.ndarray:

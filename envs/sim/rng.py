@@ -14,7 +14,7 @@ import numba as nb
 import numpy as np
 from numpy.random.bit_generator import ISpawnableSeedSequence
 
-from .normals import sfc64_seed, sfc64_seeded
+from .normals import PCG64, SFC64, fill_normals_rows, pcg64_seed, sfc64_seed
 
 STREAMS = {"trajectory": 1, "imu": 2, "gnss": 3, "init": 4, "events": 5, "vibration": 6, "odometer": 101}
 """Fixed stream ids: adding a component never shifts another component's draws (``odometer``: 101, the id
@@ -97,7 +97,7 @@ class ChildStreams:
         k = self._index(k)
         g = self._gens[k]
         if g is _TAKEN:
-            raise RuntimeError(f"child stream {k} was taken as a raw state (sfc64_state): it has no generator")
+            raise RuntimeError(f"child stream {k} was taken as a raw state (raw_state): it has no generator")
         if g is None:
             g = self._gens[k] = np.random.Generator(self._bit_generator(FastSeedSequence(self._words, k)))
         return g
@@ -107,26 +107,43 @@ class ChildStreams:
             return self._names.index(k)
         return range(len(self._gens))[k]
 
-    def sfc64_state(self, k) -> np.ndarray:
-        """Child ``k``'s stream as a fresh (4,) uint64 SFC64 state for the compiled draws of
-        :mod:`envs.sim.normals` (kind ``SFC64``), its generator never built (~1 us instead of ~6). The stream is
-        then the caller's: the child has no generator afterwards (``__getitem__`` raises), and a child whose
-        generator was built cannot be taken."""
-        if self._bit_generator is not np.random.SFC64:
-            raise ValueError(f"sfc64_state: the children are {self._bit_generator.__name__}, not SFC64")
+    def raw_state(self, k) -> tuple[int, np.ndarray]:
+        """Child ``k``'s stream as ``(kind, state)`` for the compiled draws of :mod:`envs.sim.normals`
+        (:func:`~envs.sim.normals.fill_normals`): numpy's state of its SFC64 or PCG64 bit generator, a fresh
+        (4,) uint64 array, its generator never built (~1 us instead of ~6-15). The stream is then the caller's:
+        the child has no generator afterwards (``__getitem__`` raises), and a child whose generator was built
+        cannot be taken."""
+        kind = {np.random.SFC64: SFC64, np.random.PCG64: PCG64}.get(self._bit_generator)
+        if kind is None:
+            raise ValueError(f"raw_state: the children are {self._bit_generator.__name__}, not SFC64 or PCG64")
         k = self._index(k)
         if self._gens[k] is not None:
             raise RuntimeError(f"child stream {k} is already in use (its generator or its state was taken)")
         self._gens[k] = _TAKEN
-        if not self._words.size:                            # no entropy words: numpy's own SeedSequence path
-            return sfc64_seeded(FastSeedSequence(self._words, k))
         state = np.empty(4, dtype=np.uint64)
-        _sfc64_child_state(self._words, k, state)
-        return state
+        if not self._words.size:                            # no entropy words: numpy's own SeedSequence path
+            seed = FastSeedSequence(self._words, k).generate_state(3 if kind == SFC64 else 4, np.uint64)
+            (sfc64_seed if kind == SFC64 else pcg64_seed)(np.ascontiguousarray(seed), state)
+        else:
+            _child_state(kind, self._words, k, state)
+        return kind, state
+
+
+def row_normals(streams: Sequence["ChildStreams"], k, shape: tuple) -> np.ndarray:
+    """``np.stack([s[k].standard_normal(shape) for s in streams])`` (B,) + shape, the same numbers, drawn in one
+    compiled call from the rows' raw child states (:meth:`ChildStreams.raw_state`: child ``k`` of every row is
+    then taken)."""
+    states = np.empty((len(streams), 4), dtype=np.uint64)
+    kind = SFC64
+    for i, s in enumerate(streams):
+        kind, states[i] = s.raw_state(k)
+    out = np.empty((len(streams),) + tuple(shape))
+    fill_normals_rows(kind, states, out)
+    return out
 
 
 _TAKEN = object()
-"""A :class:`ChildStreams` child handed out as a raw state (:meth:`ChildStreams.sfc64_state`)."""
+"""A :class:`ChildStreams` child handed out as a raw state (:meth:`ChildStreams.raw_state`)."""
 
 
 # ----------------------------------------------------------------------------- SeedSequence's state, compiled
@@ -189,15 +206,19 @@ def _seed_state(words, key, out):
 
 
 @nb.njit(cache=True, nogil=True)
-def _sfc64_child_state(words, key, state):
-    """``SFC64(SeedSequence(words, spawn_key=(key,)))``'s state into ``state`` (4,) uint64: the three seed words
-    (pairs of :func:`_seed_state`'s uint32 words, low word first) through :func:`~.normals.sfc64_seed`."""
+def _child_state(kind, words, key, state):
+    """The state of ``SFC64`` or ``PCG64`` (``kind``, :mod:`envs.sim.normals`) seeded by ``SeedSequence(words,
+    spawn_key=(key,))``, into ``state`` (4,) uint64: 3 or 4 seed words (pairs of :func:`_seed_state`'s uint32
+    words, low word first) through :func:`~.normals.sfc64_seed` or :func:`~.normals.pcg64_seed`."""
     w32 = np.empty(_STATE_WORDS, np.uint32)
     _seed_state(words, key, w32)
-    seed = np.empty(3, np.uint64)
-    for i in range(3):
+    seed = np.empty(4, np.uint64)
+    for i in range(4):
         seed[i] = np.uint64(w32[2 * i]) | (np.uint64(w32[2 * i + 1]) << np.uint64(32))
-    sfc64_seed(seed, state)
+    if kind == SFC64:
+        sfc64_seed(seed, state)
+    else:
+        pcg64_seed(seed, state)
 
 
 class FastSeedSequence(ISpawnableSeedSequence):

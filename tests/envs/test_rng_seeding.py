@@ -63,30 +63,52 @@ def test_row_generators_and_children_keep_their_streams():
     np.testing.assert_array_equal(sfc[2].standard_normal(20), ref.standard_normal(20))
 
 
-def test_child_taken_as_a_raw_sfc64_state_is_the_child_stream():
-    """ChildStreams.sfc64_state: numpy's SFC64 state of that child (compiled draws from it equal the child
-    generator's), the child then has no generator; a built child, or children of another bit generator, cannot
-    be taken."""
-    from envs.sim.normals import SFC64, fill_normals, sfc64_seeded
+@pytest.mark.parametrize("bit_generator", [np.random.SFC64, np.random.PCG64])
+def test_child_taken_as_a_raw_state_is_the_child_stream(bit_generator):
+    """ChildStreams.raw_state: numpy's state of that child's bit generator (compiled draws from it equal the
+    child generator's, with or without entropy words), the child then has no generator; a built child, or
+    children of another bit generator, cannot be taken."""
+    from envs.sim.normals import fill_normals, sfc64_seeded
     ent = [2**63 - 5, 7, 0, 2**40]
     for seed in ([0], [2**32 + 1], ent):
         seq = np.random.SeedSequence(seed, spawn_key=(5,))
         np.testing.assert_array_equal(sfc64_seeded(seq), np.random.SFC64(seq).state["state"]["state"])
-    taken, built = ChildStreams(ent, 4, np.random.SFC64, ("a", "b", "c", "d")), ChildStreams(ent, 4, np.random.SFC64)
-    state = taken.sfc64_state("c")
-    out = np.empty((300, 3))
-    fill_normals(SFC64, state, out)
-    np.testing.assert_array_equal(out, built[2].standard_normal((300, 3)))
-    np.testing.assert_array_equal(state, built[2].bit_generator.state["state"]["state"])
+    for entropy in (ent, []):
+        taken, built = ChildStreams(entropy, 4, bit_generator, ("a", "b", "c", "d")), ChildStreams(entropy, 4,
+                                                                                                    bit_generator)
+        kind, state = taken.raw_state("c")
+        out = np.empty((300, 3))
+        fill_normals(kind, state, out)
+        np.testing.assert_array_equal(out, built[2].standard_normal((300, 3)))
+        assert built[2].random() == np.random.Generator(_with_state(bit_generator, kind, state)).random()
     with pytest.raises(RuntimeError, match="taken as a raw state"):
         taken[2]
     with pytest.raises(RuntimeError, match="already in use"):
-        taken.sfc64_state(2)
+        taken.raw_state(2)
     taken[0]
     with pytest.raises(RuntimeError, match="already in use"):
-        taken.sfc64_state("a")
-    with pytest.raises(ValueError, match="PCG64, not SFC64"):
-        ChildStreams(ent, 4).sfc64_state(0)
+        taken.raw_state("a")
+    with pytest.raises(ValueError, match="MT19937, not SFC64 or PCG64"):
+        ChildStreams(ent, 4, np.random.MT19937).raw_state(0)
+
+
+@pytest.mark.parametrize("bit_generator", [np.random.SFC64, np.random.PCG64])
+def test_row_normals_are_the_rows_child_draws_stacked(bit_generator):
+    from envs.sim.rng import row_normals
+    rows = [[s, 2**40 + s] for s in range(5)]
+    taken = [ChildStreams(e, 6, bit_generator) for e in rows]
+    ref = np.stack([ChildStreams(e, 6, bit_generator)[4].standard_normal((7, 3)) for e in rows])
+    np.testing.assert_array_equal(row_normals(taken, 4, (7, 3)), ref)
+    with pytest.raises(RuntimeError, match="taken as a raw state"):
+        taken[0][4]
+
+
+def _with_state(bit_generator, kind, state):
+    """A fresh ``bit_generator`` set to the raw ``(kind, state)``."""
+    from envs.sim.normals import store_stream_state
+    g = np.random.Generator(bit_generator(0))
+    store_stream_state(g, kind, state)
+    return g.bit_generator
 
 
 def test_spawn_attributes_and_pickle_behave_like_seed_sequence():
