@@ -578,7 +578,7 @@ def _road_samples(kinds, speed, inv_ref, exponent, a, zi, scale, kind, state, e,
     state[0], state[1], state[2], state[3] = s0, s1, s2, s3
 
 
-def _idle_coefficients(gen_phases, f_e, a_rms, g_rms, weights, vib: Vibration, dt: float):
+def _idle_coefficients(phases, f_e, a_rms, g_rms, weights, vib: Vibration, dt: float):
     """``(w1, w2, coef)`` of :func:`_idle_samples`: per channel rms r -> fundamental amplitude ``sqrt(2) r /
     sqrt(1 + h^2)``, the harmonic ``h`` times that, each attenuated by ``sinc(w dt / 2)``
     (:func:`sinusoid_interval_mean`) and split on the random phase: ``A sin(th + phi) = A cos(phi) sin(th) +
@@ -586,7 +586,7 @@ def _idle_coefficients(gen_phases, f_e, a_rms, g_rms, weights, vib: Vibration, d
     rms = np.concatenate([a_rms * weights, g_rms * weights])
     h = vib.harmonic_ratio
     amp1 = math.sqrt(2.0) * rms / math.sqrt(1.0 + h * h)
-    cos_ph, sin_ph = np.cos(gen_phases), np.sin(gen_phases)
+    cos_ph, sin_ph = np.cos(phases), np.sin(phases)
     ws, coef = [], np.empty((4, 6))
     for j, (mult, amp) in enumerate(((1.0, amp1), (2.0, h * amp1))):
         w = 2.0 * math.pi * f_e * mult
@@ -907,8 +907,8 @@ def _sensor_kernel(truth, vib, rough, a, has_sm, const, add_const, gm_z, gm_scal
     * with ``has_gm`` the first-order Gauss-Markov process (Groves 2013 sec. 4.4; Brown & Hwang, first-order
       Gauss-Markov process): ``b_k = phi b_(k-1) + u_k``, ``u = gm_scale gm_z`` (``gm_scale = sigma
       sqrt(1 - phi^2)``), from the state ``zi = phi b_0`` (``scipy.signal.lfilter``'s direct form II transposed
-      recursion with ``a = [1, -phi]``, ``b = [1, 0]``, its operations in its order), plus ``const`` (3,), plus ``step`` (n, 3)
-      when ``has_step``;
+      recursion with ``a = [1, -phi]``, ``b = [1, 0]``, its operations in its order), plus ``const`` (3,), plus
+      ``step`` (n, 3) when ``has_step``;
     * else ``step + const`` when ``has_step``; else ``const`` when ``add_const`` (not at all when it is zero).
 
     The white noise ``white_z white_sigma rough`` when ``has_white``. The operations of the numpy sequence

@@ -33,7 +33,8 @@ from numba import types
 from numba.extending import intrinsic
 from numba.np.random._constants import fi_double, ki_double, wi_double, ziggurat_nor_inv_r, ziggurat_nor_r
 
-__all__ = ["standard_normal", "fill_normals", "fill_normals_rows", "pcg64_seed", "sfc64_seed", "sfc64_seeded", "stream_state", "store_stream_state", "SFC64", "PCG64"]
+__all__ = ["standard_normal", "fill_normals", "fill_normals_rows", "pcg64_seed", "sfc64_seed", "stream_state",
+           "store_stream_state", "SFC64", "PCG64"]
 
 SFC64 = 0
 """Kind code of an SFC64 state ``[a, b, c, w]`` (uint64 words)."""
@@ -172,17 +173,10 @@ def fill_normals_rows(kind, states, out):
         _fill(kind, states[i], flat[i])
 
 
-def sfc64_seeded(seed_seq) -> np.ndarray:
-    """The (4,) uint64 state of ``numpy.random.SFC64(seed_seq)`` (kind :data:`SFC64`), without building the bit
-    generator: for a stream that only :func:`fill_normals` draws from."""
-    state = np.empty(4, dtype=np.uint64)
-    sfc64_seed(np.ascontiguousarray(seed_seq.generate_state(3, np.uint64)), state)
-    return state
-
-
 def fill_normals(kind: int, state: np.ndarray, out: np.ndarray) -> None:
     """Fill the C-contiguous float64 array ``out`` with standard normal variates in C order, from the stream
-    ``(kind, state)`` (:func:`stream_state`, :func:`sfc64_seeded`; ``state`` advanced in place): what a generator
+    ``(kind, state)`` (:func:`stream_state`, :meth:`envs.sim.rng.ChildStreams.raw_state`; ``state`` advanced in
+    place): what a generator
     in that state draws as ``standard_normal(out.shape)``. Releases the GIL."""
     _fill(kind, state, out.reshape(-1))
 

@@ -122,8 +122,8 @@ class ChildStreams:
         self._gens[k] = _TAKEN
         state = np.empty(4, dtype=np.uint64)
         if not self._words.size:                            # no entropy words: numpy's own SeedSequence path
-            seed = FastSeedSequence(self._words, k).generate_state(3 if kind == SFC64 else 4, np.uint64)
-            (sfc64_seed if kind == SFC64 else pcg64_seed)(np.ascontiguousarray(seed), state)
+            seed = np.ascontiguousarray(FastSeedSequence(self._words, k).generate_state(4, np.uint64))
+            (sfc64_seed if kind == SFC64 else pcg64_seed)(seed, state)  # SFC64 reads the first 3 words
         else:
             _child_state(kind, self._words, k, state)
         return kind, state

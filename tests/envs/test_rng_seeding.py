@@ -68,11 +68,14 @@ def test_child_taken_as_a_raw_state_is_the_child_stream(bit_generator):
     """ChildStreams.raw_state: numpy's state of that child's bit generator (compiled draws from it equal the
     child generator's, with or without entropy words), the child then has no generator; a built child, or
     children of another bit generator, cannot be taken."""
-    from envs.sim.normals import fill_normals, sfc64_seeded
+    from envs.sim.normals import fill_normals, pcg64_seed, sfc64_seed, stream_state
     ent = [2**63 - 5, 7, 0, 2**40]
+    seed_fn = sfc64_seed if bit_generator is np.random.SFC64 else pcg64_seed
     for seed in ([0], [2**32 + 1], ent):
         seq = np.random.SeedSequence(seed, spawn_key=(5,))
-        np.testing.assert_array_equal(sfc64_seeded(seq), np.random.SFC64(seq).state["state"]["state"])
+        state = np.empty(4, np.uint64)
+        seed_fn(seq.generate_state(4, np.uint64), state)
+        np.testing.assert_array_equal(state, stream_state(np.random.Generator(bit_generator(seq)))[1])
     for entropy in (ent, []):
         taken, built = ChildStreams(entropy, 4, bit_generator, ("a", "b", "c", "d")), ChildStreams(entropy, 4,
                                                                                                     bit_generator)
