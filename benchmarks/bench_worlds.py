@@ -200,12 +200,6 @@ def _count_imu_normals(scenario, B, duration_s, dtype) -> tuple:
         got = orig_item(self, k)
         return [counting(g) for g in got] if isinstance(got, list) else counting(got)
 
-    def compiled(orig):
-        def normal(gen, size):              # envs.sim.normals.standard_normal
-            _CountingGenerator.count(gen, int(np.prod(size)))
-            return orig(np.random.Generator(gen.bit_generator), size)  # the same stream, not counted again
-        return normal
-
     def filled(orig):
         def fill(kind, state, out):         # envs.sim.normals.fill_normals on a raw state
             _CountingGenerator.drawn.append((kinds[kind], out.size))
@@ -220,7 +214,7 @@ def _count_imu_normals(scenario, B, duration_s, dtype) -> tuple:
             return orig(kinds_, *a)
         return samples
 
-    for name, wrap in (("standard_normal", compiled), ("fill_normals", filled), ("_road_samples", road)):
+    for name, wrap in (("fill_normals", filled), ("_road_samples", road)):
         if hasattr(imu, name):
             hooks[name] = getattr(imu, name)
             setattr(imu, name, wrap(hooks[name]))

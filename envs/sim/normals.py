@@ -7,7 +7,9 @@ branch that the CPU mispredicts half of the time. :func:`standard_normal` runs t
 same ziggurat in one compiled loop, the generator's state held in registers and the sign applied without a
 branch (~3 ns). It returns what ``gen.standard_normal(size)`` returns, to the bit, and leaves ``gen`` in the
 state numpy would (tests/envs/test_normals.py, tails and wedges included); a generator over another bit
-generator is drawn by numpy itself.
+generator is drawn by numpy itself. The world's stages skip the ``Generator`` where they can: they take a row's
+child stream as a raw state (:meth:`envs.sim.rng.ChildStreams.raw_state`) and draw with :func:`fill_normals`, or
+one variate at a time inside their own kernels with :func:`normal_step`.
 
 The algorithms (each step in its own function below):
 
@@ -176,8 +178,7 @@ def fill_normals_rows(kind, states, out):
 def fill_normals(kind: int, state: np.ndarray, out: np.ndarray) -> None:
     """Fill the C-contiguous float64 array ``out`` with standard normal variates in C order, from the stream
     ``(kind, state)`` (:func:`stream_state`, :meth:`envs.sim.rng.ChildStreams.raw_state`; ``state`` advanced in
-    place): what a generator
-    in that state draws as ``standard_normal(out.shape)``. Releases the GIL."""
+    place): what a generator in that state draws as ``standard_normal(out.shape)``. Releases the GIL."""
     _fill(kind, state, out.reshape(-1))
 
 
@@ -218,10 +219,10 @@ def standard_normal(gen: np.random.Generator, size) -> np.ndarray:
     gen : numpy.random.Generator.
     size : int or tuple of ints, the output shape.
     """
-    out = np.empty(size, dtype=np.float64)
-    ks = stream_state(gen) if out.size >= MIN_COMPILED else None
+    ks = stream_state(gen) if int(np.prod(size)) >= MIN_COMPILED else None
     if ks is None:
         return gen.standard_normal(size)
-    _fill(ks[0], ks[1], out.reshape(-1))
+    out = np.empty(size, dtype=np.float64)
+    fill_normals(*ks, out)
     store_stream_state(gen, *ks)
     return out
