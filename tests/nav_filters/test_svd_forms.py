@@ -132,6 +132,40 @@ def test_q_changed_in_place_is_not_served_from_the_factor_cache(form_cls):
                                rtol=0, atol=1e-12 * np.abs(P0).max())
 
 
+@pytest.mark.parametrize("fused", [False, True], ids=["numpy", "fused"])
+@pytest.mark.parametrize("form_cls", SVD_FORMS, ids=lambda c: c.name)
+def test_covariance_is_formed_once_per_state_and_follows_every_change(form_cls, fused):
+    """The covariance is kept while the factors stay (the same array on every access) and equals ``(U D)(U D)^T``
+    of the factors after each change: a time and measurement update, rows replaced from another form, rows copied
+    within the batch."""
+    rng = np.random.default_rng(23)
+    B = 4
+
+    def formed(f):
+        UD = f.U * f.D[:, None, :]
+        return (UD @ UD.mT + (UD @ UD.mT).mT) / 2
+
+    f = form_cls(random_spd(rng, B, N))
+    f.set_fused(fused)
+    P = f.covariance
+    assert f.covariance is P
+    np.testing.assert_array_equal(P, formed(f))
+    dz, H, R, mask = random_measurement(rng, B, 6, False)
+    Phi = np.eye(N) + 0.01 * rng.normal(size=(B, N, N))
+    f.predicted_update(Phi, random_psd_q(rng, B, N, "diag"), dz, H, np.eye(6) * R[:, :, None], mask)
+    P1 = f.covariance
+    assert P1 is not P and f.covariance is P1
+    np.testing.assert_array_equal(P1, formed(f))
+    other = form_cls(random_spd(rng, 2, N, 2.0, 3.0))
+    f.replace_rows([1, 3], other)
+    np.testing.assert_array_equal(f.covariance, formed(f))
+    np.testing.assert_allclose(f.covariance[[1, 3]], other.covariance, rtol=0, atol=0)
+    before = f.covariance.copy()
+    f.copy_rows([0], [2])
+    np.testing.assert_array_equal(f.covariance, formed(f))
+    np.testing.assert_array_equal(f.covariance[0], before[2])
+
+
 @pytest.mark.parametrize("form_cls", SVD_FORMS, ids=lambda c: c.name)
 @pytest.mark.parametrize("full_R", [False, True], ids=["diagR", "fullR"])
 def test_masked_rows_change_nothing(form_cls, full_R):
