@@ -228,15 +228,13 @@ class _SvdForm(FilterForm):
         self._q_cache = None  # (Q, L_Q^T) of the last predict: a cache keyed by the value of Q, not row state
         self._p_cache = None  # (U, D, P): the covariance of these factors (:attr:`covariance`)
 
-    _ROW_COPY_SKIP = frozenset({"_p_cache"})
-
     @property
     def covariance(self):
         """(B, n, n) ``P = (U D)(U D)^T``, symmetric PSD by construction.
 
         Formed once per state: kept with the factor arrays it came from, and formed again when ``U`` or ``D`` is
-        another array (every update assigns new ones) or after :meth:`replace_rows` / :meth:`copy_rows` (which
-        write rows of them in place). An adaptive law's step reads it three or four times (the plan, the commit,
+        another array (every update and :meth:`copy_rows` assign new ones) or after :meth:`replace_rows` (which
+        writes rows of them in place). An adaptive law's step reads it three or four times (the plan, the commit,
         the feedback), each of which formed it before. Callers must not write into it (nor into any form's).
         """
         c = self._p_cache
@@ -250,11 +248,6 @@ class _SvdForm(FilterForm):
     def replace_rows(self, rows, other) -> None:
         """:meth:`FilterForm.replace_rows`, then the covariance of the old rows dropped (formed again on access)."""
         super().replace_rows(rows, other)
-        self._p_cache = None
-
-    def copy_rows(self, dst, src) -> None:
-        """:meth:`FilterForm.copy_rows`, then the covariance of the old rows dropped (formed again on access)."""
-        super().copy_rows(dst, src)
         self._p_cache = None
 
     def predict(self, Phi, Q):
