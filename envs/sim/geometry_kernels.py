@@ -79,7 +79,7 @@ def ranging_rows(r0, r1, t_tx, sel, mask, r_e, v_e, cu0, su0, cr, sr, a, ci, si,
     Per tracked channel: the Walker orbit of satellite ``sel`` at its transmission time ``t_tx``
     (:func:`~envs.sim.constellation.walker_point`), then range and rate with the Sagnac correction
     (Groves eqs 8.36, 8.46; :func:`earth.ranging.range_rate_pair`, 3 light-time iterations). Channels not
-    tracked are left as they are (zeros from the caller).
+    tracked get zeros.
 
     Parameters
     ----------
@@ -96,6 +96,11 @@ def ranging_rows(r0, r1, t_tx, sel, mask, r_e, v_e, cu0, su0, cr, sr, a, ci, si,
         for j in range(M):
             for k in range(C):
                 if not mask[b, j, k]:
+                    for c in range(3):
+                        sat_pos[b, j, k, c] = 0.0
+                        sat_vel[b, j, k, c] = 0.0
+                    rho[b, j, k] = 0.0
+                    rho_dot[b, j, k] = 0.0
                     continue
                 t = t_tx[b, j, k]
                 i = sel[b, j, k]

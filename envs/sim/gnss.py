@@ -69,6 +69,7 @@ from dataclasses import dataclass, fields, replace
 import numpy as np
 
 from . import gnss_stages as stages
+from .buffers import empty
 from .canyon import UrbanCanyon, _check_intervals
 from .constellation import Constellation, _check_pair, _check_real
 from .events import Cn0Scatter, NoiseRegimes, RandomBursts, Reacquisition, SigmaMismatch, UrbanZones
@@ -393,14 +394,16 @@ def _check_inputs(t, r_e, v_e, heading, constellation, receiver, events, rngs, t
     return t, r_e, v_e, heading, rngs, t0_gps, dtype
 
 
-def _gnss_data(t, sky, ch, rng, noise, err, bits, dtype) -> GnssData:
-    """The stages' results as :class:`GnssData`: pseudoranges and rates formed, masked channels set to finite
-    zeros (in place, then one cast; ``sat_pos`` / ``sat_vel``, evaluated on the tracked channels only, and the
-    NLOS biases, since ``nlos`` implies ``mask``, are zero there already)."""
+def _gnss_data(t, sky, ch, rng, noise, err, bits, dtype, buffers=None) -> GnssData:
+    """The stages' results as :class:`GnssData`: pseudoranges and rates formed (into ``buffers`` when given),
+    masked channels set to finite zeros (in place, then one cast; ``sat_pos`` / ``sat_vel``, evaluated on the
+    tracked channels only, and the NLOS biases, since ``nlos`` implies ``mask``, are zero there already)."""
     mask = ch.mask
     off = ~mask
-    pr = rng.rho + err.bias_m[..., None] + err.pr_err
-    prr = rng.rho_dot + err.drift_mps[..., None] + err.prr_err
+    pr = np.add(rng.rho, err.bias_m[..., None], out=empty(buffers, "gnss.pr", mask.shape, np.float64))
+    pr += err.pr_err
+    prr = np.add(rng.rho_dot, err.drift_mps[..., None], out=empty(buffers, "gnss.prr", mask.shape, np.float64))
+    prr += err.prr_err
 
     def z(a):
         a[off] = 0.0
@@ -418,13 +421,14 @@ def _gnss_data(t, sky, ch, rng, noise, err, bits, dtype) -> GnssData:
         mask=mask, prn=prn, elevation=z(ch.el), azimuth=z(ch.az),
         clock_bias_m=err.bias_m.astype(dtype, copy=False), clock_drift_mps=err.drift_mps.astype(dtype, copy=False),
         nlos=noise.nlos, pr_error_m=z(err.pr_err), prr_error_mps=z(err.prr_err),
-        cn0_dbhz=z(ch.cn0), pr_var_true=err.pr_var_true.astype(dtype), prr_var_true=err.prr_var_true.astype(dtype),
+        cn0_dbhz=z(ch.cn0), pr_var_true=err.pr_var_true.astype(dtype, copy=False),
+        prr_var_true=err.prr_var_true.astype(dtype, copy=False),
         pr_bias_m=zero_already(noise.pr_bias), prr_bias_mps=zero_already(noise.prr_bias), event_mask=bits,
     )
 
 
 def simulate_gnss(t, r_e, v_e, heading, constellation: Constellation, receiver: ReceiverConfig,
-                  events: GnssEvents, rngs, t0_gps=None, dtype=np.float64) -> GnssData:
+                  events: GnssEvents, rngs, t0_gps=None, dtype=np.float64, buffers=None) -> GnssData:
     """Simulate pseudoranges and pseudorange rates of B receivers over M epochs.
 
     See the module docstring for the measurement model. The stages
@@ -463,6 +467,9 @@ def simulate_gnss(t, r_e, v_e, heading, constellation: Constellation, receiver: 
     dtype : np.float32 or np.float64
         Float type of the outputs (computation is float64; see the module note
         on float32 pseudoranges).
+    buffers : :class:`envs.sim.buffers.WorldBuffers` or None
+        The receiver stage's (B, M, C) arrays are taken from it (reused across draws when nobody holds
+        them), else allocated.
 
     Returns
     -------
@@ -476,7 +483,7 @@ def simulate_gnss(t, r_e, v_e, heading, constellation: Constellation, receiver: 
     stages.random_events(t, v_e, heading, sky, sat, events, subs)
     stages.scheduled_events(t, sat, events)
     ch = stages.allocate_channels(sky, sat.visible, receiver.n_channels, subs, t, events.cn0)
-    rng = stages.channel_ranging(r_e, v_e, sky, ch, constellation)
+    rng = stages.channel_ranging(r_e, v_e, sky, ch, constellation, buffers)
     noise = stages.channel_noise(t, ch, sat, events)
-    err = stages.receiver_errors(t, ch, noise, sat, receiver, subs)
-    return _gnss_data(t, sky, ch, rng, noise, err, sat.bits, dtype)
+    err = stages.receiver_errors(t, ch, noise, sat, receiver, subs, buffers)
+    return _gnss_data(t, sky, ch, rng, noise, err, sat.bits, dtype, buffers)

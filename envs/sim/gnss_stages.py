@@ -28,8 +28,10 @@ from earth.wgs84 import ecef_to_geodetic
 from . import events as ev
 from .canyon import canyon_visibility, in_intervals
 from .constellation import Constellation
+from .buffers import empty
 from .geometry_kernels import ranging_rows, sky_rows
 from .receiver import _MIN_EL_SIGMA, CN0_JITTER_DB, _gauss_markov, iono_obliquity, simulate_clock, tropo_mapping
+from .receiver_kernels import receiver_tail_rows
 from .rng import ChildStreams, row_normals
 from .rng import entropy_words as _entropy_words  # noqa: F401  (re-exported by envs.sim.gnss)
 from .row_threads import run_row_ranges
@@ -389,16 +391,17 @@ def allocate_channels(sky: Sky, visible, n_channels: int, subs, t=None, cn0_cfg=
     return ch
 
 
-def channel_ranging(r_e, v_e, sky: Sky, ch: Channels, constellation: Constellation) -> Ranging:
-    """Stage 6: ephemeris at transmission time and true range / rate on the tracked channels only (the others
-    stay zero): :func:`envs.sim.geometry_kernels.ranging_rows` (range and rate as
-    :func:`earth.ranging.range_and_rate`), row ranges on threads."""
+def channel_ranging(r_e, v_e, sky: Sky, ch: Channels, constellation: Constellation, buffers=None) -> Ranging:
+    """Stage 6: ephemeris at transmission time and true range / rate on the tracked channels only (zeros on the
+    others): :func:`envs.sim.geometry_kernels.ranging_rows` (range and rate as
+    :func:`earth.ranging.range_and_rate`), row ranges on threads; the outputs from ``buffers``
+    (:class:`envs.sim.buffers.WorldBuffers`) when given."""
     B, M, C = ch.mask.shape
     t_tx_ch = ch.gather(sky.t_tx)
-    sat_pos = np.zeros((B, M, C, 3))
-    sat_vel = np.zeros((B, M, C, 3))
-    rho = np.zeros((B, M, C))
-    rho_dot = np.zeros((B, M, C))
+    sat_pos = empty(buffers, "gnss.sat_pos", (B, M, C, 3), np.float64)
+    sat_vel = empty(buffers, "gnss.sat_vel", (B, M, C, 3), np.float64)
+    rho = empty(buffers, "gnss.rho", (B, M, C), np.float64)
+    rho_dot = empty(buffers, "gnss.rho_dot", (B, M, C), np.float64)
     consts = constellation.kernel_constants()
     r_e, v_e = np.ascontiguousarray(r_e, dtype=np.float64), np.ascontiguousarray(v_e, dtype=np.float64)
     run_row_ranges(lambda r0, r1: ranging_rows(r0, r1, t_tx_ch, ch.sel, ch.mask, r_e, v_e, *consts, sat_pos, sat_vel,
@@ -447,14 +450,18 @@ def channel_noise(t, ch: Channels, sat: SatelliteEvents, events) -> ChannelNoise
                         code_mult=noise_mult, doppler_mult=noise_mult_prr)
 
 
-def receiver_errors(t, ch: Channels, noise: ChannelNoise, sat: SatelliteEvents, receiver, subs) -> ReceiverErrors:
+def receiver_errors(t, ch: Channels, noise: ChannelNoise, sat: SatelliteEvents, receiver, subs,
+                    buffers=None) -> ReceiverErrors:
     """Stage 8: the receiver clock, the residual troposphere (one Gauss-Markov process per row) and ionosphere
     (one per satellite), the white code and Doppler noise, the reported sigmas (nominal, or the receiver's
     :attr:`~envs.sim.receiver.ReceiverConfig.sigma_model`, times the mismatch factors) and the true variances
     (the module docstring of :mod:`envs.sim.gnss`), from the rows' clock, troposphere, ionosphere, code and
-    Doppler streams."""
+    Doppler streams. The per-channel arithmetic runs in a compiled row kernel on threads
+    (:func:`~envs.sim.receiver_kernels.receiver_tail_rows`); its (B, M, C) outputs and variates come from
+    ``buffers`` (:class:`envs.sim.buffers.WorldBuffers`) when given."""
     M = t.size
     el, mask = ch.el, ch.mask
+    B, C = mask.shape[0], mask.shape[-1]
     S = sat.visible.shape[-1]
     bias_m, drift_mps = simulate_clock(t, [s[_SUB_CLOCK] for s in subs], receiver.clock)
     s_el = np.sin(np.maximum(el, _MIN_EL_SIGMA))
@@ -466,26 +473,21 @@ def receiver_errors(t, ch: Channels, noise: ChannelNoise, sat: SatelliteEvents, 
                              np.ascontiguousarray(row_normals(subs, _SUB_IONO, (M, S)).transpose(1, 0, 2)))
     iono_ch = ch.gather(iono_sat.transpose(1, 0, 2))
     del iono_sat
-    C = mask.shape[-1]
-    code_z = row_normals(subs, _SUB_CODE, (M, C))
-    rate_z = row_normals(subs, _SUB_RATE, (M, C))
-    sig_pr_code = receiver.pr_sigma_m / s_el
-    sig_prr = receiver.prr_sigma_mps / s_el
-    pr_bias, prr_bias = noise.pr_bias, noise.prr_bias
-    pr_white = noise.code_mult * sig_pr_code
-    prr_white = noise.doppler_mult * sig_prr
-    pr_err = (m_t * tropo_z[..., None] + f_i * iono_ch + pr_bias + pr_white * code_z)
-    prr_err = prr_bias + prr_white * rate_z
-    atm_var = (m_t * receiver.tropo_zenith_sigma_m) ** 2 + (f_i * receiver.iono_zenith_sigma_m) ** 2
-    pr_sigma = np.sqrt(sig_pr_code**2 + (m_t * receiver.tropo_zenith_sigma_m) ** 2
-                       + (f_i * receiver.iono_zenith_sigma_m) ** 2)
-    if receiver.sigma_model.name != "receiver":             # a variance model replaces the nominal sigma
+    shape = (B, M, C)
+    code_z = row_normals(subs, _SUB_CODE, (M, C), out=empty(buffers, "gnss.code_z", shape, np.float64))
+    rate_z = row_normals(subs, _SUB_RATE, (M, C), out=empty(buffers, "gnss.rate_z", shape, np.float64))
+    out = [empty(buffers, f"gnss.{name}", shape, np.float64)
+           for name in ("pr_err", "prr_err", "pr_sigma", "prr_sigma", "pr_var_true", "prr_var_true")]
+    nominal = receiver.sigma_model.name == "receiver"
+    if not nominal:                                          # a variance model replaces the nominal sigma
         with np.errstate(over="ignore"):
-            pr_sigma = np.sqrt(receiver.sigma_model.variance(el, ch.cn0))
-    pr_var_true = np.where(mask, pr_white**2 + atm_var + pr_bias**2, 1.0)
-    prr_var_true = np.where(mask, prr_white**2 + prr_bias**2, 1.0)
-    if sat.code_rep is not None:                            # the reported-sigma mismatch
-        pr_sigma = pr_sigma * sat.code_rep[..., None]
-        sig_prr = sig_prr * sat.doppler_rep[..., None]
-    return ReceiverErrors(bias_m=bias_m, drift_mps=drift_mps, pr_err=pr_err, prr_err=prr_err, pr_sigma=pr_sigma,
-                          prr_sigma=sig_prr, pr_var_true=pr_var_true, prr_var_true=prr_var_true)
+            np.sqrt(receiver.sigma_model.variance(el, ch.cn0), out=out[2])
+    rep = sat.code_rep is not None                           # the reported-sigma mismatch
+    no_rep = np.ones((1, 1))
+    code_rep, doppler_rep = (sat.code_rep, sat.doppler_rep) if rep else (no_rep, no_rep)
+    run_row_ranges(lambda r0, r1: receiver_tail_rows(
+        r0, r1, m_t, f_i, tropo_z, iono_ch, s_el, noise.pr_bias, noise.prr_bias, noise.code_mult, noise.doppler_mult,
+        code_z, rate_z, mask, float(receiver.pr_sigma_m), float(receiver.prr_sigma_mps),
+        float(receiver.tropo_zenith_sigma_m), float(receiver.iono_zenith_sigma_m), nominal, code_rep, doppler_rep,
+        rep, *out), B)
+    return ReceiverErrors(bias_m, drift_mps, *out)

@@ -146,7 +146,7 @@ def generate_world(scenario, seeds, dtype=np.float64, buffers=None) -> World:
     seeds : int or sequence of int, one per row.
     dtype : float dtype of the IMU samples (the truth and GNSS geometry stay float64).
     buffers : :class:`envs.sim.buffers.WorldBuffers` or None: the bulk arrays (truth at the IMU rate, IMU samples
-        and error records) come from it, reused from an earlier draw that nobody holds any more (an env core's
+        and error records, the receiver stage's channel arrays) come from it, reused from an earlier draw that nobody holds any more (an env core's
         resets). The world does not depend on it.
     """
     scen = get_scenario(scenario)
@@ -167,7 +167,7 @@ def generate_world(scenario, seeds, dtype=np.float64, buffers=None) -> World:
     epoch_idx = np.arange(spe, truth.t.size, spe)
     at = truth.take(epoch_idx)
     gnss = simulate_gnss(truth.t[epoch_idx], at.r_e, at.v_e, at.heading, scen.constellation, scen.receiver,
-                         scen.events, row_generators(seeds, "gnss"))
+                         scen.events, row_generators(seeds, "gnss"), buffers=buffers)
     if scen.imu_events is not None:
         gnss = replace(gnss, event_mask=gnss.event_mask | imu_event_bits(gnss.t, imu, scen.imu_events))
     init = initial_estimate(scen, truth, gnss, row_generators(seeds, "init"))

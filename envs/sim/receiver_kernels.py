@@ -1,0 +1,75 @@
+"""Compiled row kernel of the receiver-error stage (:func:`envs.sim.gnss_stages.receiver_errors`).
+
+:func:`receiver_tail_rows` forms the channel errors, reported sigmas and true variances of rows ``r0 .. r1-1`` in
+one pass without the GIL, from the per-channel inputs the stage draws and maps with numpy (the mapping functions,
+the Gauss-Markov processes, the white-noise variates). It replaces a numpy chain of about 25 temporaries of the
+(B, M, C) channel shape: each a fresh allocation per world, which the operating system maps and zeroes (at
+B = 1024 about half of the stage's time). It evaluates the same products, sums, quotients and square roots in the
+same order as that chain (no fastmath, no fused multiply-add: the same roundings), so the worlds stay the same bit
+for bit (``tests/envs/test_receiver_kernels.py`` compares it with the chain).
+"""
+from __future__ import annotations
+
+import math
+
+import numba as nb
+
+
+@nb.njit(cache=True, nogil=True)
+def receiver_tail_rows(r0, r1, m_t, f_i, tropo_z, iono_ch, s_el, pr_bias, prr_bias, code_mult, doppler_mult, code_z,
+                       rate_z, mask, pr_sigma_m, prr_sigma_mps, tropo_sigma_m, iono_sigma_m, nominal, code_rep,
+                       doppler_rep, rep, pr_err, prr_err, pr_sigma, prr_sigma, pr_var_true, prr_var_true):
+    """Errors, sigmas and true variances of the channels of rows ``r0 .. r1-1`` (module docstring of
+    :mod:`envs.sim.gnss`), per channel::
+
+        sig_code = sigma_pr / sin(el'),  sig_rate = sigma_prr / sin(el')          (el' = max(el, 5 deg))
+        w_pr = code_mult sig_code,       w_prr = doppler_mult sig_rate            (true white sigmas)
+        pr_err  = m_t T + F_i I + b_nlos + w_pr z_code                           (T, I: zenith tropo / iono)
+        prr_err = b_rate + w_prr z_rate
+        pr_sigma  = sqrt(sig_code^2 + (m_t s_T)^2 + (F_i s_I)^2) [x code_rep]     (``nominal``; else the caller's
+                                                                                  values in pr_sigma, x code_rep)
+        prr_sigma = sig_rate [x doppler_rep]
+        pr_var_true  = w_pr^2 + (m_t s_T)^2 + (F_i s_I)^2 + b_nlos^2             (1 on an empty channel)
+        prr_var_true = w_prr^2 + b_rate^2                                        (1 on an empty channel)
+
+    Parameters
+    ----------
+    r0, r1 : the rows written (the outputs' other rows are untouched).
+    m_t, f_i : (B, M, C) tropospheric mapping and ionospheric obliquity; tropo_z : (B, M) zenith troposphere
+        residual [m]; iono_ch : (B, M, C) zenith ionosphere residual of each channel's satellite [m].
+    s_el : (B, M, C) sine of the elevation clipped at the sigma model's floor.
+    pr_bias, prr_bias : (B, M, C) NLOS bias [m] and rate error [m/s]; code_mult, doppler_mult : (B, M, C) true
+        noise multipliers; code_z, rate_z : (B, M, C) standard normal variates; mask : (B, M, C) bool.
+    pr_sigma_m, prr_sigma_mps, tropo_sigma_m, iono_sigma_m : the receiver's zenith sigmas [m, m/s, m, m].
+    nominal : bool, pr_sigma from the nominal model (else ``pr_sigma`` holds the variance model's on entry).
+    code_rep, doppler_rep : (B, M) reported-sigma mismatch factors, applied when ``rep``.
+    pr_err, prr_err, pr_sigma, prr_sigma, pr_var_true, prr_var_true : (B, M, C) float64 outputs.
+    """
+    M, C = mask.shape[1], mask.shape[2]
+    for b in range(r0, r1):
+        for k in range(M):
+            tz = tropo_z[b, k]
+            for c in range(C):
+                s = s_el[b, k, c]
+                sig_code = pr_sigma_m / s
+                sig_rate = prr_sigma_mps / s
+                w_pr = code_mult[b, k, c] * sig_code
+                w_prr = doppler_mult[b, k, c] * sig_rate
+                mt, fi = m_t[b, k, c], f_i[b, k, c]
+                pb, rb = pr_bias[b, k, c], prr_bias[b, k, c]
+                pr_err[b, k, c] = ((mt * tz + fi * iono_ch[b, k, c]) + pb) + w_pr * code_z[b, k, c]
+                prr_err[b, k, c] = rb + w_prr * rate_z[b, k, c]
+                ta = mt * tropo_sigma_m
+                ia = fi * iono_sigma_m
+                if nominal:
+                    pr_sigma[b, k, c] = math.sqrt((sig_code * sig_code + ta * ta) + ia * ia)
+                if mask[b, k, c]:
+                    pr_var_true[b, k, c] = (w_pr * w_pr + (ta * ta + ia * ia)) + pb * pb
+                    prr_var_true[b, k, c] = w_prr * w_prr + rb * rb
+                else:
+                    pr_var_true[b, k, c] = 1.0
+                    prr_var_true[b, k, c] = 1.0
+                if rep:
+                    pr_sigma[b, k, c] = pr_sigma[b, k, c] * code_rep[b, k]
+                    sig_rate = sig_rate * doppler_rep[b, k]
+                prr_sigma[b, k, c] = sig_rate

@@ -1,0 +1,120 @@
+"""The receiver stage's compiled tail (envs.sim.receiver_kernels) against the numpy chain it replaced, and the
+stage's buffers.
+
+The chain below is the stage's arithmetic as it was written in numpy (one ufunc per operation, left to right).
+The kernel evaluates the same IEEE operations in the same order, so the two must agree bit for bit, on every
+channel, with the nominal or a variance-model sigma, with or without the reported-sigma mismatch, and for any
+split of the rows over threads.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from envs.sim.buffers import WorldBuffers
+from envs.sim.receiver import _MIN_EL_SIGMA, iono_obliquity, tropo_mapping
+from envs.sim.receiver_kernels import receiver_tail_rows
+from envs.sim.row_threads import run_row_ranges
+from envs.sim.world import generate_world
+
+SIGMAS = (0.6, 0.05, 0.12, 0.4)  # pr, prr, zenith tropo, zenith iono
+
+
+def _inputs(seed, B=13, M=17, C=9):
+    rng = np.random.default_rng(seed)
+    el = rng.uniform(-0.1, 1.5, (B, M, C))
+    mask = rng.random((B, M, C)) < 0.8
+    nlos = mask & (rng.random((B, M, C)) < 0.3)
+    return dict(
+        el=el, mask=mask, tropo_z=rng.normal(0, 0.1, (M, B)).T,     # a transposed view, as the stage passes it
+        iono_ch=rng.normal(0, 0.5, (B, M, C)),
+        pr_bias=np.where(nlos, rng.uniform(0, 40, (B, M, C)), 0.0),
+        prr_bias=np.where(nlos, rng.normal(0, 0.3, (B, M, C)), 0.0),
+        code_mult=rng.uniform(1, 5, (B, M, C)), doppler_mult=rng.uniform(1, 5, (B, M, C)),
+        code_z=rng.standard_normal((B, M, C)), rate_z=rng.standard_normal((B, M, C)),
+        code_rep=rng.uniform(0.5, 2, (B, M)), doppler_rep=rng.uniform(0.5, 2, (B, M)),
+        variance=rng.uniform(0.1, 30, (B, M, C)))
+
+
+def _chain(d, nominal, rep):
+    """The numpy chain of ``receiver_errors`` before the kernel."""
+    sp, sr, st, si = SIGMAS
+    el, mask = d["el"], d["mask"]
+    s_el = np.sin(np.maximum(el, _MIN_EL_SIGMA))
+    m_t, f_i = tropo_mapping(el), iono_obliquity(el)
+    sig_pr_code = sp / s_el
+    sig_prr = sr / s_el
+    pr_white = d["code_mult"] * sig_pr_code
+    prr_white = d["doppler_mult"] * sig_prr
+    pr_err = (m_t * d["tropo_z"][..., None] + f_i * d["iono_ch"] + d["pr_bias"] + pr_white * d["code_z"])
+    prr_err = d["prr_bias"] + prr_white * d["rate_z"]
+    atm_var = (m_t * st) ** 2 + (f_i * si) ** 2
+    pr_sigma = np.sqrt(sig_pr_code**2 + (m_t * st) ** 2 + (f_i * si) ** 2)
+    if not nominal:
+        pr_sigma = np.sqrt(d["variance"])
+    pr_var_true = np.where(mask, pr_white**2 + atm_var + d["pr_bias"]**2, 1.0)
+    prr_var_true = np.where(mask, prr_white**2 + d["prr_bias"]**2, 1.0)
+    if rep:
+        pr_sigma = pr_sigma * d["code_rep"][..., None]
+        sig_prr = sig_prr * d["doppler_rep"][..., None]
+    return pr_err, prr_err, pr_sigma, sig_prr, pr_var_true, prr_var_true
+
+
+def _kernel(d, nominal, rep, workers=1):
+    el = d["el"]
+    out = [np.full(el.shape, np.nan) for _ in range(6)]
+    if not nominal:
+        np.sqrt(d["variance"], out=out[2])
+    s_el = np.sin(np.maximum(el, _MIN_EL_SIGMA))
+    run_row_ranges(lambda r0, r1: receiver_tail_rows(
+        r0, r1, tropo_mapping(el), iono_obliquity(el), d["tropo_z"], d["iono_ch"], s_el, d["pr_bias"],
+        d["prr_bias"], d["code_mult"], d["doppler_mult"], d["code_z"], d["rate_z"], d["mask"], *SIGMAS, nominal,
+        d["code_rep"], d["doppler_rep"], rep, *out), el.shape[0], workers=workers, min_rows=2)
+    return out
+
+
+@pytest.mark.parametrize("nominal", [True, False])
+@pytest.mark.parametrize("rep", [False, True])
+def test_kernel_equals_the_numpy_chain_bit_for_bit(nominal, rep):
+    d = _inputs(3)
+    want = _chain(d, nominal, rep)
+    for workers in (1, 3):
+        got = _kernel(d, nominal, rep, workers)
+        for name, g, w in zip(("pr_err", "prr_err", "pr_sigma", "prr_sigma", "pr_var_true", "prr_var_true"),
+                              got, want):
+            np.testing.assert_array_equal(g, w, err_msg=f"{name}, workers {workers}")
+
+
+def test_kernel_writes_only_its_rows():
+    d = _inputs(4)
+    el = d["el"]
+    out = [np.full(el.shape, np.nan) for _ in range(6)]
+    receiver_tail_rows(3, 7, tropo_mapping(el), iono_obliquity(el), d["tropo_z"], d["iono_ch"],
+                       np.sin(np.maximum(el, _MIN_EL_SIGMA)), d["pr_bias"], d["prr_bias"], d["code_mult"],
+                       d["doppler_mult"], d["code_z"], d["rate_z"], d["mask"], *SIGMAS, True, d["code_rep"],
+                       d["doppler_rep"], False, *out)
+    for o in out:
+        assert np.isfinite(o[3:7]).all() and np.isnan(o[:3]).all() and np.isnan(o[7:]).all()
+
+
+@pytest.mark.parametrize("scenario", ["noise-burst", "urban"])
+def test_world_buffers_give_the_receiver_stage_the_same_bits(scenario):
+    """Worlds drawn through one WorldBuffers equal worlds drawn without; a world still held is not overwritten by
+    the next draw, and once nobody holds it the next draw reuses its receiver arrays."""
+    names = ("pr", "prr", "pr_sigma", "prr_sigma", "pr_error_m", "prr_error_mps", "pr_var_true", "prr_var_true")
+    seeds = [[0, 1, 2], [5, 6, 7]]
+    fresh = [generate_world(scenario, s) for s in seeds]
+    buf = WorldBuffers()
+    held = generate_world(scenario, seeds[0], buffers=buf)
+    keep = {n: getattr(held.gnss, n).copy() for n in names}
+    nxt = generate_world(scenario, seeds[1], buffers=buf)            # drawn while the first is held
+    assert not np.shares_memory(held.gnss.pr_error_m, nxt.gnss.pr_error_m)
+    for n in names:
+        np.testing.assert_array_equal(getattr(held.gnss, n), keep[n], err_msg=n)
+    address = nxt.gnss.pr_error_m.__array_interface__["data"][0]
+    del held, nxt
+    again = generate_world(scenario, seeds[0], buffers=buf)          # nobody holds the arrays: reused
+    assert again.gnss.pr_error_m.__array_interface__["data"][0] == address
+    for w, f in ((again, fresh[0]), (generate_world(scenario, seeds[1], buffers=buf), fresh[1])):
+        for n in names:
+            np.testing.assert_array_equal(getattr(w.gnss, n), getattr(f.gnss, n), err_msg=n)
