@@ -93,7 +93,7 @@ class UrbanCanyon:
 
 
 def canyon_visibility(t, v_e, heading, el, az, cfg: UrbanCanyon, g: np.random.Generator):
-    """Street-canyon visibility of one row (see :class:`UrbanCanyon`).
+    """Street-canyon visibility of one row (see :class:`UrbanCanyon`; :func:`canyon_visibility_rows` with one row).
 
     Parameters
     ----------
@@ -104,22 +104,48 @@ def canyon_visibility(t, v_e, heading, el, az, cfg: UrbanCanyon, g: np.random.Ge
     blocked : (M, S) bool (not received at all); reflected : (M, S) bool
     (received as NLOS); excess_m : (M, S) reflection excess path [m].
     """
-    M, S = el.shape
-    speed = np.linalg.norm(v_e, axis=-1)
-    dist = np.concatenate([[0.0], np.cumsum(0.5 * (speed[1:] + speed[:-1]) * np.diff(t))])
-    blk = np.floor(dist / cfg.block_length_m).astype(np.int64)
-    K = int(blk.max()) + 1
-    heights = g.uniform(cfg.building_height_m[0], cfg.building_height_m[1], size=(K, 2))
-    present = g.random((K, 2)) < cfg.blockage_probability
-    reflect = g.random((K, S)) < cfg.nlos_probability
-    h = np.where(present, heights, 0.0)[blk]                # (M, 2): [left, right]
-    sa = np.sin(az - heading[:, None])                      # > 0: right side
-    h_side = np.where(sa > 0.0, h[:, 1:2], h[:, 0:1])       # (M, S)
+    blocked, refl, excess = canyon_visibility_rows(t, v_e[None], heading[None], el[None], az[None], cfg, [g])
+    return blocked[0], refl[0], excess[0]
+
+
+def canyon_visibility_rows(t, v_e, heading, el, az, cfg: UrbanCanyon, gens):
+    """Street-canyon visibility of B rows (see :class:`UrbanCanyon`), each row's buildings drawn from its own
+    generator ``gens[i]``: the building heights (K, 2), their presence (K, 2) and the reflection draws (K, S) of
+    the row's K blocks, in this order; the geometry vectorized over the rows (the same operations per element
+    as for a row alone, so a row's result does not depend on the others).
+
+    Parameters
+    ----------
+    t : (M,) [s]; v_e : (B, M, 3) [m/s]; heading : (B, M) [rad]; el, az : (B, M, S) [rad];
+    gens : B numpy.random.Generator.
+
+    Returns
+    -------
+    blocked : (B, M, S) bool (not received at all); reflected : (B, M, S) bool
+    (received as NLOS); excess_m : (B, M, S) reflection excess path [m].
+    """
+    B, M, S = el.shape
+    speed = np.linalg.norm(v_e, axis=-1)                                        # (B, M)
+    dist = np.zeros((B, M))
+    np.cumsum(0.5 * (speed[:, 1:] + speed[:, :-1]) * np.diff(t), axis=1, out=dist[:, 1:])
+    blk = np.floor(dist / cfg.block_length_m).astype(np.int64)                 # (B, M) block of each epoch
+    K = blk.max(axis=1) + 1 if M else np.ones(B, np.int64)
+    h = np.zeros((B, int(K.max(initial=1)), 2))                                # building heights, 0 in gaps
+    reflect = np.zeros((B, h.shape[1], S), dtype=bool)
+    for i, g in enumerate(gens):
+        k = int(K[i])
+        heights = g.uniform(cfg.building_height_m[0], cfg.building_height_m[1], size=(k, 2))
+        present = g.random((k, 2)) < cfg.blockage_probability
+        reflect[i, :k] = g.random((k, S)) < cfg.nlos_probability
+        h[i, :k] = np.where(present, heights, 0.0)
+    h = np.take_along_axis(h, blk[:, :, None], axis=1)                         # (B, M, 2): [left, right]
+    sa = np.sin(az - heading[:, :, None])                                       # > 0: right side
+    h_side = np.where(sa > 0.0, h[:, :, 1:2], h[:, :, 0:1])                    # (B, M, S)
     half_w = 0.5 * cfg.street_width_m
     under = np.tan(np.clip(el, -1.5, 1.5)) * half_w < h_side * np.abs(sa)
     if cfg.intervals:
-        under &= in_intervals(t, cfg.intervals)[:, None]
-    refl = under & reflect[blk]
-    excess = np.zeros((M, S))
+        under &= in_intervals(t, cfg.intervals)[None, :, None]
+    refl = under & np.take_along_axis(reflect, blk[:, :, None], axis=1)
+    excess = np.zeros((B, M, S))
     excess[refl] = cfg.street_width_m * np.cos(el[refl]) * np.abs(sa[refl])   # the reflected few only
     return under & ~refl, refl, excess

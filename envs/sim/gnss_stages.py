@@ -26,7 +26,7 @@ import numpy as np
 from earth.wgs84 import ecef_to_geodetic
 
 from . import events as ev
-from .canyon import canyon_visibility, in_intervals
+from .canyon import canyon_visibility_rows, in_intervals
 from .constellation import Constellation
 from .buffers import empty
 from .geometry_kernels import ranging_rows, sky_rows
@@ -266,12 +266,10 @@ def canyon_and_bursts(t, v_e, heading, sky: Sky, mask_deg: float, events, subs) 
     nlos_bias_sat = np.zeros((B, M, S))
     nlos_rate_sat = np.zeros((B, M, S))
     if events.canyon is not None:
-        for i in range(B):
-            blocked, refl, excess = canyon_visibility(t, v_e[i], heading[i], sky.el[i], sky.az[i], events.canyon,
-                                            subs[i][_SUB_CANYON])
-            visible[i] &= ~blocked
-            nlos_sat[i] |= refl
-            nlos_bias_sat[i] = excess
+        blocked, refl, nlos_bias_sat = canyon_visibility_rows(t, v_e, heading, sky.el, sky.az, events.canyon,
+                                                              [s[_SUB_CANYON] for s in subs])
+        visible &= ~blocked
+        nlos_sat |= refl
     if events.nlos is not None:
         for i in range(B):
             act, bias, rate = _nlos_bursts(t, S, events.nlos, subs[i][_SUB_NLOS])
