@@ -31,7 +31,7 @@ from .constellation import Constellation
 from .buffers import empty
 from .geometry_kernels import ranging_rows, sky_rows
 from .receiver import _MIN_EL_SIGMA, CN0_JITTER_DB, _gauss_markov, iono_obliquity, simulate_clock, tropo_mapping
-from .receiver_kernels import receiver_tail_rows
+from .error_kernels import nlos_burst_rows, receiver_tail_rows
 from .rng import ChildStreams, row_normals
 from .rng import entropy_words as _entropy_words  # noqa: F401  (re-exported by envs.sim.gnss)
 from .row_threads import run_row_ranges
@@ -61,52 +61,57 @@ def _row_children(rng: np.random.Generator) -> ChildStreams:
 
 
 def _nlos_bursts(t: np.ndarray, n_sats: int, cfg: NlosConfig, g: np.random.Generator):
-    """Per-satellite NLOS bursts of one row (alternating renewal process, see :class:`~envs.sim.gnss.NlosConfig`).
+    """Per-satellite NLOS bursts of one row (alternating renewal process, see :class:`~envs.sim.gnss.NlosConfig`):
+    :func:`_nlos_burst_rows` with one row.
 
     Returns
     -------
     active : (M, S) bool; bias_m : (M, S) [m]; rate_mps : (M, S) [m/s].
     """
-    M = t.size
-    active = np.zeros((M, n_sats), dtype=bool)
-    bias = np.zeros((M, n_sats))
-    rate = np.zeros((M, n_sats))
+    active, bias, rate = _nlos_burst_rows(t, n_sats, cfg, [g])
+    return active[0], bias[0], rate[0]
+
+
+def _nlos_burst_rows(t: np.ndarray, n_sats: int, cfg: NlosConfig, gens):
+    """Per-satellite NLOS bursts of B rows, each drawn from its own generator ``gens[i]``: passes of ``n_cyc``
+    cycles per satellite (gaps ``Exp(1 / rate_hz)``, durations ``U(duration_s)``, biases ``U(bias_m)``, rates
+    ``N(0, rate_sigma_mps^2)``, in this order) until every satellite's cycles pass the last epoch (almost always
+    one pass); then mapped onto the epochs by :func:`~envs.sim.error_kernels.nlos_burst_rows`.
+
+    Returns
+    -------
+    active : (B, M, S) bool; bias_m : (B, M, S) [m]; rate_mps : (B, M, S) [m/s].
+    """
+    M, B = t.size, len(gens)
+    shape = (B, M, n_sats)
     if cfg.rate_hz <= 0.0:
-        return active, bias, rate
+        return np.zeros(shape, dtype=bool), np.zeros(shape), np.zeros(shape)
     d_lo, d_hi = cfg.duration_s
     t_begin = t[0] - d_hi                                  # a burst may already run at t[0]
     span = t[-1] - t_begin
     mean_cycle = 1.0 / cfg.rate_hz + 0.5 * (d_lo + d_hi)
     n_exp = span / mean_cycle
     n_cyc = int(math.ceil(n_exp + 6.0 * math.sqrt(n_exp) + 3.0))
-    gaps, durs, biases, rates = [], [], [], []
-    end = np.full(n_sats, t_begin)
-    while True:                                            # almost always one pass
-        gp = g.exponential(1.0 / cfg.rate_hz, size=(n_cyc, n_sats))
-        du = g.uniform(d_lo, d_hi, size=(n_cyc, n_sats))
-        gaps.append(gp), durs.append(du)
-        biases.append(g.uniform(cfg.bias_m[0], cfg.bias_m[1], size=(n_cyc, n_sats)))
-        rates.append(cfg.rate_sigma_mps * g.standard_normal((n_cyc, n_sats)))
-        end = end + np.sum(gp + du, axis=0)
-        if np.all(end > t[-1]):
-            break
-    gp, du = np.concatenate(gaps), np.concatenate(durs)
-    bs, rs = np.concatenate(biases), np.concatenate(rates)
-    cyc_end = t_begin + np.cumsum(gp + du, axis=0)         # (K, S)
-    b_end = cyc_end
-    b_start = cyc_end - du
-    i0 = np.searchsorted(t, b_start.ravel(), side="left")
-    i1 = np.searchsorted(t, b_end.ravel(), side="left")
-    sat = np.broadcast_to(np.arange(n_sats), b_start.shape).ravel()
-    ident = np.arange(1, b_start.size + 1)
-    diff = np.zeros((M + 1, n_sats), dtype=np.int64)
-    np.add.at(diff, (i0, sat), ident)                      # bursts of one satellite never overlap
-    np.add.at(diff, (i1, sat), -ident)
-    burst = np.cumsum(diff[:M], axis=0)                    # 1-based burst id, 0 outside bursts
-    active = burst > 0
-    k = np.maximum(burst - 1, 0)
-    bias = np.where(active, bs.ravel()[k], 0.0)
-    rate = np.where(active, rs.ravel()[k], 0.0)
+    rows = []
+    for g in gens:
+        draws = []
+        end = np.full(n_sats, t_begin)
+        while True:                                        # almost always one pass
+            gp = g.exponential(1.0 / cfg.rate_hz, size=(n_cyc, n_sats))
+            du = g.uniform(d_lo, d_hi, size=(n_cyc, n_sats))
+            bs = g.uniform(cfg.bias_m[0], cfg.bias_m[1], size=(n_cyc, n_sats))
+            draws.append((gp, du, bs, cfg.rate_sigma_mps * g.standard_normal((n_cyc, n_sats))))
+            end = end + np.sum(gp + du, axis=0)
+            if np.all(end > t[-1]):
+                break
+        rows.append(draws)
+    K = np.array([len(d) * n_cyc for d in rows], dtype=np.int64)
+    cycles = np.zeros((4, B, int(K.max()), n_sats))       # gaps, durations, biases, rates
+    for i, draws in enumerate(rows):
+        for p, d in enumerate(draws):
+            cycles[:, i, p * n_cyc:(p + 1) * n_cyc] = d
+    active, bias, rate = np.empty(shape, dtype=bool), np.empty(shape), np.empty(shape)
+    nlos_burst_rows(np.ascontiguousarray(t, dtype=np.float64), float(t_begin), K, *cycles, active, bias, rate)
     return active, bias, rate
 
 
@@ -271,11 +276,9 @@ def canyon_and_bursts(t, v_e, heading, sky: Sky, mask_deg: float, events, subs) 
         visible &= ~blocked
         nlos_sat |= refl
     if events.nlos is not None:
-        for i in range(B):
-            act, bias, rate = _nlos_bursts(t, S, events.nlos, subs[i][_SUB_NLOS])
-            nlos_sat[i] |= act
-            nlos_bias_sat[i] = np.maximum(nlos_bias_sat[i], bias)
-            nlos_rate_sat[i] = rate
+        act, bias, nlos_rate_sat = _nlos_burst_rows(t, S, events.nlos, [s[_SUB_NLOS] for s in subs])
+        nlos_sat |= act
+        np.maximum(nlos_bias_sat, bias, out=nlos_bias_sat)
     return SatelliteEvents(visible=visible, nlos=nlos_sat, nlos_bias=nlos_bias_sat, nlos_rate=nlos_rate_sat,
                            code_mult=np.ones((B, M)), doppler_mult=np.ones((B, M)),
                            bits=np.zeros((B, M), dtype=np.uint16))
@@ -455,7 +458,7 @@ def receiver_errors(t, ch: Channels, noise: ChannelNoise, sat: SatelliteEvents, 
     :attr:`~envs.sim.receiver.ReceiverConfig.sigma_model`, times the mismatch factors) and the true variances
     (the module docstring of :mod:`envs.sim.gnss`), from the rows' clock, troposphere, ionosphere, code and
     Doppler streams. The per-channel arithmetic runs in a compiled row kernel on threads
-    (:func:`~envs.sim.receiver_kernels.receiver_tail_rows`); its (B, M, C) outputs and variates come from
+    (:func:`~envs.sim.error_kernels.receiver_tail_rows`); its (B, M, C) outputs and variates come from
     ``buffers`` (:class:`envs.sim.buffers.WorldBuffers`) when given."""
     M = t.size
     el, mask = ch.el, ch.mask

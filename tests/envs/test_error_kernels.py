@@ -1,10 +1,11 @@
-"""The receiver stage's compiled tail (envs.sim.receiver_kernels) against the numpy chain it replaced, and the
-stage's buffers.
+"""The GNSS error stages' compiled kernels (envs.sim.error_kernels) against the numpy chains they replaced, and
+the receiver stage's buffers.
 
-The chain below is the stage's arithmetic as it was written in numpy (one ufunc per operation, left to right).
-The kernel evaluates the same IEEE operations in the same order, so the two must agree bit for bit, on every
-channel, with the nominal or a variance-model sigma, with or without the reported-sigma mismatch, and for any
-split of the rows over threads.
+The chains below are the stages' arithmetic as it was written in numpy (one ufunc per operation, left to right;
+the NLOS bursts row by row). The kernels evaluate the same IEEE operations and searches in the same order, so the
+two must agree bit for bit: on every channel, with the nominal or a variance-model sigma, with or without the
+reported-sigma mismatch, for any split of the rows over threads; for the bursts, on rows with different numbers
+of cycles and bursts that start before or end after the epochs.
 """
 from __future__ import annotations
 
@@ -12,8 +13,11 @@ import numpy as np
 import pytest
 
 from envs.sim.buffers import WorldBuffers
+from envs.sim.error_kernels import nlos_burst_rows
+from envs.sim.gnss import NlosConfig
+from envs.sim.gnss_stages import _nlos_burst_rows, _nlos_bursts
 from envs.sim.receiver import _MIN_EL_SIGMA, iono_obliquity, tropo_mapping
-from envs.sim.receiver_kernels import receiver_tail_rows
+from envs.sim.error_kernels import receiver_tail_rows
 from envs.sim.row_threads import run_row_ranges
 from envs.sim.world import generate_world
 
@@ -118,3 +122,54 @@ def test_world_buffers_give_the_receiver_stage_the_same_bits(scenario):
     for w, f in ((again, fresh[0]), (generate_world(scenario, seeds[1], buffers=buf), fresh[1])):
         for n in names:
             np.testing.assert_array_equal(getattr(w.gnss, n), getattr(f.gnss, n), err_msg=n)
+
+
+def _bursts_chain(t, t_begin, gp, du, bs, rs):
+    """The NLOS bursts of one row from its cycles (K, S), as the numpy chain mapped them."""
+    M, S = t.size, gp.shape[1]
+    cyc_end = t_begin + np.cumsum(gp + du, axis=0)
+    b_start = cyc_end - du
+    i0 = np.searchsorted(t, b_start.ravel(), side="left")
+    i1 = np.searchsorted(t, cyc_end.ravel(), side="left")
+    sat = np.broadcast_to(np.arange(S), b_start.shape).ravel()
+    ident = np.arange(1, b_start.size + 1)
+    diff = np.zeros((M + 1, S), dtype=np.int64)
+    np.add.at(diff, (i0, sat), ident)
+    np.add.at(diff, (i1, sat), -ident)
+    burst = np.cumsum(diff[:M], axis=0)
+    active = burst > 0
+    k = np.maximum(burst - 1, 0)
+    return active, np.where(active, bs.ravel()[k], 0.0), np.where(active, rs.ravel()[k], 0.0)
+
+
+def test_nlos_burst_kernel_equals_the_numpy_chain_row_by_row():
+    rng = np.random.default_rng(11)
+    t = np.arange(0.0, 90.0, 1.0) + 0.25
+    S, K = 7, np.array([9, 4, 13], dtype=np.int64)             # rows of different lengths, padded to 13
+    cyc = np.zeros((4, K.size, K.max(), S))
+    cyc[0] = rng.exponential(8.0, cyc.shape[1:])
+    cyc[1] = rng.uniform(1.0, 6.0, cyc.shape[1:])
+    cyc[2] = rng.uniform(10.0, 80.0, cyc.shape[1:])
+    cyc[3] = rng.normal(0.0, 0.3, cyc.shape[1:])
+    shape = (K.size, t.size, S)
+    got = (np.empty(shape, bool), np.full(shape, np.nan), np.full(shape, np.nan))
+    nlos_burst_rows(t, -6.0, K, *cyc, *got)
+    for b, k in enumerate(K):
+        want = _bursts_chain(t, -6.0, *(c[b, :k] for c in cyc))
+        assert want[0].any() and not want[0].all()
+        for g, w in zip(got, want):
+            np.testing.assert_array_equal(g[b], w)
+
+
+def test_nlos_bursts_of_rows_equal_each_row_alone():
+    """Rows drawn together equal each row drawn alone (its own generator), and a zero rate draws nothing."""
+    cfg = NlosConfig(rate_hz=0.05, duration_s=(2.0, 9.0), bias_m=(5.0, 60.0), rate_sigma_mps=0.2)
+    t = np.arange(1.0, 121.0)
+    rows = _nlos_burst_rows(t, 6, cfg, [np.random.default_rng(s) for s in (1, 2, 3)])
+    assert rows[0].any()
+    for b, s in enumerate((1, 2, 3)):
+        for g, w in zip(rows, _nlos_bursts(t, 6, cfg, np.random.default_rng(s))):
+            np.testing.assert_array_equal(g[b], w)
+    g = np.random.default_rng(0)
+    off = _nlos_burst_rows(t, 6, NlosConfig(rate_hz=0.0), [g])
+    assert not off[0].any() and not off[1].any() and g.random() == np.random.default_rng(0).random()

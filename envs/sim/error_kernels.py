@@ -1,18 +1,81 @@
-"""Compiled row kernel of the receiver-error stage (:func:`envs.sim.gnss_stages.receiver_errors`).
+"""Compiled row kernels of the GNSS error stages (:mod:`envs.sim.gnss_stages`).
 
-:func:`receiver_tail_rows` forms the channel errors, reported sigmas and true variances of rows ``r0 .. r1-1`` in
-one pass without the GIL, from the per-channel inputs the stage draws and maps with numpy (the mapping functions,
-the Gauss-Markov processes, the white-noise variates). It replaces a numpy chain of about 25 temporaries of the
-(B, M, C) channel shape: each a fresh allocation per world, which the operating system maps and zeroes (at
-B = 1024 about half of the stage's time). It evaluates the same products, sums, quotients and square roots in the
-same order as that chain (no fastmath, no fused multiply-add: the same roundings), so the worlds stay the same bit
-for bit (``tests/envs/test_receiver_kernels.py`` compares it with the chain).
+* :func:`nlos_burst_rows`: the NLOS bursts' epochs, biases and rates of every row and satellite from the row's
+  drawn renewal cycles (:func:`envs.sim.gnss_stages.canyon_and_bursts`);
+* :func:`receiver_tail_rows`: the channel errors, reported sigmas and true variances of rows ``r0 .. r1-1`` in
+  one pass without the GIL, from the per-channel inputs the stage draws and maps with numpy (the mapping
+  functions, the Gauss-Markov processes, the white-noise variates) (:func:`envs.sim.gnss_stages.receiver_errors`).
+
+Each replaces a numpy chain: per row and satellite for the bursts (a dozen small operations per row), and of
+about 25 temporaries of the (B, M, C) channel shape for the receiver (each a fresh allocation per world, which the
+operating system maps and zeroes: at B = 1024 about half of that stage's time). They evaluate the same sums,
+products, quotients, square roots and searches in the same order as those chains (no fastmath, no fused
+multiply-add: the same roundings), so the worlds stay the same bit for bit (``tests/envs/test_error_kernels.py``
+compares each with its chain).
 """
 from __future__ import annotations
 
 import math
 
 import numba as nb
+import numpy as np
+
+
+@nb.njit(cache=True)
+def _search_left(t, v):
+    """``np.searchsorted(t, v, side="left")`` on the increasing (M,) ``t``: the first index with ``t[i] >= v``."""
+    lo, hi = 0, t.shape[0]
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if t[mid] < v:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@nb.njit(cache=True)
+def nlos_burst_rows(t, t_begin, K, gap, dur, bias_draw, rate_draw, active, bias, rate):
+    """Map each row's NLOS burst cycles onto the epochs (alternating renewal process of
+    :class:`~envs.sim.gnss.NlosConfig`).
+
+    Row b, satellite s: cycle k ends at ``t_begin + sum_{j <= k} (gap_j + dur_j)`` (a running sum, as
+    ``np.cumsum``), its burst spans ``[end - dur_k, end)``; the epochs in it are those from the first
+    ``t_i >= start`` to before the first ``t_i >= end`` (``np.searchsorted``, left). Each burst carries its
+    identity ``k S + s + 1`` into a difference array whose running sum gives the burst at each epoch (bursts of one
+    satellite never overlap), whose drawn bias and rate it takes.
+
+    Parameters
+    ----------
+    t : (M,) epochs [s]; t_begin : float, start of the first cycle [s].
+    K : (B,) int, cycles drawn per row; gap, dur, bias_draw, rate_draw : (B, K_max, S) the cycles' gaps and
+        durations [s], bias [m] and rate [m/s] draws (rows beyond ``K[b]`` unused).
+    active : (B, M, S) bool; bias, rate : (B, M, S) float64 outputs (0 outside bursts).
+    """
+    B, M, S = active.shape
+    diff = np.zeros(M + 1, np.int64)
+    for b in range(B):
+        for s in range(S):
+            diff[:] = 0
+            acc = 0.0
+            for k in range(K[b]):
+                acc = acc + (gap[b, k, s] + dur[b, k, s])
+                end = t_begin + acc
+                ident = k * S + s + 1
+                diff[_search_left(t, end - dur[b, k, s])] += ident
+                diff[_search_left(t, end)] -= ident
+            run = 0
+            for m in range(M):
+                run += diff[m]
+                if run > 0:
+                    j = run - 1
+                    active[b, m, s] = True
+                    bias[b, m, s] = bias_draw[b, j // S, j % S]
+                    rate[b, m, s] = rate_draw[b, j // S, j % S]
+                else:
+                    active[b, m, s] = False
+                    bias[b, m, s] = 0.0
+                    rate[b, m, s] = 0.0
 
 
 @nb.njit(cache=True, nogil=True)
