@@ -1,7 +1,8 @@
 """Output arrays of a world's bulk stages kept from one draw to the next (:class:`WorldBuffers`).
 
 Most of a simulated world's memory is in the arrays that :func:`envs.sim.trajectory.generate_truth` (truth at the
-IMU rate) and :func:`envs.sim.imu.simulate_imu` (IMU samples and error records) allocate, B x N x 3 each. An env
+IMU rate) and :func:`envs.sim.imu.simulate_imu` (IMU samples and error records) allocate, B x N x 3 each; the
+GNSS ranging and receiver stages (:mod:`envs.sim.gnss_stages`) take their (B, M, C) channel arrays from it too. An env
 core draws a new world at every reset and keeps only part of it (:mod:`envs.prepared`), so without buffers the
 operating system maps, zeroes and unmaps those arrays at every reset (system time: ``time.process_time`` counts
 it, ``bench_envs.py``'s CPU columns show it). Handing the same arrays out again removes that work; the env core

@@ -146,8 +146,8 @@ def generate_world(scenario, seeds, dtype=np.float64, buffers=None) -> World:
     seeds : int or sequence of int, one per row.
     dtype : float dtype of the IMU samples (the truth and GNSS geometry stay float64).
     buffers : :class:`envs.sim.buffers.WorldBuffers` or None: the bulk arrays (truth at the IMU rate, IMU samples
-        and error records, the receiver stage's channel arrays) come from it, reused from an earlier draw that nobody holds any more (an env core's
-        resets). The world does not depend on it.
+        and error records, the GNSS ranging and receiver arrays) come from it, reused from an earlier draw that
+        nobody holds any more (an env core's resets). The world does not depend on it.
     """
     scen = get_scenario(scenario)
     if getattr(scen, "dataset", None) is not None:   # envs.datasets.spec.ReplayScenario: never simulate it
