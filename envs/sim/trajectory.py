@@ -315,6 +315,18 @@ def _advance(kind, dur, p, v, a, psi, w, gam, q):
     return (pN + d * math.cos(psi), pE + d * math.sin(psi), pD + Rv * (math.cos(gam1) - math.cos(gam))), v, psi, gam1
 
 
+class _SegmentName:
+    """``Motion.segments[i] (Type)`` for an error message, formatted only when one is raised."""
+
+    __slots__ = ("i", "s")
+
+    def __init__(self, i, s):
+        self.i, self.s = i, s
+
+    def __format__(self, spec) -> str:
+        return format(f"Motion.segments[{self.i}] ({type(self.s).__name__})", spec)
+
+
 def _compile(m: "Motion") -> _Plan:
     """Compile the segments of a motion into analytic pieces; ValueError on inconsistent segments."""
     rows = []
@@ -330,7 +342,7 @@ def _compile(m: "Motion") -> _Plan:
         t, engine = t + dur, eng
 
     for i, s in enumerate(m.segments):
-        where = f"Motion.segments[{i}] ({type(s).__name__})"
+        where = _SegmentName(i, s)
         if isinstance(s, Static):
             if v != 0.0:
                 raise ValueError(f"{where}: the vehicle moves at {v} m/s; Static needs speed 0 (Stop first)")
@@ -1171,7 +1183,9 @@ def random_drive(rng: np.random.Generator, duration_s: float, style: str = "urba
     if isinstance(duration_s, bool) or not isinstance(duration_s, (int, float, np.integer, np.floating)) \
             or not math.isfinite(duration_s) or duration_s <= 0:
         raise ValueError(f"duration_s must be a finite number > 0, got {duration_s!r}")
-    U = lambda lo, hi: float(rng.uniform(lo, hi))  # noqa: E731
+    # U(lo, hi): numpy's uniform draw, ``lo + (hi - lo) * next_double`` (what ``rng.uniform(lo, hi)`` returns, the same
+    # bits), without the cost of its argument handling
+    U = lambda lo, hi: lo + (hi - lo) * rng.random()  # noqa: E731
     sign = lambda: 1.0 if rng.random() < 0.5 else -1.0  # noqa: E731
     heading = U(0.0, 360.0) if heading0_deg is None else heading0_deg
     plan = SegmentPlan()
