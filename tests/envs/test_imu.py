@@ -417,7 +417,12 @@ def _vibration_reference(gen, dt, engine_on, speed, vib):
 def test_vibration_row_is_its_numpy_specification_to_the_bit(bit_generator, exponent):
     """The compiled vibration (regimes, idle tones, the road resonance with its innovations drawn inline) equals
     the numpy / scipy chain, bit for bit, and leaves the stream where the chain does: with and without an engine
-    flag, on the compiled bit generators and on one drawn by numpy."""
+    flag, on the compiled bit generators and on one drawn by numpy.
+
+    An exponent other than 0, 1/2, 1 or 2 takes the speed level's power from ``pow``: the C library's in the
+    kernel, numpy's own vectorized one in the chain on a CPU with AVX-512 (they may differ in the last bit), so
+    there the samples agree to rounding (the stream still exactly)."""
+    exact = exponent in (0.0, 0.5, 1.0, 2.0)
     from envs.sim.imu import Vibration, _vibration_row
     rng = np.random.default_rng(int(exponent * 100))
     dt = 0.01
@@ -431,7 +436,10 @@ def test_vibration_row_is_its_numpy_specification_to_the_bit(bit_generator, expo
         ref_gen, gen = np.random.Generator(ref_gen), np.random.Generator(gen)
         ref = _vibration_reference(ref_gen, dt, engine, speed, vib)
         got = _vibration_row(gen, dt, engine, speed, vib)
-        assert np.array_equal(got.view(np.uint64), ref.view(np.uint64))
+        if exact:
+            assert np.array_equal(got.view(np.uint64), ref.view(np.uint64))
+        else:
+            np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-12 * np.abs(ref).max())
         assert ref_gen.random() == gen.random()
     off = np.zeros(40, dtype=bool)
     assert _vibration_row(np.random.default_rng(0), dt, off, np.ones(40), Vibration()) is None
