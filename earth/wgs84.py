@@ -49,6 +49,12 @@ def radii(lat):
     return A * (1.0 - E2) / den**1.5, A / np.sqrt(den)
 
 
+def _transverse_radius(lat):
+    """R_N of :func:`radii` alone (Groves eq 2.106), by the same operations: the conversions need no R_M (whose
+    power ``den**1.5`` costs as much as the rest)."""
+    return A / np.sqrt(1.0 - E2 * np.sin(lat) ** 2)
+
+
 def geodetic_to_ecef(lat, lon, h):
     """Geodetic -> ECEF position (Groves eq 2.112).
 
@@ -62,7 +68,7 @@ def geodetic_to_ecef(lat, lon, h):
     r_e : (..., 3) [m]
     """
     lat, lon, h = np.broadcast_arrays(np.asarray(lat, float), np.asarray(lon, float), np.asarray(h, float))
-    _, RN = radii(lat)
+    RN = _transverse_radius(lat)
     cl = np.cos(lat)
     return np.stack([(RN + h) * cl * np.cos(lon), (RN + h) * cl * np.sin(lon), ((1.0 - E2) * RN + h) * np.sin(lat)], -1)
 
@@ -84,10 +90,11 @@ def ecef_to_geodetic(r_e):
     lon = np.arctan2(y, x)
     lat = np.arctan2(z, p * (1.0 - E2))
     for _ in range(4):
-        _, RN = radii(lat)
-        h = np.where(np.abs(np.cos(lat)) > 1e-9, p / np.cos(lat) - RN, np.abs(z) - B_AXIS)
+        RN = _transverse_radius(lat)
+        cl = np.cos(lat)
+        h = np.where(np.abs(cl) > 1e-9, p / cl - RN, np.abs(z) - B_AXIS)
         lat = np.arctan2(z, p * (1.0 - E2 * RN / (RN + h)))
-    _, RN = radii(lat)
+    RN = _transverse_radius(lat)
     cl, sl = np.cos(lat), np.sin(lat)
     h = p * cl + z * sl - A * A / RN
     return lat, lon, h

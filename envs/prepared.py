@@ -71,8 +71,8 @@ def world_arrays(world: World) -> dict:
     B, M = g.pr.shape[:2]
     ep = world.epoch_idx
     still = tr.stationary(STILL_SPEED_MPS)
-    lat, lon, _ = ecef_to_geodetic(tr.r_e[:, ep])
-    lat0, lon0, _ = ecef_to_geodetic(tr.r_e[:, 0])
+    # the origin (sample 0) and the epochs in one conversion and one rotation (elementwise: the same bits)
+    C_ne = np.swapaxes(C_en(*ecef_to_geodetic(tr.r_e[:, np.concatenate([[0], ep])])[:2]), -1, -2)
     has_rate = g.prr is not None
     return {
         "f": world.imu.f_b, "w": world.imu.w_b,
@@ -82,11 +82,11 @@ def world_arrays(world: World) -> dict:
         "prr_sigma": g.prr_sigma if has_rate else np.zeros(g.pr.shape),
         "gmask": g.mask,
         "truth_r": tr.r_e[:, ep],
-        "truth_Cne": np.swapaxes(C_en(lat, lon), -1, -2),
+        "truth_Cne": C_ne[:, 1:],
         "truth_still": still[:, ep],
         "truth_still_n": still,
         "origin": tr.r_e[:, 0],
-        "origin_Cne": np.swapaxes(C_en(lat0, lon0), -1, -2),
+        "origin_Cne": C_ne[:, 0],
         "sat_keys": satellite_keys(g),
         "odo": np.full((B, M), np.nan) if world.odometer is None else world.odometer,
         "odo_yaw": np.full((B, M), np.nan) if world.odometer_yaw_rate is None else world.odometer_yaw_rate,
