@@ -468,8 +468,8 @@ def simulate_gnss(t, r_e, v_e, heading, constellation: Constellation, receiver: 
         Float type of the outputs (computation is float64; see the module note
         on float32 pseudoranges).
     buffers : :class:`envs.sim.buffers.WorldBuffers` or None
-        The receiver stage's (B, M, C) arrays are taken from it (reused across draws when nobody holds
-        them), else allocated.
+        The (B, M, C) arrays of the ranging and receiver stages and the pseudoranges and rates are taken from
+        it (reused across draws when nobody holds them), else allocated.
 
     Returns
     -------

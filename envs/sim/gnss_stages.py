@@ -26,12 +26,12 @@ import numpy as np
 from earth.wgs84 import ecef_to_geodetic
 
 from . import events as ev
+from .buffers import empty
 from .canyon import canyon_visibility_rows, in_intervals
 from .constellation import Constellation
-from .buffers import empty
+from .error_kernels import nlos_burst_rows, receiver_tail_rows
 from .geometry_kernels import ranging_rows, sky_rows
 from .receiver import _MIN_EL_SIGMA, CN0_JITTER_DB, _gauss_markov, iono_obliquity, simulate_clock, tropo_mapping
-from .error_kernels import nlos_burst_rows, receiver_tail_rows
 from .rng import ChildStreams, row_normals
 from .rng import entropy_words as _entropy_words  # noqa: F401  (re-exported by envs.sim.gnss)
 from .row_threads import run_row_ranges
@@ -84,7 +84,7 @@ def _nlos_burst_rows(t: np.ndarray, n_sats: int, cfg: NlosConfig, gens):
     """
     M, B = t.size, len(gens)
     shape = (B, M, n_sats)
-    if cfg.rate_hz <= 0.0:
+    if cfg.rate_hz <= 0.0 or B == 0:
         return np.zeros(shape, dtype=bool), np.zeros(shape), np.zeros(shape)
     d_lo, d_hi = cfg.duration_s
     t_begin = t[0] - d_hi                                  # a burst may already run at t[0]

@@ -133,16 +133,16 @@ def row_normals(streams: Sequence["ChildStreams"], k, shape: tuple, out: np.ndar
     """``np.stack([s[k].standard_normal(shape) for s in streams])`` (B,) + shape, the same numbers, drawn in one
     compiled call from the rows' raw child states (:meth:`ChildStreams.raw_state`: child ``k`` of every row is
     then taken); into ``out`` when given (a C-contiguous float64 array of that shape, returned)."""
-    states = np.empty((len(streams), 4), dtype=np.uint64)
-    kind = SFC64
-    for i, s in enumerate(streams):
-        kind, states[i] = s.raw_state(k)
     full = (len(streams),) + tuple(shape)
     if out is None:
         out = np.empty(full)
     elif out.shape != full or out.dtype != np.float64 or not out.flags.c_contiguous:
         raise ValueError(f"row_normals: out must be a C-contiguous float64 array of shape {full}, got "
                          f"{out.dtype} {out.shape}")
+    states = np.empty((len(streams), 4), dtype=np.uint64)
+    kind = SFC64
+    for i, s in enumerate(streams):
+        kind, states[i] = s.raw_state(k)
     fill_normals_rows(kind, states, out)
     return out
 

@@ -104,6 +104,14 @@ def test_row_normals_are_the_rows_child_draws_stacked(bit_generator):
     np.testing.assert_array_equal(row_normals(taken, 4, (7, 3)), ref)
     with pytest.raises(RuntimeError, match="taken as a raw state"):
         taken[0][4]
+    # into a given array: the same numbers; a wrong one is refused before any stream is taken
+    into = [ChildStreams(e, 6, bit_generator) for e in rows]
+    for bad in (np.empty((5, 3, 7)), np.empty((5, 7, 3), np.float32), np.empty((5, 3, 7)).transpose(0, 2, 1)):
+        with pytest.raises(ValueError, match="row_normals: out must be a C-contiguous float64 array"):
+            row_normals(into, 4, (7, 3), out=bad)
+    buf = np.full((5, 7, 3), np.nan)
+    assert row_normals(into, 4, (7, 3), out=buf) is buf
+    np.testing.assert_array_equal(buf, ref)
 
 
 def _with_state(bit_generator, kind, state):
