@@ -22,19 +22,6 @@ import numpy as np
 
 
 @nb.njit(cache=True)
-def _search_left(t, v):
-    """``np.searchsorted(t, v, side="left")`` on the increasing (M,) ``t``: the first index with ``t[i] >= v``."""
-    lo, hi = 0, t.shape[0]
-    while lo < hi:
-        mid = (lo + hi) // 2
-        if t[mid] < v:
-            lo = mid + 1
-        else:
-            hi = mid
-    return lo
-
-
-@nb.njit(cache=True)
 def nlos_burst_rows(t, t_begin, K, gap, dur, bias_draw, rate_draw, active, bias, rate):
     """Map each row's NLOS burst cycles onto the epochs (alternating renewal process of
     :class:`~envs.sim.gnss.NlosConfig`).
@@ -62,8 +49,8 @@ def nlos_burst_rows(t, t_begin, K, gap, dur, bias_draw, rate_draw, active, bias,
                 acc = acc + (gap[b, k, s] + dur[b, k, s])
                 end = t_begin + acc
                 ident = k * S + s + 1
-                diff[_search_left(t, end - dur[b, k, s])] += ident
-                diff[_search_left(t, end)] -= ident
+                diff[np.searchsorted(t, end - dur[b, k, s])] += ident     # side "left"
+                diff[np.searchsorted(t, end)] -= ident
             run = 0
             for m in range(M):
                 run += diff[m]
