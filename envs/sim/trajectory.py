@@ -315,16 +315,9 @@ def _advance(kind, dur, p, v, a, psi, w, gam, q):
     return (pN + d * math.cos(psi), pE + d * math.sin(psi), pD + Rv * (math.cos(gam1) - math.cos(gam))), v, psi, gam1
 
 
-class _SegmentName:
-    """``Motion.segments[i] (Type)`` for an error message, formatted only when one is raised."""
-
-    __slots__ = ("i", "s")
-
-    def __init__(self, i, s):
-        self.i, self.s = i, s
-
-    def __format__(self, spec) -> str:
-        return format(f"Motion.segments[{self.i}] ({type(self.s).__name__})", spec)
+def _segment_name(i: int, s) -> str:
+    """``Motion.segments[i] (Type)``, the culprit an error of :func:`_compile` names (formed only when it raises)."""
+    return f"Motion.segments[{i}] ({type(s).__name__})"
 
 
 def _compile(m: "Motion") -> _Plan:
@@ -342,21 +335,24 @@ def _compile(m: "Motion") -> _Plan:
         t, engine = t + dur, eng
 
     for i, s in enumerate(m.segments):
-        where = _SegmentName(i, s)
         if isinstance(s, Static):
             if v != 0.0:
-                raise ValueError(f"{where}: the vehicle moves at {v} m/s; Static needs speed 0 (Stop first)")
+                raise ValueError(f"{_segment_name(i, s)}: the vehicle moves at {v} m/s; Static needs speed 0 "
+                                 f"(Stop first)")
             piece(_STRAIGHT, s.duration_s, eng=s.engine_on)
             if s.duration_s == 0.0:
                 engine = s.engine_on
         elif isinstance(s, (Accelerate, Decelerate)):
             dv = s.to_speed_mps - v
             if isinstance(s, Accelerate) and dv < 0.0:
-                raise ValueError(f"{where}: to_speed_mps={s.to_speed_mps} is below the current speed {v} m/s")
+                raise ValueError(f"{_segment_name(i, s)}: to_speed_mps={s.to_speed_mps} is below the current "
+                                 f"speed {v} m/s")
             if isinstance(s, Decelerate) and dv > 0.0:
-                raise ValueError(f"{where}: to_speed_mps={s.to_speed_mps} is above the current speed {v} m/s")
+                raise ValueError(f"{_segment_name(i, s)}: to_speed_mps={s.to_speed_mps} is above the current "
+                                 f"speed {v} m/s")
             if s.duration_s == 0.0 and dv != 0.0:
-                raise ValueError(f"{where}: duration_s=0 with a speed change of {dv} m/s (infinite acceleration)")
+                raise ValueError(f"{_segment_name(i, s)}: duration_s=0 with a speed change of {dv} m/s "
+                                 f"(infinite acceleration)")
             if s.duration_s > 0.0:
                 piece(_STRAIGHT, s.duration_s, a=dv / s.duration_s)
                 v = s.to_speed_mps  # exact end speed (no rounding drift)
@@ -364,7 +360,7 @@ def _compile(m: "Motion") -> _Plan:
             piece(_STRAIGHT, s.duration_s, eng=engine if v == 0.0 else True)
         elif isinstance(s, Turn):
             if v <= 0.0:
-                raise ValueError(f"{where}: a Turn needs a non-zero speed, the vehicle is at rest "
+                raise ValueError(f"{_segment_name(i, s)}: a Turn needs a non-zero speed, the vehicle is at rest "
                                  f"(speed0_mps / previous segments); angle_deg={s.angle_deg}")
             if s.angle_deg != 0.0:
                 psi_end = psi + s.angle_deg * DEG
@@ -372,12 +368,12 @@ def _compile(m: "Motion") -> _Plan:
                 psi = psi_end
         elif isinstance(s, Climb):
             if v <= 0.0:
-                raise ValueError(f"{where}: a Climb needs a non-zero speed, the vehicle is at rest "
+                raise ValueError(f"{_segment_name(i, s)}: a Climb needs a non-zero speed, the vehicle is at rest "
                                  f"(speed0_mps / previous segments); pitch_deg={s.pitch_deg}")
             target = s.pitch_deg * DEG
             if target != gam:
                 if s.transition_s == 0.0:
-                    raise ValueError(f"{where}: transition_s=0 with a pitch change of "
+                    raise ValueError(f"{_segment_name(i, s)}: transition_s=0 with a pitch change of "
                                      f"{(target - gam) / DEG} deg (infinite pitch rate)")
                 piece(_VARC, s.transition_s, q=(target - gam) / s.transition_s)
                 gam = target
@@ -385,7 +381,7 @@ def _compile(m: "Motion") -> _Plan:
             else:
                 piece(_STRAIGHT, s.duration_s)
         else:  # pragma: no cover - Motion validates the types
-            raise ValueError(f"{where}: unknown segment type")
+            raise ValueError(f"{_segment_name(i, s)}: unknown segment type")
     # open-ended continuation: straight at the last velocity, or at rest with the last engine flag
     rows.append((t, _STRAIGHT, p, v, 0.0, psi, 0.0, gam, 0.0, engine if v == 0.0 else True))
 
