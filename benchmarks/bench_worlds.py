@@ -48,6 +48,7 @@ Defaults: noise-burst and urban, 60 s episodes, B = 1 and 1024 (a few minutes; `
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
 import os
 import subprocess
@@ -187,6 +188,10 @@ def _count_imu_normals(scenario, B, duration_s, dtype) -> tuple:
     0..B-1 (its row streams and their child streams counted, whether numpy or :mod:`envs.sim.normals` draws
     them), as ``{bit generator name: variates}``, and that world (the same bits as without counting)."""
     from envs.sim import imu, rng, world
+    try:
+        from envs.sim import imu_kernels
+    except ImportError:                     # a tree before the compiled row pass
+        imu_kernels = None
     counting = lambda g: _CountingGenerator(g.bit_generator)  # noqa: E731
     orig_rows, orig_item = world.row_generators, rng.ChildStreams.__getitem__
     kinds = ("SFC64", "PCG64")                               # envs.sim.normals' kind codes
@@ -214,7 +219,24 @@ def _count_imu_normals(scenario, B, duration_s, dtype) -> tuple:
             return orig(kinds_, *a)
         return samples
 
-    for name, wrap in (("fill_normals", filled), ("_road_samples", road)):
+    def rows_pass(orig):
+        names = list(inspect.signature(orig.py_func).parameters)
+
+        def kernel(*a):                     # imu_kernels.imu_rows: each row's sensor and road draws, inline
+            v = dict(zip(names, a))
+            n = v["w_true"].shape[1]
+            for i in range(v["r0"], v["r1"]):
+                for k in range(2):          # flags[k] = (has_sm, has_gm, has_step, has_white, has_bias)
+                    m = 3 * (n + 1) * bool(v["flags"][k, 1]) + 3 * n * bool(v["flags"][k, 3])
+                    if m:
+                        _CountingGenerator.drawn.append((kinds[v["child_kind"]], m))
+                if v["road_on"][i] and v["road_kind"][i] >= 0:
+                    m = 6 * int(np.count_nonzero(v["kinds"][i] == imu_kernels.ROAD))
+                    _CountingGenerator.drawn.append((kinds[v["road_kind"][i]], m))
+            return orig(*a)
+        return kernel
+
+    for name, wrap in (("fill_normals", filled), ("_road_samples", road), ("imu_rows", rows_pass)):
         if hasattr(imu, name):
             hooks[name] = getattr(imu, name)
             setattr(imu, name, wrap(hooks[name]))

@@ -45,20 +45,18 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from functools import partial
 from typing import Sequence
 
-import numba as nb
 import numpy as np
 
 from earth.units import DEG, deg, dph, dpsh, mg, mpsph, ppm, ugpsh, ugpshz
 
-from .normals import fill_normals, normal_step, store_stream_state, stream_state
+from .imu_kernels import idle_samples, imu_rows, regimes, road_samples, rough_fill, sensor_pass, steps_fill
+from .normals import SFC64, fill_normals, store_stream_state, stream_state
 from .rng import ChildStreams
 from .buffers import empty
-from .row_threads import default_workers
+from .row_threads import default_workers, run_row_ranges
 
 __all__ = [
     "ImuGrade",
@@ -493,93 +491,8 @@ def _ar2_coefficients(center_hz: float, damping: float, dt: float) -> tuple[floa
     return a1, a2, gamma0
 
 
-_NONE_SAMPLE, _IDLE, _ROAD = 0, 1, 2
-"""Vibration regime codes of a sample (:func:`_regimes`): engine off, engine idle, road."""
-
-
-@nb.njit(cache=True, nogil=True)
-def _regimes(speed, eng, has_eng, stationary, kinds):
-    """The vibration regime of each sample into ``kinds`` (n,) int8 (:data:`_IDLE` where the engine runs and
-    ``|speed| <= stationary``, :data:`_ROAD` where it runs faster, :data:`_NONE_SAMPLE` where it is off; ``eng``
-    (n,) bool read when ``has_eng``, else the engine runs throughout). Returns ``(n_idle, n_road)``."""
-    n_idle = n_road = 0
-    for k in range(speed.shape[0]):
-        if has_eng and not eng[k]:
-            kinds[k] = _NONE_SAMPLE
-        elif abs(speed[k]) > stationary:
-            kinds[k] = _ROAD
-            n_road += 1
-        else:
-            kinds[k] = _IDLE
-            n_idle += 1
-    return n_idle, n_road
-
-
-@nb.njit(cache=True, nogil=True)
-def _idle_samples(kinds, dt, w1, w2, coef, out):
-    """The idle samples of ``out`` (n, 6): at the interval midpoint ``t = (k + 1/2) dt`` the interval means of the
-    fundamental ``w1`` and the harmonic ``w2`` [rad/s], ``sum_i basis_i coef_i`` over the basis ``(sin w1 t,
-    cos w1 t, sin w2 t, cos w2 t)`` and the rows of ``coef`` (4, 6) (amplitude x sinc attenuation x the phase's
-    cosine or sine, :func:`sinusoid_interval_mean`), summed in that order from 0."""
-    for k in range(kinds.shape[0]):
-        if kinds[k] != _IDLE:
-            continue
-        t = (k + 0.5) * dt
-        th1 = w1 * t
-        th2 = w2 * t
-        b0, b1, b2, b3 = np.sin(th1), np.cos(th1), np.sin(th2), np.cos(th2)
-        for c in range(6):
-            acc = 0.0
-            acc += b0 * coef[0, c]
-            acc += b1 * coef[1, c]
-            acc += b2 * coef[2, c]
-            acc += b3 * coef[3, c]
-            out[k, c] = acc
-
-
-@nb.njit(cache=True, nogil=True)
-def _road_samples(kinds, speed, inv_ref, exponent, a, zi, scale, kind, state, e, out):
-    """The road samples of ``out`` (n, 6): ``(L_k y_k - L_(k-1) y_(k-1)) scale`` over the road samples in order,
-    ``L_(-1) y_(-1) = 0``, with the speed level ``L = (|speed| inv_ref) ** exponent`` and ``y`` the AR(2)
-    resonance ``1 / A(z)``, ``a = [1, -a1, -a2]``, driven by unit normal innovations from the delay state ``zi``
-    (2, 6): ``scipy.signal.lfilter([1], a, e, axis=0, zi=zi)``'s direct form II transposed recursion, its
-    operations in its order (the numerator padded to ``[1, 0, 0]``).
-
-    The innovations (6 per road sample, C order) are drawn here from the stream ``(kind, state)``
-    (:mod:`envs.sim.normals`; ``state`` advanced) when ``kind >= 0``, else read from ``e`` (m, 6).
-    The level's power as numpy's ``**`` takes it: a square and a square root for 2 and 1/2."""
-    s0, s1, s2, s3 = state[0], state[1], state[2], state[3]
-    z0 = zi[0].copy()
-    z1 = zi[1].copy()
-    prev = np.zeros(6)
-    m = 0
-    for k in range(kinds.shape[0]):
-        if kinds[k] != _ROAD:
-            continue
-        lev = abs(speed[k]) * inv_ref
-        if exponent == 2.0:
-            lev = lev * lev
-        elif exponent == 0.5:
-            lev = np.sqrt(lev)
-        elif exponent != 1.0:
-            lev = lev ** exponent
-        for j in range(6):
-            if kind >= 0:
-                xn, s0, s1, s2, s3 = normal_step(kind, s0, s1, s2, s3)
-            else:
-                xn = e[m, j]
-            yn = z0[j] + 1.0 * xn
-            z0[j] = z1[j] + xn * 0.0 - yn * a[1]
-            z1[j] = xn * 0.0 - yn * a[2]
-            yl = yn * lev
-            out[k, j] = (yl - prev[j]) * scale[j]
-            prev[j] = yl
-        m += 1
-    state[0], state[1], state[2], state[3] = s0, s1, s2, s3
-
-
 def _idle_coefficients(phases, f_e, a_rms, g_rms, weights, vib: Vibration, dt: float):
-    """``(w1, w2, coef)`` of :func:`_idle_samples`: per channel rms r -> fundamental amplitude ``sqrt(2) r /
+    """``(w1, w2, coef)`` of :func:`idle_samples`: per channel rms r -> fundamental amplitude ``sqrt(2) r /
     sqrt(1 + h^2)``, the harmonic ``h`` times that, each attenuated by ``sinc(w dt / 2)``
     (:func:`sinusoid_interval_mean`) and split on the random phase: ``A sin(th + phi) = A cos(phi) sin(th) +
     A sin(phi) cos(th)``."""
@@ -598,18 +511,22 @@ def _idle_coefficients(phases, f_e, a_rms, g_rms, weights, vib: Vibration, dt: f
     return ws[0], ws[1], coef
 
 
-def _vibration_row(gen: np.random.Generator, dt: float, engine_on: np.ndarray | None, speed: np.ndarray,
-                   vib: Vibration) -> np.ndarray | None:
-    """Vibration of one run: (N, 6) float64, ``f_vib`` in columns 0-2 and ``w_vib`` in 3-5, or None if it is zero
-    throughout.
+def _vibration_draws(gen: np.random.Generator, dt: float, engine_on: np.ndarray | None, speed: np.ndarray,
+                     vib: Vibration, kinds: np.ndarray):
+    """The random draws of one run's vibration and its per-run parameters, without the samples.
 
     Draw order (fixed, independent of the data): f_e, idle accel rms, idle gyro
     rms, 2 x 6 phases, road accel level, road gyro level, then (only if the run
-    moves with the engine on) the road noise (2 + M) x 6, M = number of road samples.
-    The per-sample work runs compiled, releasing the GIL (:func:`_regimes`, :func:`_idle_samples`,
-    :func:`_road_samples`).
+    moves with the engine on) the road noise (2 + M) x 6, M = number of road samples: its first 2 x 6 here,
+    the M x 6 innovations by :func:`road_samples` from the stream state returned (here, for a generator whose
+    bit generator has no compiled stream).
+
+    Writes the samples' regimes into ``kinds`` (n,) int8 (:func:`regimes`). Returns None when the run has no
+    vibration (engine off throughout), else ``(idle, road)``: ``idle = (w1, w2, coef)`` for
+    :func:`idle_samples` or None without an idle sample; ``road = (a, zi, scale, kind, state, e)`` for
+    :func:`road_samples` or None without road vibration (``kind`` -1 and ``e`` (M, 6) for a generator drawn by
+    numpy).
     """
-    n = speed.shape[0]
     f_e = gen.uniform(*vib.engine_freq_hz_range)
     a_rms = gen.uniform(*vib.idle_accel_rms_range)
     g_rms = gen.uniform(*vib.idle_gyro_rms_range)
@@ -617,15 +534,13 @@ def _vibration_row(gen: np.random.Generator, dt: float, engine_on: np.ndarray | 
     road_a = gen.uniform(*vib.road_accel_rms_ref_range)
     road_g = gen.uniform(*vib.road_gyro_rms_ref_range)
 
-    kinds = np.empty(n, np.int8)
     has_eng = engine_on is not None
-    n_idle, n_road = _regimes(speed, engine_on if has_eng else _NO_FLAGS, has_eng, vib.stationary_speed_mps, kinds)
+    n_idle, n_road = regimes(speed, engine_on if has_eng else _NO_FLAGS, has_eng, vib.stationary_speed_mps, kinds)
     if not n_idle and not n_road:
         return None
     weights = np.asarray(vib.axis_weights)
-    out = np.zeros((n, 6))
-    if n_idle:
-        _idle_samples(kinds, dt, *_idle_coefficients(phases, f_e, a_rms, g_rms, weights, vib, dt), out)
+    idle = _idle_coefficients(phases, f_e, a_rms, g_rms, weights, vib, dt) if n_idle else None
+    road = None
     if n_road and (road_a > 0.0 or road_g > 0.0):
         # The process runs only over the road samples (a stationary process
         # restarted from its carried-over state after a stop is still stationary).
@@ -647,9 +562,29 @@ def _vibration_row(gen: np.random.Generator, dt: float, engine_on: np.ndarray | 
         stream = stream_state(gen)
         kind, state = stream if stream is not None else (-1, np.zeros(4, np.uint64))
         e = gen.standard_normal((n_road, 6)) if stream is None else _NO_SAMPLES
-        _road_samples(kinds, speed, 1.0 / vib.road_ref_speed_mps, float(vib.road_speed_exponent),
-                      np.array([1.0, -a1, -a2]), zi, scale, kind, state, e, out)
-        if stream is not None:
+        road = (np.array([1.0, -a1, -a2]), zi, scale, kind, state, e)
+    return idle, road
+
+
+def _vibration_row(gen: np.random.Generator, dt: float, engine_on: np.ndarray | None, speed: np.ndarray,
+                   vib: Vibration) -> np.ndarray | None:
+    """Vibration of one run: (N, 6) float64, ``f_vib`` in columns 0-2 and ``w_vib`` in 3-5, or None if it is zero
+    throughout. The draws of :func:`_vibration_draws` (``gen`` left where they end), then the samples, compiled
+    (:func:`idle_samples`, :func:`road_samples`)."""
+    n = speed.shape[0]
+    kinds = np.empty(n, np.int8)
+    drawn = _vibration_draws(gen, dt, engine_on, speed, vib, kinds)
+    if drawn is None:
+        return None
+    idle, road = drawn
+    out = np.zeros((n, 6))
+    if idle is not None:
+        idle_samples(kinds, dt, *idle, out)
+    if road is not None:
+        a, zi, scale, kind, state, e = road
+        road_samples(kinds, speed, 1.0 / vib.road_ref_speed_mps, float(vib.road_speed_exponent), a, zi, scale,
+                      kind, state, e, out)
+        if kind >= 0:
             store_stream_state(gen, kind, state)
     return out
 
@@ -895,82 +830,6 @@ def _error_matrix(z: np.ndarray, scale_sigma: float, mis_sigma: float) -> np.nda
     return e
 
 
-@nb.njit(cache=True, nogil=True)
-def _sensor_kernel(truth, vib, rough, a, has_sm, const, add_const, gm_z, gm_scale, zi, phi, has_gm, step, has_step,
-                   white_z, white_sigma, has_white, out, bias_out) -> None:
-    """One sensor's output of one row, in one pass: ``out = (I + S + M) src + bias + white`` (n, 3).
-
-    ``src`` is ``truth`` (n, 3) plus, when ``vib`` (n, 3) is not empty, the vibration times ``rough`` (n,) (ones
-    off the rough-road segments: multiplying by 1 changes no bit). ``a = I + S + M`` applied when ``has_sm``
-    (:func:`_apply_matrix`'s sum order). The bias, written to ``bias_out`` when it varies in time:
-
-    * with ``has_gm`` the first-order Gauss-Markov process (Groves 2013 sec. 4.4; Brown & Hwang, first-order
-      Gauss-Markov process): ``b_k = phi b_(k-1) + u_k``, ``u = gm_scale gm_z`` (``gm_scale = sigma
-      sqrt(1 - phi^2)``), from the state ``zi = phi b_0`` (``scipy.signal.lfilter``'s direct form II transposed
-      recursion with ``a = [1, -phi]``, ``b = [1, 0]``, its operations in its order), plus ``const`` (3,), plus
-      ``step`` (n, 3) when ``has_step``;
-    * else ``step + const`` when ``has_step``; else ``const`` when ``add_const`` (not at all when it is zero).
-
-    The white noise ``white_z white_sigma rough`` when ``has_white``. The operations of the numpy sequence
-    this replaces (``o = A src; o += bias; o += noise``), in its order: the same bits.
-    """
-    n = truth.shape[0]
-    has_vib = vib.shape[0] > 0
-    # the three axes in scalar locals (registers) rather than small arrays, which the compiler must keep in
-    # memory since ``out`` might alias them: the same operations, 1.5-2x faster (microbenchmark of one row)
-    z0, z1, z2 = zi[0], zi[1], zi[2]
-    nphi = -phi
-    a00, a01, a02, a10, a11, a12, a20, a21, a22 = (a[0, 0], a[0, 1], a[0, 2], a[1, 0], a[1, 1], a[1, 2], a[2, 0],
-                                                   a[2, 1], a[2, 2])
-    c0, c1, c2 = const[0], const[1], const[2]
-    for k in range(n):
-        if has_vib:
-            r = rough[k]
-            s0, s1, s2 = vib[k, 0] * r + truth[k, 0], vib[k, 1] * r + truth[k, 1], vib[k, 2] * r + truth[k, 2]
-        else:
-            s0, s1, s2 = truth[k, 0], truth[k, 1], truth[k, 2]
-        if has_sm:
-            o0 = s0 * a00 + s1 * a01 + s2 * a02
-            o1 = s0 * a10 + s1 * a11 + s2 * a12
-            o2 = s0 * a20 + s1 * a21 + s2 * a22
-        else:
-            o0, o1, o2 = s0, s1, s2
-        if has_gm or has_step:
-            if has_gm:
-                x0, x1, x2 = gm_z[k, 0] * gm_scale, gm_z[k, 1] * gm_scale, gm_z[k, 2] * gm_scale
-                y0, y1, y2 = z0 + 1.0 * x0, z1 + 1.0 * x1, z2 + 1.0 * x2
-                z0, z1, z2 = x0 * 0.0 - y0 * nphi, x1 * 0.0 - y1 * nphi, x2 * 0.0 - y2 * nphi
-                b0, b1, b2 = y0 + c0, y1 + c1, y2 + c2
-                if has_step:
-                    b0, b1, b2 = b0 + step[k, 0], b1 + step[k, 1], b2 + step[k, 2]
-            else:
-                b0, b1, b2 = step[k, 0] + c0, step[k, 1] + c1, step[k, 2] + c2
-            o0, o1, o2 = o0 + b0, o1 + b1, o2 + b2
-            bias_out[k, 0], bias_out[k, 1], bias_out[k, 2] = b0, b1, b2
-        elif add_const:
-            o0, o1, o2 = o0 + c0, o1 + c1, o2 + c2
-        if has_white:
-            r = rough[k]
-            o0 += white_z[k, 0] * white_sigma * r
-            o1 += white_z[k, 1] * white_sigma * r
-            o2 += white_z[k, 2] * white_sigma * r
-        out[k, 0], out[k, 1], out[k, 2] = o0, o1, o2
-
-
-@nb.njit(cache=True, nogil=True)
-def _apply_matrix(a: np.ndarray, x: np.ndarray, out: np.ndarray) -> None:
-    """``out = x @ a.T`` for x, out (n, 3) and a (3, 3), sample by sample: ``(x0 a_j0 + x1 a_j1) + x2 a_j2``.
-
-    Compiled (releasing the GIL for the row threads) rather than ``np.matmul``, which would hand this tiny
-    product to a threaded BLAS whose spinning worker threads steal the cores that the row-parallel
-    simulation uses.
-    """
-    for k in range(x.shape[0]):
-        x0, x1, x2 = x[k, 0], x[k, 1], x[k, 2]
-        for j in range(3):
-            out[k, j] = x0 * a[j, 0] + x1 * a[j, 1] + x2 * a[j, 2]
-
-
 @dataclass(frozen=True)
 class _SensorSpec:
     """Per-sensor view of an ImuGrade used inside :func:`simulate_imu` (SI units)."""
@@ -1080,66 +939,141 @@ def _sensor_specs(g: ImuGrade, dt: float) -> tuple[_SensorSpec, _SensorSpec]:
     )
 
 
+def _event_arrays(steps, rough) -> tuple[np.ndarray, np.ndarray]:
+    """A row's events (:func:`_draw_imu_events`) as arrays for :func:`rough_fill` and :func:`steps_fill`: the
+    rough-road segments ``(t0, t1, factor)`` (R, 3) and the bias steps ``(t, sensor, axis, size)`` (S, 4),
+    sensor 0 gyro and 1 accel, in their order."""
+    seg = np.array(rough, dtype=np.float64).reshape(-1, 3)
+    rec = np.array([(t, 0.0 if sensor == "gyro" else 1.0, axis, size) for t, sensor, axis, size in steps],
+                   dtype=np.float64).reshape(-1, 4)
+    return seg, rec
+
+
 def _row_events(gen: np.random.Generator, events: ImuEvents, step_rates, dt: float, n: int):
     """Stage of one row: its :class:`ImuEvents` (bias steps, rough-road segments) drawn from ``gen``.
 
     Returns ``(steps, rough)`` (:func:`_draw_imu_events`), the rough-road factor per sample (n,) or None
     without a segment, and the step biases (gyro, accel) (n, 3) each, None where that sensor's step rate is 0.
-    Sample j covers ``(t_j-1, t_j]``, ``t_j = j dt``.
+    Sample j covers ``(t_j-1, t_j]``, ``t_j = j dt`` (:func:`rough_fill`, :func:`steps_fill`).
     """
     steps, rough = _draw_imu_events(gen, events, dt, n)
-    t_end = np.arange(n) * dt
+    seg, rec = _event_arrays(steps, rough)
     rough_f = None
     if rough:
-        rough_f = np.ones(n)
-        for t0, t1, fac in rough:
-            sel = (t_end > t0) & (t_end <= t1)
-            rough_f[sel] = np.maximum(rough_f[sel], fac)
-    sb = [np.zeros((n, 3)) if r > 0 else None for r in step_rates]
-    for ts, sensor, axis, size in steps:
-        k = 0 if sensor == "gyro" else 1
-        sb[k][t_end > ts, axis] += size
+        rough_f = np.empty(n)
+        rough_fill(seg, dt, rough_f)
+    sb = [None] * 2
+    for k, r in enumerate(step_rates):
+        if r > 0:
+            sb[k] = np.empty((n, 3))
+            steps_fill(rec, k, dt, sb[k])
     return (steps, rough), rough_f, tuple(sb)
 
 
 _NONE = np.empty((0, 3))
-"""An empty (0, 3) array: "no such input" (or output) for :func:`_sensor_kernel`."""
+"""An empty (0, 3) array: "no such input" (or output) for :func:`sensor_pass`."""
+_NO_STATE = np.zeros(4, dtype=np.uint64)
+"""The stream state of a draw that does not happen."""
+
+
+def _gm_parameters(s: _SensorSpec, dt: float) -> np.ndarray:
+    """``(sigma, phi, scale)`` (3,) of the sensor's Gauss-Markov bias at the sample interval ``dt`` [s]:
+    ``phi = exp(-dt / tau)``, ``scale = sigma sqrt(1 - exp(-2 dt / tau))``; zeros without one."""
+    if not s.gm_sigma > 0:
+        return np.zeros(3)
+    return np.array([s.gm_sigma, math.exp(-dt / s.gm_tau), s.gm_sigma * math.sqrt(-math.expm1(-2.0 * dt / s.gm_tau))])
 
 
 def _sensor_row(s: _SensorSpec, truth, vib, rough, sm_row, const, step_bias, ch, dt: float, out, bias_out) -> bool:
     """Stage of one row: one sensor's measured output into ``out`` (n, 3) (any float dtype).
 
-    ``out = (I + S + M)(truth + vib rough) + bias + white`` (:func:`_sensor_kernel`): ``vib`` (n, 3) or None,
+    ``out = (I + S + M)(truth + vib rough) + bias + white`` (:func:`sensor_pass`): ``vib`` (n, 3) or None,
     ``rough`` (n,) the rough-road factor (ones without), ``sm_row`` the row's ``S + M``, the bias the constant
     ``const`` (3,) plus the Gauss-Markov process (drawn from the sensor's stream of ``ch``: 3 for its start,
     then n x 3) and the ``step_bias`` (n, 3) or None; the white noise (n x 3 from its own stream of ``ch``).
     ``bias_out`` (n, 3) receives the bias when it varies in time. Returns whether it does.
     """
     n = truth.shape[0]
-    has_gm = s.gm_sigma > 0
-    gm_z, zi, phi, gm_scale = _NONE, np.zeros(3), 0.0, 0.0
-    if has_gm:
-        phi = math.exp(-dt / s.gm_tau)
-        z = np.empty((n + 1, 3))
-        fill_normals(*ch.raw_state(s.gm_stream), z)
-        zi = phi * (z[0] * s.gm_sigma)                          # phi b_0, b_0 ~ N(0, sigma^2)
-        gm_z = z[1:]
-        gm_scale = s.gm_sigma * math.sqrt(-math.expm1(-2.0 * dt / s.gm_tau))
-    white_z = _NONE
-    if s.white_sigma > 0:
-        white_z = np.empty((n, 3))
-        fill_normals(*ch.raw_state(s.white_stream), white_z)
-    has_step = step_bias is not None
-    _sensor_kernel(truth, _NONE if vib is None else vib, rough, np.eye(3) + sm_row, s.has_sm, const, bool(const.any()),
-                   gm_z, gm_scale, zi, phi, has_gm, _NONE if step_bias is None else step_bias, has_step, white_z,
-                   s.white_sigma, s.white_sigma > 0, out, bias_out)
+    has_gm, has_white, has_step = s.gm_sigma > 0, s.white_sigma > 0, step_bias is not None
+    gm_kind, gm_state = ch.raw_state(s.gm_stream) if has_gm else (0, _NO_STATE)
+    white_kind, white_state = ch.raw_state(s.white_stream) if has_white else (0, _NO_STATE)
+    sensor_pass(truth, _NONE if vib is None else vib, rough, np.eye(3) + sm_row, s.has_sm, const, bool(const.any()),
+                _gm_parameters(s, dt), gm_kind, gm_state, has_gm, _NONE if step_bias is None else step_bias, has_step,
+                s.white_sigma, white_kind, white_state, has_white, np.empty((n + 1, 3) if has_gm else (0, 3)),
+                np.empty((n, 3) if has_white else (0, 3)), out, bias_out)
     return has_gm or has_step
 
 
-def _imu_row(job: _RowJob, i: int) -> None:
-    """Row ``i`` of :func:`simulate_imu`: its per-run constants, vibration, events and both sensors, written into
-    the job's outputs. Draws only from ``job.rngs[i]`` (its component streams, :func:`_children`) and
-    ``job.vibration_rngs[i]``."""
+@dataclass(frozen=True)
+class _RowDraws:
+    """What :func:`_draw_row` draws for the compiled pass :func:`imu_rows` (row ``i`` of each array): the child
+    stream states of the sensors' bias processes and white noise ``gm_state``, ``white_state`` (2, B, 4), the
+    vibration (``vib_on``, ``idle_on``, ``w12``, ``coef``, ``road_on``, ``zi``, ``scale``, ``road_kind``,
+    ``road_state``, ``kinds`` (B, n) the regimes; ``road_par`` (5,) shared; ``road_gens`` the generators whose
+    states the pass advances), and per row the event arrays ``rough`` (R, 3), ``steps`` (S, 4) and the road
+    innovations ``e`` (M, 6) of a generator drawn by numpy."""
+
+    gm_state: np.ndarray
+    white_state: np.ndarray
+    vib_on: np.ndarray
+    idle_on: np.ndarray
+    w12: np.ndarray
+    coef: np.ndarray
+    road_on: np.ndarray
+    zi: np.ndarray
+    scale: np.ndarray
+    road_kind: np.ndarray
+    road_state: np.ndarray
+    kinds: np.ndarray
+    road_par: np.ndarray
+    road_gens: list
+    rough: list
+    steps: list
+    e: list
+
+    @classmethod
+    def empty(cls, b: int, n: int, vib: Vibration | None) -> "_RowDraws":
+        nv = b if vib is not None else 1
+        road_par = np.zeros(5)
+        if vib is not None:
+            road_par[3:] = 1.0 / vib.road_ref_speed_mps, float(vib.road_speed_exponent)
+        return cls(np.zeros((2, b, 4), np.uint64), np.zeros((2, b, 4), np.uint64), np.zeros(b, bool),
+                   np.zeros(b, bool), np.zeros((b, 2)), np.zeros((b, 4, 6)), np.zeros(b, bool), np.zeros((b, 2, 6)),
+                   np.zeros((b, 6)), np.full(b, -1, np.int64), np.zeros((b, 4), np.uint64),
+                   np.zeros((nv, n if vib is not None else 1), np.int8), road_par, [None] * b, [_NO_SEG] * b,
+                   [_NO_STEPS] * b, [_NO_SAMPLES] * b)
+
+
+_NO_SEG = np.zeros((0, 3))
+_NO_STEPS = np.zeros((0, 4))
+
+
+def _draw_vibration(job: _RowJob, d: _RowDraws, i: int, gen: np.random.Generator) -> None:
+    """Row ``i``'s vibration draws (:func:`_vibration_draws`) into ``d``."""
+    drawn = _vibration_draws(gen, job.dt, None if job.engine_on is None else job.engine_on[i], job.speed[i],
+                             job.vibration, d.kinds[i])
+    if drawn is None:
+        return
+    d.vib_on[i] = True
+    idle, road = drawn
+    if idle is not None:
+        d.idle_on[i] = True
+        d.w12[i] = idle[:2]
+        d.coef[i] = idle[2]
+    if road is not None:
+        a, d.zi[i], d.scale[i], d.road_kind[i], d.road_state[i], e = road
+        d.road_on[i] = True
+        d.road_par[:3] = a
+        if d.road_kind[i] >= 0:
+            d.road_gens[i] = gen
+        else:
+            d.e[i] = e
+
+
+def _draw_row(job: _RowJob, d: _RowDraws, i: int) -> None:
+    """Row ``i`` of :func:`simulate_imu` up to its per-sample work: its per-run constants (into the job), its
+    vibration and events drawn (into ``d`` and ``job.ev_rows``) and its sensors' child streams taken. Draws only
+    from ``job.rngs[i]`` (its component streams, :func:`_children`) and ``job.vibration_rngs[i]``."""
     ch = _children(job.rngs[i])
     n = job.truth[0].shape[1]
     # per-run constants, fixed order: turn-on gyro (3), turn-on accel (3), S+M gyro (9), S+M accel (9)
@@ -1149,32 +1083,47 @@ def _imu_row(job: _RowJob, i: int) -> None:
         job.bias_const[k][i] = s.fixed + z[3 * k:3 * k + 3] * s.turn_on_sigma
     for k, s in enumerate(job.sensors):
         job.sm[k][i] = _error_matrix(z[6 + 9 * k:15 + 9 * k].reshape(3, 3), s.scale_sigma, s.mis_sigma)
-    vib = None
     if job.vibration is not None:
-        vgen = ch["vibration"] if job.vibration_rngs is None else job.vibration_rngs[i]
-        vib = _vibration_row(vgen, job.dt, None if job.engine_on is None else job.engine_on[i], job.speed[i],
-                             job.vibration)
-    rough_f, step_bias = None, (None, None)
+        _draw_vibration(job, d, i, ch["vibration"] if job.vibration_rngs is None else job.vibration_rngs[i])
     if job.events is not None:
-        job.ev_rows[i], rough_f, step_bias = _row_events(ch["events"], job.events, job.step_rates, job.dt, n)
-    rough = _ones(n) if rough_f is None else rough_f
-    for k, s in enumerate(job.sensors):  # k = 0 gyro (vibration columns 3-5), 1 accel (0-2)
-        bias_out = _NONE if job.bias_full[k] is None else job.bias_full[k][i]
-        _sensor_row(s, job.truth[k][i], None if vib is None else vib[:, 3 * (1 - k):3 * (2 - k)], rough,
-                    job.sm[k][i], job.bias_const[k][i], step_bias[k], ch, job.dt, job.outs[k][i], bias_out)
+        job.ev_rows[i] = _draw_imu_events(ch["events"], job.events, job.dt, n)
+        d.rough[i], d.steps[i] = _event_arrays(*job.ev_rows[i])
+    for k, s in enumerate(job.sensors):
+        if s.gm_sigma > 0:
+            d.gm_state[k, i] = ch.raw_state(s.gm_stream)[1]
+        if s.white_sigma > 0:
+            d.white_state[k, i] = ch.raw_state(s.white_stream)[1]
 
 
-def _ones(n: int) -> np.ndarray:
-    """A read-only (n,) array of ones (the rough-road factor of a row without a segment), shared per length."""
-    a = _ONES_CACHE.get(n)
-    if a is None:
-        a = np.ones(n)
-        a.setflags(write=False)
-        _ONES_CACHE[n] = a
-    return a
+def _csr(parts: list, width: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per-row arrays (m_i, width) as one (sum m_i, width) float64 array and its row offsets (B + 1,) int64."""
+    off = np.zeros(len(parts) + 1, np.int64)
+    np.cumsum([p.shape[0] for p in parts], out=off[1:])
+    return (np.concatenate(parts).reshape(-1, width) if off[-1] else np.zeros((0, width))), off
 
 
-_ONES_CACHE: dict = {}
+def _kernel_args(job: _RowJob, d: _RowDraws) -> tuple:
+    """The arguments of :func:`imu_rows` after ``r0, r1``: the job's inputs and outputs and the rows' draws."""
+    w_true, f_true = (np.ascontiguousarray(t, dtype=np.float64) for t in job.truth)
+    has_step = [job.events is not None and r > 0 for r in job.step_rates]
+    flags = np.array([(s.has_sm, s.gm_sigma > 0, has_step[k], s.white_sigma > 0, job.bias_full[k] is not None)
+                      for k, s in enumerate(job.sensors)])
+    const = np.stack(job.bias_const)
+    dtype = job.outs[0].dtype
+    bias = [np.empty((1, 1, 3), dtype) if f is None else f for f in job.bias_full]
+    speed = np.zeros((1, 1)) if job.vibration is None else np.ascontiguousarray(job.speed)
+    rough_off, rough_seg = _csr(d.rough, 3)[::-1]
+    step_off, step_rec = _csr(d.steps, 4)[::-1]
+    e_flat, e_off = _csr(d.e, 6)
+    return (w_true, f_true, job.dt, flags, np.eye(3) + np.stack(job.sm), const, const.any(axis=-1),
+            np.stack([_gm_parameters(s, job.dt) for s in job.sensors]), np.array([s.white_sigma for s in job.sensors]),
+            _CHILD_KIND, d.gm_state, d.white_state, d.vib_on, d.idle_on, d.w12, d.coef, d.road_on, d.road_par, d.zi,
+            d.scale, d.road_kind, d.road_state, e_off, e_flat, d.kinds, speed, rough_off, rough_seg, step_off,
+            step_rec, job.outs[0], job.outs[1], bias[0], bias[1])
+
+
+_CHILD_KIND = SFC64
+"""The compiled kind of the rows' component streams (:func:`_children` builds them on SFC64)."""
 
 
 def simulate_imu(f_true, w_true, imu_rate_hz: float, grade, rngs: Sequence[np.random.Generator],
@@ -1207,9 +1156,10 @@ def simulate_imu(f_true, w_true, imu_rate_hz: float, grade, rngs: Sequence[np.ra
     dtype : np.float32 or np.float64, dtype of the output arrays (internal
         arithmetic is float64, so a float32 result is the float64 result rounded).
     workers : int or None
-        Threads over rows (the compiled normal draws of :mod:`envs.sim.normals` and
-        the compiled kernels release the GIL). None: ``min(B, os.cpu_count(), 8)``; 1: serial. Results do not
-        depend on it.
+        Threads over row ranges for the per-sample work: each row's small draws are made first, in Python
+        (:func:`_draw_row`), then :func:`envs.sim.imu_kernels.imu_rows` runs ranges of rows, releasing the GIL
+        (:func:`envs.sim.row_threads.run_row_ranges`). None: ``min(B, os.cpu_count(), 8)``; 1: serial. Results
+        do not depend on it.
     vibration_rngs : list of B generators or None
         Streams of the vehicle vibration (e.g. ``row_generators(seeds,
         "vibration")``); then the vibration equals :func:`simulate_vibration`
@@ -1244,13 +1194,14 @@ def simulate_imu(f_true, w_true, imu_rate_hz: float, grade, rngs: Sequence[np.ra
                                   else None for name, s, r in zip(("gyro_bias", "accel_bias"), sensors, step_rates)),
                   bias_const=(np.empty((b, 3)), np.empty((b, 3))), sm=(np.zeros((b, 3, 3)), np.zeros((b, 3, 3))),
                   ev_rows=[None] * b)
-    if workers == 1 or b == 1:
-        for i in range(b):
-            _imu_row(job, i)
-    else:
-        with ThreadPoolExecutor(max_workers=workers) as ex:
-            for _ in ex.map(partial(_imu_row, job), range(b)):
-                pass
+    draws = _RowDraws.empty(b, n, vibration)
+    for i in range(b):
+        _draw_row(job, draws, i)
+    args = _kernel_args(job, draws)
+    run_row_ranges(lambda r0, r1: imu_rows(r0, r1, *args), b, workers)
+    for i, gen in enumerate(draws.road_gens):     # the vibration generators left where numpy's draws would be
+        if gen is not None:
+            store_stream_state(gen, draws.road_kind[i], draws.road_state[i])
     return _imu_data(job, grade)
 
 

@@ -35,8 +35,8 @@ from numba import types
 from numba.extending import intrinsic
 from numba.np.random._constants import fi_double, ki_double, wi_double, ziggurat_nor_inv_r, ziggurat_nor_r
 
-__all__ = ["standard_normal", "fill_normals", "fill_normals_rows", "pcg64_seed", "sfc64_seed", "stream_state",
-           "store_stream_state", "SFC64", "PCG64"]
+__all__ = ["standard_normal", "fill_normals", "fill_normals_rows", "fill_stream", "pcg64_seed", "sfc64_seed",
+           "stream_state", "store_stream_state", "SFC64", "PCG64"]
 
 SFC64 = 0
 """Kind code of an SFC64 state ``[a, b, c, w]`` (uint64 words)."""
@@ -133,8 +133,9 @@ def normal_step(kind, s0, s1, s2, s3):
 
 
 @nb.njit(cache=True, nogil=True)
-def _fill(kind, state, out):
-    """``out`` (n,) float64 filled with standard normal variates in order; ``state`` (4,) uint64 advanced."""
+def fill_stream(kind, state, out):
+    """``out`` (n,) float64 filled with standard normal variates in order from the stream ``(kind, state)``
+    (``state`` (4,) uint64 advanced): :func:`fill_normals` for compiled callers."""
     s0, s1, s2, s3 = state[0], state[1], state[2], state[3]
     for i in range(out.shape[0]):
         out[i], s0, s1, s2, s3 = normal_step(kind, s0, s1, s2, s3)
@@ -172,14 +173,14 @@ def fill_normals_rows(kind, states, out):
     stream ``(kind, states[i])`` (``states`` (B, 4) uint64, advanced in place): B streams in one call."""
     flat = out.reshape(out.shape[0], -1)
     for i in range(flat.shape[0]):
-        _fill(kind, states[i], flat[i])
+        fill_stream(kind, states[i], flat[i])
 
 
 def fill_normals(kind: int, state: np.ndarray, out: np.ndarray) -> None:
     """Fill the C-contiguous float64 array ``out`` with standard normal variates in C order, from the stream
     ``(kind, state)`` (:func:`stream_state`, :meth:`envs.sim.rng.ChildStreams.raw_state`; ``state`` advanced in
     place): what a generator in that state draws as ``standard_normal(out.shape)``. Releases the GIL."""
-    _fill(kind, state, out.reshape(-1))
+    fill_stream(kind, state, out.reshape(-1))
 
 
 def stream_state(gen: np.random.Generator):

@@ -446,7 +446,7 @@ def test_vibration_row_is_its_numpy_specification_to_the_bit(bit_generator, expo
 
 
 def test_apply_matrix_sums_in_order():
-    from envs.sim.imu import _apply_matrix
+    from envs.sim.imu_kernels import apply_matrix as _apply_matrix
     rng = np.random.default_rng(6)
     a, x = rng.normal(size=(3, 3)), rng.normal(size=(50, 3))
     out = np.empty((50, 3))
