@@ -15,6 +15,11 @@ split by stage (ms per row and share of the world's time):
 * ``rest``: the world's time less the stages (row generators, input checks, the GNSS assembly, epochs,
   initial estimate, odometer).
 
+From :data:`envs.sim.world.OVERLAP_ROWS` rows on, the world runs its IMU stage on a thread of its own while it
+runs the GNSS stages, so their times overlap: ``ms/row`` and ``samples/s`` are the world as an env pays it, and
+the split comes from as many more draws of the same seeds with the stages in turn (their total is the
+``in_turn`` row of ``--compare``; the shares are of it).
+
 The stages are timed by wrapping the names their callers look up. A tree without a stage's functions (an
 earlier tree of ``--compare``, before the GNSS stages existed) shows ``-`` there and counts that work in
 ``rest``. Wall time: on a machine shared with other jobs run ``--compare`` (side by side) rather than trusting
@@ -48,6 +53,7 @@ Defaults: noise-burst and urban, 60 s episodes, B = 1 and 1024 (a few minutes; `
 from __future__ import annotations
 
 import argparse
+import contextlib
 import inspect
 import json
 import os
@@ -121,15 +127,52 @@ def _world_buffers(fresh: bool):
     return WorldBuffers()
 
 
+@contextlib.contextmanager
+def _stages_in_turn(on: bool):
+    """With ``on``, :func:`envs.sim.world.generate_world` runs its stages one after the other (its IMU stage no
+    longer overlaps the GNSS stages, ``OVERLAP_ROWS``), so that each stage's timer reads that stage alone; a tree
+    without the overlap runs them in turn anyway."""
+    from envs.sim import world
+    if not on or not hasattr(world, "OVERLAP_ROWS"):
+        yield
+        return
+    old, world.OVERLAP_ROWS = world.OVERLAP_ROWS, sys.maxsize
+    try:
+        yield
+    finally:
+        world.OVERLAP_ROWS = old
+
+
+def _timed_draws(scenario, B, duration_s, reps, dtype, buffers, clock, acc, acc_cpu, offset):
+    """``reps`` draws of B rows (seeds from ``offset`` on); per draw the totals and stage times (wall or ``clock``,
+    and CPU), with ``rest`` the remainder: two (reps, 2 + stages) arrays."""
+    rows, cpu_rows = [], []
+    for r in range(reps):
+        for k in acc:
+            acc[k] = acc_cpu[k] = 0.0
+        seeds = list(range(offset + r * B, offset + (r + 1) * B))
+        t0, c0 = clock(), time.process_time()
+        _make_world(scenario, seeds, duration_s, np.dtype(dtype), buffers)
+        total, total_cpu = clock() - t0, time.process_time() - c0
+        rows.append((total, *(acc[k] for k in _WRAPPED), total - sum(acc.values())))
+        cpu_rows.append((total_cpu, *(acc_cpu[k] for k in _WRAPPED), total_cpu - sum(acc_cpu.values())))
+    return np.array(rows), np.array(cpu_rows)
+
+
 def bench_cell(scenario, B, duration_s, reps, dtype="float64", cpu=False, cores=False, fresh=False):
-    """Median wall time (``cpu`` without ``cores``: process CPU time) per row [s] of the world and of each stage over ``reps`` draws
-    of B rows, and N. The draws go through one :class:`envs.sim.buffers.WorldBuffers`, as an env core's resets do
+    """Median wall time (``cpu`` without ``cores``: process CPU time) per row [s] of the world and of each stage
+    over ``reps`` draws of B rows, and N. The draws go through one :class:`envs.sim.buffers.WorldBuffers`, as an env core's resets do
     (``fresh``: without, each draw allocates its arrays).
 
-    Returns ``{"total": s, "<stage>": s or None, ..., "rest": s, "n": N}`` (per row; each stage the median of its
-    own times, None where this tree lacks it; ``rest`` the median of the per-draw remainders). ``cores``: also
-    ``"cores": {"total" or stage: cores busy}``, the stage's process CPU time (all threads) over its wall time,
-    both clocks read around the same calls of the same draws (1: one core; 2: two cores throughout).
+    The world's total is timed as an env pays it (the IMU stage overlapping the GNSS stages where the world does
+    that); the stages are timed in ``reps`` more draws of the same seeds with the stages in turn
+    (:func:`_stages_in_turn`), whose total is ``in_turn``: the stages and ``rest`` add up to it.
+
+    Returns ``{"total": s, "in_turn": s, "<stage>": s or None, ..., "rest": s, "n": N}`` (per row; each stage the
+    median of its own times, None where this tree lacks it; ``rest`` the median of the per-draw remainders).
+    ``cores``: also ``"cores": {"total" or stage: cores busy}``, the stage's process CPU time (all threads) over
+    its wall time, both clocks read around the same calls of the same draws (1: one core; 2: two cores
+    throughout).
     """
     acc = dict.fromkeys(_WRAPPED, 0.0)
     acc_cpu = dict.fromkeys(_WRAPPED, 0.0)
@@ -141,21 +184,21 @@ def bench_cell(scenario, B, duration_s, reps, dtype="float64", cpu=False, cores=
     w = _make_world(scenario, list(range(B)), duration_s, np.dtype(dtype), buffers)  # untimed: compiled kernels load
     n = w.truth.t.shape[0]
     del w
-    rows, cpu_rows = [], []
-    for r in range(reps):
-        for k in acc:
-            acc[k] = acc_cpu[k] = 0.0
-        seeds = list(range((r + 1) * B, (r + 2) * B))
-        t0, c0 = clock(), time.process_time()
-        _make_world(scenario, seeds, duration_s, np.dtype(dtype), buffers)
-        total, total_cpu = clock() - t0, time.process_time() - c0
-        rows.append((total, *(acc[k] for k in _WRAPPED), total - sum(acc.values())))
-        cpu_rows.append((total_cpu, *(acc_cpu[k] for k in _WRAPPED), total_cpu - sum(acc_cpu.values())))
-    med = np.median(np.array(rows), axis=0) / B
-    out = dict(zip(("total",) + STAGES, map(float, med)), n=n)
+    draws = (scenario, B, duration_s, reps, dtype, buffers, clock, acc, acc_cpu, B)
+    with _stages_in_turn(True):
+        rows, cpu_rows = _timed_draws(*draws)
+    paid, paid_cpu = rows[:, 0], cpu_rows[:, 0]
+    from envs.sim import world
+    if B >= getattr(world, "OVERLAP_ROWS", sys.maxsize):          # the world overlaps stages at this B
+        got, got_cpu = _timed_draws(*draws)
+        paid, paid_cpu = got[:, 0], got_cpu[:, 0]
+    med = np.median(rows, axis=0) / B
+    out = dict(zip(("in_turn",) + STAGES, map(float, med)), total=float(np.median(paid)) / B, n=n)
     if cores:
-        med_cpu = np.median(np.array(cpu_rows), axis=0) / B
-        out["cores"] = {k: (float(c / w) if w > 0 else None) for k, c, w in zip(("total",) + STAGES, med_cpu, med)}
+        med_cpu = np.median(cpu_rows, axis=0) / B
+        out["cores"] = {k: (float(c / w) if w > 0 else None)
+                        for k, c, w in zip(("in_turn",) + STAGES, med_cpu, med)}
+        out["cores"]["total"] = float(np.median(paid_cpu) / np.median(paid))
     for stage in _WRAPPED:
         if stage not in found:
             out[stage] = None
@@ -319,8 +362,8 @@ def _ms(x, width) -> str:
 
 
 def _with_share(r, stage) -> str:
-    """A stage's ms per row and its share of the world's time."""
-    share = "   -" if r[stage] is None else f"{100 * r[stage] / r['total']:4.1f}"
+    """A stage's ms per row and its share of the world's time with the stages in turn."""
+    share = "   -" if r[stage] is None else f"{100 * r[stage] / r['in_turn']:4.1f}"
     return f"{_ms(r[stage], 8)} ({share}%)"
 
 
@@ -367,7 +410,7 @@ def main(argv=None):
                     before.append(_run_cell(other, *cell))
                     after.append(_run_cell(here, *cell))
                 rb, ra = _median_cells(before), _median_cells(after)
-                for s in ("total",) + STAGES:
+                for s in ("total", "in_turn") + STAGES:
                     up = (f"{rb[s] / ra[s]:8.2f}x" if rb[s] is not None and ra[s] is not None and ra[s] > 0
                           else f"{'-':>9s}")
                     print(f"{scen:14s} {B:4d} {s:10s} {_ms(rb[s], 14)} {_ms(ra[s], 8)} {up}", flush=True)

@@ -6,6 +6,7 @@ world will be estimated.
 """
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -137,6 +138,11 @@ def imu_event_bits(t, imu: ImuData, events: ImuEvents | None) -> np.ndarray:
     return bits
 
 
+OVERLAP_ROWS = 16
+"""From this many rows on, :func:`generate_world` simulates the IMU on a thread of its own while it simulates the
+GNSS receiver (the two draw from separate streams into separate arrays: the same world either way)."""
+
+
 def generate_world(scenario, seeds, dtype=np.float64, buffers=None) -> World:
     """Draw B episodes of ``scenario`` (name or :class:`Scenario`) from ``seeds`` (B non-negative ints).
 
@@ -159,15 +165,22 @@ def generate_world(scenario, seeds, dtype=np.float64, buffers=None) -> World:
     seeds = as_seeds(seeds)
     motions = scen.motions(row_generators(seeds, "trajectory"))
     truth = generate_truth(motions, scen.duration_s, scen.imu_rate_hz, buffers=buffers)
-    imu = simulate_imu(truth.f_b, truth.w_b, scen.imu_rate_hz, IMU_GRADES[scen.imu_grade],
-                       row_generators(seeds, "imu"), engine_on=truth.engine_on, speed=truth.speed,
-                       vibration=scen.vibration, dtype=dtype,
-                       vibration_rngs=row_generators(seeds, "vibration"), events=scen.imu_events, buffers=buffers)
+    imu_args = (truth.f_b, truth.w_b, scen.imu_rate_hz, IMU_GRADES[scen.imu_grade], row_generators(seeds, "imu"))
+    imu_kw = dict(engine_on=truth.engine_on, speed=truth.speed, vibration=scen.vibration, dtype=dtype,
+                  vibration_rngs=row_generators(seeds, "vibration"), events=scen.imu_events, buffers=buffers)
     spe = scen.samples_per_epoch
     epoch_idx = np.arange(spe, truth.t.size, spe)
     at = truth.take(epoch_idx)
-    gnss = simulate_gnss(truth.t[epoch_idx], at.r_e, at.v_e, at.heading, scen.constellation, scen.receiver,
-                         scen.events, row_generators(seeds, "gnss"), buffers=buffers)
+    gnss_args = (truth.t[epoch_idx], at.r_e, at.v_e, at.heading, scen.constellation, scen.receiver, scen.events,
+                 row_generators(seeds, "gnss"))
+    if len(seeds) < OVERLAP_ROWS:
+        imu = simulate_imu(*imu_args, **imu_kw)
+        gnss = simulate_gnss(*gnss_args, buffers=buffers)
+    else:       # the IMU's compiled row pass on its threads while this one runs the GNSS stages' Python
+        with ThreadPoolExecutor(max_workers=1) as ex:
+            pending = ex.submit(simulate_imu, *imu_args, **imu_kw)
+            gnss = simulate_gnss(*gnss_args, buffers=buffers)
+            imu = pending.result()
     if scen.imu_events is not None:
         gnss = replace(gnss, event_mask=gnss.event_mask | imu_event_bits(gnss.t, imu, scen.imu_events))
     init = initial_estimate(scen, truth, gnss, row_generators(seeds, "init"))

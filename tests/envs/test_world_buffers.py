@@ -81,6 +81,22 @@ def test_worlds_through_buffers_equal_and_a_held_world_survives():
     np.testing.assert_array_equal(_arrays(generate_world(scen, [1, 2, 3]))["imu.f_b"], held_copy["imu.f_b"])
 
 
+def test_overlapped_stages_give_the_world_of_the_stages_in_turn(monkeypatch):
+    """From OVERLAP_ROWS rows on the IMU stage runs on its own thread beside the GNSS stages (through one
+    WorldBuffers, two draws): the same world, bit for bit, as with the stages in turn."""
+    from envs.sim import world
+    scen = get_scenario("urban", duration_s=20.0)
+    seeds = list(range(30, 30 + max(world.OVERLAP_ROWS, 2)))
+    buf = WorldBuffers()
+    overlapped = [_arrays(generate_world(scen, s, buffers=buf)) for s in (seeds, [x + 100 for x in seeds])]
+    monkeypatch.setattr(world, "OVERLAP_ROWS", 10**9)
+    in_turn = [_arrays(generate_world(scen, s)) for s in (seeds, [x + 100 for x in seeds])]
+    for a, b in zip(overlapped, in_turn):
+        assert a.keys() == b.keys()
+        for k in a:
+            np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+
+
 def test_env_resets_reuse_the_buffers_and_close_releases_them():
     """The vector env's automatic resets draw into the same arrays; close() releases them."""
     env = gym.make_vec("GnssIns/SageHusa-v1", num_envs=4, vectorization_mode="vector_entry_point",
