@@ -861,7 +861,7 @@ class _RowJob:
     ``rngs`` / ``vibration_rngs`` (B generators or None), ``engine_on``, ``speed`` (B, N) or None,
     ``vibration`` (None when off), ``events`` (:class:`ImuEvents` or None), ``step_rates`` (gyro, accel) [1/s].
     Outputs: ``outs`` (gyro, accel) (B, N, 3) of the output dtype, ``bias_full`` (the time-varying biases or
-    None), ``bias_const`` (B, 3) per sensor, ``sm`` (B, 3, 3) per sensor, ``ev_rows`` (B,) list of the rows'
+    None), ``bias_const`` (2, B, 3) and ``sm`` (2, B, 3, 3) (gyro, accel), ``ev_rows`` (B,) list of the rows'
     ``(steps, rough)``.
     """
 
@@ -877,8 +877,8 @@ class _RowJob:
     step_rates: tuple
     outs: tuple
     bias_full: tuple
-    bias_const: tuple
-    sm: tuple
+    bias_const: np.ndarray
+    sm: np.ndarray
     ev_rows: list
 
 
@@ -1098,8 +1098,11 @@ def _draw_row(job: _RowJob, d: _RowDraws, i: int) -> None:
 def _csr(parts: list, width: int) -> tuple[np.ndarray, np.ndarray]:
     """Per-row arrays (m_i, width) as one (sum m_i, width) float64 array and its row offsets (B + 1,) int64."""
     off = np.zeros(len(parts) + 1, np.int64)
-    np.cumsum([p.shape[0] for p in parts], out=off[1:])
-    return (np.concatenate(parts).reshape(-1, width) if off[-1] else np.zeros((0, width))), off
+    sizes = [p.shape[0] for p in parts]
+    if not any(sizes):
+        return np.zeros((0, width)), off
+    np.cumsum(sizes, out=off[1:])
+    return np.concatenate(parts).reshape(-1, width), off
 
 
 def _kernel_args(job: _RowJob, d: _RowDraws) -> tuple:
@@ -1108,14 +1111,14 @@ def _kernel_args(job: _RowJob, d: _RowDraws) -> tuple:
     has_step = [job.events is not None and r > 0 for r in job.step_rates]
     flags = np.array([(s.has_sm, s.gm_sigma > 0, has_step[k], s.white_sigma > 0, job.bias_full[k] is not None)
                       for k, s in enumerate(job.sensors)])
-    const = np.stack(job.bias_const)
+    const = job.bias_const
     dtype = job.outs[0].dtype
     bias = [np.empty((1, 1, 3), dtype) if f is None else f for f in job.bias_full]
     speed = np.zeros((1, 1)) if job.vibration is None else np.ascontiguousarray(job.speed)
     rough_off, rough_seg = _csr(d.rough, 3)[::-1]
     step_off, step_rec = _csr(d.steps, 4)[::-1]
     e_flat, e_off = _csr(d.e, 6)
-    return (w_true, f_true, job.dt, flags, np.eye(3) + np.stack(job.sm), const, const.any(axis=-1),
+    return (w_true, f_true, job.dt, flags, np.eye(3) + job.sm, const, const.any(axis=-1),
             np.stack([_gm_parameters(s, job.dt) for s in job.sensors]), np.array([s.white_sigma for s in job.sensors]),
             _CHILD_KIND, d.gm_state, d.white_state, d.vib_on, d.idle_on, d.w12, d.coef, d.road_on, d.road_par, d.zi,
             d.scale, d.road_kind, d.road_state, e_off, e_flat, d.kinds, speed, rough_off, rough_seg, step_off,
@@ -1192,7 +1195,7 @@ def simulate_imu(f_true, w_true, imu_rate_hz: float, grade, rngs: Sequence[np.ra
                   outs=(empty(buffers, "imu.w_b", (b, n, 3), dtype), empty(buffers, "imu.f_b", (b, n, 3), dtype)),
                   bias_full=tuple(empty(buffers, f"imu.{name}", (b, n, 3), dtype) if (s.gm_sigma > 0 or r > 0)
                                   else None for name, s, r in zip(("gyro_bias", "accel_bias"), sensors, step_rates)),
-                  bias_const=(np.empty((b, 3)), np.empty((b, 3))), sm=(np.zeros((b, 3, 3)), np.zeros((b, 3, 3))),
+                  bias_const=np.empty((2, b, 3)), sm=np.zeros((2, b, 3, 3)),
                   ev_rows=[None] * b)
     draws = _RowDraws.empty(b, n, vibration)
     for i in range(b):
