@@ -259,20 +259,23 @@ def imu_rows(r0, r1, w_true, f_true, dt, flags, sm_a, const, add_const, gm_par, 
     ``step_rec[step_off[i]:step_off[i+1]]`` (S, 4) (:func:`rough_fill`, :func:`steps_fill`).
     """
     n = w_true.shape[1]
-    vib = np.zeros((n, 6))
+    # scratch for the terms these rows have (one sample where none has it: no large allocation for nothing)
+    vib = np.empty((n if vib_on[r0:r1].any() else 1, 6))
     rough = np.empty(n)
-    ones = np.ones(n)
-    step = np.zeros((2, n, 3))
-    gm_z = np.empty((n + 1, 3))
-    white_z = np.empty((n, 3))
+    ones = False                                        # whether rough holds ones (a row without a segment)
+    step = np.empty((2, n if flags[0, 2] or flags[1, 2] else 1, 3))
+    gm_z = np.empty((n + 1 if flags[0, 1] or flags[1, 1] else 1, 3))
+    white_z = np.empty((n if flags[0, 3] or flags[1, 3] else 1, 3))
     for i in range(r0, r1):
         if vib_on[i]:
             _row_vibration(i, kinds, speed, dt, idle_on, w12, coef, road_on, road_par, zi, scale, road_kind,
                            road_state, e_off, e_flat, vib)
-        rf = ones
         if rough_off[i + 1] > rough_off[i]:
             rough_fill(rough_seg[rough_off[i]:rough_off[i + 1]], dt, rough)
-            rf = rough
+            ones = False
+        elif not ones:
+            rough[:] = 1.0
+            ones = True
         for k in range(2):
             if flags[k, 2]:
                 steps_fill(step_rec[step_off[i]:step_off[i + 1]], k, dt, step[k])
@@ -281,6 +284,6 @@ def imu_rows(r0, r1, w_true, f_true, dt, flags, sm_a, const, add_const, gm_par, 
             truth = w_true[i] if k == 0 else f_true[i]
             out = w_out[i] if k == 0 else f_out[i]
             bias = (w_bias if k == 0 else f_bias)[i if flags[k, 4] else 0]
-            sensor_pass(truth, v, rf, sm_a[k, i], flags[k, 0], const[k, i], add_const[k, i], gm_par[k], child_kind,
+            sensor_pass(truth, v, rough, sm_a[k, i], flags[k, 0], const[k, i], add_const[k, i], gm_par[k], child_kind,
                         gm_state[k, i], flags[k, 1], step[k], flags[k, 2], white_sigma[k], child_kind,
                         white_state[k, i], flags[k, 3], gm_z, white_z, out, bias)
