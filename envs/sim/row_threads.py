@@ -16,6 +16,12 @@ import numpy as np
 ROWS_PER_TASK = 8
 """Fewest rows per thread task (handing a task over costs tens of microseconds)."""
 
+OVERLAP_ROWS = 16
+"""From this many rows on, a world runs two independent parts of its work at once, one of them on a thread of its
+own (:func:`envs.sim.world.generate_world`: the IMU beside the GNSS stages; :mod:`envs.sim.trajectory`: the arc
+nodes' states beside the node pass): they write separate arrays, or separate elements of one, so the world is the
+same either way. Below it, starting the thread costs more than the overlap gains."""
+
 
 @cache
 def _cpus() -> int:

@@ -100,6 +100,7 @@ drawn by :func:`random_drive` from the row's own generator.
 from __future__ import annotations
 
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import NamedTuple, Sequence, Union
 
@@ -110,7 +111,7 @@ from earth import C_en, OMEGA_IE_E, dcm_from_euler, geodetic_to_ecef, gravity_ec
 from earth.units import DEG
 
 from .buffers import empty
-from .row_threads import run_row_ranges
+from .row_threads import OVERLAP_ROWS, run_row_ranges
 
 __all__ = [
     "Static", "Accelerate", "Decelerate", "Cruise", "Turn", "Climb", "Stop", "Segment",
@@ -1009,11 +1010,18 @@ def _evaluate(pc: _Pieces, t, grav, linear_gravity: bool, dtype, buffers=None) -
     km = gm % n
     _, mid_c, mid_s = _arc_kin(pl, 0.5 * (t[km] + t[km + 1]), pn[gm])
     dtk = np.diff(t)
-    _node_rows((t, dtk, pn, arc_c, arc_s, mid_c, mid_s, not linear_gravity, pc, *grav, out["r_e"], out["v_e"],
-                out["C_eb"], out["speed"], out["heading"], out["pitch"], out["engine_on"], out["f_b"], out["w_b"]),
-               U, n, ia, gm)
-    if ia.size:
-        _arc_node_states(pc, ia, pa, ka, out)
+    node_args = ((t, dtk, pn, arc_c, arc_s, mid_c, mid_s, not linear_gravity, pc, *grav, out["r_e"], out["v_e"],
+                  out["C_eb"], out["speed"], out["heading"], out["pitch"], out["engine_on"], out["f_b"], out["w_b"]),
+                 U, n, ia, gm)
+    if ia.size and U >= OVERLAP_ROWS:   # the node pass (off the arcs' states) beside the arcs' states (numpy)
+        with ThreadPoolExecutor(max_workers=1) as ex:
+            pending = ex.submit(_node_rows, *node_args)
+            _arc_node_states(pc, ia, pa, ka, out)
+            pending.result()
+    else:
+        _node_rows(*node_args)
+        if ia.size:
+            _arc_node_states(pc, ia, pa, ka, out)
     _split_means(pc, t, dtk, starts, pn, grav, linear_gravity, out)
     return out
 

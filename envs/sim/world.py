@@ -14,6 +14,7 @@ import numpy as np
 from earth import C_en, exp_so3
 
 from . import events as ev
+from . import row_threads
 from .gnss import GnssData, simulate_gnss
 from .imu import IMU_GRADES, ImuData, ImuEvents, ImuGrade, simulate_imu
 from .odometer import simulate_odometer
@@ -138,7 +139,7 @@ def imu_event_bits(t, imu: ImuData, events: ImuEvents | None) -> np.ndarray:
     return bits
 
 
-OVERLAP_ROWS = 16
+OVERLAP_ROWS = row_threads.OVERLAP_ROWS
 """From this many rows on, :func:`generate_world` simulates the IMU on a thread of its own while it simulates the
 GNSS receiver (the two draw from separate streams into separate arrays: the same world either way)."""
 
