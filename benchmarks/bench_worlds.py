@@ -226,9 +226,9 @@ class _CountingGenerator(np.random.Generator):
         _CountingGenerator.drawn.append((type(gen.bit_generator).__name__, int(n)))
 
 
-def _count_imu_normals(scenario, B, duration_s, dtype) -> tuple:
+def _count_imu_normals(scenario, B, duration_s, dtype, seed0: int = 0) -> tuple:
     """``(counts, world)``: the normal variates :func:`envs.sim.imu.simulate_imu` draws for the world of seeds
-    0..B-1 (its row streams and their child streams counted, whether numpy or :mod:`envs.sim.normals` draws
+    ``seed0 .. seed0 + B - 1`` (its row streams and their child streams counted, whether numpy or :mod:`envs.sim.normals` draws
     them), as ``{bit generator name: variates}``, and that world (the same bits as without counting)."""
     from envs.sim import imu, rng, world
     try:
@@ -295,7 +295,8 @@ def _count_imu_normals(scenario, B, duration_s, dtype) -> tuple:
     world.row_generators, world.simulate_imu = rows, sim
     _CountingGenerator.drawn = []
     try:
-        w = _make_world(scenario, list(range(B)), duration_s, np.dtype(dtype))
+        with _stages_in_turn(True):         # the GNSS stages' children must not be counted while the IMU runs
+            w = _make_world(scenario, list(range(seed0, seed0 + B)), duration_s, np.dtype(dtype))
     finally:
         world.row_generators, world.simulate_imu = orig_rows, orig_sim
         for name, orig in hooks.items():

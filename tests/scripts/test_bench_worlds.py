@@ -27,6 +27,20 @@ def test_counted_draws_leave_the_world_unchanged_and_match_the_noise_model():
     assert f["normals_per_sample"] >= 12 and f["ms_per_row"] > 0 and f["threads"] >= 1
 
 
+def test_counted_draws_of_rows_together_are_the_sum_of_each_row_alone():
+    """From OVERLAP_ROWS rows on the world runs the GNSS stages beside the IMU: the count must still hold the IMU's
+    draws only, the sum of what each row draws alone."""
+    import bench_worlds as bw
+    from envs.sim.world import OVERLAP_ROWS
+    B, dur = OVERLAP_ROWS, 5.0
+    together, _ = bw._count_imu_normals("urban", B, dur, "float64")
+    alone: dict = {}
+    for i in range(B):
+        for name, c in bw._count_imu_normals("urban", 1, dur, "float64", seed0=i)[0].items():
+            alone[name] = alone.get(name, 0) + c
+    assert together == alone
+
+
 def test_cores_are_each_stages_cpu_time_over_its_wall_time(monkeypatch):
     """``--cores`` on fake clocks: a stage that spends 1 s wall and 2 s CPU per call is 2.00 cores busy; the rest of
     the world (1 s wall, 1 s CPU per draw) is 1.00; the world's total is (1 + 2) / (1 + 1) = 1.50 cores."""
