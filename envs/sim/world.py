@@ -147,6 +147,9 @@ GNSS receiver (the two draw from separate streams into separate arrays: the same
 def generate_world(scenario, seeds, dtype=np.float64, buffers=None) -> World:
     """Draw B episodes of ``scenario`` (name or :class:`Scenario`) from ``seeds`` (B non-negative ints).
 
+    The stages in order: the drives and truth, the IMU and the GNSS receiver (from :data:`OVERLAP_ROWS` rows on,
+    the IMU on a thread of its own beside the GNSS stages: the same world), the initial estimate, the odometer.
+
     Parameters
     ----------
     scenario : str or Scenario
