@@ -5,7 +5,7 @@ of a range of rows in one call.
 parameters, events) in Python, then hands the per-sample work of a range of rows to :func:`imu_rows`, which
 releases the GIL: the ranges run on threads without waiting on each other for the interpreter. Each kernel
 evaluates the operations of the numpy specification it replaced in that specification's order, so the samples
-are the same bits (tests/envs/test_imu.py, tests/envs/test_world_stages.py).
+are the same bits (tests/envs/test_imu.py, tests/envs/test_world_stages.py, tests/envs/test_imu_rows.py).
 """
 from __future__ import annotations
 
@@ -97,9 +97,11 @@ def road_samples(kinds, speed, inv_ref, exponent, a, zi, scale, kind, state, e, 
             prev[j] = yl
         m += 1
     state[0], state[1], state[2], state[3] = s0, s1, s2, s3
+
+
 @nb.njit(cache=True, nogil=True)
 def sensor_kernel(truth, vib, rough, a, has_sm, const, add_const, gm_z, gm_scale, zi, phi, has_gm, step, has_step,
-                   white_z, white_sigma, has_white, out, bias_out) -> None:
+                  white_z, white_sigma, has_white, out, bias_out) -> None:
     """One sensor's output of one row, in one pass: ``out = (I + S + M) src + bias + white`` (n, 3).
 
     ``src`` is ``truth`` (n, 3) plus, when ``vib`` (n, 3) is not empty, the vibration times ``rough`` (n,) (ones
@@ -171,6 +173,7 @@ def apply_matrix(a: np.ndarray, x: np.ndarray, out: np.ndarray) -> None:
         x0, x1, x2 = x[k, 0], x[k, 1], x[k, 2]
         for j in range(3):
             out[k, j] = x0 * a[j, 0] + x1 * a[j, 1] + x2 * a[j, 2]
+
 
 @nb.njit(cache=True, nogil=True)
 def sensor_pass(truth, vib, rough, a, has_sm, const, add_const, gm_par, gm_kind, gm_state, has_gm, step, has_step,
