@@ -161,8 +161,8 @@ def _timed_draws(scenario, B, duration_s, reps, dtype, buffers, clock, acc, acc_
 
 def bench_cell(scenario, B, duration_s, reps, dtype="float64", cpu=False, cores=False, fresh=False):
     """Median wall time (``cpu`` without ``cores``: process CPU time) per row [s] of the world and of each stage
-    over ``reps`` draws of B rows, and N. The draws go through one :class:`envs.sim.buffers.WorldBuffers`, as an env core's resets do
-    (``fresh``: without, each draw allocates its arrays).
+    over ``reps`` draws of B rows, and N. The draws go through one :class:`envs.sim.buffers.WorldBuffers`, as an
+    env core's resets do (``fresh``: without, each draw allocates its arrays).
 
     The world's total is timed as an env pays it (the IMU stage overlapping the GNSS stages where the world does
     that); the stages are timed in ``reps`` more draws of the same seeds with the stages in turn
@@ -228,8 +228,9 @@ class _CountingGenerator(np.random.Generator):
 
 def _count_imu_normals(scenario, B, duration_s, dtype, seed0: int = 0) -> tuple:
     """``(counts, world)``: the normal variates :func:`envs.sim.imu.simulate_imu` draws for the world of seeds
-    ``seed0 .. seed0 + B - 1`` (its row streams and their child streams counted, whether numpy or :mod:`envs.sim.normals` draws
-    them), as ``{bit generator name: variates}``, and that world (the same bits as without counting)."""
+    ``seed0 .. seed0 + B - 1`` (its row streams and their child streams counted, whether numpy or
+    :mod:`envs.sim.normals` draws them), as ``{bit generator name: variates}``, and that world (the same bits as
+    without counting)."""
     from envs.sim import imu, rng, world
     try:
         from envs.sim import imu_kernels

@@ -1115,8 +1115,8 @@ def _kernel_args(job: _RowJob, d: _RowDraws) -> tuple:
     dtype = job.outs[0].dtype
     bias = [np.empty((1, 1, 3), dtype) if f is None else f for f in job.bias_full]
     speed = np.zeros((1, 1)) if job.vibration is None else np.ascontiguousarray(job.speed)
-    rough_off, rough_seg = _csr(d.rough, 3)[::-1]
-    step_off, step_rec = _csr(d.steps, 4)[::-1]
+    rough_seg, rough_off = _csr(d.rough, 3)
+    step_rec, step_off = _csr(d.steps, 4)
     e_flat, e_off = _csr(d.e, 6)
     return (w_true, f_true, job.dt, flags, np.eye(3) + job.sm, const, const.any(axis=-1),
             np.stack([_gm_parameters(s, job.dt) for s in job.sensors]), np.array([s.white_sigma for s in job.sensors]),
