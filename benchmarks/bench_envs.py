@@ -8,7 +8,9 @@ Prints, in one run:
 * the headline: **end to end** env-steps/s, what a training loop pays (:func:`bench_end_to_end`: zero actions,
   ``k M + 5`` steps for M epochs per episode, so k automatic resets fall inside the timed steps, each drawing
   its rows' new worlds, k = 2 from B = 20 on and 40 at B = 1 (:func:`e2e_episodes`), after the first episode
-  untimed; no prefetch process), beside the step-only figure of the same cell and the resets'
+  untimed; no prefetch process; at B = 1 the env draws the worlds of its coming resets in batches of up to 16, as in
+  any long loop, :mod:`envs.worlds_ahead`, and the timed resets pay for them, the last batch's unused worlds
+  included), beside the step-only figure of the same cell and the resets'
   share of the end-to-end time, at B = 1 and 1024 (``--e2e-batches``), in the env default (fused) mode; and
   what the CPU allows: the resets' share of the CPU time, the cores busy on average, and the bound of
   :func:`cpu_bound` (the e2e rate if that CPU work kept every usable core busy);

@@ -28,6 +28,7 @@ from .config import EnvConfig, ParamSpec
 from .episodes import navigator_for
 from .aiding import odometer_rows, with_rows
 from .prepared import WORLD_ARRAY_NAMES, PreparedWorld, prepared_from
+from .worlds_ahead import WorldsAhead
 from .sim.buffers import WorldBuffers
 from .zupt_source import STILL_SPEED_MPS, ZuptSource  # noqa: F401  (STILL_SPEED_MPS re-exported)
 
@@ -396,6 +397,8 @@ class TuningCore:
         self._zflags = None
         # the bulk arrays of the worlds drawn at the resets, reused from one reset to the next (envs.sim.buffers)
         self.world_buffers = WorldBuffers()
+        # the worlds of coming resets of few rows, drawn in batches where the env passes their seeds (envs.worlds_ahead)
+        self.worlds_ahead = WorldsAhead(config)
 
     # ------------------------------------------------------------------ reset
     def _make_nav(self, world, method):
@@ -416,14 +419,18 @@ class TuningCore:
         nav.form.set_params(**vals)
         return vals
 
-    def reset_rows(self, rows, seeds, prepared: PreparedWorld | None = None) -> np.ndarray:
+    def reset_rows(self, rows, seeds, prepared: PreparedWorld | None = None, coming=None) -> np.ndarray:
         """Start new episodes on ``rows`` with world ``seeds``; returns their observations (len(rows), obs_dim).
 
         ``prepared``: the rows' world drawn ahead (:func:`envs.prepared.prepare_world` of this core's config and
-        these seeds, e.g. by :class:`envs.prefetch.WorldPrefetcher`); None draws it here. Either way the same
-        bits: the world is a function of the config and the seeds."""
+        these seeds, e.g. by :class:`envs.prefetch.WorldPrefetcher`); None draws it here. ``coming(k)``: the seeds
+        of these rows' next ``k`` resets (``k`` lists like ``seeds``), where the env knows them: then the worlds of
+        a few rows are drawn in batches with those of their coming resets (:class:`envs.worlds_ahead.WorldsAhead`,
+        ``self.worlds_ahead``). Either way the same bits: the world is a function of the config and the seeds."""
         rows = np.asarray(rows, np.intp)
         seeds = [int(s) for s in seeds]
+        if prepared is None and coming is not None:
+            prepared = self.worlds_ahead.take(seeds, coming)
         whole = None
         if prepared is None:
             # the whole world stays referenced until its arrays are copied, as before envs.prepared: freeing its

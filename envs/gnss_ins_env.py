@@ -66,6 +66,8 @@ A new world (trajectory, IMU errors, satellites, receiver errors, initial
 estimate errors) drawn from the scenario with the episode's world seed; parameters at
 their defaults. ``reset(seed=s)`` seeds the generator that draws the world seeds, which lie in
 :data:`envs.core.TRAINING_WORLD_SEEDS` (>= 2**30), apart from eval.py's and ``train.py tune``'s seeds.
+Once ``reset()`` has gone on without a seed twice, the worlds of the coming resets are drawn in batches of up to
+16 (:class:`envs.worlds_ahead.WorldsAhead`; a world costs less per row in a batch): the same episodes.
 
 ## Episode End
 
@@ -151,6 +153,8 @@ Limits (a ``ValueError`` naming the argument at construction): ``episode_length_
 """
 from __future__ import annotations
 
+import copy
+
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
@@ -222,10 +226,18 @@ class GnssInsTuningEnv(gym.Env):
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
+        if seed is not None:
+            self.core.worlds_ahead.restart()
         world_seed = draw_world_seed(self.np_random)
-        obs = self.core.reset_rows(np.array([0]), [world_seed])
+        obs = self.core.reset_rows(np.array([0]), [world_seed], coming=self._coming_world_seeds)
         self._last = None
         return obs[0], {"seed": world_seed}
+
+    def _coming_world_seeds(self, k: int) -> list:
+        """The world seeds of the next ``k`` resets without a seed, from a copy of ``np_random`` (which goes on as
+        if nothing was drawn ahead; a seed that differs at its reset only misses the world drawn for it)."""
+        rng = copy.deepcopy(self.np_random)
+        return [[draw_world_seed(rng)] for _ in range(k)]
 
     def step(self, action):
         res = self.core.step(np.asarray(action)[None] if np.ndim(action) == 1 else action)
@@ -237,9 +249,11 @@ class GnssInsTuningEnv(gym.Env):
         return res.obs[0], float(res.reward[0]), terminated, truncated, info
 
     def close(self):
-        """Release the world buffers (the bulk arrays its resets reuse, :mod:`envs.sim.buffers`)."""
+        """Release the world buffers (the bulk arrays its resets reuse, :mod:`envs.sim.buffers`) and the worlds drawn
+        ahead."""
         if getattr(self, "core", None) is not None:
             self.core.world_buffers.clear()
+            self.core.worlds_ahead.clear()
         super().close()
 
     def render(self):

@@ -11,7 +11,7 @@ the reduced form is about a fifth of the world's size (what crosses the process 
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
@@ -62,6 +62,22 @@ class PreparedWorld:
     @property
     def batch_size(self) -> int:
         return len(self.seeds)
+
+    def rows(self, start: int, stop: int) -> "PreparedWorld":
+        """Rows ``start:stop`` of this prepared world, as views (the arrays are copied by the reset that takes
+        them): the same as preparing the world of those rows' seeds alone (a world's row depends only on its
+        seed, :mod:`envs.sim.world`)."""
+        if not 0 <= start < stop <= self.batch_size:
+            raise ValueError(f"rows {start}:{stop} outside the {self.batch_size} rows of the prepared world")
+        sl = slice(start, stop)
+        w = self.world
+        init = w.init
+        cut = {f.name: getattr(init, f.name)[sl] for f in fields(init) if isinstance(getattr(init, f.name), np.ndarray)}
+        world = replace(w, seeds=list(w.seeds[sl]), init=replace(init, **cut),
+                        odometer=None if w.odometer is None else w.odometer[sl],
+                        odometer_yaw_rate=None if w.odometer_yaw_rate is None else w.odometer_yaw_rate[sl])
+        return PreparedWorld(seeds=self.seeds[sl], world=world, arrays={k: a[sl] for k, a in self.arrays.items()},
+                             has_rate=self.has_rate)
 
 
 def world_arrays(world: World) -> dict:

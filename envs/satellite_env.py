@@ -204,7 +204,9 @@ class SatelliteCore(TuningCore):
             nav.form.set_params(b=self.spec.default)
         return {}
 
-    def reset_rows(self, rows, seeds, prepared: PreparedWorld | None = None) -> np.ndarray:
+    def reset_rows(self, rows, seeds, prepared: PreparedWorld | None = None, coming=None) -> np.ndarray:
+        if prepared is None and coming is not None:
+            prepared = self.worlds_ahead.take([int(s) for s in seeds], coming)
         if prepared is None:
             from .prepared import prepared_from
             prepared = prepared_from(self.config.make_world([int(s) for s in seeds], buffers=self.world_buffers))

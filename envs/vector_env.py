@@ -16,7 +16,9 @@ through its seeded episodes, reproducibly.
 in a background process at the lowest CPU priority (:class:`envs.prefetch.WorldPrefetcher`), so that a reset
 whose world is ready only copies it in: the same bits, less time where a core is idle (PPO's gradient
 epochs). It pays when the rows finish together (episodes of one length, the default time limit); a reset of
-another grouping of rows draws its world itself. ``train.py rl`` turns it on.
+another grouping of rows draws its world itself. ``train.py rl`` turns it on. Without it, a reset of fewer than 8
+rows draws their worlds in one batch with those of their coming resets once their streams have gone on for two
+resets (:class:`envs.worlds_ahead.WorldsAhead`): the same bits, less CPU time per reset in a long run.
 
 ``parallel_kernels`` (default ``'auto'``) picks how the filter's row kernels run in ``step``: ``'auto'`` measures
 both the parallel and the serial variants and runs the faster (:class:`nav_filters.parallel_governor.
@@ -101,8 +103,11 @@ class GnssInsTuningVectorEnv(VectorEnv):
         for their coming worlds; returns the observations."""
         seeds = self._next_seeds(rows)
         pf = self._prefetch
-        prepared = None if pf is None else pf.take(seeds)
-        obs = self.core.reset_rows(rows, seeds, prepared=prepared)
+        if pf is None:  # few rows: their worlds drawn in batches with those of their coming resets
+            obs = self.core.reset_rows(rows, seeds, coming=lambda k: [self._coming_seeds(rows, j)
+                                                                      for j in range(1, k + 1)])
+        else:
+            obs = self.core.reset_rows(rows, seeds, prepared=pf.take(seeds))
         if pf is not None:
             while pf.request(self._coming_seeds(rows, pf.in_flight + 1)):
                 pass
@@ -122,6 +127,7 @@ class GnssInsTuningVectorEnv(VectorEnv):
         self._rngs = [seeding.np_random(s)[0] for s in seeds]
         for q in self._ahead:
             q.clear()
+        self.core.worlds_ahead.restart()
         if self._prefetch is not None:
             self._prefetch.cancel()
 
@@ -162,6 +168,7 @@ class GnssInsTuningVectorEnv(VectorEnv):
         """Stop the world prefetch process, if any, and release the world buffers."""
         if getattr(self, "core", None) is not None:
             self.core.world_buffers.clear()
+            self.core.worlds_ahead.clear()
         if self._prefetch is not None:
             self._prefetch.close()
             self._prefetch = None

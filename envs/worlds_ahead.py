@@ -1,0 +1,99 @@
+"""Draw the worlds of a few coming resets in one batch, in this process, where few rows reset at a time.
+
+A world costs much more per row when drawn alone than in a batch: the stages' fixed Python and kernel-call
+costs are paid once per draw (``benchmarks/bench_worlds.py``; measured at 60 s, noise-burst: 3.0-3.3 ms for
+one row against 1.8-2.0 ms per row for 16). A single env, or a vector env of few rows, resets one or a few
+rows at a time, and their coming world seeds are known ahead (each row's own generator). :class:`WorldsAhead`
+draws the worlds of the next resets of those rows in one batch of up to :data:`AHEAD_ROWS` rows and hands each
+reset its part: the same bits as drawing it at the reset (a world's row depends only on its seed,
+:mod:`envs.sim.world`), for less CPU time per reset in a long run.
+
+The depth grows as resets keep continuing the same streams: after a ``reset(seed=...)`` the first two resets
+draw their own worlds (as without this module), then 2, 4, 8 ... resets' worlds are drawn together, up to
+:data:`AHEAD_ROWS` rows. A loop that reseeds every episode thus never draws ahead, and the worlds drawn and not
+used (a reset of another grouping of rows, or a reseed) are at most about as many as those used since the last
+reseed. It holds one batch at a time: ~0.4 MB per row of a 60 s episode at 100 Hz (:class:`~envs.prepared.
+PreparedWorld`). The background process of :mod:`envs.prefetch` is the other way to take resets off the step
+loop (only where a core is idle); a vector env uses one or the other.
+"""
+from __future__ import annotations
+
+from .prepared import PreparedWorld, prepared_from
+from .sim.buffers import WorldBuffers
+
+__all__ = ["AHEAD_ROWS", "AHEAD_SAMPLES", "WorldsAhead"]
+
+AHEAD_ROWS = 16
+"""Most rows drawn in one batch ahead; resets of more than half as many rows draw their own worlds (from about
+16 rows on a batch no longer costs less per row: 1.5 ms per row at 16, 1.4 at 32, 1.2 at 64, noise-burst)."""
+
+AHEAD_SAMPLES = 96_000
+"""Most IMU samples (rows x samples per row) drawn in one batch ahead: 16 rows of a 60 s episode at 100 Hz, ~30 MB
+while the batch is drawn, ~6 MB held. Longer episodes draw fewer rows ahead (600 s at 100 Hz: none); their
+worlds cost mostly per sample, where a batch saves little."""
+
+
+class WorldsAhead:
+    """The worlds of the coming resets of a few rows, drawn in batches (module docstring).
+
+    Parameters
+    ----------
+    config : the env's :class:`~envs.config.EnvConfig` (its ``make_world``).
+    max_rows : most rows of one batch (default :data:`AHEAD_ROWS`; fewer for long episodes,
+        :data:`AHEAD_SAMPLES`).
+    """
+
+    def __init__(self, config, max_rows: int = AHEAD_ROWS):
+        self.config = config
+        self.max_rows = int(max_rows)
+        self.buffers = WorldBuffers()  # reused once every part of the previous batch has been taken
+        self._parts: dict = {}  # tuple of a reset's seeds -> its PreparedWorld (views into the batch)
+        self._draws = 0  # draws since the last restart (the depth grows with them)
+        self._row_samples = None  # IMU samples per row of the config's worlds (read at the first draw)
+
+    def restart(self) -> None:
+        """New streams (a reset with a seed): drop what was drawn ahead and start the depth again."""
+        self._parts.clear()
+        self._draws = 0
+
+    def depth(self, n_rows: int) -> int:
+        """How many resets of ``n_rows`` rows the next draw covers: 1 for the first two draws after a restart, then
+        doubling, at most ``max_rows // n_rows`` and :data:`AHEAD_SAMPLES` in all (1: no drawing ahead)."""
+        if self._draws < 2:
+            return 1
+        if self._row_samples is None:
+            scen = self.config.resolve_scenario()
+            self._row_samples = max(1, int(scen.duration_s * scen.imu_rate_hz))
+        rows = min(self.max_rows, AHEAD_SAMPLES // self._row_samples)
+        return max(1, min(2 ** (self._draws - 1), rows // max(int(n_rows), 1)))
+
+    def take(self, seeds, coming) -> PreparedWorld | None:
+        """The prepared world of a reset with ``seeds`` (one per row), or None where the caller should draw it
+        itself (the depth is 1: the same as without this module).
+
+        ``coming(k)``: the seeds of the ``k`` resets after this one, as a list of ``k`` lists like ``seeds``
+        (called only when a batch is drawn). A reset whose seeds were drawn ahead takes its part; any other drops
+        what was drawn ahead and draws a new batch: this reset's world and those of the coming resets.
+        """
+        key = tuple(int(s) for s in seeds)
+        part = self._parts.pop(key, None)
+        if part is not None:
+            return part
+        self._parts.clear()
+        k = self.depth(len(key))
+        self._draws += 1
+        if k == 1:
+            return None
+        groups = [list(key)] + [[int(s) for s in g] for g in coming(k - 1)]
+        if len(groups) != k or any(len(g) != len(key) for g in groups):
+            raise ValueError(f"coming({k - 1}) must give {k - 1} lists of {len(key)} seeds")
+        batch = prepared_from(self.config.make_world([s for g in groups for s in g], buffers=self.buffers))
+        n = len(key)
+        for j, g in enumerate(groups[1:], start=1):
+            self._parts[tuple(g)] = batch.rows(j * n, (j + 1) * n)
+        return batch.rows(0, n)
+
+    def clear(self) -> None:
+        """Release the worlds drawn ahead and the buffers."""
+        self._parts.clear()
+        self.buffers.clear()
