@@ -8,9 +8,9 @@ Prints, in one run:
 * the headline: **end to end** env-steps/s, what a training loop pays (:func:`bench_end_to_end`: zero actions,
   ``k M + 5`` steps for M epochs per episode, so k automatic resets fall inside the timed steps, each drawing
   its rows' new worlds, k = 2 from B = 20 on and 40 at B = 1 (:func:`e2e_episodes`), after the first episode
-  untimed; no prefetch process; at B = 1 the env draws the worlds of its coming resets in batches of up to 16, as in
-  any long loop, :mod:`envs.worlds_ahead`, and the timed resets pay for them, the last batch's unused worlds
-  included), beside the step-only figure of the same cell and the resets'
+  untimed; no prefetch process; at B = 1 the env draws the worlds of its coming resets in batches of 16, as in
+  any long loop, :mod:`envs.worlds_ahead`: the first 16 episodes untimed while the batches grow, the timed resets
+  pay for the batches, the last one's unused worlds included), beside the step-only figure of the same cell and the resets'
   share of the end-to-end time, at B = 1 and 1024 (``--e2e-batches``), in the env default (fused) mode; and
   what the CPU allows: the resets' share of the CPU time, the cores busy on average, and the bound of
   :func:`cpu_bound` (the e2e rate if that CPU work kept every usable core busy);
@@ -197,6 +197,19 @@ def e2e_episodes(B: int) -> int:
     return max(2, -(-E2E_MIN_ROW_EPISODES // B))
 
 
+def e2e_warmup_episodes(B: int) -> int:
+    """Untimed episodes before an end-to-end cell's timed steps: 1 (numba loads its kernels from the cache over the
+    first), and 16 where the env draws the worlds of coming resets in batches (fewer than
+    ``envs.worlds_ahead.AHEAD_ROWS // 2`` rows): the batches grow over the first 16 resets of a stream (1, 1, 2, 4,
+    8 resets' worlds) and the first draws of more rows load more kernels, a process's one-time cost (measured at
+    B = 1: 28 ms for the first batch of 2 rows, 10-16 ms later)."""
+    try:
+        from envs.worlds_ahead import AHEAD_ROWS
+    except ImportError:  # pragma: no cover - a source tree before it (--compare): the same warm-up, for a fair pair
+        AHEAD_ROWS = 16
+    return 16 if 2 * B <= AHEAD_ROWS else 1
+
+
 E2E_WARMUP_STEPS = 3
 """Untimed steps of :func:`bench_end_to_end` after the first reset where the caller gives ``steps``; else the whole
 first episode is untimed: numba loads each compiled kernel from its cache at its first use, over the first
@@ -208,7 +221,7 @@ def bench_end_to_end(method, B, episode_s, scenario, transition="fused", steps=N
     """End-to-end env-steps/s as a training loop pays it: resets included, no prefetch.
 
     After ``reset(seed=0)`` and the first episode untimed (M steps for M epochs per episode and the reset that
-    follows; :data:`E2E_WARMUP_STEPS` with ``steps`` given), ``steps`` steps with zero actions are timed (default
+    follows; the first 16 at B < 8, :func:`e2e_warmup_episodes`; :data:`E2E_WARMUP_STEPS` with ``steps`` given), ``steps`` steps with zero actions are timed (default
     ``k M + 5``, k = :func:`e2e_episodes`: k automatic resets fall inside, each drawing its rows' new worlds; the
     single env, B = 1, is reset by the loop when its episode ends, as a user's loop does).
     ``env_kwargs``: more env arguments; ``before_close(env)`` is called after the timed steps.
@@ -229,7 +242,7 @@ def bench_end_to_end(method, B, episode_s, scenario, transition="fused", steps=N
             if B == 1 and (out[2] or out[3]):
                 env.reset()
 
-    run(E2E_WARMUP_STEPS if steps else M)
+    run(E2E_WARMUP_STEPS if steps else e2e_warmup_episodes(B) * M)
     acc = {"reset": 0.0, "reset_cpu": 0.0}
     # an instance attribute: the core's own reset, in wall and in CPU time
     core.reset_rows = timed(timed(core.reset_rows, acc, "reset"), acc, "reset_cpu", clock=time.process_time)

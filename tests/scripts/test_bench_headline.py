@@ -36,3 +36,16 @@ def test_headline_prints_the_cpu_columns_from_the_cells(monkeypatch, capsys):
 def test_small_batches_time_enough_episodes_to_hold_a_pause_at_its_share():
     # at least 40 row-episodes per cell, and never fewer than the two automatic resets of the large batches
     assert [bench_envs.e2e_episodes(B) for B in (1, 16, 20, 64, 1024)] == [40, 3, 2, 2, 2]
+
+
+def test_the_warm_up_at_b1_lasts_until_the_worlds_are_drawn_16_resets_ahead():
+    from envs.gnss_ins_env import make_config
+    from envs.worlds_ahead import WorldsAhead
+    ahead = WorldsAhead(make_config({"method": "sage-husa"}, {"episode_length_s": 60.0}))
+    covered = 0  # resets whose worlds the draws so far cover (the first is the seeded reset before episode 1)
+    while ahead.depth(1) < 16:
+        covered += ahead.depth(1)
+        ahead._draws += 1
+    # the first draw of 16 is at reset covered + 1; the untimed part ends with the reset after its last episode
+    assert covered + 1 == bench_envs.e2e_warmup_episodes(1) + 1
+    assert bench_envs.e2e_warmup_episodes(1024) == 1
