@@ -12,8 +12,8 @@ The depth grows as resets keep continuing the same streams: after a ``reset(seed
 draw their own worlds (as without this module), then 2, 4, 8 ... resets' worlds are drawn together, up to
 :data:`AHEAD_ROWS` rows. A loop that reseeds every episode thus never draws ahead, and the worlds drawn and not
 used (a reset of another grouping of rows, or a reseed) are at most about as many as those used since the last
-reseed. It holds one batch at a time: ~0.4 MB per row of a 60 s episode at 100 Hz (:class:`~envs.prepared.
-PreparedWorld`). The background process of :mod:`envs.prefetch` is the other way to take resets off the step
+reseed. It holds one batch at a time (:data:`AHEAD_SAMPLES`: ~36 MB per env at 60 s episodes, released by the
+env's ``close()``). The background process of :mod:`envs.prefetch` is the other way to take resets off the step
 loop (only where a core is idle); a vector env uses one or the other.
 """
 from __future__ import annotations
@@ -24,13 +24,15 @@ from .sim.buffers import WorldBuffers
 __all__ = ["AHEAD_ROWS", "AHEAD_SAMPLES", "WorldsAhead"]
 
 AHEAD_ROWS = 16
-"""Most rows drawn in one batch ahead; resets of more than half as many rows draw their own worlds (from about
-16 rows on a batch no longer costs less per row: 1.5 ms per row at 16, 1.4 at 32, 1.2 at 64, noise-burst)."""
+"""Most rows drawn in one batch ahead; resets of more than half as many rows draw their own worlds. Larger batches
+cost somewhat less per row still (``bench_worlds.py --batches 1 16 64``) but hold memory in proportion
+(:data:`AHEAD_SAMPLES`)."""
 
 AHEAD_SAMPLES = 96_000
-"""Most IMU samples (rows x samples per row) drawn in one batch ahead: 16 rows of a 60 s episode at 100 Hz, ~30 MB
-while the batch is drawn, ~6 MB held. Longer episodes draw fewer rows ahead (600 s at 100 Hz: none); their
-worlds cost mostly per sample, where a batch saves little."""
+"""Most IMU samples (rows x samples per row) drawn in one batch ahead: 16 rows of a 60 s episode at 100 Hz. Such a
+batch keeps 6.4 MB of prepared worlds and 30 MB of bulk arrays for the next draw (:mod:`envs.sim.buffers`: 20%
+less CPU time per row than fresh arrays, measured at 16 rows). Longer episodes draw fewer rows ahead (600 s at
+100 Hz: none); their worlds cost mostly per sample, where a batch saves little."""
 
 
 class WorldsAhead:
