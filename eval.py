@@ -265,8 +265,8 @@ def main(argv=None) -> dict:
         raise
 
 
-def _main(argv=None) -> dict:
-    args = build_parser().parse_args(argv)
+def _check_run_args(args) -> None:
+    """One clear line (:func:`fail`) for a count, seed or backend argument out of its range."""
     if args.episodes is not None and args.episodes < 1:
         fail("--episodes must be >= 1")
     if args.batch_size < 1:
@@ -280,6 +280,11 @@ def _main(argv=None) -> dict:
         fail(str(e))
     if args.experiment and args.backend != "local":
         fail("--backend ray runs the paired comparison's batches; --experiment runs here only (drop --backend)")
+
+
+def _main(argv=None) -> dict:
+    args = build_parser().parse_args(argv)
+    _check_run_args(args)
     out = Path(args.out)
     if args.experiment:
         return run_experiment_cli(args, out)
