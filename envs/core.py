@@ -794,8 +794,11 @@ class TuningCore:
     def clone(self) -> "TuningCore":
         """An independent copy of the running batch (a snapshot to return to): every state is deep-copied,
         the world arrays and the other shared read-only attributes are shared with this core (nothing
-        writes them in place; :meth:`copy_rows` replaces an array instead of writing into it)."""
+        writes them in place; :meth:`copy_rows` replaces an array instead of writing into it). The caches of
+        world draws (``world_buffers``, ``worlds_ahead``) start empty in the copy instead of being copied."""
         memo = {id(getattr(self, n)): getattr(self, n) for n in self.WORLD_ARRAYS if hasattr(self, n)}
+        memo[id(self.world_buffers)] = WorldBuffers()
+        memo[id(self.worlds_ahead)] = WorldsAhead(self.config)
         for n in ("config", "specs", "scenario", "epoch_idx", "default_action", "_default_values", "frame_low",
                   "frame_high", "obs_low", "obs_high"):
             if hasattr(self, n):

@@ -149,3 +149,19 @@ def test_long_episodes_draw_fewer_rows_ahead(episode_s, rows):
     assert ahead.depth(1) == 1  # the first two draws after a restart: never ahead
     ahead._draws = 10
     assert ahead.depth(1) == rows and ahead.depth(2) == max(1, rows // 2)
+
+
+def test_a_cloned_core_starts_with_empty_world_caches_and_steps_the_same():
+    env = gym.make("GnssIns/SageHusa-v1", episode_length_s=EPISODE_S)
+    try:
+        _single_run(env, 6)
+        env.reset()  # the 7th reset: the world of the 8th is drawn ahead, in the core's caches
+        core = env.unwrapped.core
+        assert core.worlds_ahead._parts and core.worlds_ahead.buffers._arrays
+        twin = core.clone()
+        assert twin.worlds_ahead is not core.worlds_ahead and not twin.worlds_ahead._parts
+        assert not twin.world_buffers._arrays and twin.worlds_ahead.config is core.config
+        a = np.zeros((1, core.action_dim))
+        np.testing.assert_array_equal(core.step(a).obs, twin.step(a).obs)
+    finally:
+        env.close()
