@@ -10,8 +10,8 @@ Prints, in one run:
   its rows' new worlds, k = 2 from B = 20 on and 40 at B = 1 (:func:`e2e_episodes`), after the first episode
   untimed; no prefetch process; at B = 1 the env draws the worlds of its coming resets in batches of 16, as in
   any long loop, :mod:`envs.worlds_ahead`: the first 16 episodes untimed while the batches grow, the timed resets
-  pay for the batches, the last one's unused worlds included), beside the step-only figure of the same cell and the resets'
-  share of the end-to-end time, at B = 1 and 1024 (``--e2e-batches``), in the env default (fused) mode; and
+  pay for the batches, the last one's unused worlds included), beside the step-only figure of the same cell and
+  the resets' share of the end-to-end time, at B = 1 and 1024 (``--e2e-batches``), in the env default (fused) mode; and
   what the CPU allows: the resets' share of the CPU time, the cores busy on average, and the bound of
   :func:`cpu_bound` (the e2e rate if that CPU work kept every usable core busy);
 * env steps/s of the single env (``gym.make``, B = 1) and of the native vector env
@@ -221,9 +221,10 @@ def bench_end_to_end(method, B, episode_s, scenario, transition="fused", steps=N
     """End-to-end env-steps/s as a training loop pays it: resets included, no prefetch.
 
     After ``reset(seed=0)`` and the first episode untimed (M steps for M epochs per episode and the reset that
-    follows; the first 16 at B < 8, :func:`e2e_warmup_episodes`; :data:`E2E_WARMUP_STEPS` with ``steps`` given), ``steps`` steps with zero actions are timed (default
-    ``k M + 5``, k = :func:`e2e_episodes`: k automatic resets fall inside, each drawing its rows' new worlds; the
-    single env, B = 1, is reset by the loop when its episode ends, as a user's loop does).
+    follows; the first 16 at B < 8, :func:`e2e_warmup_episodes`; :data:`E2E_WARMUP_STEPS` with ``steps`` given),
+    ``steps`` steps with zero actions are timed (default ``k M + 5``, k = :func:`e2e_episodes`: k automatic resets
+    fall inside, each drawing its rows' new worlds; the single env, B = 1, is reset by the loop when its episode
+    ends, as a user's loop does).
     ``env_kwargs``: more env arguments; ``before_close(env)`` is called after the timed steps.
 
     Returns (env-steps/s = B x steps / wall time, the resets' share of that time, CPU ms per batched step, the

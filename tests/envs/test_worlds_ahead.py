@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import envs  # noqa: F401
+from envs.datasets.errors import shared_data_dir
 from envs.gnss_ins_env import make_config
 from envs.prepared import CHANNEL_ARRAY_NAMES, WORLD_ARRAY_NAMES, prepare_world
 from envs.worlds_ahead import WorldsAhead
@@ -165,3 +166,21 @@ def test_a_cloned_core_starts_with_empty_world_caches_and_steps_the_same():
         np.testing.assert_array_equal(core.step(a).obs, twin.step(a).obs)
     finally:
         env.close()
+
+
+@pytest.mark.skipif(not (shared_data_dir() / "smartloc" / "Berlin_Potsdamer_Platz_GT.txt").is_file(),
+                    reason="smartLoc data not found in ../shared/data (absent in a fresh clone; CI has it)")
+def test_a_replayed_recording_gives_the_same_episodes_with_worlds_drawn_ahead():
+    """A recording's rows differ only in their seeds' synthesized IMU and initial errors: a batch's part is the
+    world of its seed alone there too."""
+    kw = dict(scenario="smartloc-potsdamer-platz", episode_length_s=EPISODE_S)
+    plain, ahead = gym.make("GnssIns/SageHusa-v1", **kw), gym.make("GnssIns/SageHusa-v1", **kw)
+    plain.unwrapped.core.worlds_ahead.max_rows = 1
+    sizes = _count_draws(ahead.unwrapped.core.worlds_ahead)
+    try:
+        for x, y in zip(_single_run(plain, 8), _single_run(ahead, 8), strict=True):
+            np.testing.assert_array_equal(x, y)
+        assert sizes == [2, 4], sizes  # resets 3-4 and 5-8 drawn ahead
+    finally:
+        plain.close()
+        ahead.close()
