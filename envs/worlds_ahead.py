@@ -67,7 +67,7 @@ class WorldsAhead:
             scen = self.config.resolve_scenario()
             self._row_samples = max(1, int(scen.duration_s * scen.imu_rate_hz))
         rows = min(self.max_rows, AHEAD_SAMPLES // self._row_samples)
-        return max(1, min(2 ** (self._draws - 1), rows // max(int(n_rows), 1)))
+        return max(1, min(1 << min(self._draws - 1, 30), rows // max(int(n_rows), 1)))
 
     def take(self, seeds, coming) -> PreparedWorld | None:
         """The prepared world of a reset with ``seeds`` (one per row), or None where the caller should draw it
