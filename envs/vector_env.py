@@ -99,18 +99,17 @@ class GnssInsTuningVectorEnv(VectorEnv):
         return out
 
     def _reset_rows(self, rows):
-        """Reset ``rows`` with their next seeds (their prefetched world when it is ready), then ask the prefetch
-        for their coming worlds; returns the observations."""
+        """Reset ``rows`` with their next seeds: with a prefetch process, its world when it is ready, then ask it
+        for their coming worlds; without, the core draws their worlds (a few rows' in batches with those of their
+        coming resets, :class:`envs.worlds_ahead.WorldsAhead`). Returns the observations."""
         seeds = self._next_seeds(rows)
         pf = self._prefetch
-        if pf is None:  # few rows: their worlds drawn in batches with those of their coming resets
-            obs = self.core.reset_rows(rows, seeds, coming=lambda k: [self._coming_seeds(rows, j)
-                                                                      for j in range(1, k + 1)])
-        else:
-            obs = self.core.reset_rows(rows, seeds, prepared=pf.take(seeds))
-        if pf is not None:
-            while pf.request(self._coming_seeds(rows, pf.in_flight + 1)):
-                pass
+        if pf is None:
+            return self.core.reset_rows(rows, seeds, coming=lambda k: [self._coming_seeds(rows, j)
+                                                                       for j in range(1, k + 1)])
+        obs = self.core.reset_rows(rows, seeds, prepared=pf.take(seeds))
+        while pf.request(self._coming_seeds(rows, pf.in_flight + 1)):
+            pass
         return obs
 
     def _seed_rows(self, seed):
