@@ -12,16 +12,21 @@ The depth grows as resets keep continuing the same streams: after a ``reset(seed
 draw their own worlds (as without this module), then 2, 4, 8 ... resets' worlds are drawn together, up to
 :data:`AHEAD_ROWS` rows. A loop that reseeds every episode thus never draws ahead, and the worlds drawn and not
 used (a reset of another grouping of rows, or a reseed) are at most about as many as those used since the last
-reseed. It holds one batch at a time (:data:`AHEAD_SAMPLES`: ~36 MB per env at 60 s episodes, released by the
-env's ``close()``). The background process of :mod:`envs.prefetch` is the other way to take resets off the step
+reseed. Memory: each env holds the prepared worlds of one batch (:data:`AHEAD_SAMPLES`: up to 6.4 MB at 60 s
+episodes, released by its ``close()``); the bulk arrays a batch is drawn in (30 MB at 60 s) are kept for the next
+draw once per thread (:func:`shared_buffers`), not per env, so that a DummyVecEnv of n single envs (RL Zoo) keeps
+one set, not n. The background process of :mod:`envs.prefetch` is the other way to take resets off the step
 loop (only where a core is idle); a vector env uses one or the other.
 """
 from __future__ import annotations
 
+import threading
+import weakref
+
 from .prepared import PreparedWorld, prepared_from
 from .sim.buffers import WorldBuffers
 
-__all__ = ["AHEAD_ROWS", "AHEAD_SAMPLES", "WorldsAhead"]
+__all__ = ["AHEAD_ROWS", "AHEAD_SAMPLES", "WorldsAhead", "shared_buffers"]
 
 AHEAD_ROWS = 16
 """Most rows drawn in one batch ahead; resets of more than half as many rows draw their own worlds. Larger batches
@@ -30,9 +35,54 @@ cost somewhat less per row still (``bench_worlds.py --batches 1 16 64``) but hol
 
 AHEAD_SAMPLES = 96_000
 """Most IMU samples (rows x samples per row) drawn in one batch ahead: 16 rows of a 60 s episode at 100 Hz. Such a
-batch keeps 6.4 MB of prepared worlds and 30 MB of bulk arrays for the next draw (:mod:`envs.sim.buffers`: 20%
-less CPU time per row than fresh arrays, measured at 16 rows). Longer episodes draw fewer rows ahead (600 s at
-100 Hz: none); their worlds cost mostly per sample, where a batch saves little."""
+batch keeps 6.4 MB of prepared worlds, and its thread 30 MB of bulk arrays for the next draw
+(:func:`shared_buffers`, :mod:`envs.sim.buffers`: 20% less CPU time per row than fresh arrays, measured at 16
+rows). Longer episodes draw fewer rows ahead (600 s at 100 Hz: none); their worlds cost mostly per sample, where a
+batch saves little."""
+
+
+_THREAD = threading.local()
+
+
+class _SharedBuffers:
+    """One thread's :class:`~envs.sim.buffers.WorldBuffers` for the batches of every :class:`WorldsAhead` drawing
+    in it, and the ones that have drawn since they last released them (weak references: an env dropped without
+    ``close()`` leaves too)."""
+
+    def __init__(self):
+        self.buffers = WorldBuffers()
+        self.users = weakref.WeakSet()
+
+    def join(self, user) -> None:
+        if user not in self.users:
+            self.users.add(user)
+            weakref.finalize(user, self.release_if_unused)
+
+    def leave(self, user) -> None:
+        self.users.discard(user)
+        self.release_if_unused()
+
+    def release_if_unused(self) -> None:
+        if next(iter(self.users), None) is None:  # live users only (a collected one may not be discarded yet)
+            self.buffers.clear()
+
+
+def _pool() -> _SharedBuffers:
+    pool = getattr(_THREAD, "pool", None)
+    if pool is None:
+        pool = _THREAD.pool = _SharedBuffers()
+    return pool
+
+
+def shared_buffers() -> WorldBuffers:
+    """The bulk arrays of this thread's batches ahead (:class:`~envs.sim.buffers.WorldBuffers`, one per thread).
+
+    The envs of one thread draw their batches in turn, so one set serves them all: an array is handed out again only
+    when no world references it (:mod:`envs.sim.buffers`), so sharing changes no world. Envs in other threads draw
+    into their own thread's set. Released when the last env that drew in this thread releases its worlds ahead
+    (:meth:`WorldsAhead.clear`, the env's ``close()``).
+    """
+    return _pool().buffers
 
 
 class WorldsAhead:
@@ -48,7 +98,6 @@ class WorldsAhead:
     def __init__(self, config, max_rows: int = AHEAD_ROWS):
         self.config = config
         self.max_rows = int(max_rows)
-        self.buffers = WorldBuffers()  # reused once every part of the previous batch has been taken
         self._parts: dict = {}  # tuple of a reset's seeds -> its PreparedWorld (views into the batch)
         self._draws = 0  # draws since the last restart (the depth grows with them)
         self._row_samples = None  # IMU samples per row of the config's worlds (read at the first draw)
@@ -89,13 +138,18 @@ class WorldsAhead:
         groups = [list(key)] + [[int(s) for s in g] for g in coming(k - 1)]
         if len(groups) != k or any(len(g) != len(key) for g in groups):
             raise ValueError(f"coming({k - 1}) must give {k - 1} lists of {len(key)} seeds")
-        batch = prepared_from(self.config.make_world([s for g in groups for s in g], buffers=self.buffers))
+        pool = _pool()
+        pool.join(self)
+        batch = prepared_from(self.config.make_world([s for g in groups for s in g], buffers=pool.buffers))
         n = len(key)
         for j, g in enumerate(groups[1:], start=1):
             self._parts[tuple(g)] = batch.rows(j * n, (j + 1) * n)
         return batch.rows(0, n)
 
     def clear(self) -> None:
-        """Release the worlds drawn ahead and the buffers."""
+        """Release the worlds drawn ahead; the last user of this thread's bulk arrays releases them too
+        (:func:`shared_buffers`)."""
         self._parts.clear()
-        self.buffers.clear()
+        pool = getattr(_THREAD, "pool", None)
+        if pool is not None:
+            pool.leave(self)

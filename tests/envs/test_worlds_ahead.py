@@ -2,6 +2,9 @@
 a small vector env give the same episodes, bit for bit, with it and without it (``max_rows = 1``), across resets
 with and without a seed; the parts of a batch equal the worlds of their seeds drawn alone; the depth grows only
 while the streams go on."""
+import gc
+import threading
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -10,13 +13,14 @@ import envs  # noqa: F401
 from envs.datasets.errors import shared_data_dir
 from envs.gnss_ins_env import make_config
 from envs.prepared import CHANNEL_ARRAY_NAMES, WORLD_ARRAY_NAMES, prepare_world
-from envs.worlds_ahead import WorldsAhead
+from envs.worlds_ahead import WorldsAhead, shared_buffers
 
 EPISODE_S = 3.0  # 3 steps per episode
 
 
-def _count_draws(ahead):
-    """Wrap the world draws of ``ahead``'s config: returns the list of each draw's batch size."""
+def _count_draws(ahead, buffers_seen=None):
+    """Wrap the world draws of ``ahead``'s config: returns the list of each draw's batch size (and appends the
+    buffers each draw was given to ``buffers_seen``)."""
     sizes = []
     config = ahead.config
     make = config.make_world
@@ -27,10 +31,31 @@ def _count_draws(ahead):
 
         def make_world(self, seeds, buffers=None):
             sizes.append(len(seeds))
+            if buffers_seen is not None:
+                buffers_seen.append(buffers)
             return make(seeds, buffers=buffers)
 
     ahead.config = Counting()
     return sizes
+
+
+def _in_thread(fn):
+    """``fn()`` run in a new thread (a thread of its own: its own shared bulk arrays); returns its result or raises
+    its exception."""
+    out = {}
+
+    def run():
+        try:
+            out["result"] = fn()
+        except BaseException as e:  # noqa: BLE001 - handed to the caller
+            out["error"] = e
+
+    t = threading.Thread(target=run)
+    t.start()
+    t.join()
+    if "error" in out:
+        raise out["error"]
+    return out["result"]
 
 
 def _single_run(env, episodes, reseed=None):
@@ -65,6 +90,58 @@ def test_the_single_env_gives_the_same_episodes_with_worlds_drawn_ahead(env_id):
     finally:
         plain.close()
         ahead.close()
+
+
+def test_single_envs_of_one_thread_draw_into_one_set_of_bulk_arrays_and_give_the_same_episodes():
+    """A DummyVecEnv of single envs (RL Zoo): their batches share this thread's bulk arrays (one set, not one per env)
+    and each env's episodes, interleaved with the other's, equal its episodes alone; the last ``close()`` releases
+    the arrays."""
+    def run():
+        plain = gym.make("GnssIns/SageHusa-v1", episode_length_s=EPISODE_S)
+        plain.unwrapped.core.worlds_ahead.max_rows = 1
+        pair = [gym.make("GnssIns/SageHusa-v1", episode_length_s=EPISODE_S) for _ in range(2)]
+        seen = []
+        sizes = [_count_draws(e.unwrapped.core.worlds_ahead, seen) for e in pair]
+        alone = _single_run(plain, 8)
+        plain.close()
+        a = np.zeros(pair[0].action_space.shape, np.float32)
+        runs = [[], []]
+        for ep in range(8):
+            for e, out in zip(pair, runs):  # episode by episode, in turn
+                obs, info = e.reset(seed=7 if ep == 0 else None)
+                out += [obs, np.array([info["seed"]])]
+                done = False
+                while not done:
+                    obs, rew, term, trunc, _ = e.step(a)
+                    out += [obs, np.array([rew])]
+                    done = term or trunc
+        for out in runs:
+            for x, y in zip(alone, out, strict=True):
+                np.testing.assert_array_equal(x, y)
+        assert sizes == [[2, 4], [2, 4]], sizes
+        assert len(seen) == 4 and all(b is shared_buffers() for b in seen)
+        held = shared_buffers().nbytes
+        pair[0].close()
+        kept = shared_buffers().nbytes
+        pair[1].close()
+        return held, kept, shared_buffers().nbytes, shared_buffers()
+
+    held, kept, left, theirs = _in_thread(run)
+    assert held > 0 and kept == held and left == 0
+    assert theirs is not shared_buffers()  # another thread, another set
+
+
+def test_an_env_dropped_without_close_releases_the_shared_bulk_arrays():
+    def run():
+        env = gym.make("GnssIns/SageHusa-v1", episode_length_s=EPISODE_S)
+        _single_run(env, 6)
+        held = shared_buffers().nbytes
+        del env
+        gc.collect()
+        return held, shared_buffers().nbytes
+
+    held, left = _in_thread(run)
+    assert held > 0 and left == 0
 
 
 def test_a_loop_that_reseeds_every_episode_never_draws_ahead():
@@ -158,7 +235,7 @@ def test_a_cloned_core_starts_with_empty_world_caches_and_steps_the_same():
         _single_run(env, 6)
         env.reset()  # the 7th reset: the world of the 8th is drawn ahead, in the core's caches
         core = env.unwrapped.core
-        assert core.worlds_ahead._parts and core.worlds_ahead.buffers._arrays
+        assert core.worlds_ahead._parts and shared_buffers().nbytes
         twin = core.clone()
         assert twin.worlds_ahead is not core.worlds_ahead and not twin.worlds_ahead._parts
         assert not twin.world_buffers._arrays and twin.worlds_ahead.config is core.config
