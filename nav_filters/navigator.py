@@ -360,8 +360,9 @@ class Navigator:
         AdaptiveLaw.direct_epoch` its compiled epoch, so the results are the same bits (test:
         ``tests/nav_filters/test_direct_epoch.py``) without the Python of the layers in between, which took
         most of a single env's step. It runs where every precondition holds: a fused law with a compiled epoch
-        ready for it (:meth:`~nav_filters.adaptive.base.AdaptiveLaw.direct_epoch_ready`), the averaged
-        transition with samples pending, float64, fewer rows than
+        ready for it (:meth:`~nav_filters.adaptive.base.AdaptiveLaw.direct_epoch_ready`) or the fused ``kf``
+        itself (:meth:`~nav_filters.forms.kf.KalmanFilter.direct_epoch`: its time update, then its fused update),
+        the averaged transition with samples pending, float64, fewer rows than
         :data:`~nav_filters.kernels.PARALLEL_MIN_BATCH` (the kernels run serially here) and inputs of the
         expected shapes (an ``extra`` block: a tuple of float64 arrays with (B, m_e) variances). Anything else,
         and a row whose state is not finite or an input the general sequence rejects (it raises the error naming
@@ -418,7 +419,7 @@ class Navigator:
          H_o, R_o, *no_extra) = scratch[1]
         if not me:
             e_dz, e_H, e_R, e_mask = no_extra
-        inner_P = np.ascontiguousarray(form.inner.P, f8)
+        inner_P = np.ascontiguousarray(getattr(form, "inner", form).P, f8)  # a law's inner kf, or the kf itself
         if _gnss_epoch_inputs(self.r, self.v, self.C, self.clk, self.drift, self.diverged, sp, sv, pr, prr, ps, prs,
                               mask_in, sk.astype(np.int64, copy=False), with_rate, self._F_int, self._Qc_int, inner_P,
                               SERIES_ORDER, F_NONZERO, e_dz, e_H, e_R, e_mask, bad, mask, pr_var, prr_var, dz, H, R,

@@ -279,6 +279,21 @@ class KalmanFilter(FilterForm):
         n_used = mask.sum(-1)
         return UpdateResult(nis=nis, n_used=n_used, innovation=r, innovation_var=Sd, applied=n_used > 0)
 
+    def direct_epoch_ready(self) -> bool:
+        """Whether :meth:`direct_epoch` can run the next update (the navigator's compiled GNSS epoch,
+        :meth:`~nav_filters.navigator.Navigator._direct_gnss_epoch`): the fused path on, this class itself."""
+        return self.fused and type(self) is KalmanFilter
+
+    def direct_epoch(self, Phi, Q, prior, dz, H, R, mask, keys) -> UpdateResult:
+        """:meth:`take_prediction` ``(Phi, Q)`` then :meth:`update` ``(dz, H, R, mask)`` on a measurement the caller
+        prepared (:func:`~nav_filters.forms.base.prepare_measurement`'s arrays, R (B, m, m)): the same steps on the
+        same arrays, without the layers in between (the adaptive laws' :meth:`~nav_filters.adaptive.base.
+        AdaptiveLaw.direct_epoch` contract; ``prior`` and ``keys`` are not used). Where some row's ``S`` is not
+        positive definite it raises ``LinAlgError`` after the time update, as :meth:`update` would after
+        :meth:`predict`."""
+        self.predict(Phi, Q)
+        return self._update(dz, H, R, mask)
+
     def _predicted_update(self, Phi, Q, dz, H, R, mask, fade=None, prior=None):
         """Fused path (:func:`fused_update`: one kernel, nothing committed when it raises); else the generic
         predict-then-update of :meth:`FilterForm._predicted_update`."""

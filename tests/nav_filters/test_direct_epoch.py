@@ -57,12 +57,26 @@ def _run(w, method, epochs=8, poison=None, rate=True, extra=None, **config):
     return nav, out
 
 
+def _form_state(form):
+    """Every array of a law and its inner form, or of a plain form."""
+    if hasattr(form, "inner"):
+        return _state(form)
+    return {k: v for k, v in vars(form).items() if isinstance(v, np.ndarray)}
+
+
+def _poison_covariance(nav, row=1):
+    """Row ``row``'s covariance made negative definite (its next update's S is not positive definite)."""
+    form = getattr(nav.form, "inner", nav.form)
+    form.P = form.P.copy()
+    form.P[row] = -1e6 * np.eye(N_STATES)
+
+
 def _assert_same(a, b):
     nav_a, out_a = a
     nav_b, out_b = b
     for name in ("r", "v", "C", "clk", "drift", "bg", "ba", "diverged", "divergence_code", "time_since_update"):
         np.testing.assert_array_equal(getattr(nav_a, name), getattr(nav_b, name), err_msg=name)
-    sa, sb = _state(nav_a.form), _state(nav_b.form)
+    sa, sb = _form_state(nav_a.form), _form_state(nav_b.form)
     assert sa.keys() == sb.keys()
     for name in sa:
         np.testing.assert_array_equal(sa[name], sb[name], err_msg=name)
@@ -71,7 +85,7 @@ def _assert_same(a, b):
             np.testing.assert_array_equal(x, y)
 
 
-@pytest.mark.parametrize("method", ["sage-husa", "stkf", "ma-stkf", "sage-husa+onestep"])
+@pytest.mark.parametrize("method", ["sage-husa", "stkf", "ma-stkf", "sage-husa+onestep", "kf", "kf+onestep"])
 def test_compiled_epoch_is_the_general_sequence_bit_for_bit(world, monkeypatch, method):
     count = _counting(monkeypatch)
     fast = _run(world, method, **FAST)
@@ -100,7 +114,7 @@ def _aiding(nav, j):
     return block
 
 
-@pytest.mark.parametrize("method", ["sage-husa", "stkf", "ma-stkf"])
+@pytest.mark.parametrize("method", ["sage-husa", "stkf", "ma-stkf", "kf"])
 def test_compiled_epoch_with_extra_rows_is_the_general_sequence(world, monkeypatch, method):
     """Constraint rows stacked after the GNSS rows (odometer + NHC, ZUPT): the compiled epoch stacks them as
     ``stack_measurements`` does, the same bits."""
@@ -113,10 +127,7 @@ def test_compiled_epoch_with_extra_rows_is_the_general_sequence(world, monkeypat
 
 def test_extra_rows_of_a_parked_row_are_left_out_as_in_the_general_sequence(world, monkeypatch):
     """Row 1 fails at epoch 3 and is parked: its constraint rows are not used afterwards, on either path."""
-    def poison(nav):
-        nav.form.inner.P = nav.form.inner.P.copy()
-        nav.form.inner.P[1] = -1e6 * np.eye(N_STATES)
-
+    poison = _poison_covariance
     count = _counting(monkeypatch)
     general = []
     orig = Navigator._update_checked
@@ -162,29 +173,29 @@ def test_a_non_finite_extra_row_raises_the_general_sequences_error(world):
     np.testing.assert_array_equal(nav.form.inner.P, before[1])
 
 
-@pytest.mark.parametrize("method,config", [("kf", FAST), ("sage-husa", dict(exact_transition=False)),
+@pytest.mark.parametrize("method,config", [("svd-kf", FAST), ("kf-huber", FAST), ("kf", dict(exact_transition=False)),
+                                           ("sage-husa", dict(exact_transition=False)),
                                            ("sage-husa", dict(fused_update=True)),
                                            ("sage-husa", dict(FAST, dtype="float32"))])
 def test_general_sequence_where_a_precondition_fails(world, monkeypatch, method, config):
-    """A plain form, an unfused law, the exact composition, float32: nothing to hand the compiled epoch."""
+    """A plain form other than kf, a robust screen, an unfused kf or law, the exact composition, float32: nothing
+    to hand the compiled epoch."""
     count = _counting(monkeypatch)
     _run(world, method, epochs=3, **config)
     assert count == {"hits": 0, "misses": 3}
 
 
-def test_a_failing_update_is_isolated_as_in_the_general_sequence(world, monkeypatch):
+@pytest.mark.parametrize("method", ["sage-husa", "kf"])
+def test_a_failing_update_is_isolated_as_in_the_general_sequence(world, monkeypatch, method):
     """Row 1's covariance made negative definite: the compiled epoch's S is not positive definite, the law keeps
-    the epoch open and the general update flags and parks row 1 alone, as the general sequence does."""
-    def poison(nav):
-        nav.form.inner.P = nav.form.inner.P.copy()
-        nav.form.inner.P[1] = -1e6 * np.eye(N_STATES)
-
+    the epoch open (the kf keeps its time update, as after ``predict``) and the general update flags and parks row
+    1 alone, as the general sequence does."""
     count = _counting(monkeypatch)
-    fast = _run(world, "sage-husa", poison=poison, **FAST)
+    fast = _run(world, method, poison=_poison_covariance, **FAST)
     assert count["hits"] == 8  # the failing epoch runs on the compiled path and recovers through the general update
     assert fast[0].divergence_code.tolist() == [0, REASON_UPDATE, 0]
     _general(monkeypatch)
-    _assert_same(fast, _run(world, "sage-husa", poison=poison, **FAST))
+    _assert_same(fast, _run(world, method, poison=_poison_covariance, **FAST))
 
 
 def test_a_non_finite_state_leaves_the_epoch_to_the_general_sequence(world, monkeypatch):
