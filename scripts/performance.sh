@@ -29,6 +29,8 @@ else
     "benchmarks/bench_robust.py --batches 1 1024 --steps 20"
     # world generation per row (what a reset pays), by stage, with the cores busy in each
     "benchmarks/bench_worlds.py --batches 1 1024 --cores"
+    # resident memory of a single env, a DummyVecEnv of single envs and the native vector env
+    "benchmarks/bench_memory.py --layouts single dummy-16 vector-64 --episodes 10"
   )
 fi
 
