@@ -977,9 +977,10 @@ def _node_rows(args, U: int, n: int, ia, gm, workers: int | None = None) -> None
                                                int(np.searchsorted(gm, u0 * n))), U, workers)
 
 
-def _evaluate(pc: _Pieces, t, grav, linear_gravity: bool, dtype, buffers=None) -> dict:
-    """All outputs of the U rows of ``pc`` on the grid ``t`` (N,): a dict of (U, N, ...) arrays of :class:`Truth`
-    (from ``buffers``, :class:`envs.sim.buffers.WorldBuffers`, when given).
+def _evaluate(pc: _Pieces, t, grav, linear_gravity: bool, out: dict, workers: int | None = None) -> None:
+    """Write all outputs of the U rows of ``pc`` on the grid ``t`` (N,) into ``out``, the (U, N, ...) arrays of
+    :class:`Truth` by name (C-contiguous rows; :func:`_truth_outputs`); ``workers``: the node pass's threads
+    (:func:`_node_rows`).
 
     States and instantaneous IMU at the grid nodes; IMU means over the intervals ``(t_{k-1}, t_k]`` by
     Simpson's rule on each smooth sub-interval:
@@ -994,11 +995,6 @@ def _evaluate(pc: _Pieces, t, grav, linear_gravity: bool, dtype, buffers=None) -
     n = t.shape[0]
     U = pc.C_eL.shape[0]
     pl = pc.pl
-    out = {
-        key: empty(buffers, f"truth.{key}", (U, n) + tail, bool if key == "engine_on" else dtype)
-        for key, tail in (("r_e", (3,)), ("v_e", (3,)), ("C_eb", (3, 3)), ("f_b", (3,)), ("w_b", (3,)),
-                          ("speed", ()), ("heading", ()), ("pitch", ()), ("engine_on", ()))
-    }
     starts, cnt, pn = _grid_pieces(pc, t)
     arcs = np.flatnonzero((pl.kind != _STRAIGHT) & (cnt > 0))
     c = cnt[arcs]
@@ -1012,7 +1008,7 @@ def _evaluate(pc: _Pieces, t, grav, linear_gravity: bool, dtype, buffers=None) -
     dtk = np.diff(t)
     node_args = ((t, dtk, pn, arc_c, arc_s, mid_c, mid_s, not linear_gravity, pc, *grav, out["r_e"], out["v_e"],
                   out["C_eb"], out["speed"], out["heading"], out["pitch"], out["engine_on"], out["f_b"], out["w_b"]),
-                 U, n, ia, gm)
+                 U, n, ia, gm, workers)
     if ia.size and U >= OVERLAP_ROWS:   # the node pass (off the arcs' states) beside the arcs' states (numpy)
         with ThreadPoolExecutor(max_workers=1) as ex:
             pending = ex.submit(_node_rows, *node_args)
@@ -1023,7 +1019,46 @@ def _evaluate(pc: _Pieces, t, grav, linear_gravity: bool, dtype, buffers=None) -
         if ia.size:
             _arc_node_states(pc, ia, pa, ka, out)
     _split_means(pc, t, dtk, starts, pn, grav, linear_gravity, out)
-    return out
+
+
+_TRUTH_FIELDS = (("r_e", (3,)), ("v_e", (3,)), ("C_eb", (3, 3)), ("f_b", (3,)), ("w_b", (3,)), ("speed", ()),
+                 ("heading", ()), ("pitch", ()), ("engine_on", ()))
+
+
+def _truth_outputs(U: int, n: int, dtype, buffers=None) -> dict:
+    """The (U, n, ...) output arrays of :class:`Truth` by name (from ``buffers``, :class:`envs.sim.buffers.
+    WorldBuffers`, when given)."""
+    return {key: empty(buffers, f"truth.{key}", (U, n) + tail, bool if key == "engine_on" else dtype)
+            for key, tail in _TRUTH_FIELDS}
+
+
+TRUTH_RANGE_ROWS = 64
+"""Fewest rows per range of :func:`generate_truth`'s row ranges on threads (from twice as many rows on): each range
+runs the stage's numpy part (the pieces, the exact gravity on the anchor grid, the arc nodes' states) on its own
+rows, so the threads overlap where numpy releases the GIL; a range pays the stage's fixed Python costs once."""
+
+
+def _truth_rows(motions: Sequence[Motion], t, rate: float, out: dict, workers: int | None = None) -> None:
+    """The truth of ``motions`` (U distinct motions) on the grid ``t`` (N,) at ``rate`` [Hz] into ``out``
+    (:func:`_truth_outputs` of U rows, or rows of it): each row depends only on its motion."""
+    n = t.shape[0]
+    U = len(motions)
+    lat0 = np.array([m.lat0_deg for m in motions]) * DEG
+    lon0 = np.array([m.lon0_deg for m in motions]) * DEG
+    h0 = np.array([m.h0_m for m in motions])
+    C_eL = C_en(lat0, lon0)                                        # (U, 3, 3)
+    r0 = geodetic_to_ecef(lat0, lon0, h0)                          # (U, 3)
+    wL = np.einsum("uji,j->ui", C_eL, OMEGA_IE_E)                  # C_Le omega_ie_e, (U, 3); east = 0
+
+    pc = _pieces([m._plan for m in motions], C_eL, r0, wL)
+
+    # exact gravity on the anchor grid, one batched call
+    ta, h, on_nodes = _anchor_grid(n, rate)
+    pa = _positions(pc.pl, np.tile(ta, U), _grid_pieces(pc, ta)[2]).reshape(U, ta.shape[0], 3)
+    ga_e = gravity_ecef(pa @ C_eL.mT + r0[:, None, :])            # r_e = r0 + C_eL p_L
+    ga_L = (ga_e @ C_eL).mT.copy()                                 # (U, 3, A): C_Le g_e
+    dga_L = np.diff(ga_L, axis=-1)
+    _evaluate(pc, t, (ga_L, dga_L, 1.0 / h), on_nodes, out, workers)
 
 
 def _check_dtype(dtype):
@@ -1070,6 +1105,10 @@ def generate_truth(motions: Sequence[Motion], duration_s: float, imu_rate_hz: fl
     buffers : :class:`envs.sim.buffers.WorldBuffers` or None: the output arrays come from it (reused from an
         earlier draw that nobody holds any more). The values do not depend on it.
 
+    From ``2 TRUTH_RANGE_ROWS`` distinct motions on, the rows run in ranges on threads
+    (:func:`~envs.sim.row_threads.run_row_ranges`, :data:`TRUTH_RANGE_ROWS`): each row depends only on its
+    motion, so the same bits.
+
     Returns
     -------
     Truth
@@ -1102,23 +1141,15 @@ def generate_truth(motions: Sequence[Motion], duration_s: float, imu_rate_hz: fl
     row_of = [uniq.setdefault(m, len(uniq)) for m in motions]
     ums = list(uniq)
     U = len(ums)
+    out = _truth_outputs(U, n, dtype, buffers)
+    if U < 2 * TRUTH_RANGE_ROWS:
+        _truth_rows(ums, t, rate, out)
+    else:   # row ranges on threads (each range's node pass on one thread beside it): the same bits
+        run_row_ranges(lambda u0, u1: _truth_rows(ums[u0:u1], t, rate, {k: a[u0:u1] for k, a in out.items()}, 1),
+                       U, min_rows=TRUTH_RANGE_ROWS)
     lat0 = np.array([m.lat0_deg for m in ums]) * DEG
     lon0 = np.array([m.lon0_deg for m in ums]) * DEG
     h0 = np.array([m.h0_m for m in ums])
-    C_eL = C_en(lat0, lon0)                                        # (U, 3, 3)
-    r0 = geodetic_to_ecef(lat0, lon0, h0)                          # (U, 3)
-    wL = np.einsum("uji,j->ui", C_eL, OMEGA_IE_E)                  # C_Le omega_ie_e, (U, 3); east = 0
-
-    pc = _pieces([m._plan for m in ums], C_eL, r0, wL)
-
-    # exact gravity on the anchor grid, one batched call
-    ta, h, on_nodes = _anchor_grid(n, rate)
-    pa = _positions(pc.pl, np.tile(ta, U), _grid_pieces(pc, ta)[2]).reshape(U, ta.shape[0], 3)
-    ga_e = gravity_ecef(pa @ C_eL.mT + r0[:, None, :])            # r_e = r0 + C_eL p_L
-    ga_L = (ga_e @ C_eL).mT.copy()                                 # (U, 3, A): C_Le g_e
-    dga_L = np.diff(ga_L, axis=-1)
-
-    out = _evaluate(pc, t, (ga_L, dga_L, 1.0 / h), on_nodes, dtype, buffers)
     idx = np.array(row_of)
     if not np.array_equal(idx, np.arange(B)):                     # copy the rows of equal motions
         out = {key: val[idx] for key, val in out.items()}

@@ -248,6 +248,39 @@ def test_rows_on_threads_equal_single_runs(rate):
             np.testing.assert_array_equal(getattr(tb, name)[b], getattr(t1, name)[0], err_msg=f"row {b} {name}")
 
 
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_row_ranges_of_the_stage_equal_one_pass(monkeypatch, dtype):
+    """From 2 TRUTH_RANGE_ROWS rows on, generate_truth runs its rows in ranges on threads (each range the whole
+    stage): 40 rows of mixed drives and a duplicated motion, in ranges of 8 rows on 3 threads, equal one pass over
+    all rows, bit for bit, also into reused buffers."""
+    from envs.sim import trajectory
+    from envs.sim.buffers import WorldBuffers
+    rngs = row_generators(list(range(200, 239)), "trajectory")
+    styles = ("urban", "open", "highway")
+    ms = [random_drive(g, 30.0, styles[i % 3]) for i, g in enumerate(rngs)] + [OFF_GRID]
+    ms[5] = ms[30]  # equal motions are evaluated once, then copied
+    ranges = []
+    inner = trajectory.run_row_ranges
+
+    def spy(fn, n_rows, workers=None, min_rows=8):
+        if workers is not None:  # a range's node pass (on one thread)
+            return inner(fn, n_rows, workers, min_rows)
+        return inner(lambda u0, u1: ranges.append((u0, u1)) or fn(u0, u1), n_rows, 3, min_rows)
+
+    monkeypatch.setattr(trajectory, "TRUTH_RANGE_ROWS", 10 ** 9)
+    one = generate_truth(ms, 30.0, 13.7, dtype=dtype)
+    monkeypatch.setattr(trajectory, "TRUTH_RANGE_ROWS", 8)
+    monkeypatch.setattr(trajectory, "run_row_ranges", spy)
+    buffers = WorldBuffers()
+    for _ in range(2):
+        split = generate_truth(ms, 30.0, 13.7, dtype=dtype, buffers=buffers)
+        for name in ("r_e", "v_e", "C_eb", "f_b", "w_b", "speed", "heading", "pitch", "engine_on", "lat0", "h0"):
+            np.testing.assert_array_equal(getattr(split, name), getattr(one, name), err_msg=name)
+        del split
+    # 39 distinct motions in 4 ranges of at least 8 rows, twice
+    assert sorted(ranges) == [(0, 9), (0, 9), (9, 19), (9, 19), (19, 29), (19, 29), (29, 39), (29, 39)]
+
+
 def test_float32_is_float64_rounded_once():
     t64 = generate_truth([ON_GRID, OFF_GRID], 20.0, 50.0)
     t32 = generate_truth([ON_GRID, OFF_GRID], 20.0, 50.0, dtype=np.float32)
