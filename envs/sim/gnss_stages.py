@@ -451,44 +451,65 @@ def channel_noise(t, ch: Channels, sat: SatelliteEvents, events) -> ChannelNoise
                         code_mult=noise_mult, doppler_mult=noise_mult_prr)
 
 
+RECEIVER_RANGE_ROWS = 32
+"""Fewest rows per range of :func:`receiver_errors`'s row ranges on threads (from twice as many rows on)."""
+
+
 def receiver_errors(t, ch: Channels, noise: ChannelNoise, sat: SatelliteEvents, receiver, subs,
                     buffers=None) -> ReceiverErrors:
     """Stage 8: the receiver clock, the residual troposphere (one Gauss-Markov process per row) and ionosphere
     (one per satellite), the white code and Doppler noise, the reported sigmas (nominal, or the receiver's
     :attr:`~envs.sim.receiver.ReceiverConfig.sigma_model`, times the mismatch factors) and the true variances
     (the module docstring of :mod:`envs.sim.gnss`), from the rows' clock, troposphere, ionosphere, code and
-    Doppler streams. The per-channel arithmetic runs in a compiled row kernel on threads
-    (:func:`~envs.sim.error_kernels.receiver_tail_rows`); its (B, M, C) outputs and variates come from
-    ``buffers`` (:class:`envs.sim.buffers.WorldBuffers`) when given."""
+    Doppler streams. The rows run in ranges on threads (:func:`_receiver_rows`, from 2
+    :data:`RECEIVER_RANGE_ROWS` rows on; each row depends only on its own streams and channels: the same bits);
+    the (B, M, C) outputs and variates come from ``buffers`` (:class:`envs.sim.buffers.WorldBuffers`) when
+    given."""
     M = t.size
-    el, mask = ch.el, ch.mask
-    B, C = mask.shape[0], mask.shape[-1]
-    S = sat.visible.shape[-1]
-    bias_m, drift_mps = simulate_clock(t, [s[_SUB_CLOCK] for s in subs], receiver.clock)
-    s_el = np.sin(np.maximum(el, _MIN_EL_SIGMA))
-    m_t, f_i = tropo_mapping(el), iono_obliquity(el)
-    # the Gauss-Markov processes of all rows in one call each (time axis first; columns are independent)
-    tropo_z = _gauss_markov(t, receiver.tropo_tau_s, receiver.tropo_zenith_sigma_m,
-                            np.ascontiguousarray(row_normals(subs, _SUB_TROPO, (M,)).T)).T
-    iono_sat = _gauss_markov(t, receiver.iono_tau_s, receiver.iono_zenith_sigma_m,   # one process per satellite
-                             np.ascontiguousarray(row_normals(subs, _SUB_IONO, (M, S)).transpose(1, 0, 2)))
-    iono_ch = ch.gather(iono_sat.transpose(1, 0, 2))
-    del iono_sat
+    B, C = ch.mask.shape[0], ch.mask.shape[-1]
     shape = (B, M, C)
-    code_z = row_normals(subs, _SUB_CODE, (M, C), out=empty(buffers, "gnss.code_z", shape, np.float64))
-    rate_z = row_normals(subs, _SUB_RATE, (M, C), out=empty(buffers, "gnss.rate_z", shape, np.float64))
+    draws = (empty(buffers, "gnss.code_z", shape, np.float64), empty(buffers, "gnss.rate_z", shape, np.float64))
     out = [empty(buffers, f"gnss.{name}", shape, np.float64)
            for name in ("pr_err", "prr_err", "pr_sigma", "prr_sigma", "pr_var_true", "prr_var_true")]
+    clock = (np.empty((B, M)), np.empty((B, M)))
+    run_row_ranges(lambda r0, r1: _receiver_rows(r0, r1, t, ch, noise, sat, receiver, subs, draws, clock, out), B,
+                   min_rows=RECEIVER_RANGE_ROWS)
+    return ReceiverErrors(*clock, *out)
+
+
+def _receiver_rows(r0: int, r1: int, t, ch: Channels, noise: ChannelNoise, sat: SatelliteEvents, receiver, subs,
+                   draws, clock, out) -> None:
+    """:func:`receiver_errors` of rows ``r0 .. r1-1``, into rows ``r0 .. r1-1`` of ``draws`` (the code and rate
+    variates, (B, M, C)), ``clock`` (bias and drift, (B, M)) and ``out`` (the six (B, M, C) outputs); the
+    per-channel arithmetic in the compiled :func:`~envs.sim.error_kernels.receiver_tail_rows`."""
+    sl = slice(r0, r1)
+    M = t.size
+    S = sat.visible.shape[-1]
+    C = ch.mask.shape[-1]
+    rows = subs[r0:r1]
+    el = ch.el[sl]
+    clock[0][sl], clock[1][sl] = simulate_clock(t, [s[_SUB_CLOCK] for s in rows], receiver.clock)
+    s_el = np.sin(np.maximum(el, _MIN_EL_SIGMA))
+    m_t, f_i = tropo_mapping(el), iono_obliquity(el)
+    # the Gauss-Markov processes of the rows in one call each (time axis first; columns are independent)
+    tropo_z = _gauss_markov(t, receiver.tropo_tau_s, receiver.tropo_zenith_sigma_m,
+                            np.ascontiguousarray(row_normals(rows, _SUB_TROPO, (M,)).T)).T
+    iono_sat = _gauss_markov(t, receiver.iono_tau_s, receiver.iono_zenith_sigma_m,   # one process per satellite
+                             np.ascontiguousarray(row_normals(rows, _SUB_IONO, (M, S)).transpose(1, 0, 2)))
+    iono_ch = np.take(iono_sat.transpose(1, 0, 2), ch.flat_sel[sl] - r0 * M * S)  # Channels.gather of the rows
+    del iono_sat
+    code_z = row_normals(rows, _SUB_CODE, (M, C), out=draws[0][sl])
+    rate_z = row_normals(rows, _SUB_RATE, (M, C), out=draws[1][sl])
+    part = [o[sl] for o in out]
     nominal = receiver.sigma_model.name == "receiver"
     if not nominal:                                          # a variance model replaces the nominal sigma
         with np.errstate(over="ignore"):
-            np.sqrt(receiver.sigma_model.variance(el, ch.cn0), out=out[2])
+            np.sqrt(receiver.sigma_model.variance(el, ch.cn0[sl]), out=part[2])
     rep = sat.code_rep is not None                           # the reported-sigma mismatch
     no_rep = np.ones((1, 1))
-    code_rep, doppler_rep = (sat.code_rep, sat.doppler_rep) if rep else (no_rep, no_rep)
-    run_row_ranges(lambda r0, r1: receiver_tail_rows(
-        r0, r1, m_t, f_i, tropo_z, iono_ch, s_el, noise.pr_bias, noise.prr_bias, noise.code_mult, noise.doppler_mult,
-        code_z, rate_z, mask, float(receiver.pr_sigma_m), float(receiver.prr_sigma_mps),
+    code_rep, doppler_rep = (sat.code_rep[sl], sat.doppler_rep[sl]) if rep else (no_rep, no_rep)
+    receiver_tail_rows(
+        0, r1 - r0, m_t, f_i, tropo_z, iono_ch, s_el, noise.pr_bias[sl], noise.prr_bias[sl], noise.code_mult[sl],
+        noise.doppler_mult[sl], code_z, rate_z, ch.mask[sl], float(receiver.pr_sigma_m), float(receiver.prr_sigma_mps),
         float(receiver.tropo_zenith_sigma_m), float(receiver.iono_zenith_sigma_m), nominal, code_rep, doppler_rep,
-        rep, *out), B)
-    return ReceiverErrors(bias_m, drift_mps, *out)
+        rep, *part)

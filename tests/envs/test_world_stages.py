@@ -141,6 +141,35 @@ def test_channel_noise_and_receiver_errors_contract(monkeypatch):
     assert {f.name for f in fields(err)} >= {"pr_err", "prr_err", "pr_var_true"}
 
 
+@pytest.mark.parametrize("name,sigma_model", [("noise-mismatch", None), ("urban", "elevation-cn0")])
+def test_receiver_errors_in_row_ranges_equal_one_pass(name, sigma_model, monkeypatch):
+    """receiver_errors runs its rows in ranges on threads (from 2 RECEIVER_RANGE_ROWS rows on): in ranges of 2 rows
+    (on 3 threads) it gives what one pass over the 7 rows gives, bit for bit, with the reported-sigma mismatch and
+    with a variance sigma model."""
+    from envs.sim import gnss_stages
+    from envs.sim.row_threads import run_row_ranges
+    from envs.sim.sigma_models import SigmaModel
+    args, _ = _gnss_inputs(name, list(range(20, 27)), monkeypatch, duration_s=40.0)
+    if sigma_model is not None:
+        args = args[:5] + (replace(args[5], sigma_model=SigmaModel(sigma_model)),) + args[6:]
+    t, rec = np.asarray(args[0], np.float64), args[5]
+    monkeypatch.setattr(gnss_stages, "RECEIVER_RANGE_ROWS", 10 ** 9)
+    s = _run_stages(args)
+    one = s["err"]
+    ranges = []
+    monkeypatch.setattr(gnss_stages, "RECEIVER_RANGE_ROWS", 2)
+    monkeypatch.setattr(gnss_stages, "run_row_ranges",
+                        lambda fn, n, workers=None, min_rows=8: run_row_ranges(
+                            lambda r0, r1: ranges.append((r0, r1)) or fn(r0, r1), n, 3, min_rows))
+    subs = [st._row_children(g) for g in row_generators(list(range(20, 27)), "gnss")]  # its streams, fresh
+    split = st.receiver_errors(t, s["ch"], s["noise"], s["sat"], rec, subs)
+    assert sorted(ranges) == [(0, 2), (2, 4), (4, 7)]
+    for f in fields(one):
+        np.testing.assert_array_equal(getattr(split, f.name), getattr(one, f.name), err_msg=f.name)
+    assert sigma_model is None or not np.array_equal(one.pr_sigma, _run_stages(_gnss_inputs(name, list(
+        range(20, 27)), monkeypatch, duration_s=40.0)[0])["err"].pr_sigma)  # the model changed the sigmas
+
+
 def test_imu_sensor_specs_and_sensor_row_contract():
     """_sensor_specs: the per-sample white sigma ARW / sqrt(dt); _sensor_row: an error-free sensor passes the
     sensed motion through, a constant bias is added as it is (and reported as no time-varying bias), the
