@@ -363,33 +363,60 @@ def scheduled_events(t, sat: SatelliteEvents, events) -> None:
         sat.reacq = ev.reacquisition_multiplier(t, sat.visible, events.reacquisition)
 
 
+CHANNEL_RANGE_ROWS = 32
+"""Fewest rows per range of :func:`allocate_channels`'s row ranges on threads (from twice as many rows on)."""
+
+
 def allocate_channels(sky: Sky, visible, n_channels: int, subs, t=None, cn0_cfg=None) -> Channels:
     """Stage 5: the visible satellites on the C channels by elevation, descending (stable), and each channel's
     C/N0: :func:`envs.sim.events.cn0_los` plus the jitter, drawn per satellite from the row's C/N0 stream, or,
     with ``cn0_cfg`` (:class:`envs.sim.events.Cn0Scatter`, epochs ``t`` (M,) [s]), its scatter
-    (:func:`envs.sim.events.cn0_scatter`, from the row's C/N0-scatter stream) and NLOS deficit."""
+    (:func:`envs.sim.events.cn0_scatter`, from the row's C/N0-scatter stream) and NLOS deficit. The rows run in
+    ranges on threads (:func:`_channel_rows`, from 2 :data:`CHANNEL_RANGE_ROWS` rows on: the same bits)."""
     B, M, S = sky.el.shape
     C = n_channels
-    key = np.where(visible, sky.el, -np.inf)
-    order = np.argsort(-key, axis=-1, kind="stable")
-    if C <= S:
-        sel = order[..., :C].copy()
-    else:
-        sel = np.concatenate([order, np.zeros((B, M, C - S), dtype=order.dtype)], axis=-1)
-    # one flat index into (B, M, S) arrays serves every gather (one np.take instead of take_along_axis)
-    flat_sel = sel + (S * np.arange(B * M)).reshape(B, M, 1)
-    ch = Channels(sel=sel, mask=np.take(visible, flat_sel), el=np.take(sky.el, flat_sel),
-                  az=np.take(sky.az, flat_sel), cn0=None, flat_sel=flat_sel)
-    if C > S:
-        ch.mask[..., S:] = False
-    if cn0_cfg is None:
-        cn0_z = row_normals(subs, _SUB_CN0, (M, S))                                # C/N0 jitter, per satellite
-        ch.cn0 = ev.cn0_los(ch.el) + CN0_JITTER_DB * ch.gather(cn0_z)
-        return ch
-    draws = [ev.cn0_scatter(t, S, C, cn0_cfg, s[_SUB_CN0_SCATTER]) for s in subs]
-    ch.cn0 = ev.cn0_los(ch.el) + ch.gather(np.stack([d[0] for d in draws])) + np.stack([d[2] for d in draws])
-    ch.nlos_deficit = ch.gather(np.stack([d[1] for d in draws]))
+    e = np.empty
+    ch = Channels(sel=e((B, M, C), np.intp), mask=e((B, M, C), bool), el=e((B, M, C)), az=e((B, M, C)),
+                  cn0=e((B, M, C)), flat_sel=e((B, M, C), np.int64),
+                  nlos_deficit=None if cn0_cfg is None else e((B, M, C)))
+    scatter = None
+    if cn0_cfg is not None:  # drawn row by row in Python, here: on threads they would only wait for the GIL
+        draws = [ev.cn0_scatter(t, S, C, cn0_cfg, s[_SUB_CN0_SCATTER]) for s in subs]
+        scatter = tuple(np.stack([d[i] for d in draws]) for i in range(3))
+    run_row_ranges(lambda r0, r1: _channel_rows(r0, r1, sky, visible, subs, scatter, ch), B,
+                   min_rows=CHANNEL_RANGE_ROWS)
     return ch
+
+
+def _channel_rows(r0: int, r1: int, sky: Sky, visible, subs, scatter, ch: Channels) -> None:
+    """:func:`allocate_channels` of rows ``r0 .. r1-1`` into those rows of ``ch``'s arrays (``scatter``: the
+    stacked :func:`~envs.sim.events.cn0_scatter` draws of every row, or None for the C/N0 jitter)."""
+    sl = slice(r0, r1)
+    _, M, S = sky.el.shape
+    C = ch.sel.shape[-1]
+    key = np.where(visible[sl], sky.el[sl], -np.inf)
+    order = np.argsort(-key, axis=-1, kind="stable")
+    sel = ch.sel[sl]
+    if C <= S:
+        sel[...] = order[..., :C]
+    else:
+        sel[..., :S] = order
+        sel[..., S:] = 0
+    # one flat index into (B, M, S) arrays serves every gather (one np.take instead of take_along_axis)
+    flat_sel = ch.flat_sel[sl]
+    flat_sel[...] = sel + (S * np.arange(r0 * M, r1 * M)).reshape(r1 - r0, M, 1)
+    local = flat_sel - r0 * M * S  # the same into these rows' (r1 - r0, M, S) arrays
+    ch.mask[sl] = np.take(visible[sl], local)
+    ch.el[sl] = np.take(sky.el[sl], local)
+    ch.az[sl] = np.take(sky.az[sl], local)
+    if C > S:
+        ch.mask[sl, ..., S:] = False
+    if scatter is None:
+        cn0_z = row_normals(subs[r0:r1], _SUB_CN0, (M, S))                         # C/N0 jitter, per satellite
+        ch.cn0[sl] = ev.cn0_los(ch.el[sl]) + CN0_JITTER_DB * np.take(cn0_z, local)
+        return
+    ch.cn0[sl] = ev.cn0_los(ch.el[sl]) + np.take(scatter[0][sl], local) + scatter[2][sl]
+    ch.nlos_deficit[sl] = np.take(scatter[1][sl], local)
 
 
 def channel_ranging(r_e, v_e, sky: Sky, ch: Channels, constellation: Constellation, buffers=None) -> Ranging:

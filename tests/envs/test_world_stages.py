@@ -170,6 +170,45 @@ def test_receiver_errors_in_row_ranges_equal_one_pass(name, sigma_model, monkeyp
         range(20, 27)), monkeypatch, duration_s=40.0)[0])["err"].pr_sigma)  # the model changed the sigmas
 
 
+@pytest.mark.parametrize("name,extra_channels", [("urban-smartloc", 0), ("urban", 3)])
+def test_channel_allocation_in_row_ranges_equals_one_pass(name, extra_channels, monkeypatch):
+    """allocate_channels runs its rows in ranges on threads (from 2 CHANNEL_RANGE_ROWS rows on): in ranges of 2 rows
+    it gives what one pass over the 7 rows gives, bit for bit, with the C/N0 scatter and with more channels than
+    satellites (padding channels)."""
+    from envs.sim import gnss_stages
+    from envs.sim.row_threads import run_row_ranges
+    seeds = list(range(30, 37))
+    args, _ = _gnss_inputs(name, seeds, monkeypatch, duration_s=30.0)
+    t, r_e, v_e, heading, con, rec, events = np.asarray(args[0], np.float64), *args[1:7]
+    sky = st.sky_geometry(t, r_e, con, [st._row_children(g) for g in row_generators(seeds, "gnss")])
+    sat = st.canyon_and_bursts(t, v_e, heading, sky, rec.elevation_mask_deg, events,
+                               [st._row_children(g) for g in row_generators(seeds, "gnss")])
+    C = con.n_sats + extra_channels if extra_channels else rec.n_channels
+
+    def channels():
+        subs = [st._row_children(g) for g in row_generators(seeds, "gnss")]
+        return st.allocate_channels(sky, sat.visible, C, subs, t, events.cn0)
+
+    monkeypatch.setattr(gnss_stages, "CHANNEL_RANGE_ROWS", 10 ** 9)
+    one = channels()
+    ranges = []
+    monkeypatch.setattr(gnss_stages, "CHANNEL_RANGE_ROWS", 2)
+    monkeypatch.setattr(gnss_stages, "run_row_ranges",
+                        lambda fn, n, workers=None, min_rows=8: run_row_ranges(
+                            lambda r0, r1: ranges.append((r0, r1)) or fn(r0, r1), n, 3, min_rows))
+    split = channels()
+    assert sorted(ranges) == [(0, 2), (2, 4), (4, 7)]
+    assert (one.nlos_deficit is None) == (events.cn0 is None)
+    for f in fields(one):
+        a, b = getattr(split, f.name), getattr(one, f.name)
+        if b is None:
+            assert a is None, f.name
+        else:
+            assert a.dtype == b.dtype, f.name
+            np.testing.assert_array_equal(a, b, err_msg=f.name)
+    assert not extra_channels or not one.mask[..., con.n_sats:].any()
+
+
 def test_imu_sensor_specs_and_sensor_row_contract():
     """_sensor_specs: the per-sample white sigma ARW / sqrt(dt); _sensor_row: an error-free sensor passes the
     sensed motion through, a constant bias is added as it is (and reported as no time-varying bias), the
