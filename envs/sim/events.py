@@ -59,7 +59,7 @@ from .receiver import _gauss_markov
 __all__ = [
     "OUTAGE", "NOISE", "MISMATCH", "NLOS_ZONE", "OVERPASS", "IMU_EVENT", "REACQUISITION", "REGIME", "TREES",
     "ROUGH_ROAD", "EVENT_BITS", "RandomBursts", "SigmaMismatch", "NoiseRegime", "NoiseRegimes", "UrbanZones",
-    "Reacquisition", "Cn0Scatter", "cn0_scatter", "cn0_los", "nlos_probability", "draw_bursts", "draw_mismatch", "draw_regimes",
+    "Reacquisition", "Cn0Scatter", "cn0_scatter", "cn0_scatter_draws", "cn0_scatter_rows", "cn0_los", "nlos_probability", "draw_bursts", "draw_mismatch", "draw_regimes",
     "draw_zone_schedule", "reacquisition_multiplier", "zone_effects", "regime_nlos", "nlos_bias", "ZONE_OPEN", "ZONE_CANYON", "ZONE_TREES", "ZONE_OVERPASS",
 ]
 
@@ -518,6 +518,32 @@ def cn0_scatter(t, S: int, C: int, cfg: Cn0Scatter, g: np.random.Generator):
                                                   g.standard_normal((M, S)))
     white = cfg.white_sigma_db * g.standard_normal((M, C))
     return offset[None, :] + gm, deficit, white
+
+
+def cn0_scatter_draws(M: int, S: int, C: int) -> int:
+    """The normals :func:`cn0_scatter` draws for one row (M epochs, S satellites, C channels), in its order."""
+    return S + 2 * M * S + M * C
+
+
+def cn0_scatter_rows(t, S: int, C: int, cfg: Cn0Scatter, z: np.ndarray):
+    """:func:`cn0_scatter` of B rows at once from their normals ``z`` (B, :func:`cn0_scatter_draws`), each row's in
+    its draw order (what its generator's ``standard_normal`` calls give, one after the other, e.g.
+    :func:`envs.sim.rng.row_normals`): the same operations elementwise, the Gauss-Markov processes in one call
+    over every row's columns, so the same numbers as row by row.
+
+    Returns
+    -------
+    los_db : (B, M, S); deficit_db : (B, M, S); white_db : (B, M, C) [dB], as :func:`cn0_scatter` per row.
+    """
+    M = t.size
+    B = z.shape[0]
+    k = (S, S + M * S, S + 2 * M * S)
+    offset = cfg.offset_sigma_db * z[:, :k[0]]
+    gm = _gauss_markov(t, cfg.gm_tau_s, cfg.gm_sigma_db, z[:, k[0]:k[1]].reshape(B, M, S).transpose(1, 0, 2))
+    deficit = cfg.nlos_deficit_db + _gauss_markov(t, cfg.gm_tau_s, cfg.nlos_deficit_sigma_db,
+                                                  z[:, k[1]:k[2]].reshape(B, M, S).transpose(1, 0, 2))
+    white = cfg.white_sigma_db * z[:, k[2]:].reshape(B, M, C)
+    return offset[:, None, :] + gm.transpose(1, 0, 2), deficit.transpose(1, 0, 2), white
 
 
 def draw_bursts(t: np.ndarray, cfg: RandomBursts, g: np.random.Generator):

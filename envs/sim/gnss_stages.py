@@ -379,18 +379,15 @@ def allocate_channels(sky: Sky, visible, n_channels: int, subs, t=None, cn0_cfg=
     ch = Channels(sel=e((B, M, C), np.intp), mask=e((B, M, C), bool), el=e((B, M, C)), az=e((B, M, C)),
                   cn0=e((B, M, C)), flat_sel=e((B, M, C), np.int64),
                   nlos_deficit=None if cn0_cfg is None else e((B, M, C)))
-    scatter = None
-    if cn0_cfg is not None:  # drawn row by row in Python, here: on threads they would only wait for the GIL
-        draws = [ev.cn0_scatter(t, S, C, cn0_cfg, s[_SUB_CN0_SCATTER]) for s in subs]
-        scatter = tuple(np.stack([d[i] for d in draws]) for i in range(3))
-    run_row_ranges(lambda r0, r1: _channel_rows(r0, r1, sky, visible, subs, scatter, ch), B,
+    run_row_ranges(lambda r0, r1: _channel_rows(r0, r1, sky, visible, subs, t, cn0_cfg, ch), B,
                    min_rows=CHANNEL_RANGE_ROWS)
     return ch
 
 
-def _channel_rows(r0: int, r1: int, sky: Sky, visible, subs, scatter, ch: Channels) -> None:
-    """:func:`allocate_channels` of rows ``r0 .. r1-1`` into those rows of ``ch``'s arrays (``scatter``: the
-    stacked :func:`~envs.sim.events.cn0_scatter` draws of every row, or None for the C/N0 jitter)."""
+def _channel_rows(r0: int, r1: int, sky: Sky, visible, subs, t, cn0_cfg, ch: Channels) -> None:
+    """:func:`allocate_channels` of rows ``r0 .. r1-1`` into those rows of ``ch``'s arrays (the C/N0 scatter of
+    ``cn0_cfg`` by :func:`~envs.sim.events.cn0_scatter_rows` from the rows' scatter streams, the numbers
+    :func:`~envs.sim.events.cn0_scatter` draws row by row)."""
     sl = slice(r0, r1)
     _, M, S = sky.el.shape
     C = ch.sel.shape[-1]
@@ -411,12 +408,14 @@ def _channel_rows(r0: int, r1: int, sky: Sky, visible, subs, scatter, ch: Channe
     ch.az[sl] = np.take(sky.az[sl], local)
     if C > S:
         ch.mask[sl, ..., S:] = False
-    if scatter is None:
+    if cn0_cfg is None:
         cn0_z = row_normals(subs[r0:r1], _SUB_CN0, (M, S))                         # C/N0 jitter, per satellite
         ch.cn0[sl] = ev.cn0_los(ch.el[sl]) + CN0_JITTER_DB * np.take(cn0_z, local)
         return
-    ch.cn0[sl] = ev.cn0_los(ch.el[sl]) + np.take(scatter[0][sl], local) + scatter[2][sl]
-    ch.nlos_deficit[sl] = np.take(scatter[1][sl], local)
+    z = row_normals(subs[r0:r1], _SUB_CN0_SCATTER, (ev.cn0_scatter_draws(M, S, C),))
+    los, deficit, white = ev.cn0_scatter_rows(t, S, C, cn0_cfg, z)
+    ch.cn0[sl] = ev.cn0_los(ch.el[sl]) + np.take(los, local) + white
+    ch.nlos_deficit[sl] = np.take(deficit, local)
 
 
 def channel_ranging(r_e, v_e, sky: Sky, ch: Channels, constellation: Constellation, buffers=None) -> Ranging:
