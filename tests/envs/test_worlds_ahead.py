@@ -58,19 +58,24 @@ def _in_thread(fn):
     return out["result"]
 
 
+def _episode(env, seed):
+    """One zero-action episode after ``env.reset(seed=seed)``: its observations, world seed and rewards."""
+    a = np.zeros(env.action_space.shape, np.float32)
+    obs, info = env.reset(seed=seed)
+    out = [obs, np.array([info["seed"]])]
+    done = False
+    while not done:
+        obs, rew, term, trunc, _ = env.step(a)
+        out += [obs, np.array([rew])]
+        done = term or trunc
+    return out
+
+
 def _single_run(env, episodes, reseed=None):
     """Zero-action episodes; ``reseed``: reset with this seed (+ episode) every episode, else once."""
     out = []
-    a = np.zeros(env.action_space.shape, np.float32)
     for ep in range(episodes):
-        seed = 7 if ep == 0 else (None if reseed is None else reseed + ep)
-        obs, info = env.reset(seed=seed)
-        out += [obs, np.array([info["seed"]])]
-        done = False
-        while not done:
-            obs, rew, term, trunc, _ = env.step(a)
-            out += [obs, np.array([rew])]
-            done = term or trunc
+        out += _episode(env, 7 if ep == 0 else (None if reseed is None else reseed + ep))
     return out
 
 
@@ -104,17 +109,10 @@ def test_single_envs_of_one_thread_draw_into_one_set_of_bulk_arrays_and_give_the
         sizes = [_count_draws(e.unwrapped.core.worlds_ahead, seen) for e in pair]
         alone = _single_run(plain, 8)
         plain.close()
-        a = np.zeros(pair[0].action_space.shape, np.float32)
         runs = [[], []]
         for ep in range(8):
             for e, out in zip(pair, runs):  # episode by episode, in turn
-                obs, info = e.reset(seed=7 if ep == 0 else None)
-                out += [obs, np.array([info["seed"]])]
-                done = False
-                while not done:
-                    obs, rew, term, trunc, _ = e.step(a)
-                    out += [obs, np.array([rew])]
-                    done = term or trunc
+                out += _episode(e, 7 if ep == 0 else None)
         for out in runs:
             for x, y in zip(alone, out, strict=True):
                 np.testing.assert_array_equal(x, y)
