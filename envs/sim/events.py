@@ -511,13 +511,9 @@ def cn0_scatter(t, S: int, C: int, cfg: Cn0Scatter, g: np.random.Generator):
     los_db : (M, S) per-satellite offset + Gauss-Markov part [dB]; deficit_db : (M, S) NLOS loss [dB];
     white_db : (M, C) per-channel white part [dB].
     """
-    M = t.size
-    offset = cfg.offset_sigma_db * g.standard_normal(S)
-    gm = _gauss_markov(t, cfg.gm_tau_s, cfg.gm_sigma_db, g.standard_normal((M, S)))
-    deficit = cfg.nlos_deficit_db + _gauss_markov(t, cfg.gm_tau_s, cfg.nlos_deficit_sigma_db,
-                                                  g.standard_normal((M, S)))
-    white = cfg.white_sigma_db * g.standard_normal((M, C))
-    return offset[None, :] + gm, deficit, white
+    z = g.standard_normal((1, cn0_scatter_draws(t.size, S, C)))  # the four draws in one call: the same numbers
+    los, deficit, white = cn0_scatter_rows(t, S, C, cfg, z)
+    return los[0], deficit[0], white[0]
 
 
 def cn0_scatter_draws(M: int, S: int, C: int) -> int:
@@ -527,9 +523,9 @@ def cn0_scatter_draws(M: int, S: int, C: int) -> int:
 
 def cn0_scatter_rows(t, S: int, C: int, cfg: Cn0Scatter, z: np.ndarray):
     """:func:`cn0_scatter` of B rows at once from their normals ``z`` (B, :func:`cn0_scatter_draws`), each row's in
-    its draw order (what its generator's ``standard_normal`` calls give, one after the other, e.g.
-    :func:`envs.sim.rng.row_normals`): the same operations elementwise, the Gauss-Markov processes in one call
-    over every row's columns, so the same numbers as row by row.
+    its draw order (what its generator's ``standard_normal`` gives, e.g. :func:`envs.sim.rng.row_normals`): offset
+    ``offset_sigma_db z``, the Gauss-Markov processes (:func:`~envs.sim.receiver._gauss_markov`, one call over
+    every row's columns), the white part ``white_sigma_db z``.
 
     Returns
     -------

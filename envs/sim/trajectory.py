@@ -1038,14 +1038,13 @@ runs the stage's numpy part (the pieces, the exact gravity on the anchor grid, t
 rows, so the threads overlap where numpy releases the GIL; a range pays the stage's fixed Python costs once."""
 
 
-def _truth_rows(motions: Sequence[Motion], t, rate: float, out: dict, workers: int | None = None) -> None:
-    """The truth of ``motions`` (U distinct motions) on the grid ``t`` (N,) at ``rate`` [Hz] into ``out``
-    (:func:`_truth_outputs` of U rows, or rows of it): each row depends only on its motion."""
+def _truth_rows(motions: Sequence[Motion], lat0, lon0, h0, t, rate: float, out: dict,
+                workers: int | None = None) -> None:
+    """The truth of ``motions`` (U distinct motions, their start points ``lat0``, ``lon0`` [rad], ``h0`` [m] (U,))
+    on the grid ``t`` (N,) at ``rate`` [Hz] into ``out`` (:func:`_truth_outputs` of U rows, or rows of it): each
+    row depends only on its motion."""
     n = t.shape[0]
     U = len(motions)
-    lat0 = np.array([m.lat0_deg for m in motions]) * DEG
-    lon0 = np.array([m.lon0_deg for m in motions]) * DEG
-    h0 = np.array([m.h0_m for m in motions])
     C_eL = C_en(lat0, lon0)                                        # (U, 3, 3)
     r0 = geodetic_to_ecef(lat0, lon0, h0)                          # (U, 3)
     wL = np.einsum("uji,j->ui", C_eL, OMEGA_IE_E)                  # C_Le omega_ie_e, (U, 3); east = 0
@@ -1141,15 +1140,16 @@ def generate_truth(motions: Sequence[Motion], duration_s: float, imu_rate_hz: fl
     row_of = [uniq.setdefault(m, len(uniq)) for m in motions]
     ums = list(uniq)
     U = len(ums)
-    out = _truth_outputs(U, n, dtype, buffers)
-    if U < 2 * TRUTH_RANGE_ROWS:
-        _truth_rows(ums, t, rate, out)
-    else:   # row ranges on threads (each range's node pass on one thread beside it): the same bits
-        run_row_ranges(lambda u0, u1: _truth_rows(ums[u0:u1], t, rate, {k: a[u0:u1] for k, a in out.items()}, 1),
-                       U, min_rows=TRUTH_RANGE_ROWS)
     lat0 = np.array([m.lat0_deg for m in ums]) * DEG
     lon0 = np.array([m.lon0_deg for m in ums]) * DEG
     h0 = np.array([m.h0_m for m in ums])
+    out = _truth_outputs(U, n, dtype, buffers)
+    if U < 2 * TRUTH_RANGE_ROWS:
+        _truth_rows(ums, lat0, lon0, h0, t, rate, out)
+    else:   # row ranges on threads (each range's node pass on one thread beside it): the same bits
+        run_row_ranges(lambda u0, u1: _truth_rows(ums[u0:u1], lat0[u0:u1], lon0[u0:u1], h0[u0:u1], t, rate,
+                                                  {k: a[u0:u1] for k, a in out.items()}, 1),
+                       U, min_rows=TRUTH_RANGE_ROWS)
     idx = np.array(row_of)
     if not np.array_equal(idx, np.arange(B)):                     # copy the rows of equal motions
         out = {key: val[idx] for key, val in out.items()}

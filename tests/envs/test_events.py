@@ -522,20 +522,33 @@ def test_cn0_scatter_and_zone_calibration_fields_are_validated():
         GnssEvents(cn0=3.0)
 
 
+def _scatter_by_its_draws(t, S, C, cfg, g):
+    """The C/N0 scatter of one row as its docstring draws it: four standard_normal calls, one per part."""
+    from envs.sim.receiver import _gauss_markov
+    M = t.size
+    offset = cfg.offset_sigma_db * g.standard_normal(S)
+    gm = _gauss_markov(t, cfg.gm_tau_s, cfg.gm_sigma_db, g.standard_normal((M, S)))
+    deficit = cfg.nlos_deficit_db + _gauss_markov(t, cfg.gm_tau_s, cfg.nlos_deficit_sigma_db,
+                                                  g.standard_normal((M, S)))
+    return offset[None, :] + gm, deficit, cfg.white_sigma_db * g.standard_normal((M, C))
+
+
 def test_cn0_scatter_of_many_rows_is_the_scatter_row_by_row():
-    """cn0_scatter_rows from each row's normals drawn in one call (row_normals) gives what cn0_scatter gives row by
-    row from the same streams, bit for bit (also at one epoch and with more channels than satellites)."""
+    """cn0_scatter_rows from each row's normals drawn in one call (row_normals) gives the scatter of each row drawn
+    part by part from the same stream, bit for bit, and so does cn0_scatter (also at one epoch and with more
+    channels than satellites)."""
     from envs.sim.rng import ChildStreams, row_normals
     cfg = ev.Cn0Scatter()
     for M, S, C in ((40, 9, 6), (1, 5, 8)):
         t = np.arange(float(M)) * 0.5
-        rows = [ChildStreams([7 + b, 3], 2) for b in range(4)]
-        ref = [ev.cn0_scatter(t, S, C, cfg, r[1]) for r in rows]
+        ref = [_scatter_by_its_draws(t, S, C, cfg, ChildStreams([7 + b, 3], 2)[1]) for b in range(4)]
+        one = [ev.cn0_scatter(t, S, C, cfg, ChildStreams([7 + b, 3], 2)[1]) for b in range(4)]
         z = row_normals([ChildStreams([7 + b, 3], 2) for b in range(4)], 1, (ev.cn0_scatter_draws(M, S, C),))
         got = ev.cn0_scatter_rows(t, S, C, cfg, z)
         for i, name in enumerate(("los", "deficit", "white")):
             assert got[i].shape == (4,) + ref[0][i].shape, name
             np.testing.assert_array_equal(got[i], np.stack([r[i] for r in ref]), err_msg=name)
+            np.testing.assert_array_equal(np.stack([r[i] for r in one]), got[i], err_msg=name)
 
 
 def test_cn0_scatter_draws_its_model():
