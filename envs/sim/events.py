@@ -60,7 +60,9 @@ __all__ = [
     "OUTAGE", "NOISE", "MISMATCH", "NLOS_ZONE", "OVERPASS", "IMU_EVENT", "REACQUISITION", "REGIME", "TREES",
     "ROUGH_ROAD", "EVENT_BITS", "RandomBursts", "SigmaMismatch", "NoiseRegime", "NoiseRegimes", "UrbanZones",
     "Reacquisition", "Cn0Scatter", "cn0_scatter", "cn0_scatter_draws", "cn0_scatter_rows", "cn0_los",
-    "nlos_probability", "draw_bursts", "draw_mismatch", "draw_regimes", "draw_zone_schedule", "reacquisition_multiplier", "zone_effects", "regime_nlos", "nlos_bias", "ZONE_OPEN", "ZONE_CANYON", "ZONE_TREES", "ZONE_OVERPASS",
+    "nlos_probability", "draw_bursts", "draw_mismatch", "draw_regimes", "draw_zone_schedule",
+    "reacquisition_multiplier", "zone_effects", "regime_nlos", "nlos_bias", "ZONE_OPEN", "ZONE_CANYON", "ZONE_TREES",
+    "ZONE_OVERPASS",
 ]
 
 OUTAGE, NOISE, MISMATCH, NLOS_ZONE, OVERPASS, IMU_EVENT, REACQUISITION, REGIME, TREES, ROUGH_ROAD = (
