@@ -419,11 +419,13 @@ class Navigator:
          H_o, R_o, *no_extra) = scratch[1]
         if not me:
             e_dz, e_H, e_R, e_mask = no_extra
-        inner_P = np.ascontiguousarray(getattr(form, "inner", form).P, f8)  # a law's inner kf, or the kf itself
+        with_prior = hasattr(form, "inner")  # a law reads the prior of its inner kf; the plain kf predicts itself
+        inner_P = np.ascontiguousarray(getattr(form, "inner", form).P, f8)
         if _gnss_epoch_inputs(self.r, self.v, self.C, self.clk, self.drift, self.diverged, sp, sv, pr, prr, ps, prs,
                               mask_in, sk.astype(np.int64, copy=False), with_rate, self._F_int, self._Qc_int, inner_P,
-                              SERIES_ORDER, F_NONZERO, e_dz, e_H, e_R, e_mask, bad, mask, pr_var, prr_var, dz, H, R,
-                              gnss_mask, u, dz_s, H_s, R_s, row_mask, keys, Phi, Q, prior, dz_o, H_o, R_o, ok):
+                              with_prior, SERIES_ORDER, F_NONZERO, e_dz, e_H, e_R, e_mask, bad, mask, pr_var, prr_var,
+                              dz, H, R, gnss_mask, u, dz_s, H_s, R_s, row_mask, keys, Phi, Q, prior, dz_o, H_o, R_o,
+                              ok):
             return None
         if self.onestep:  # seed 001's summed noise (flush_prediction)
             Q = self._Qc_int
@@ -644,8 +646,9 @@ def _nonfinite_rows(r, v, C, clk, drift, diverged, bad):
 
 @nb.njit(cache=True)
 def _gnss_epoch_inputs(r, v, C, clk, drift, diverged, sat_pos, sat_vel, pr, prr, pr_sigma, prr_sigma, mask_in, sat_keys,
-                       with_rate, F_int, Qc_int, P, order, nz, e_dz, e_H, e_R, e_mask, bad, mask, pr_var, prr_var,
-                       dz, H, R, gnss_mask, u, dz_s, H_s, R_s, row_mask, keys, Phi, Q, prior, dz_o, H_o, R_o, ok):
+                       with_rate, F_int, Qc_int, P, with_prior, order, nz, e_dz, e_H, e_R, e_mask, bad, mask, pr_var,
+                       prr_var, dz, H, R, gnss_mask, u, dz_s, H_s, R_s, row_mask, keys, Phi, Q, prior, dz_o, H_o, R_o,
+                       ok):
     """The inputs of a GNSS epoch's update (:meth:`Navigator._direct_gnss_epoch`), by the kernels the general
     sequence of :meth:`Navigator.update_gnss` runs, serially, in one call: :func:`_nonfinite_rows` (``bad``),
     ``mask = mask_in & ~diverged``, the variances ``pr_var = pr_sigma^2``, ``prr_var = prr_sigma^2``, the
@@ -656,8 +659,9 @@ def _gnss_epoch_inputs(r, v, C, clk, drift, diverged, sat_pos, sat_vel, pr, prr,
     averaged transition of the pending samples
     (:func:`~nav_filters.averaged_transition._averaged_transition_into`: ``Phi``, ``Q`` from ``F_int``,
     ``Qc_int``), the prepared measurement (:func:`~nav_filters.forms.base._prepare_rows`: ``dz_o``, ``H_o``,
-    ``R_o`` (B, m, m)) and the law's prior ``sym(Phi P Phi^T)`` of the inner covariance ``P``
-    (:func:`~nav_filters.forms.kf._prior_rows`).
+    ``R_o`` (B, m, m)) and, with ``with_prior`` (an adaptive law, which reads it), the law's prior
+    ``sym(Phi P Phi^T)`` of the inner covariance ``P`` (:func:`~nav_filters.forms.kf._prior_rows`; the plain ``kf``
+    forms its own in its predict).
 
     Returns 0, or where the general sequence must run instead (no state was changed): 1 a live row's nominal
     state is not finite, 2 a satellite key out of range, 3 a used measurement row not finite or a variance not
@@ -684,7 +688,8 @@ def _gnss_epoch_inputs(r, v, C, clk, drift, diverged, sat_pos, sat_vel, pr, prr,
     if not ok[0]:
         return 3
     _averaged_serial(F_int, Qc_int, Phi, Q, order, nz, 1)
-    _prior_serial(Phi, P, prior, 1)
+    if with_prior:
+        _prior_serial(Phi, P, prior, 1)
     return 0
 
 

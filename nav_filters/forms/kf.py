@@ -288,7 +288,8 @@ class KalmanFilter(FilterForm):
         """:meth:`take_prediction` ``(Phi, Q)`` then :meth:`update` ``(dz, H, R, mask)`` on a measurement the caller
         prepared (:func:`~nav_filters.forms.base.prepare_measurement`'s arrays, R (B, m, m)): the same steps on the
         same arrays, without the layers in between (the adaptive laws' :meth:`~nav_filters.adaptive.base.
-        AdaptiveLaw.direct_epoch` contract; ``prior`` and ``keys`` are not used). Where some row's ``S`` is not
+        AdaptiveLaw.direct_epoch` contract; ``prior``, which the navigator does not form for the kf, and ``keys`` are
+        not used). Where some row's ``S`` is not
         positive definite it raises ``LinAlgError`` after the time update, as :meth:`update` would after
         :meth:`predict`."""
         self.predict(Phi, Q)
