@@ -151,13 +151,12 @@ def _bidiagonalize(X, nr, d, f, wk):
 
 
 @nb.njit(cache=True, error_model="numpy")
-def _right_vectors(X, nr, Vt, Mv, wk):
+def _right_vectors(X, nr, Vt, W, Mv, wk):
     """``Vt = V_B^T`` (rows the columns of ``V_B = H_0 H_1 ... H_(nc-3)``) from the right reflections that
     :func:`_bidiagonalize` left in ``X`` and ``wk``: ``V_B`` accumulated backwards in ``Mv`` (>= nc, >= nc) as row
-    operations (``Mv <- H_k Mv``: ``Mv[i] -= c u_i (u^T Mv)``), then transposed into ``Vt`` (nc, W >= nc), whose
+    operations (``Mv <- H_k Mv``: ``Mv[i] -= c u_i (u^T Mv)``), then transposed into ``Vt[:, :W]`` (nc <= W), whose
     padding columns are set to zero."""
     nc = X.shape[0]
-    W = Vt.shape[1]
     for i in range(nc):
         for j in range(nc):
             Mv[i, j] = 0.0
@@ -173,15 +172,15 @@ def _right_vectors(X, nr, Vt, Mv, wk):
 
 
 @nb.njit(cache=True, error_model="numpy")
-def _bidiagonal_qr(d, f, Vt, eps):
+def _bidiagonal_qr(d, f, Vt, W, eps):
     """Diagonalize the upper bidiagonal ``(d, f)`` of :func:`_bidiagonalize` by implicit-shift QR steps (Golub &
     Reinsch 1970; Golub & Van Loan alg. 8.6.1-8.6.2): the right rotations are applied to the rows of ``Vt``, the
-    left ones are dropped. A superdiagonal entry below ``eps`` times its neighbours on the diagonal splits the matrix
-    (the relative test, as LAPACK's ``dbdsqr``); a diagonal entry below ``eps^2 max_i(|d_i| + |f_i|)`` is chased off
-    its row by left rotations first. Singular values made non-negative (row of Vt
-    negated). Returns False where a value took more than :data:`MAX_QR_STEPS` steps (outputs undefined)."""
+    left ones are dropped; the rotations run over the first W columns of ``Vt`` (the rest are not read). A
+    superdiagonal entry below ``eps`` times its neighbours on the diagonal splits the matrix (the relative test, as
+    LAPACK's ``dbdsqr``); a diagonal entry below ``eps^2 max_i(|d_i| + |f_i|)`` is chased off its row by left
+    rotations first. Singular values made non-negative (row of Vt negated). Returns False where a value took more
+    than :data:`MAX_QR_STEPS` steps (outputs undefined)."""
     nc = d.shape[0]
-    W = Vt.shape[1]
     anorm = 0.0
     for i in range(nc):
         anorm = max(anorm, abs(d[i]) + abs(f[i]))
@@ -251,8 +250,10 @@ def _bidiagonal_qr(d, f, Vt, eps):
 @nb.njit(cache=True, error_model="numpy")
 def svd_right(X, nr, d, f, Vt, Mv, wk, perm, eps):
     """Singular values and right singular vectors of the (nr x nc) array ``A`` (``nr >= nc``) stored transposed in
-    ``X`` (nc, >= nr) (destroyed): ``A^T A = Vt^T diag(d)^2 Vt``, ``d`` (nc,) descending, ``Vt`` (nc, W) its rows
-    the right singular vectors (zero padding beyond nc).
+    ``X`` (nc, >= nr) (destroyed): ``A^T A = Vt^T diag(d)^2 Vt``, ``d`` (nc,) descending, ``Vt`` (nc, >= nc) its rows
+    the right singular vectors, written up to the padded width of nc (:func:`~nav_filters.kernels.padded_width`,
+    zero beyond nc; the columns beyond that width are left as they were: the rotations skip the zero padding of a
+    scratch wider than nc).
 
     Golub-Kahan-Reinsch as LAPACK's ``gesvd`` / ``gesdd`` run it on a tall array: the columns ordered by decreasing
     norm, a Householder QR (:func:`_triangularize`), the bidiagonalization of R (:func:`_bidiagonalize`,
@@ -283,10 +284,10 @@ def svd_right(X, nr, d, f, Vt, Mv, wk, perm, eps):
         _triangularize(X, nr)
         nr = nc
     _bidiagonalize(X, nr, d, f, wk)
-    _right_vectors(X, nr, Vt, Mv, wk)
-    if not _bidiagonal_qr(d, f, Vt, eps):
+    W = min(Vt.shape[1], padded_width(nc))  # the rotations' width: the columns of Vt beyond it are not read
+    _right_vectors(X, nr, Vt, W, Mv, wk)
+    if not _bidiagonal_qr(d, f, Vt, W, eps):
         return False
-    W = Vt.shape[1]
     for i in range(nc):  # descending (numpy's order), and back to A's column order: Vt[:, perm[j]] <- Vt[:, j]
         k = i
         for j in range(i + 1, nc):
@@ -403,7 +404,7 @@ def _time_row(U, D, Phi, s, Q, x, cholesky, eps, sw, ew, Vp, Dp, xm, T):
     """Seed 000 eqs 8-11 for one row: ``xm = diag(s) Phi x`` and the predicted factors ``Vp`` (rows the columns of
     U), ``Dp`` from the SVD of the pre-array ``[D U^T Phi^T diag(s) ; L_Q^T]`` (``s`` the square roots of the fading
     factors, :meth:`FilterForm.predicted_update`). ``sw = (X, d, f, Vt, Mv, wk, perm)`` the SVD's scratch, ``ew`` the
-    eigendecomposition's, ``T`` (n, n) scratch. False where the numpy path must decide."""
+    eigendecomposition's (rows of n or more), ``T`` (n, n) scratch. False where the numpy path must decide."""
     X, d, f, Vt, Mv, wk, perm = sw
     n = D.shape[0]
     for j in range(n):  # X[:, :n] = (diag(s) Phi U diag(D)): the pre-array's upper block, transposed
@@ -695,6 +696,9 @@ def _svd_form_rows(mode, srkf, U, D, x, Phi, s, Q, H, R, dz, mask, eps, tiny, Un
               np.empty((mx, mx), dt), np.empty(n + 2 * mx, dt), np.empty(mx, np.int64))
         ew = (np.zeros((mx, We)), np.empty(mx), np.zeros((mx, We)), np.empty(mx), np.empty(We), np.empty(We),
               np.empty(mx, np.int64))
+        Wn = padded_width(n)  # Q's eigendecomposition on rows of its own padded width (the rotations' length)
+        eq = (np.zeros((n, Wn)), np.empty(n), np.zeros((n, Wn)), np.empty(n), np.empty(Wn), np.empty(Wn),
+              np.empty(n, np.int64))
         mw = (np.empty(m, np.int64), np.empty((m, n), np.int64), np.empty((m, n), dt), np.empty(m, np.int64),
               np.empty((m, n), dt), np.empty((m, m), dt), np.empty(m, dt), np.empty(m, dt), np.empty((m, n), dt),
               np.empty((m, n), dt), np.empty((m, n), dt), np.empty((n, n), dt), np.empty(n, dt), np.empty(n, dt),
@@ -702,7 +706,7 @@ def _svd_form_rows(mode, srkf, U, D, x, Phi, s, Q, H, R, dz, mask, eps, tiny, Un
         Vp, Dp, xm, T = np.empty((n, n), dt), np.empty(n, dt), np.empty(n, dt), np.empty((n, n), dt)
         for b in range(c * B // nchunk, (c + 1) * B // nchunk):
             if mode == 1:
-                good = _time_row(U[b], D[b], Phi[b], s[b], Q[b], x[b], srkf, eps, sw, ew, Vp, Dp, xm, T)
+                good = _time_row(U[b], D[b], Phi[b], s[b], Q[b], x[b], srkf, eps, sw, eq, Vp, Dp, xm, T)
             else:
                 good = True
                 for i in range(n):
