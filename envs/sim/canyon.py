@@ -108,16 +108,20 @@ def canyon_visibility(t, v_e, heading, el, az, cfg: UrbanCanyon, g: np.random.Ge
     return blocked[0], refl[0], excess[0]
 
 
-def canyon_visibility_rows(t, v_e, heading, el, az, cfg: UrbanCanyon, gens):
+def canyon_visibility_rows(t, v_e, heading, el, az, cfg: UrbanCanyon, gens, within=None, active=None):
     """Street-canyon visibility of B rows (see :class:`UrbanCanyon`), each row's buildings drawn from its own
     generator ``gens[i]``: the building heights (K, 2), their presence (K, 2) and the reflection draws (K, S) of
-    the row's K blocks, in this order; the geometry vectorized over the rows (the same operations per element
-    as for a row alone, so a row's result does not depend on the others).
+    the row's K blocks, in this order; the geometry vectorized over the rows and evaluated only on the elements
+    inside the canyon's epochs (and ``active``), the same operations per element as for a row alone, so a row's
+    result does not depend on the others.
 
     Parameters
     ----------
     t : (M,) [s]; v_e : (B, M, 3) [m/s]; heading : (B, M) [rad]; el, az : (B, M, S) [rad];
-    gens : B numpy.random.Generator.
+    gens : B numpy.random.Generator; within : (B, M) bool or None: the epochs where each row's canyon applies,
+    in place of ``cfg.intervals`` (the urban zones' canyon windows, :func:`envs.sim.events.zone_effects_rows`);
+    active : (B, M, S) bool or None: the only elements evaluated (the others are returned not blocked, not
+    reflected; the urban zones pass the satellites above the mask, the only ones they change).
 
     Returns
     -------
@@ -130,22 +134,36 @@ def canyon_visibility_rows(t, v_e, heading, el, az, cfg: UrbanCanyon, gens):
     np.cumsum(0.5 * (speed[:, 1:] + speed[:, :-1]) * np.diff(t), axis=1, out=dist[:, 1:])
     blk = np.floor(dist / cfg.block_length_m).astype(np.int64)                 # (B, M) block of each epoch
     K = blk.max(axis=1) + 1 if M else np.ones(B, np.int64)
-    h = np.zeros((B, int(K.max(initial=1)), 2))                                # building heights, 0 in gaps
-    reflect = np.zeros((B, h.shape[1], S), dtype=bool)
+    Kx = int(K.max(initial=1))
+    h = np.zeros((B, Kx, 2))                                                    # building heights, 0 in gaps
+    reflect = np.zeros((B, Kx, S), dtype=bool)
     for i, g in enumerate(gens):
         k = int(K[i])
         heights = g.uniform(cfg.building_height_m[0], cfg.building_height_m[1], size=(k, 2))
         present = g.random((k, 2)) < cfg.blockage_probability
         reflect[i, :k] = g.random((k, S)) < cfg.nlos_probability
         h[i, :k] = np.where(present, heights, 0.0)
-    h = np.take_along_axis(h, blk[:, :, None], axis=1)                         # (B, M, 2): [left, right]
-    sa = np.sin(az - heading[:, :, None])                                       # > 0: right side
-    h_side = np.where(sa > 0.0, h[:, :, 1:2], h[:, :, 0:1])                    # (B, M, S)
-    half_w = 0.5 * cfg.street_width_m
-    under = np.tan(np.clip(el, -1.5, 1.5)) * half_w < h_side * np.abs(sa)
-    if cfg.intervals:
-        under &= in_intervals(t, cfg.intervals)[None, :, None]
-    refl = under & np.take_along_axis(reflect, blk[:, :, None], axis=1)
-    excess = np.zeros((B, M, S))
-    excess[refl] = cfg.street_width_m * np.cos(el[refl]) * np.abs(sa[refl])   # the reflected few only
-    return under & ~refl, refl, excess
+    if within is None and cfg.intervals:
+        within = np.broadcast_to(in_intervals(t, cfg.intervals), (B, M))
+    # the evaluated epochs ep (flat into (B, M); all without ``within``), each with its (row, block) bk
+    ep = None if within is None else np.flatnonzero(within)
+    bk = (np.arange(B * M) // max(M, 1)) * Kx + blk.reshape(-1)
+    el2, az2, hd = el.reshape(B * M, S), az.reshape(B * M, S), heading.reshape(-1)
+    if ep is not None:
+        el2, az2, hd, bk = el2[ep], az2[ep], hd[ep], bk[ep]
+    sa = np.sin(az2 - hd[:, None])                                              # > 0: right side
+    h2 = h.reshape(B * Kx, 2)[bk]                                               # [left, right] of each epoch
+    h_side = np.where(sa > 0.0, h2[:, 1:2], h2[:, 0:1])
+    under = np.tan(np.clip(el2, -1.5, 1.5)) * (0.5 * cfg.street_width_m) < h_side * np.abs(sa)
+    if active is not None:
+        under &= active.reshape(B * M, S) if ep is None else active.reshape(B * M, S)[ep]
+    refl2 = under & reflect.reshape(B * Kx, S)[bk]
+    excess2 = np.zeros(under.shape)
+    excess2[refl2] = cfg.street_width_m * np.cos(el2[refl2]) * np.abs(sa[refl2])   # the reflected few only
+    if ep is None:
+        return (under & ~refl2).reshape(B, M, S), refl2.reshape(B, M, S), excess2.reshape(B, M, S)
+    blocked, refl, excess = np.zeros((B, M, S), dtype=bool), np.zeros((B, M, S), dtype=bool), np.zeros((B, M, S))
+    blocked.reshape(B * M, S)[ep] = under & ~refl2
+    refl.reshape(B * M, S)[ep] = refl2
+    excess.reshape(B * M, S)[ep] = excess2
+    return blocked, refl, excess

@@ -48,11 +48,11 @@ them and checks these constants):
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
-from .canyon import UrbanCanyon, canyon_visibility
+from .canyon import UrbanCanyon, canyon_visibility_rows
 from .constellation import _check_pair as _pair, _check_real
 from .receiver import _gauss_markov
 
@@ -61,8 +61,8 @@ __all__ = [
     "ROUGH_ROAD", "EVENT_BITS", "RandomBursts", "SigmaMismatch", "NoiseRegime", "NoiseRegimes", "UrbanZones",
     "Reacquisition", "Cn0Scatter", "cn0_scatter", "cn0_scatter_draws", "cn0_scatter_rows", "cn0_los",
     "nlos_probability", "draw_bursts", "draw_mismatch", "draw_regimes", "draw_zone_schedule",
-    "reacquisition_multiplier", "zone_effects", "regime_nlos", "nlos_bias", "ZONE_OPEN", "ZONE_CANYON", "ZONE_TREES",
-    "ZONE_OVERPASS",
+    "reacquisition_multiplier", "zone_effects", "zone_effects_rows", "regime_nlos", "nlos_bias", "ZONE_OPEN",
+    "ZONE_CANYON", "ZONE_TREES", "ZONE_OVERPASS",
 ]
 
 OUTAGE, NOISE, MISMATCH, NLOS_ZONE, OVERPASS, IMU_EVENT, REACQUISITION, REGIME, TREES, ROUGH_ROAD = (
@@ -125,16 +125,38 @@ def _renewal(t: np.ndarray, length_s: tuple, g: np.random.Generator, n: int = 1)
     column (``n`` columns), so the number of draws does not depend on the
     realization. Returns ``(idx (M, n) int64, starts (K, n), K)``.
     """
-    span = float(t[-1] - t[0])
-    K = int(math.ceil(span / length_s[0])) + 1
+    K = _renewal_count(t, length_s)
     lengths = g.uniform(length_s[0], length_s[1], size=(K, n))
-    ends = t[0] + np.cumsum(lengths, axis=0)
-    # idx[i, j] = number of ends[:, j] <= t[i] (np.searchsorted(ends[:, j], t, side="right")), for all
-    # columns at once: segment end k is passed from epoch first[k, j] = #(t < ends[k, j]) on (t is increasing)
+    idx, ends = _segment_index(t, lengths[None])
+    return idx[0], ends[0] - lengths, K
+
+
+def _renewal_count(t: np.ndarray, length_s: tuple) -> int:
+    """The number K of segment lengths :func:`_renewal` draws per column: ``ceil(span / min_length) + 1``."""
+    return int(math.ceil(float(t[-1] - t[0]) / length_s[0])) + 1
+
+
+def _segment_index(t: np.ndarray, lengths: np.ndarray):
+    """Segment index per epoch of R rows of n columns of consecutive segments from ``t[0]``.
+
+    Parameters
+    ----------
+    t : (M,) increasing epochs [s]; lengths : (R, K, n) segment lengths [s].
+
+    Returns
+    -------
+    idx : (R, M, n) int64, the segment of each epoch (at most K - 1); ends : (R, K, n) the segments' ends [s].
+    """
+    R, K, n = lengths.shape
+    M = t.size
+    ends = t[0] + np.cumsum(lengths, axis=1)
+    # idx[r, i, j] = number of ends[r, :, j] <= t[i] (np.searchsorted(ends[r, :, j], t, side="right")), for all
+    # columns at once: segment end k is passed from epoch first[r, k, j] = #(t < ends[r, k, j]) on (t increasing)
     first = np.searchsorted(t, ends, side="left")
-    passed = np.bincount((first + (t.size + 1) * np.arange(n)).ravel(), minlength=(t.size + 1) * n)
-    idx = np.cumsum(passed.reshape(n, t.size + 1)[:, :t.size], axis=1).T
-    return np.minimum(idx, K - 1), ends - lengths, K
+    col = np.arange(R * n).reshape(R, 1, n)
+    passed = np.bincount((first + (M + 1) * col).ravel(), minlength=(M + 1) * R * n)
+    idx = np.cumsum(passed.reshape(R, n, M + 1)[:, :, :M], axis=2).transpose(0, 2, 1)
+    return np.minimum(idx, K - 1), ends
 
 
 # =============================================================================
@@ -703,56 +725,110 @@ def reacquisition_multiplier(t: np.ndarray, visible: np.ndarray, cfg: Reacquisit
 
 def zone_effects(t, kind, zone_id, windows, el, az, v_e, heading, cfg: UrbanZones, g_geom: np.random.Generator,
                  g_sat: np.random.Generator):
-    """Per-satellite effects of the urban zones on one row (see :class:`UrbanZones`).
+    """Per-satellite effects of the urban zones on one row (see :class:`UrbanZones`): :func:`zone_effects_rows`
+    of that row alone.
 
     Parameters
     ----------
     t : (M,) [s]; kind, zone_id, windows : from :func:`draw_zone_schedule`;
     el, az : (M, S) [rad]; v_e : (M, 3) [m/s]; heading : (M,) [rad] or None (no canyon geometry then:
-    only the NLOS probability applies);
-    g_geom : stream of the canyon buildings; g_sat : stream of the per-satellite draws (order: segment
-    lengths (K, S), then per (K, S) the NLOS uniforms, bias normals, bias sign uniforms, rate normals,
-    foliage uniforms, then one (Z, S) block of overpass uniforms, Z = number of zones).
+    only the NLOS probability applies); g_geom, g_sat : the row's streams (:func:`zone_effects_rows`).
 
     Returns
     -------
-    blocked : (M, S) bool (lost); nlos : (M, S) bool; bias_m : (M, S) [m]; rate_mps : (M, S) [m/s];
-    atten_db : (M, S) C/N0 loss [dB] (foliage + NLOS deficit).
+    blocked, nlos, bias_m, rate_mps, atten_db : (M, S), as :func:`zone_effects_rows`.
     """
-    M, S = el.shape
-    in_c = (kind == ZONE_CANYON)[:, None]
-    in_t = (kind == ZONE_TREES)[:, None]
-    in_o = (kind == ZONE_OVERPASS)[:, None]
-    idx, _, K = _renewal(t, cfg.segment_s, g_sat, n=S)
-    u_nlos = g_sat.random((K, S))
-    z_bias = g_sat.standard_normal((K, S))
-    u_sign = g_sat.random((K, S))
-    z_rate = g_sat.standard_normal((K, S))
-    u_att = g_sat.random((K, S))
-    u_pass = g_sat.random((max(len(windows), 1), S))
-    col = np.arange(S)[None, :]
+    out = zone_effects_rows(t, kind[None], zone_id[None], [windows], el[None], az[None], v_e[None],
+                            None if heading is None else heading[None], cfg, [g_geom], [g_sat])
+    return tuple(a[0] for a in out)
 
-    def at(a):
-        return a[idx, col]
 
-    blocked = np.zeros((M, S), dtype=bool)
-    refl = np.zeros((M, S), dtype=bool)
-    canyon_iv = tuple((a, b) for a, b, k in windows if k == ZONE_CANYON)
-    if canyon_iv and heading is not None:
-        bl, rf, _ = canyon_visibility(t, v_e, heading, el, az, replace(cfg.canyon, intervals=canyon_iv), g_geom)
-        blocked |= bl
-        refl |= rf
-    passes = u_pass[np.maximum(zone_id, 0)] < cfg.overpass_pass_probability           # (M, S)
-    blocked |= in_o & ~passes
-    p_nlos = nlos_probability(el, cfg.nlos_probability)
-    p = np.where(in_c, p_nlos, np.where(in_t, cfg.trees_multipath_scale * p_nlos, 0.0))
-    nlos = ((at(u_nlos) < p) & ~blocked) | refl
-    bias = nlos_bias(el, at(z_bias), at(u_sign), *cfg.nlos_bias) * np.where(in_t, cfg.trees_bias_scale, 1.0)
-    bias = np.where(nlos, bias, 0.0)
-    rate = np.where(nlos, cfg.nlos_rate_sigma_mps * at(z_rate), 0.0)
+def zone_effects_rows(t, kind, zone_id, windows, el, az, v_e, heading, cfg: UrbanZones, g_geom, g_sat, active=None):
+    """Per-satellite effects of the urban zones on B rows (see :class:`UrbanZones`), each row from its own
+    streams; the arithmetic vectorized over the rows, the same operations per element as for a row alone, so a
+    row's result does not depend on the others.
+
+    Parameters
+    ----------
+    t : (M,) [s]; kind, zone_id : (B, M) and windows : B tuples, from :func:`draw_zone_schedule` per row;
+    el, az : (B, M, S) [rad]; v_e : (B, M, 3) [m/s]; heading : (B, M) [rad] or None (no canyon geometry then:
+    only the NLOS probability applies);
+    g_geom : B streams of the canyon buildings (:func:`~envs.sim.canyon.canyon_visibility_rows`; indexed and drawn
+    only for a row with a canyon window); g_sat : B streams of the per-satellite draws (order: segment lengths
+    (K, S), then per (K, S) the NLOS uniforms, bias normals, bias sign uniforms, rate normals, foliage uniforms,
+    then one (Z, S) block of overpass uniforms, Z = the row's number of zones, at least 1);
+    active : (B, M, S) bool or None: the only elements evaluated (the others are returned not blocked, not NLOS,
+    zero; the GNSS stages pass the satellites above the mask, the only ones the zones change). The draws do not
+    depend on it.
+
+    Returns
+    -------
+    blocked : (B, M, S) bool (lost); nlos : (B, M, S) bool; bias_m : (B, M, S) [m]; rate_mps : (B, M, S) [m/s];
+    atten_db : (B, M, S) C/N0 loss [dB] (foliage + NLOS deficit).
+    """
+    B, M, S = el.shape
+    K = _renewal_count(t, cfg.segment_s)
+    Z = max([len(w) for w in windows] + [1])
+    lengths, u_nlos, z_bias, u_sign, z_rate, u_att = (np.empty((B, K, S)) for _ in range(6))
+    u_pass = np.zeros((B, Z, S))
+    for i, g in enumerate(g_sat):     # each row's draws in its stream's order
+        lengths[i] = g.uniform(cfg.segment_s[0], cfg.segment_s[1], size=(K, S))
+        g.random(out=u_nlos[i])
+        g.standard_normal(out=z_bias[i])
+        g.random(out=u_sign[i])
+        g.standard_normal(out=z_rate[i])
+        g.random(out=u_att[i])
+        u_pass[i, :max(len(windows[i]), 1)] = g.random((max(len(windows[i]), 1), S))
+    idx, _ = _segment_index(t, lengths)                                              # (B, M, S)
+    blocked, refl = _zone_canyon(t, windows, el, az, v_e, heading, cfg, g_geom, active)
+    # the evaluated elements as flat indices e into (B, M, S) (epoch bm = e // S); ki: their segments' draws
+    e = np.arange(B * M * S) if active is None else np.flatnonzero(active)
+    bm = e // S
+    s_e = e - bm * S
+    kind_e = kind.reshape(-1)[bm]
+    ki = ((bm // M) * K + idx.reshape(-1)[e]) * S + s_e
+    el_e = el.reshape(-1)[e]
+    u_over = u_pass.reshape(-1)[((bm // M) * Z + np.maximum(zone_id.reshape(-1)[bm], 0)) * S + s_e]
+    blocked_e = blocked.reshape(-1)[e] | ((kind_e == ZONE_OVERPASS) & ~(u_over < cfg.overpass_pass_probability))
+    p_nlos = nlos_probability(el_e, cfg.nlos_probability)
+    p = np.where(kind_e == ZONE_CANYON, p_nlos, np.where(kind_e == ZONE_TREES, cfg.trees_multipath_scale * p_nlos,
+                                                         0.0))
+    nlos_e = ((u_nlos.reshape(-1)[ki] < p) & ~blocked_e) | refl.reshape(-1)[e]
+    n = np.flatnonzero(nlos_e)                                                      # the NLOS few
+    bias_n = nlos_bias(el_e[n], z_bias.reshape(-1)[ki[n]], u_sign.reshape(-1)[ki[n]], *cfg.nlos_bias) * np.where(
+        kind_e[n] == ZONE_TREES, cfg.trees_bias_scale, 1.0)
+    att_e = np.where(nlos_e, NLOS_DEFICIT_DB, 0.0)
+    tr = np.flatnonzero(kind_e == ZONE_TREES)
     lo, hi = cfg.trees_attenuation_db
-    att = np.where(in_t, lo + (hi - lo) * at(u_att), 0.0) + np.where(nlos, NLOS_DEFICIT_DB, 0.0)
+    att_e[tr] = (lo + (hi - lo) * u_att.reshape(-1)[ki[tr]]) + att_e[tr]
+    nlos, bias, rate, att = np.zeros((B, M, S), dtype=bool), np.zeros((B, M, S)), np.zeros((B, M, S)), np.zeros(
+        (B, M, S))
+    blocked.reshape(-1)[e] = blocked_e
+    nlos.reshape(-1)[e] = nlos_e
+    bias.reshape(-1)[e[n]] = bias_n
+    rate.reshape(-1)[e[n]] = cfg.nlos_rate_sigma_mps * z_rate.reshape(-1)[ki[n]]
+    att.reshape(-1)[e] = att_e
     return blocked, nlos, bias, rate, att
+
+
+def _zone_canyon(t, windows, el, az, v_e, heading, cfg: UrbanZones, g_geom, active):
+    """The canyon geometry of :func:`zone_effects_rows` within each row's canyon windows: ``(blocked, reflected)``
+    (B, M, S) bool (:func:`~envs.sim.canyon.canyon_visibility_rows` on the rows with a canyon window; none without a
+    heading)."""
+    B, M, S = el.shape
+    blocked = np.zeros((B, M, S), dtype=bool)
+    refl = np.zeros((B, M, S), dtype=bool)
+    rows = [i for i in range(B) if any(k == ZONE_CANYON for _, _, k in windows[i])] if heading is not None else []
+    if rows:
+        within = np.zeros((len(rows), M), dtype=bool)
+        for j, i in enumerate(rows):
+            for a, b, k in windows[i]:
+                if k == ZONE_CANYON:
+                    within[j] |= (t >= a) & (t < b)
+        blocked[rows], refl[rows], _ = canyon_visibility_rows(
+            t, v_e[rows], heading[rows], el[rows], az[rows], cfg.canyon, [g_geom[i] for i in rows], within=within,
+            active=None if active is None else active[rows])
+    return blocked, refl
 
 
 def regime_nlos(t, regime, el, cfg: NoiseRegimes, g: np.random.Generator):

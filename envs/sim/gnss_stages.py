@@ -60,6 +60,22 @@ def _row_children(rng: np.random.Generator) -> ChildStreams:
     return ChildStreams([int(x) for x in entropy], _N_SUB)
 
 
+class _Child:
+    """Child ``k`` of each row's streams, ``_Child(subs, k)[i] = subs[i][k]``: built only for the rows that
+    index it (a generator costs ~10 us to build)."""
+
+    __slots__ = ("_subs", "_k")
+
+    def __init__(self, subs, k: int):
+        self._subs, self._k = subs, k
+
+    def __len__(self) -> int:
+        return len(self._subs)
+
+    def __getitem__(self, i: int) -> np.random.Generator:
+        return self._subs[i][self._k]
+
+
 def _nlos_bursts(t: np.ndarray, n_sats: int, cfg: NlosConfig, g: np.random.Generator):
     """Per-satellite NLOS bursts of one row (alternating renewal process, see :class:`~envs.sim.gnss.NlosConfig`):
     :func:`_nlos_burst_rows` with one row.
@@ -324,25 +340,43 @@ def random_events(t, v_e, heading, sky: Sky, sat: SatelliteEvents, events, subs)
                 bias2_sat[i] = np.where(nl, bi, bias2_sat[i])
                 rate2_sat[i] = np.where(nl, ra, rate2_sat[i])
     if events.zones is not None:
-        for i in range(B):
-            kind, zid, windows = ev.draw_zone_schedule(t, events.zones, subs[i][_SUB_ZONES])
-            blocked, nl, bi, ra, att = ev.zone_effects(
-                t, kind, zid, windows, sky.el[i], sky.az[i], v_e[i], None if heading is None else heading[i],
-                events.zones, subs[i][_SUB_ZONE_GEOM], subs[i][_SUB_ZONE_SAT])
-            visible[i] &= ~blocked
-            nl &= visible[i]
-            nlos2_sat[i] |= nl
-            bias2_sat[i] = np.where(nl, bi, bias2_sat[i])
-            rate2_sat[i] = np.where(nl, ra, rate2_sat[i])
-            att_sat[i] = np.where(visible[i], att, 0.0)
-            zb = np.zeros(M, dtype=np.uint16)
-            zb[kind == ev.ZONE_CANYON] = ev.NLOS_ZONE
-            zb[kind == ev.ZONE_TREES] = ev.NLOS_ZONE | ev.TREES
-            zb[kind == ev.ZONE_OVERPASS] = ev.OVERPASS
-            bits[i] |= zb
+        run_row_ranges(lambda r0, r1: _zone_rows(r0, r1, t, v_e, heading, sky, sat, events.zones, subs,
+                                                 nlos2_sat, bias2_sat, rate2_sat, att_sat), B, min_rows=ZONE_RANGE_ROWS)
     if new_nlos:                                           # the regimes' NLOS carry the measured C/N0 deficit too
         att_sat = np.where(nlos2_sat & (att_sat == 0.0), ev.NLOS_DEFICIT_DB, att_sat)
         sat.zone = (nlos2_sat, bias2_sat, rate2_sat, att_sat)
+
+
+ZONE_RANGE_ROWS = 32
+"""Fewest rows per range of the urban zones' row ranges on threads (:func:`_zone_rows`, from twice as many rows
+on; their numpy arithmetic releases the GIL)."""
+
+
+def _zone_rows(r0: int, r1: int, t, v_e, heading, sky: Sky, sat: SatelliteEvents, zones, subs, nlos2, bias2, rate2,
+               att) -> None:
+    """The urban zones of rows ``r0 .. r1-1`` (:func:`~envs.sim.events.draw_zone_schedule` per row,
+    :func:`~envs.sim.events.zone_effects_rows` over them) into those rows of ``sat.visible``, ``sat.bits`` and the
+    zones' NLOS arrays ``nlos2``, ``bias2``, ``rate2`` and C/N0 loss ``att`` (B, M, S), in place."""
+    sl = slice(r0, r1)
+    rows = subs[r0:r1]
+    sched = [ev.draw_zone_schedule(t, zones, s[_SUB_ZONES]) for s in rows]
+    kind = np.array([k for k, _, _ in sched])                                         # (rows, M)
+    visible = sat.visible[sl]
+    blocked, nl, bi, ra, at = ev.zone_effects_rows(
+        t, kind, np.array([z for _, z, _ in sched]), [w for _, _, w in sched], sky.el[sl], sky.az[sl], v_e[sl],
+        None if heading is None else heading[sl], zones, _Child(rows, _SUB_ZONE_GEOM), _Child(rows, _SUB_ZONE_SAT),
+        active=visible)      # the zones change only what is visible: the other elements are left out
+    visible &= ~blocked
+    nl &= visible
+    nlos2[sl] |= nl
+    np.copyto(bias2[sl], bi, where=nl)
+    np.copyto(rate2[sl], ra, where=nl)
+    np.copyto(att[sl], np.where(visible, at, 0.0))
+    zb = np.zeros(kind.shape, dtype=np.uint16)
+    zb[kind == ev.ZONE_CANYON] = ev.NLOS_ZONE
+    zb[kind == ev.ZONE_TREES] = ev.NLOS_ZONE | ev.TREES
+    zb[kind == ev.ZONE_OVERPASS] = ev.OVERPASS
+    sat.bits[sl] |= zb
 
 
 def scheduled_events(t, sat: SatelliteEvents, events) -> None:

@@ -179,6 +179,45 @@ def test_renewal_segment_index_is_searchsorted_per_column():
         np.testing.assert_array_equal(starts, ends - lengths)
 
 
+def test_zone_effects_rows_equal_each_row_alone():
+    """zone_effects_rows over 8 rows gives what zone_effects gives for each row alone, bit for bit (the rows'
+    draws from their own streams, their canyon windows, zone counts and segment indices kept apart), with the
+    canyon geometry (rows with and without a canyon window) and without a heading; with ``active``, the same on
+    the active elements and nothing elsewhere."""
+    t = np.arange(1.0, 91.0)
+    B, S = 8, 9
+    cfg = ev.UrbanZones(open_s=(5.0, 40.0), weights=(0.35, 0.35, 0.3))
+    _, v, h = _driving(B, t)
+    rng = np.random.default_rng(5)
+    el = rng.uniform(-0.1, 1.5, (B, t.size, S))
+    az = rng.uniform(-math.pi, math.pi, (B, t.size, S))
+    sched = [ev.draw_zone_schedule(t, cfg, np.random.default_rng(100 + i)) for i in range(B)]
+    canyon = [any(k == ev.ZONE_CANYON for _, _, k in w) for _, _, w in sched]
+    assert any(canyon) and not all(canyon)
+    assert len({len(w) for _, _, w in sched}) > 1
+    kind, zid = np.array([s[0] for s in sched]), np.array([s[1] for s in sched])
+    for heading in (h, None):
+        def gens(base):
+            return [np.random.default_rng(base + i) for i in range(B)]
+        rows = ev.zone_effects_rows(t, kind, zid, [s[2] for s in sched], el, az, v, heading, cfg, gens(200),
+                                    gens(300))
+        for i in range(B):
+            one = ev.zone_effects(t, *sched[i], el[i], az[i], v[i], None if heading is None else heading[i], cfg,
+                                  np.random.default_rng(200 + i), np.random.default_rng(300 + i))
+            for a, b in zip(rows, one):
+                np.testing.assert_array_equal(a[i], b)
+        assert rows[0].any() and rows[1].any()
+    blocked_geom = rows[0]
+    with_geom = ev.zone_effects_rows(t, kind, zid, [s[2] for s in sched], el, az, v, h, cfg, gens(200), gens(300))
+    assert (with_geom[0] & ~blocked_geom).any()         # the canyon walls block more than the overpasses alone
+    act = el > 0.3                                      # only these elements evaluated: the others left out
+    part = ev.zone_effects_rows(t, kind, zid, [s[2] for s in sched], el, az, v, h, cfg, gens(200), gens(300),
+                                active=act)
+    for a, b in zip(part, with_geom):
+        np.testing.assert_array_equal(a, np.where(act, b, np.zeros_like(b)))
+        assert b[~act].any() and a[act].any()
+
+
 # ----------------------------------------------------------------------------- oracle truth
 def _all_events(**kw):
     base = dict(bursts=ev.RandomBursts(rate_hz=0.02), mismatch=ev.SigmaMismatch(),

@@ -13,6 +13,11 @@ random draw (a shifted stream, an extra draw in an old stream) moves these by
 orders of magnitude more than the tolerance; the tolerance only absorbs
 last-bit differences of vectorized transcendental functions between CPUs.
 
+``snapshots/world_fingerprints_zones.json`` pins the urban zones' scenarios (``urban-transition``,
+``urban-smartloc``) the same way, written from b14a688, before their zone effects were vectorized over rows
+(``write_fingerprints(SCENARIOS_ZONES, SNAPSHOT_ZONES)`` run on that tree's ``generate_world``); its totals also
+hold the C/N0 and the event bits.
+
 ``seed003-sim`` is the one scenario whose world changed on purpose (issue 16:
 re-acquisition noise after its two outages): its GNSS fingerprint is compared
 on the epochs outside the re-acquisition windows only, and must differ inside.
@@ -29,6 +34,8 @@ from envs.sim.world import generate_world
 
 SNAPSHOT = Path(__file__).parent / "snapshots" / "world_fingerprints.json"
 SCENARIOS_BEFORE = ("open-sky", "urban", "outage", "noise-burst", "seed000-sim", "seed003-sim")
+SNAPSHOT_ZONES = Path(__file__).parent / "snapshots" / "world_fingerprints_zones.json"
+SCENARIOS_ZONES = ("urban-transition", "urban-smartloc")
 SEEDS = (0, 1)
 BLOCK_S = 10.0
 
@@ -50,6 +57,8 @@ def fingerprint(name: str) -> dict:
               for k in ("sat_pos", "sat_vel", "azimuth", "elevation", "pr_sigma", "prr_sigma", "clock_bias_m",
                         "clock_drift_mps", "t0_gps")}
     totals["prn"] = float(g.prn.sum())
+    totals["cn0_dbhz"] = float(np.where(g.mask, np.asarray(g.cn0_dbhz, np.float64), 0.0).sum())
+    totals["event_mask"] = float(np.asarray(g.event_mask, np.float64).sum())
     imu_blocks = {"f_err": blocks(imu.f_b - tr.f_b), "w_err": blocks(imu.w_b - tr.w_b),
                   "gyro_bias": blocks(imu.gyro_bias), "accel_bias": blocks(imu.accel_bias)}
     init = {"r_e": float(np.sum(w.init.r_e)), "v_e": float(np.sum(w.init.v_e)), "C_eb": float(np.sum(w.init.C_eb)),
@@ -63,9 +72,9 @@ def fingerprint(name: str) -> dict:
             "totals": totals, "imu_blocks": {k: r12(v) for k, v in imu_blocks.items()}, "init": init}
 
 
-def write_fingerprints() -> None:
-    """Regenerate the snapshot (only on purpose: it pins the pre-existing worlds)."""
-    SNAPSHOT.write_text(json.dumps({n: fingerprint(n) for n in SCENARIOS_BEFORE}, separators=(",", ":")))
+def write_fingerprints(names=SCENARIOS_BEFORE, path=SNAPSHOT) -> None:
+    """Regenerate a snapshot (only on purpose: it pins the pre-existing worlds)."""
+    path.write_text(json.dumps({n: fingerprint(n) for n in names}, separators=(",", ":")))
 
 
 def _close(a, b, what, scale):
@@ -87,9 +96,9 @@ def _reacq_free(t, outages, window_s):
     return keep
 
 
-@pytest.mark.parametrize("name", SCENARIOS_BEFORE)
+@pytest.mark.parametrize("name", SCENARIOS_BEFORE + SCENARIOS_ZONES)
 def test_existing_world_unchanged(name):
-    ref = json.loads(SNAPSHOT.read_text())[name]
+    ref = json.loads((SNAPSHOT_ZONES if name in SCENARIOS_ZONES else SNAPSHOT).read_text())[name]
     now = fingerprint(name)
     np.testing.assert_array_equal(now["t"], ref["t"])
     keep = np.ones(len(ref["t"]), bool)

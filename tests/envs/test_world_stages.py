@@ -209,6 +209,40 @@ def test_channel_allocation_in_row_ranges_equals_one_pass(name, extra_channels, 
     assert not extra_channels or not one.mask[..., con.n_sats:].any()
 
 
+@pytest.mark.parametrize("name", ["urban-smartloc", "urban-transition"])
+def test_urban_zones_in_row_ranges_equal_one_pass(name, monkeypatch):
+    """random_events runs the urban zones' rows in ranges on threads (from 2 ZONE_RANGE_ROWS rows on): in ranges
+    of 2 rows it gives what one pass over the 7 rows gives, bit for bit (visibility, event bits and the zones'
+    NLOS, bias, rate and C/N0 loss)."""
+    from envs.sim import gnss_stages
+    from envs.sim.row_threads import run_row_ranges
+    seeds = list(range(40, 47))
+    args, _ = _gnss_inputs(name, seeds, monkeypatch, duration_s=120.0)
+    t, r_e, v_e, heading, con, rec, events = np.asarray(args[0], np.float64), *args[1:7]
+    assert events.zones is not None
+
+    def zones():
+        subs = [st._row_children(g) for g in row_generators(seeds, "gnss")]
+        sky = st.sky_geometry(t, r_e, con, subs)
+        sat = st.canyon_and_bursts(t, v_e, heading, sky, rec.elevation_mask_deg, events, subs)
+        st.random_events(t, v_e, heading, sky, sat, events, subs)
+        return sat
+
+    monkeypatch.setattr(gnss_stages, "ZONE_RANGE_ROWS", 10 ** 9)
+    one = zones()
+    ranges = []
+    monkeypatch.setattr(gnss_stages, "ZONE_RANGE_ROWS", 2)
+    monkeypatch.setattr(gnss_stages, "run_row_ranges",
+                        lambda fn, n, workers=None, min_rows=8: run_row_ranges(
+                            lambda r0, r1: ranges.append((r0, r1)) or fn(r0, r1), n, 3, min_rows))
+    split = zones()
+    assert (0, 2) in ranges and (4, 7) in ranges
+    assert one.zone[0].any() and (one.bits & ev.OVERPASS).any()
+    for a, b, what in ((split.visible, one.visible, "visible"), (split.bits, one.bits, "bits"),
+                       *zip(split.zone, one.zone, ("nlos", "bias", "rate", "atten"))):
+        np.testing.assert_array_equal(a, b, err_msg=what)
+
+
 def test_imu_sensor_specs_and_sensor_row_contract():
     """_sensor_specs: the per-sample white sigma ARW / sqrt(dt); _sensor_row: an error-free sensor passes the
     sensed motion through, a constant bias is added as it is (and reported as no time-varying bias), the
