@@ -300,6 +300,12 @@ def canyon_and_bursts(t, v_e, heading, sky: Sky, mask_deg: float, events, subs) 
                            bits=np.zeros((B, M), dtype=np.uint16))
 
 
+EVENT_RANGE_ROWS = 32
+"""Fewest rows per range of the events' row ranges on threads (the urban zones, :func:`_zone_rows`; the
+re-acquisition transient; :func:`channel_noise`), from twice as many rows on: numpy arithmetic on whole arrays of
+rows, which releases the GIL."""
+
+
 def random_events(t, v_e, heading, sky: Sky, sat: SatelliteEvents, events, subs) -> None:
     """Stage 3: the random events of :mod:`envs.sim.events` into ``sat`` (in place), each from its own child
     stream and drawn only when configured: bursts of the true noise, reported-sigma mismatch, noise regimes
@@ -340,16 +346,11 @@ def random_events(t, v_e, heading, sky: Sky, sat: SatelliteEvents, events, subs)
                 bias2_sat[i] = np.where(nl, bi, bias2_sat[i])
                 rate2_sat[i] = np.where(nl, ra, rate2_sat[i])
     if events.zones is not None:
-        run_row_ranges(lambda r0, r1: _zone_rows(r0, r1, t, v_e, heading, sky, sat, events.zones, subs,
-                                                 nlos2_sat, bias2_sat, rate2_sat, att_sat), B, min_rows=ZONE_RANGE_ROWS)
+        run_row_ranges(lambda r0, r1: _zone_rows(r0, r1, t, v_e, heading, sky, sat, events.zones, subs, nlos2_sat,
+                                                 bias2_sat, rate2_sat, att_sat), B, min_rows=EVENT_RANGE_ROWS)
     if new_nlos:                                           # the regimes' NLOS carry the measured C/N0 deficit too
         att_sat = np.where(nlos2_sat & (att_sat == 0.0), ev.NLOS_DEFICIT_DB, att_sat)
         sat.zone = (nlos2_sat, bias2_sat, rate2_sat, att_sat)
-
-
-ZONE_RANGE_ROWS = 32
-"""Fewest rows per range of the urban zones' row ranges on threads (:func:`_zone_rows`, from twice as many rows
-on; their numpy arithmetic releases the GIL)."""
 
 
 def _zone_rows(r0: int, r1: int, t, v_e, heading, sky: Sky, sat: SatelliteEvents, zones, subs, nlos2, bias2, rate2,
@@ -393,8 +394,13 @@ def scheduled_events(t, sat: SatelliteEvents, events) -> None:
     if events.canyon is not None:
         in_c = in_intervals(t, events.canyon.intervals) if events.canyon.intervals else np.ones(M, bool)
         sat.bits |= np.where(in_c, ev.NLOS_ZONE, 0).astype(np.uint16)[None]
-    if events.reacquisition is not None:
-        sat.reacq = ev.reacquisition_multiplier(t, sat.visible, events.reacquisition)
+    if events.reacquisition is not None:   # each row on its own (row ranges on threads: the same bits)
+        sat.reacq = np.empty(sat.visible.shape)
+
+        def reacq_rows(r0, r1):
+            sat.reacq[r0:r1] = ev.reacquisition_multiplier(t, sat.visible[r0:r1], events.reacquisition)
+
+        run_row_ranges(reacq_rows, sat.visible.shape[0], min_rows=EVENT_RANGE_ROWS)
 
 
 CHANNEL_RANGE_ROWS = 32
@@ -474,41 +480,62 @@ def channel_noise(t, ch: Channels, sat: SatelliteEvents, events) -> ChannelNoise
     """Stage 7: each channel's NLOS state and true noise multipliers: the NLOS factor ``k_nlos`` (or, for the
     zones' and regimes' NLOS, their C/N0 loss ``10^(att/20)``), the noise-scale intervals, the re-acquisition
     transient, the bursts and regimes. Subtracts the NLOS / zone C/N0 losses from ``ch.cn0`` and sets the
-    re-acquisition bit in ``sat.bits`` (in place)."""
-    M = t.size
-    mask = ch.mask
-    nlos = ch.gather(sat.nlos) & mask
-    nlos_bias, nlos_rate = ch.gather(sat.nlos_bias), ch.gather(sat.nlos_rate)
-    k_nlos = events.nlos.noise_factor if events.nlos is not None else 3.0
-    deficit = ev.NLOS_DEFICIT_DB if ch.nlos_deficit is None else ch.nlos_deficit
-    ch.cn0 -= np.where(nlos, deficit, 0.0)
+    re-acquisition bit in ``sat.bits`` (in place). Elementwise per row: the rows run in ranges on threads
+    (:func:`_noise_rows`, from 2 :data:`EVENT_RANGE_ROWS` rows on: the same bits)."""
+    B, M, C = ch.mask.shape
     scale = np.ones(M)
     for iv in events.noise_scale:
         scale = np.where((t >= iv[0]) & (t < iv[1]), scale * iv[2], scale)
+    e = np.empty
+    out = ChannelNoise(nlos=e((B, M, C), bool), pr_bias=e((B, M, C)), prr_bias=e((B, M, C)), code_mult=e((B, M, C)),
+                       doppler_mult=e((B, M, C)))
+    run_row_ranges(lambda r0, r1: _noise_rows(r0, r1, scale, ch, sat, events, out), B, min_rows=EVENT_RANGE_ROWS)
+    return out
+
+
+def _noise_rows(r0: int, r1: int, scale, ch: Channels, sat: SatelliteEvents, events, out: ChannelNoise) -> None:
+    """:func:`channel_noise` of rows ``r0 .. r1-1`` (``scale`` (M,) the noise-scale intervals' factor) into those
+    rows of ``out``, ``ch.cn0`` and ``sat.bits``."""
+    sl = slice(r0, r1)
+    fs = ch.flat_sel[sl]
+
+    def gather(a):  # (B, M, S) -> these rows' (rows, M, C) (Channels.gather)
+        return np.take(a, fs)
+
+    mask = ch.mask[sl]
+    cn0 = ch.cn0[sl]
+    nlos = gather(sat.nlos) & mask
+    nlos_bias, nlos_rate = gather(sat.nlos_bias), gather(sat.nlos_rate)
+    k_nlos = events.nlos.noise_factor if events.nlos is not None else 3.0
+    deficit = ev.NLOS_DEFICIT_DB if ch.nlos_deficit is None else ch.nlos_deficit[sl]
+    cn0 -= np.where(nlos, deficit, 0.0)
     noise_mult = scale[None, :, None] * np.where(nlos, k_nlos, 1.0)
     noise_mult_prr = noise_mult
     if sat.zone is not None:                               # zone / regime NLOS replace the old ones on a channel
         nlos2_sat, bias2_sat, rate2_sat, att_sat = sat.zone
-        nlos2 = ch.gather(nlos2_sat) & mask
-        att = ch.gather(att_sat)
-        nlos_bias = np.where(nlos2, ch.gather(bias2_sat), nlos_bias)
-        nlos_rate = np.where(nlos2, ch.gather(rate2_sat), nlos_rate)
+        nlos2 = gather(nlos2_sat) & mask
+        att = gather(att_sat)
+        nlos_bias = np.where(nlos2, gather(bias2_sat), nlos_bias)
+        nlos_rate = np.where(nlos2, gather(rate2_sat), nlos_rate)
         noise_mult = np.where(nlos2 & nlos, noise_mult / k_nlos, noise_mult) * 10.0 ** (att / 20.0)
         nlos = nlos | nlos2
-        ch.cn0 -= att                                      # att holds NLOS_DEFICIT_DB on an NLOS channel
+        cn0 -= att                                         # att holds NLOS_DEFICIT_DB on an NLOS channel
         if ch.nlos_deficit is not None:
-            ch.cn0 += np.where(nlos2, ev.NLOS_DEFICIT_DB - ch.nlos_deficit, 0.0)
+            cn0 += np.where(nlos2, ev.NLOS_DEFICIT_DB - deficit, 0.0)
         noise_mult_prr = noise_mult
     if sat.reacq is not None:
-        rq = ch.gather(sat.reacq)
+        rq = gather(sat.reacq)
         noise_mult = noise_mult * rq
         noise_mult_prr = noise_mult_prr * rq
-        sat.bits |= np.where((mask & (rq > 1.0)).any(axis=-1), ev.REACQUISITION, 0).astype(np.uint16)
+        sat.bits[sl] |= np.where((mask & (rq > 1.0)).any(axis=-1), ev.REACQUISITION, 0).astype(np.uint16)
     if events.bursts is not None or events.regimes is not None:
-        noise_mult = noise_mult * sat.code_mult[..., None]
-        noise_mult_prr = noise_mult_prr * sat.doppler_mult[..., None]
-    return ChannelNoise(nlos=nlos, pr_bias=np.where(nlos, nlos_bias, 0.0), prr_bias=np.where(nlos, nlos_rate, 0.0),
-                        code_mult=noise_mult, doppler_mult=noise_mult_prr)
+        noise_mult = noise_mult * sat.code_mult[sl, :, None]
+        noise_mult_prr = noise_mult_prr * sat.doppler_mult[sl, :, None]
+    out.nlos[sl] = nlos
+    out.pr_bias[sl] = np.where(nlos, nlos_bias, 0.0)
+    out.prr_bias[sl] = np.where(nlos, nlos_rate, 0.0)
+    out.code_mult[sl] = noise_mult
+    out.doppler_mult[sl] = noise_mult_prr
 
 
 RECEIVER_RANGE_ROWS = 32

@@ -209,38 +209,48 @@ def test_channel_allocation_in_row_ranges_equals_one_pass(name, extra_channels, 
     assert not extra_channels or not one.mask[..., con.n_sats:].any()
 
 
-@pytest.mark.parametrize("name", ["urban-smartloc", "urban-transition"])
-def test_urban_zones_in_row_ranges_equal_one_pass(name, monkeypatch):
-    """random_events runs the urban zones' rows in ranges on threads (from 2 ZONE_RANGE_ROWS rows on): in ranges
-    of 2 rows it gives what one pass over the 7 rows gives, bit for bit (visibility, event bits and the zones'
-    NLOS, bias, rate and C/N0 loss)."""
+@pytest.mark.parametrize("name", ["urban-smartloc", "urban-transition", "seed003-sim"])
+def test_event_stages_in_row_ranges_equal_one_pass(name, monkeypatch):
+    """The events' row stages (the urban zones of random_events, the re-acquisition transient of
+    scheduled_events, channel_noise) run their rows in ranges on threads (from 2 EVENT_RANGE_ROWS rows on): in
+    ranges of 2 rows they give what one pass over the 7 rows gives, bit for bit (visibility, event bits, the
+    zones' NLOS, bias, rate and C/N0 loss, the transient, the C/N0 and every channel's noise)."""
     from envs.sim import gnss_stages
     from envs.sim.row_threads import run_row_ranges
     seeds = list(range(40, 47))
-    args, _ = _gnss_inputs(name, seeds, monkeypatch, duration_s=120.0)
+    args, _ = _gnss_inputs(name, seeds, monkeypatch, duration_s=320.0 if name == "seed003-sim" else 120.0)
     t, r_e, v_e, heading, con, rec, events = np.asarray(args[0], np.float64), *args[1:7]
-    assert events.zones is not None
+    assert events.reacquisition is not None
 
-    def zones():
+    def stages():
         subs = [st._row_children(g) for g in row_generators(seeds, "gnss")]
         sky = st.sky_geometry(t, r_e, con, subs)
         sat = st.canyon_and_bursts(t, v_e, heading, sky, rec.elevation_mask_deg, events, subs)
         st.random_events(t, v_e, heading, sky, sat, events, subs)
-        return sat
+        st.scheduled_events(t, sat, events)
+        ch = st.allocate_channels(sky, sat.visible, rec.n_channels, subs, t, events.cn0)
+        return sat, ch, st.channel_noise(t, ch, sat, events)
 
-    monkeypatch.setattr(gnss_stages, "ZONE_RANGE_ROWS", 10 ** 9)
-    one = zones()
+    monkeypatch.setattr(gnss_stages, "EVENT_RANGE_ROWS", 10 ** 9)
+    one = stages()
     ranges = []
-    monkeypatch.setattr(gnss_stages, "ZONE_RANGE_ROWS", 2)
+    monkeypatch.setattr(gnss_stages, "EVENT_RANGE_ROWS", 2)
     monkeypatch.setattr(gnss_stages, "run_row_ranges",
                         lambda fn, n, workers=None, min_rows=8: run_row_ranges(
-                            lambda r0, r1: ranges.append((r0, r1)) or fn(r0, r1), n, 3, min_rows))
-    split = zones()
-    assert (0, 2) in ranges and (4, 7) in ranges
-    assert one.zone[0].any() and (one.bits & ev.OVERPASS).any()
-    for a, b, what in ((split.visible, one.visible, "visible"), (split.bits, one.bits, "bits"),
-                       *zip(split.zone, one.zone, ("nlos", "bias", "rate", "atten"))):
+                            lambda r0, r1: ranges.append((min_rows, r0, r1)) or fn(r0, r1), n, 3, min_rows))
+    split = stages()
+    assert ranges.count((2, 0, 2)) == ranges.count((2, 4, 7)) == (3 if events.zones is not None else 2)
+    (sat1, ch1, n1), (sat2, ch2, n2) = one, split
+    assert (sat1.reacq > 1.0).any()
+    if events.zones is not None:
+        assert sat1.zone[0].any() and (sat1.bits & ev.OVERPASS).any() and n1.nlos.any()
+        for a, b, what in zip(sat2.zone, sat1.zone, ("nlos", "bias", "rate", "atten")):
+            np.testing.assert_array_equal(a, b, err_msg=what)
+    for a, b, what in ((sat2.visible, sat1.visible, "visible"), (sat2.bits, sat1.bits, "bits"),
+                       (sat2.reacq, sat1.reacq, "reacq"), (ch2.cn0, ch1.cn0, "cn0")):
         np.testing.assert_array_equal(a, b, err_msg=what)
+    for f in fields(n1):
+        np.testing.assert_array_equal(getattr(n2, f.name), getattr(n1, f.name), err_msg=f.name)
 
 
 def test_imu_sensor_specs_and_sensor_row_contract():
