@@ -18,6 +18,7 @@ from envs.sim import events as ev
 from envs.sim import gnss_stages as st
 from envs.sim.imu import IMU_GRADES, ImuEvents, _children, _row_events, _sensor_row, _sensor_specs
 from envs.sim.rng import row_generators
+from envs.sim.row_threads import run_row_ranges
 from envs.sim.scenarios import get_scenario
 
 
@@ -51,6 +52,18 @@ def _run_stages(args):
     noise = st.channel_noise(t, ch, sat, events)
     err = st.receiver_errors(t, ch, noise, sat, rec, subs)
     return dict(t=t, sky=sky, sat=sat, ch=ch, rng=rng, noise=noise, err=err, rec=rec, events=events)
+
+
+def _one_pass_and_ranges(monkeypatch, constant: str, run):
+    """``run()`` with the stage's range-size ``constant`` of gnss_stages out of reach (one pass), then at 2 rows
+    with its row ranges on 3 threads, each recorded as ``(min_rows, r0, r1)``: ``(one, split, ranges)``."""
+    monkeypatch.setattr(st, constant, 10 ** 9)
+    one = run()
+    ranges = []
+    monkeypatch.setattr(st, constant, 2)
+    monkeypatch.setattr(st, "run_row_ranges", lambda fn, n, workers=None, min_rows=8: run_row_ranges(
+        lambda r0, r1: ranges.append((min_rows, r0, r1)) or fn(r0, r1), n, 3, min_rows))
+    return one, run(), ranges
 
 
 @pytest.mark.parametrize("name", ["urban", "urban-transition", "noise-mismatch"])
@@ -146,24 +159,19 @@ def test_receiver_errors_in_row_ranges_equal_one_pass(name, sigma_model, monkeyp
     """receiver_errors runs its rows in ranges on threads (from 2 RECEIVER_RANGE_ROWS rows on): in ranges of 2 rows
     (on 3 threads) it gives what one pass over the 7 rows gives, bit for bit, with the reported-sigma mismatch and
     with a variance sigma model."""
-    from envs.sim import gnss_stages
-    from envs.sim.row_threads import run_row_ranges
     from envs.sim.sigma_models import SigmaModel
     args, _ = _gnss_inputs(name, list(range(20, 27)), monkeypatch, duration_s=40.0)
     if sigma_model is not None:
         args = args[:5] + (replace(args[5], sigma_model=SigmaModel(sigma_model)),) + args[6:]
     t, rec = np.asarray(args[0], np.float64), args[5]
-    monkeypatch.setattr(gnss_stages, "RECEIVER_RANGE_ROWS", 10 ** 9)
     s = _run_stages(args)
-    one = s["err"]
-    ranges = []
-    monkeypatch.setattr(gnss_stages, "RECEIVER_RANGE_ROWS", 2)
-    monkeypatch.setattr(gnss_stages, "run_row_ranges",
-                        lambda fn, n, workers=None, min_rows=8: run_row_ranges(
-                            lambda r0, r1: ranges.append((r0, r1)) or fn(r0, r1), n, 3, min_rows))
-    subs = [st._row_children(g) for g in row_generators(list(range(20, 27)), "gnss")]  # its streams, fresh
-    split = st.receiver_errors(t, s["ch"], s["noise"], s["sat"], rec, subs)
-    assert sorted(ranges) == [(0, 2), (2, 4), (4, 7)]
+
+    def errors():
+        subs = [st._row_children(g) for g in row_generators(list(range(20, 27)), "gnss")]  # its streams, fresh
+        return st.receiver_errors(t, s["ch"], s["noise"], s["sat"], rec, subs)
+
+    one, split, ranges = _one_pass_and_ranges(monkeypatch, "RECEIVER_RANGE_ROWS", errors)
+    assert sorted(ranges) == [(2, 0, 2), (2, 2, 4), (2, 4, 7)]
     for f in fields(one):
         np.testing.assert_array_equal(getattr(split, f.name), getattr(one, f.name), err_msg=f.name)
     assert sigma_model is None or not np.array_equal(one.pr_sigma, _run_stages(_gnss_inputs(name, list(
@@ -175,8 +183,6 @@ def test_channel_allocation_in_row_ranges_equals_one_pass(name, extra_channels, 
     """allocate_channels runs its rows in ranges on threads (from 2 CHANNEL_RANGE_ROWS rows on): in ranges of 2 rows
     it gives what one pass over the 7 rows gives, bit for bit, with the C/N0 scatter and with more channels than
     satellites (padding channels)."""
-    from envs.sim import gnss_stages
-    from envs.sim.row_threads import run_row_ranges
     seeds = list(range(30, 37))
     args, _ = _gnss_inputs(name, seeds, monkeypatch, duration_s=30.0)
     t, r_e, v_e, heading, con, rec, events = np.asarray(args[0], np.float64), *args[1:7]
@@ -189,15 +195,8 @@ def test_channel_allocation_in_row_ranges_equals_one_pass(name, extra_channels, 
         subs = [st._row_children(g) for g in row_generators(seeds, "gnss")]
         return st.allocate_channels(sky, sat.visible, C, subs, t, events.cn0)
 
-    monkeypatch.setattr(gnss_stages, "CHANNEL_RANGE_ROWS", 10 ** 9)
-    one = channels()
-    ranges = []
-    monkeypatch.setattr(gnss_stages, "CHANNEL_RANGE_ROWS", 2)
-    monkeypatch.setattr(gnss_stages, "run_row_ranges",
-                        lambda fn, n, workers=None, min_rows=8: run_row_ranges(
-                            lambda r0, r1: ranges.append((r0, r1)) or fn(r0, r1), n, 3, min_rows))
-    split = channels()
-    assert sorted(ranges) == [(0, 2), (2, 4), (4, 7)]
+    one, split, ranges = _one_pass_and_ranges(monkeypatch, "CHANNEL_RANGE_ROWS", channels)
+    assert sorted(ranges) == [(2, 0, 2), (2, 2, 4), (2, 4, 7)]
     assert (one.nlos_deficit is None) == (events.cn0 is None)
     for f in fields(one):
         a, b = getattr(split, f.name), getattr(one, f.name)
@@ -215,8 +214,6 @@ def test_event_stages_in_row_ranges_equal_one_pass(name, monkeypatch):
     scheduled_events, channel_noise) run their rows in ranges on threads (from 2 EVENT_RANGE_ROWS rows on): in
     ranges of 2 rows they give what one pass over the 7 rows gives, bit for bit (visibility, event bits, the
     zones' NLOS, bias, rate and C/N0 loss, the transient, the C/N0 and every channel's noise)."""
-    from envs.sim import gnss_stages
-    from envs.sim.row_threads import run_row_ranges
     seeds = list(range(40, 47))
     args, _ = _gnss_inputs(name, seeds, monkeypatch, duration_s=320.0 if name == "seed003-sim" else 120.0)
     t, r_e, v_e, heading, con, rec, events = np.asarray(args[0], np.float64), *args[1:7]
@@ -231,14 +228,7 @@ def test_event_stages_in_row_ranges_equal_one_pass(name, monkeypatch):
         ch = st.allocate_channels(sky, sat.visible, rec.n_channels, subs, t, events.cn0)
         return sat, ch, st.channel_noise(t, ch, sat, events)
 
-    monkeypatch.setattr(gnss_stages, "EVENT_RANGE_ROWS", 10 ** 9)
-    one = stages()
-    ranges = []
-    monkeypatch.setattr(gnss_stages, "EVENT_RANGE_ROWS", 2)
-    monkeypatch.setattr(gnss_stages, "run_row_ranges",
-                        lambda fn, n, workers=None, min_rows=8: run_row_ranges(
-                            lambda r0, r1: ranges.append((min_rows, r0, r1)) or fn(r0, r1), n, 3, min_rows))
-    split = stages()
+    one, split, ranges = _one_pass_and_ranges(monkeypatch, "EVENT_RANGE_ROWS", stages)
     assert ranges.count((2, 0, 2)) == ranges.count((2, 4, 7)) == (3 if events.zones is not None else 2)
     (sat1, ch1, n1), (sat2, ch2, n2) = one, split
     assert (sat1.reacq > 1.0).any()
