@@ -23,12 +23,13 @@ if [ -n "${PERF_TINY:-}" ]; then
   )
 else
   BENCHES=(
-    # end-to-end env-steps/s (automatic resets included) beside step-only, B = 1 and 1024
-    "benchmarks/bench_envs.py --headline-only --methods sage-husa stkf svd-akf satellite-r --e2e-batches 1 1024"
+    # end-to-end env-steps/s (automatic resets included) beside step-only, B = 1 and 1024; each cell the median
+    # of 3 fresh processes (one run's cells swung by up to 1.5x on a shared machine)
+    "benchmarks/bench_envs.py --headline-only --methods sage-husa stkf svd-akf satellite-r --e2e-batches 1 1024 --rounds 3"
     # step time of the robust measurement screens against kf
     "benchmarks/bench_robust.py --batches 1 1024 --steps 20"
     # world generation per row (what a reset pays), by stage, with the cores busy in each
-    "benchmarks/bench_worlds.py --batches 1 1024 --cores"
+    "benchmarks/bench_worlds.py --batches 1 1024 --scenarios noise-burst urban urban-smartloc --cores"
     # resident memory of a single env, a DummyVecEnv of single envs and the native vector env
     "benchmarks/bench_memory.py --layouts single dummy-16 vector-64 --episodes 10"
   )
