@@ -69,9 +69,6 @@ class _Child:
     def __init__(self, subs, k: int):
         self._subs, self._k = subs, k
 
-    def __len__(self) -> int:
-        return len(self._subs)
-
     def __getitem__(self, i: int) -> np.random.Generator:
         return self._subs[i][self._k]
 
