@@ -200,9 +200,10 @@ class Channels:
     flat_sel: np.ndarray
     nlos_deficit: np.ndarray | None = None
 
-    def gather(self, a: np.ndarray) -> np.ndarray:
-        """(B, M, S) per-satellite array -> (B, M, C) per-channel array (``a[b, k, sel[b, k, c]]``)."""
-        return np.take(a, self.flat_sel)
+    def gather(self, a: np.ndarray, rows: slice = slice(None)) -> np.ndarray:
+        """(B, M, S) per-satellite array -> (B, M, C) per-channel array (``a[b, k, sel[b, k, c]]``), or the
+        ``rows`` (a slice) of it."""
+        return np.take(a, self.flat_sel[rows])
 
 
 @dataclass
@@ -494,10 +495,9 @@ def _noise_rows(r0: int, r1: int, scale, ch: Channels, sat: SatelliteEvents, eve
     """:func:`channel_noise` of rows ``r0 .. r1-1`` (``scale`` (M,) the noise-scale intervals' factor) into those
     rows of ``out``, ``ch.cn0`` and ``sat.bits``."""
     sl = slice(r0, r1)
-    fs = ch.flat_sel[sl]
 
-    def gather(a):  # (B, M, S) -> these rows' (rows, M, C) (Channels.gather)
-        return np.take(a, fs)
+    def gather(a):  # (B, M, S) -> these rows' (rows, M, C)
+        return ch.gather(a, sl)
 
     mask = ch.mask[sl]
     cn0 = ch.cn0[sl]
