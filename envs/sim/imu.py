@@ -52,9 +52,9 @@ import numpy as np
 
 from earth.units import DEG, deg, dph, dpsh, mg, mpsph, ppm, ugpsh, ugpshz
 
-from .imu_kernels import idle_samples, imu_rows, regimes, road_samples, rough_fill, sensor_pass, steps_fill
-from .normals import SFC64, fill_normals, store_stream_state, stream_state
-from .rng import ChildStreams
+from .imu_kernels import finite_rows, imu_rows, regimes_rows, rough_fill, sensor_pass, steps_fill, vibration_row
+from .normals import SFC64, fill_normals_rows, store_stream_state, stream_state
+from .rng import ChildStreams, child_states_rows
 from .buffers import empty
 from .row_threads import default_workers, run_row_ranges
 
@@ -491,102 +491,147 @@ def _ar2_coefficients(center_hz: float, damping: float, dt: float) -> tuple[floa
     return a1, a2, gamma0
 
 
-def _idle_coefficients(phases, f_e, a_rms, g_rms, weights, vib: Vibration, dt: float):
-    """``(w1, w2, coef)`` of :func:`idle_samples`: per channel rms r -> fundamental amplitude ``sqrt(2) r /
+def _idle_rows(f_e, a_rms, g_rms, phases, vib: Vibration, dt: float, rows, d: "_RowDraws") -> None:
+    """The idle tones of ``rows`` (R,) into ``d.w12`` and ``d.coef``, for
+    :func:`~envs.sim.imu_kernels.idle_samples`: per channel rms r -> fundamental amplitude ``sqrt(2) r /
     sqrt(1 + h^2)``, the harmonic ``h`` times that, each attenuated by ``sinc(w dt / 2)``
     (:func:`sinusoid_interval_mean`) and split on the random phase: ``A sin(th + phi) = A cos(phi) sin(th) +
-    A sin(phi) cos(th)``."""
-    rms = np.concatenate([a_rms * weights, g_rms * weights])
+    A sin(phi) cos(th)``. ``f_e``, ``a_rms``, ``g_rms`` (R,) and ``phases`` (R, 2, 6) are the rows' draws."""
+    weights = np.asarray(vib.axis_weights)
+    rms = np.concatenate([a_rms[:, None] * weights, g_rms[:, None] * weights], axis=1)
     h = vib.harmonic_ratio
     amp1 = math.sqrt(2.0) * rms / math.sqrt(1.0 + h * h)
     cos_ph, sin_ph = np.cos(phases), np.sin(phases)
-    ws, coef = [], np.empty((4, 6))
     for j, (mult, amp) in enumerate(((1.0, amp1), (2.0, h * amp1))):
         w = 2.0 * math.pi * f_e * mult
         y = math.pi * (w * dt / (2.0 * math.pi))
-        atten = math.sin(y) / y if y else 1.0       # numpy's sinc(w dt / 2pi) = sin(w dt/2) / (w dt/2)
-        ws.append(w)
-        coef[2 * j] = amp * atten * cos_ph[j]
-        coef[2 * j + 1] = amp * atten * sin_ph[j]
-    return ws[0], ws[1], coef
+        # numpy's sinc(w dt / 2pi) = sin(w dt/2) / (w dt/2), by the C library's sine as for one row
+        atten = np.array([math.sin(v) / v if v else 1.0 for v in y.tolist()])[:, None]
+        d.w12[rows, j] = w
+        d.coef[rows, 2 * j] = amp * atten * cos_ph[:, j]
+        d.coef[rows, 2 * j + 1] = amp * atten * sin_ph[:, j]
 
 
-def _vibration_draws(gen: np.random.Generator, dt: float, engine_on: np.ndarray | None, speed: np.ndarray,
-                     vib: Vibration, kinds: np.ndarray):
-    """The random draws of one run's vibration and its per-run parameters, without the samples.
+def _road_rows(gens, z, road_a, road_g, n_road, vib: Vibration, dt: float, rows, d: "_RowDraws") -> None:
+    """The road resonance of ``rows`` (R,) into ``d``: its start state ``zi``, its output ``scale``, ``road_par``
+    and where its innovations come from (the compiled stream of ``gens[i]``, or ``e`` drawn here by numpy).
 
-    Draw order (fixed, independent of the data): f_e, idle accel rms, idle gyro
-    rms, 2 x 6 phases, road accel level, road gyro level, then (only if the run
-    moves with the engine on) the road noise (2 + M) x 6, M = number of road samples: its first 2 x 6 here,
-    the M x 6 innovations by :func:`road_samples` from the stream state returned (here, for a generator whose
-    bit generator has no compiled stream).
-
-    Writes the samples' regimes into ``kinds`` (n,) int8 (:func:`regimes`). Returns None when the run has no
-    vibration (engine off throughout), else ``(idle, road)``: ``idle = (w1, w2, coef)`` for
-    :func:`idle_samples` or None without an idle sample; ``road = (a, zi, scale, kind, state, e)`` for
-    :func:`road_samples` or None without road vibration (``kind`` -1 and ``e`` (M, 6) for a generator drawn by
-    numpy).
+    ``z`` (R, 2, 6) holds the rows' 2 x 6 start normals, ``road_a``, ``road_g`` (R,) their levels and ``n_road`` (R,)
+    their road samples. The stationary start: ``y_1 = z_0``, ``y_2 = rho_1 z_0 + sqrt(1 - rho_1^2) z_1`` (the
+    AR(2) lag-1 correlation ``rho_1 = a_1 / (1 - a_2)``), the delay state of ``lfilter`` from them, times
+    ``sqrt(gamma0)``. y (stationary variance gamma0) is the vibration *displacement* (tilt angle, velocity) of the
+    resonance; the IMU senses its rate, and the interval mean of a rate is the displacement increment over the
+    interval divided by dt. So the sample is ``(L_k y_k - L_(k-1) y_(k-1)) / dt``: its sum telescopes, the
+    integrated vibration (attitude, velocity) stays bounded, and its spectrum is zero at DC, as for a physical
+    oscillation (a rate with power at DC would integrate into an attitude random walk that no vehicle has).
+    ``var(y_k - y_(k-1)) = 2 gamma0 (1 - rho1)`` for the unit-innovation process, hence ``scale``.
     """
-    f_e = gen.uniform(*vib.engine_freq_hz_range)
-    a_rms = gen.uniform(*vib.idle_accel_rms_range)
-    g_rms = gen.uniform(*vib.idle_gyro_rms_range)
-    phases = gen.uniform(0.0, 2.0 * math.pi, size=(2, 6))
-    road_a = gen.uniform(*vib.road_accel_rms_ref_range)
-    road_g = gen.uniform(*vib.road_gyro_rms_ref_range)
-
-    has_eng = engine_on is not None
-    n_idle, n_road = regimes(speed, engine_on if has_eng else _NO_FLAGS, has_eng, vib.stationary_speed_mps, kinds)
-    if not n_idle and not n_road:
-        return None
     weights = np.asarray(vib.axis_weights)
-    idle = _idle_coefficients(phases, f_e, a_rms, g_rms, weights, vib, dt) if n_idle else None
-    road = None
-    if n_road and (road_a > 0.0 or road_g > 0.0):
-        # The process runs only over the road samples (a stationary process
-        # restarted from its carried-over state after a stop is still stationary).
-        a1, a2, gamma0 = _ar2_coefficients(vib.road_center_hz, vib.road_damping, dt)
-        z = gen.standard_normal((2, 6))
-        rho1 = a1 / (1.0 - a2)
-        y1 = z[0]
-        y2 = rho1 * z[0] + math.sqrt(max(1.0 - rho1 * rho1, 0.0)) * z[1]
-        zi = np.stack([a1 * y1 + a2 * y2, a2 * y1]) * math.sqrt(gamma0)  # state in the unscaled process
-        # y (stationary variance gamma0) is the vibration *displacement* (tilt angle, velocity) of the
-        # resonance; the IMU senses its rate, and the interval mean of a rate is the displacement increment
-        # over the interval divided by dt. So the sample is (L_k y_k - L_(k-1) y_(k-1)) / dt: its sum
-        # telescopes, the integrated vibration (attitude, velocity) stays bounded, and its spectrum is zero
-        # at DC, as for a physical oscillation (a rate with power at DC would integrate into an attitude
-        # random walk that no vehicle has). var(y_k - y_(k-1)) = 2 gamma0 (1 - rho1) for the unit-innovation
-        # process.
-        unit = 1.0 / math.sqrt(2.0 * gamma0 * (1.0 - rho1))
-        scale = np.concatenate([road_a * weights, road_g * weights]) * unit
+    a1, a2, gamma0 = _ar2_coefficients(vib.road_center_hz, vib.road_damping, dt)
+    rho1 = a1 / (1.0 - a2)
+    y1 = z[:, 0]
+    y2 = rho1 * z[:, 0] + math.sqrt(max(1.0 - rho1 * rho1, 0.0)) * z[:, 1]
+    d.zi[rows] = np.stack([a1 * y1 + a2 * y2, a2 * y1], axis=1) * math.sqrt(gamma0)
+    unit = 1.0 / math.sqrt(2.0 * gamma0 * (1.0 - rho1))
+    d.scale[rows] = np.concatenate([road_a[:, None] * weights, road_g[:, None] * weights], axis=1) * unit
+    d.road_on[rows] = True
+    d.road_par[:3] = 1.0, -a1, -a2
+    for j, i in enumerate(rows.tolist()):
+        gen = gens[i]
         stream = stream_state(gen)
-        kind, state = stream if stream is not None else (-1, np.zeros(4, np.uint64))
-        e = gen.standard_normal((n_road, 6)) if stream is None else _NO_SAMPLES
-        road = (np.array([1.0, -a1, -a2]), zi, scale, kind, state, e)
-    return idle, road
+        if stream is None:                          # a bit generator without compiled draws: numpy draws them
+            d.e[i] = gen.standard_normal((int(n_road[j]), 6))
+        else:
+            d.road_kind[i], d.road_state[i] = stream
+            d.road_gens[i] = gen
+
+
+_VIBRATION_DRAWS = 17
+"""Uniform draws that start each run's vibration: f_e, idle accel rms, idle gyro rms, 2 x 6 phases, road accel
+level, road gyro level."""
+
+
+def _vibration_rows(gens: Sequence[np.random.Generator], dt: float, engine_on: np.ndarray | None,
+                    speed: np.ndarray, vib: Vibration, d: "_RowDraws") -> None:
+    """The random draws of each row's vibration and its per-run parameters, without the samples, into ``d``.
+
+    Draw order of row ``i``, from ``gens[i]`` alone (fixed, independent of the data): f_e, idle accel rms, idle
+    gyro rms, 2 x 6 phases, road accel level, road gyro level (each ``uniform`` in its range: 17 doubles, drawn
+    in one call, ``low + (high - low) u`` as ``Generator.uniform`` forms them), then (only if the run moves with
+    the engine on) the road noise (2 + M) x 6, M = number of road samples: its first 2 x 6 here, the M x 6
+    innovations by :func:`~envs.sim.imu_kernels.road_samples` from the stream state taken here (or here, for a
+    generator whose bit generator has no compiled stream).
+
+    Writes the samples' regimes into ``d.kinds`` (B, n) int8 (:func:`~envs.sim.imu_kernels.regimes`),
+    ``d.vib_on`` where the run has vibration (the engine runs at some sample), ``d.idle_on`` and the idle tones
+    (:func:`_idle_rows`) where it idles, ``d.road_on`` and the resonance (:func:`_road_rows`) where it drives with
+    a road level.
+    ``engine_on`` (B, n) or None (on throughout), ``speed`` (B, n) [m/s].
+    """
+    b = len(gens)
+    u = np.empty((b, _VIBRATION_DRAWS))
+    for i, gen in enumerate(gens):
+        gen.random(out=u[i])
+
+    def uniform(col, bounds):
+        low, high = bounds
+        return low + (high - low) * u[:, col]
+
+    f_e = uniform(0, vib.engine_freq_hz_range)
+    a_rms, g_rms = uniform(1, vib.idle_accel_rms_range), uniform(2, vib.idle_gyro_rms_range)
+    phases = uniform(slice(3, 15), (0.0, 2.0 * math.pi)).reshape(b, 2, 6)
+    road_a, road_g = uniform(15, vib.road_accel_rms_ref_range), uniform(16, vib.road_gyro_rms_ref_range)
+    counts = np.empty((b, 2), np.int64)
+    has_eng = engine_on is not None
+    regimes_rows(speed, engine_on if has_eng else _NO_FLAGS[None], has_eng, vib.stationary_speed_mps, d.kinds,
+                 counts)
+    n_idle, n_road = counts[:, 0], counts[:, 1]
+    d.vib_on[:] = (n_idle > 0) | (n_road > 0)
+    d.idle_on[:] = n_idle > 0
+    rows = np.flatnonzero(d.idle_on)
+    if rows.size:
+        _idle_rows(f_e[rows], a_rms[rows], g_rms[rows], phases[rows], vib, dt, rows, d)
+    rows = np.flatnonzero((n_road > 0) & ((road_a > 0.0) | (road_g > 0.0)))
+    if rows.size:
+        z = np.empty((rows.size, 2, 6))
+        for j, i in enumerate(rows.tolist()):
+            gens[i].standard_normal(out=z[j])
+        _road_rows(gens, z, road_a[rows], road_g[rows], n_road[rows], vib, dt, rows, d)
+
+
+def _store_road_streams(d: "_RowDraws") -> None:
+    """Each row's vibration generator set to where its compiled road innovations left it (``d.road_state``): where
+    numpy's draws of them would have left it."""
+    for i, gen in enumerate(d.road_gens):
+        if gen is not None:
+            store_stream_state(gen, d.road_kind[i], d.road_state[i])
+
+
+def _vibration_samples(gens: Sequence[np.random.Generator], dt: float, engine_on: np.ndarray | None,
+                       speed: np.ndarray, vib: Vibration) -> tuple[np.ndarray, np.ndarray]:
+    """The vibration of B runs: ``(on, out)``, ``on`` (B,) bool where a run has any (the engine runs at some
+    sample), ``out`` (B, n, 6) float64, ``f_vib`` in columns 0-2 and ``w_vib`` in 3-5 (zeros where ``on`` is
+    False). The draws of :func:`_vibration_rows` (each generator left where its draws end), then each row's
+    samples, compiled (:func:`~envs.sim.imu_kernels.vibration_row`)."""
+    b, n = speed.shape
+    d = _RowDraws.empty(b, n, vib)
+    _vibration_rows(gens, dt, engine_on, speed, vib, d)
+    e_flat, e_off = _csr(d.e, 6)
+    out = np.zeros((b, n, 6))
+    for i in np.flatnonzero(d.vib_on).tolist():
+        vibration_row(i, d.kinds, speed, dt, d.idle_on, d.w12, d.coef, d.road_on, d.road_par, d.zi, d.scale,
+                      d.road_kind, d.road_state, e_off, e_flat, out[i])
+    _store_road_streams(d)
+    return d.vib_on, out
 
 
 def _vibration_row(gen: np.random.Generator, dt: float, engine_on: np.ndarray | None, speed: np.ndarray,
                    vib: Vibration) -> np.ndarray | None:
     """Vibration of one run: (N, 6) float64, ``f_vib`` in columns 0-2 and ``w_vib`` in 3-5, or None if it is zero
-    throughout. The draws of :func:`_vibration_draws` (``gen`` left where they end), then the samples, compiled
-    (:func:`idle_samples`, :func:`road_samples`)."""
-    n = speed.shape[0]
-    kinds = np.empty(n, np.int8)
-    drawn = _vibration_draws(gen, dt, engine_on, speed, vib, kinds)
-    if drawn is None:
-        return None
-    idle, road = drawn
-    out = np.zeros((n, 6))
-    if idle is not None:
-        idle_samples(kinds, dt, *idle, out)
-    if road is not None:
-        a, zi, scale, kind, state, e = road
-        road_samples(kinds, speed, 1.0 / vib.road_ref_speed_mps, float(vib.road_speed_exponent), a, zi, scale,
-                      kind, state, e, out)
-        if kind >= 0:
-            store_stream_state(gen, kind, state)
-    return out
+    throughout (:func:`_vibration_samples` of that one row)."""
+    on, out = _vibration_samples([gen], dt, None if engine_on is None else engine_on[None],
+                                 np.asarray(speed, dtype=float)[None], vib)
+    return out[0] if on[0] else None
 
 
 _NO_FLAGS = np.zeros(0, dtype=bool)
@@ -628,10 +673,8 @@ def simulate_vibration(imu_rate_hz: float, rngs: Sequence[np.random.Generator], 
     w = np.zeros((b, n, 3), dtype=dtype)
     if not vib.enabled:
         return f, w
-    for i in range(b):
-        r = _vibration_row(rngs[i], 1.0 / rate, None if engine_on is None else engine_on[i], speed[i], vib)
-        if r is not None:
-            f[i], w[i] = r[:, :3], r[:, 3:]
+    _, out = _vibration_samples(rngs, 1.0 / rate, engine_on, speed, vib)
+    f[:], w[:] = out[..., :3], out[..., 3:]
     return f, w
 
 
@@ -817,16 +860,18 @@ def _check_motion(speed, engine_on, b: int, n: int):
 def _children(rng: np.random.Generator) -> ChildStreams:
     """Independent per-component streams of one row (2 draws from ``rng``), by name (:data:`_COMPONENTS`): child
     ``k`` is ``Generator(SFC64(SeedSequence(entropy, spawn_key=(k,))))``, each built on first use
-    (:class:`envs.sim.rng.ChildStreams`)."""
+    (:class:`envs.sim.rng.ChildStreams`). :func:`_draw_rows` takes the same streams of all rows at once; this one
+    row's form is what the one-row stages and their tests use."""
     words = rng.integers(0, _U64_MAX, size=2, dtype=np.uint64, endpoint=True)
     return ChildStreams([int(w) for w in words], len(_COMPONENTS), np.random.SFC64, _COMPONENTS)
 
 
 def _error_matrix(z: np.ndarray, scale_sigma: float, mis_sigma: float) -> np.ndarray:
-    """``S + M`` (3, 3) from 9 unit normals ``z`` (3, 3) (row-major draw order): diagonal scale errors,
-    off-diagonal misalignments."""
+    """``S + M`` (..., 3, 3) from 9 unit normals per matrix ``z`` (..., 3, 3) (row-major draw order): diagonal
+    scale errors, off-diagonal misalignments."""
     e = z * mis_sigma
-    np.fill_diagonal(e, np.diagonal(z) * scale_sigma)
+    diag = np.arange(3)
+    e[..., diag, diag] = z[..., diag, diag] * scale_sigma
     return e
 
 
@@ -898,14 +943,18 @@ def _check_inputs(f_true, w_true, imu_rate_hz, grade, rngs, engine_on, speed, vi
         raise ValueError(f"f_true must have shape (B, N, 3), got {f_true.shape}")
     if w_true.shape != f_true.shape:
         raise ValueError(f"w_true must have the shape of f_true {f_true.shape}, got {w_true.shape}")
-    for name, arr in (("f_true", f_true), ("w_true", w_true)):
-        if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
-            raise ValueError(f"{name} must be a real array, got dtype {arr.dtype}")
-        if not np.isfinite(arr).all():
-            raise ValueError(f"{name} must be finite")
     b, n, _ = f_true.shape
     if b == 0 or n == 0:
         raise ValueError(f"f_true must hold at least one row and one sample, got shape {f_true.shape}")
+    if workers is None:
+        workers = default_workers(b)
+    elif not isinstance(workers, (int, np.integer)) or isinstance(workers, bool) or workers < 1:
+        raise ValueError(f"workers must be a positive int or None, got {workers!r}")
+    for name, arr in (("f_true", f_true), ("w_true", w_true)):
+        if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
+            raise ValueError(f"{name} must be a real array, got dtype {arr.dtype}")
+        if not _all_finite(arr, workers):
+            raise ValueError(f"{name} must be finite")
     _check_rngs(rngs, b)
     speed, engine_on = _check_motion(speed, engine_on, b, n)
     if vibration is not None and not isinstance(vibration, Vibration):
@@ -920,11 +969,20 @@ def _check_inputs(f_true, w_true, imu_rate_hz, grade, rngs, engine_on, speed, vi
             raise ValueError(f"vibration_rngs: {exc}") from None
     if events is not None and not isinstance(events, ImuEvents):
         raise ValueError(f"events must be an ImuEvents or None, got {type(events).__name__}")
-    if workers is None:
-        workers = default_workers(b)
-    elif not isinstance(workers, (int, np.integer)) or isinstance(workers, bool) or workers < 1:
-        raise ValueError(f"workers must be a positive int or None, got {workers!r}")
     return grade, dtype, dt, f_true, w_true, engine_on, speed, (vibration if vib_on else None), workers
+
+
+def _all_finite(a: np.ndarray, workers: int) -> bool:
+    """Whether every element of ``a`` (B, ...) is finite: for a C-contiguous float32 or float64 array by
+    :func:`~envs.sim.imu_kernels.finite_rows` in row ranges on ``workers`` threads, else by numpy."""
+    if a.dtype.kind in "iub":
+        return True
+    if a.dtype not in (np.float32, np.float64) or not a.flags.c_contiguous:
+        return bool(np.isfinite(a).all())
+    flat = a.reshape(a.shape[0], -1)
+    ok = np.empty(a.shape[0], dtype=bool)
+    run_row_ranges(lambda r0, r1: finite_rows(flat, r0, r1, ok), a.shape[0], workers)
+    return bool(ok.all())
 
 
 def _sensor_specs(g: ImuGrade, dt: float) -> tuple[_SensorSpec, _SensorSpec]:
@@ -1006,7 +1064,7 @@ def _sensor_row(s: _SensorSpec, truth, vib, rough, sm_row, const, step_bias, ch,
 
 @dataclass(frozen=True)
 class _RowDraws:
-    """What :func:`_draw_row` draws for the compiled pass :func:`imu_rows` (row ``i`` of each array): the child
+    """What :func:`_draw_rows` draws for the compiled pass :func:`imu_rows` (row ``i`` of each array): the child
     stream states of the sensors' bias processes and white noise ``gm_state``, ``white_state`` (2, B, 4), the
     vibration (``vib_on``, ``idle_on``, ``w12``, ``coef``, ``road_on``, ``zi``, ``scale``, ``road_kind``,
     ``road_state``, ``kinds`` (B, n) the regimes; ``road_par`` (5,) shared; ``road_gens`` the generators whose
@@ -1048,51 +1106,40 @@ _NO_SEG = np.zeros((0, 3))
 _NO_STEPS = np.zeros((0, 4))
 
 
-def _draw_vibration(job: _RowJob, d: _RowDraws, i: int, gen: np.random.Generator) -> None:
-    """Row ``i``'s vibration draws (:func:`_vibration_draws`) into ``d``."""
-    drawn = _vibration_draws(gen, job.dt, None if job.engine_on is None else job.engine_on[i], job.speed[i],
-                             job.vibration, d.kinds[i])
-    if drawn is None:
-        return
-    d.vib_on[i] = True
-    idle, road = drawn
-    if idle is not None:
-        d.idle_on[i] = True
-        d.w12[i] = idle[:2]
-        d.coef[i] = idle[2]
-    if road is not None:
-        a, d.zi[i], d.scale[i], d.road_kind[i], d.road_state[i], e = road
-        d.road_on[i] = True
-        d.road_par[:3] = a
-        if d.road_kind[i] >= 0:
-            d.road_gens[i] = gen
-        else:
-            d.e[i] = e
-
-
-def _draw_row(job: _RowJob, d: _RowDraws, i: int) -> None:
-    """Row ``i`` of :func:`simulate_imu` up to its per-sample work: its per-run constants (into the job), its
-    vibration and events drawn (into ``d`` and ``job.ev_rows``) and its sensors' child streams taken. Draws only
-    from ``job.rngs[i]`` (its component streams, :func:`_children`) and ``job.vibration_rngs[i]``."""
-    ch = _children(job.rngs[i])
-    n = job.truth[0].shape[1]
+def _draw_rows(job: _RowJob, d: _RowDraws) -> None:
+    """Every row of :func:`simulate_imu` up to its per-sample work: its per-run constants (into the job), its
+    vibration and events drawn (into ``d`` and ``job.ev_rows``) and its sensors' child streams taken. Row ``i``
+    draws only from ``job.rngs[i]`` (two words that seed its component streams, :func:`_children`) and
+    ``job.vibration_rngs[i]``; the streams' raw states come from one compiled call
+    (:func:`envs.sim.rng.child_states_rows`), each stream's draws in its own order."""
+    b, n = job.truth[0].shape[:2]
+    words = np.empty((b, 2), np.uint64)
+    for i, gen in enumerate(job.rngs):
+        words[i] = gen.integers(0, _U64_MAX, size=2, dtype=np.uint64, endpoint=True)
+    raw = ["constants"] + [s.gm_stream for s in job.sensors if s.gm_sigma > 0] \
+        + [s.white_stream for s in job.sensors if s.white_sigma > 0]
+    states = child_states_rows(words, [_COMPONENTS.index(name) for name in raw], SFC64)
     # per-run constants, fixed order: turn-on gyro (3), turn-on accel (3), S+M gyro (9), S+M accel (9)
-    z = np.empty(24)
-    fill_normals(*ch.raw_state("constants"), z)
+    z = np.empty((b, 24))
+    fill_normals_rows(SFC64, np.ascontiguousarray(states[:, 0]), z)
     for k, s in enumerate(job.sensors):
-        job.bias_const[k][i] = s.fixed + z[3 * k:3 * k + 3] * s.turn_on_sigma
-    for k, s in enumerate(job.sensors):
-        job.sm[k][i] = _error_matrix(z[6 + 9 * k:15 + 9 * k].reshape(3, 3), s.scale_sigma, s.mis_sigma)
+        job.bias_const[k] = s.fixed + z[:, 3 * k:3 * k + 3] * s.turn_on_sigma
+        job.sm[k] = _error_matrix(z[:, 6 + 9 * k:15 + 9 * k].reshape(b, 3, 3), s.scale_sigma, s.mis_sigma)
+    kids = None
+    if job.events is not None or (job.vibration is not None and job.vibration_rngs is None):
+        kids = [ChildStreams([int(w) for w in row], len(_COMPONENTS), np.random.SFC64, _COMPONENTS) for row in words]
     if job.vibration is not None:
-        _draw_vibration(job, d, i, ch["vibration"] if job.vibration_rngs is None else job.vibration_rngs[i])
+        gens = job.vibration_rngs if job.vibration_rngs is not None else [c["vibration"] for c in kids]
+        _vibration_rows(gens, job.dt, job.engine_on, job.speed, job.vibration, d)
     if job.events is not None:
-        job.ev_rows[i] = _draw_imu_events(ch["events"], job.events, job.dt, n)
-        d.rough[i], d.steps[i] = _event_arrays(*job.ev_rows[i])
+        for i, c in enumerate(kids):
+            job.ev_rows[i] = _draw_imu_events(c["events"], job.events, job.dt, n)
+            d.rough[i], d.steps[i] = _event_arrays(*job.ev_rows[i])
     for k, s in enumerate(job.sensors):
         if s.gm_sigma > 0:
-            d.gm_state[k, i] = ch.raw_state(s.gm_stream)[1]
+            d.gm_state[k] = states[:, raw.index(s.gm_stream)]
         if s.white_sigma > 0:
-            d.white_state[k, i] = ch.raw_state(s.white_stream)[1]
+            d.white_state[k] = states[:, raw.index(s.white_stream)]
 
 
 def _csr(parts: list, width: int) -> tuple[np.ndarray, np.ndarray]:
@@ -1160,7 +1207,7 @@ def simulate_imu(f_true, w_true, imu_rate_hz: float, grade, rngs: Sequence[np.ra
         arithmetic is float64, so a float32 result is the float64 result rounded).
     workers : int or None
         Threads over row ranges for the per-sample work: each row's small draws are made first, in Python
-        (:func:`_draw_row`), then :func:`envs.sim.imu_kernels.imu_rows` runs ranges of rows, releasing the GIL
+        (:func:`_draw_rows`), then :func:`envs.sim.imu_kernels.imu_rows` runs ranges of rows, releasing the GIL
         (:func:`envs.sim.row_threads.run_row_ranges`). None: ``min(B, os.cpu_count(), 8)``; 1: serial. Results
         do not depend on it.
     vibration_rngs : list of B generators or None
@@ -1198,13 +1245,10 @@ def simulate_imu(f_true, w_true, imu_rate_hz: float, grade, rngs: Sequence[np.ra
                   bias_const=np.empty((2, b, 3)), sm=np.zeros((2, b, 3, 3)),
                   ev_rows=[None] * b)
     draws = _RowDraws.empty(b, n, vibration)
-    for i in range(b):
-        _draw_row(job, draws, i)
+    _draw_rows(job, draws)
     args = _kernel_args(job, draws)
     run_row_ranges(lambda r0, r1: imu_rows(r0, r1, *args), b, workers)
-    for i, gen in enumerate(draws.road_gens):     # the vibration generators left where numpy's draws would be
-        if gen is not None:
-            store_stream_state(gen, draws.road_kind[i], draws.road_state[i])
+    _store_road_streams(draws)
     return _imu_data(job, grade)
 
 

@@ -37,6 +37,26 @@ def regimes(speed, eng, has_eng, stationary, kinds):
 
 
 @nb.njit(cache=True, nogil=True)
+def finite_rows(a, r0, r1, ok):
+    """``ok[i]`` = whether every element of row ``i`` of ``a`` (B, m) is finite, for rows ``r0 .. r1-1``: ``x - x``
+    is 0 for a finite ``x`` and NaN for an infinite or NaN one (a branch-free pass over the row)."""
+    for i in range(r0, r1):
+        bad = False
+        for k in range(a.shape[1]):
+            x = a[i, k]
+            bad |= (x - x) != 0.0
+        ok[i] = not bad
+
+
+@nb.njit(cache=True, nogil=True)
+def regimes_rows(speed, eng, has_eng, stationary, kinds, counts):
+    """:func:`regimes` of each row ``i``: ``speed[i]`` (n,), ``eng[i]`` (read when ``has_eng``; ``eng`` may then
+    be (1, 0) otherwise) into ``kinds[i]`` (n,) int8, its ``(n_idle, n_road)`` into ``counts[i]`` (B, 2)."""
+    for i in range(speed.shape[0]):
+        counts[i, 0], counts[i, 1] = regimes(speed[i], eng[i if has_eng else 0], has_eng, stationary, kinds[i])
+
+
+@nb.njit(cache=True, nogil=True)
 def idle_samples(kinds, dt, w1, w2, coef, out):
     """The idle samples of ``out`` (n, 6): at the interval midpoint ``t = (k + 1/2) dt`` the interval means of the
     fundamental ``w1`` and the harmonic ``w2`` [rad/s], ``sum_i basis_i coef_i`` over the basis ``(sin w1 t,
@@ -232,7 +252,7 @@ def steps_fill(steps, sensor, dt, out) -> None:
 
 
 @nb.njit(cache=True, nogil=True)
-def _row_vibration(i, kinds, speed, dt, idle_on, w12, coef, road_on, road_par, zi, scale, road_kind, road_state,
+def vibration_row(i, kinds, speed, dt, idle_on, w12, coef, road_on, road_par, zi, scale, road_kind, road_state,
                    e_off, e_flat, out) -> None:
     """Row ``i``'s vibration (n, 6) into ``out``, zeroed first: :func:`idle_samples` where ``idle_on[i]``,
     :func:`road_samples` where ``road_on[i]``, drawing from ``(road_kind[i], road_state[i])`` or, for kind -1,
@@ -256,7 +276,7 @@ def imu_rows(r0, r1, w_true, f_true, dt, flags, sm_a, const, add_const, gm_par, 
     has_step, has_white, has_bias)``, ``sm_a[k]`` (B, 3, 3) ``I + S + M``, ``const[k]`` (B, 3) with
     ``add_const[k]`` (B,), ``gm_par[k] = (sigma, phi, scale)``, ``white_sigma[k]``, the rows' child stream
     states ``gm_state[k]``, ``white_state[k]`` (B, 4) of kind ``child_kind`` (advanced). Vibration per row:
-    ``vib_on`` (B,) (none where False), then :func:`_row_vibration`'s arrays, ``kinds`` (B, n) the regimes and
+    ``vib_on`` (B,) (none where False), then :func:`vibration_row`'s arrays, ``kinds`` (B, n) the regimes and
     ``speed`` (B, n).
     Events: the rough-road segments of row i are ``rough_seg[rough_off[i]:rough_off[i+1]]`` (R, 3), its bias steps
     ``step_rec[step_off[i]:step_off[i+1]]`` (S, 4) (:func:`rough_fill`, :func:`steps_fill`).
@@ -271,7 +291,7 @@ def imu_rows(r0, r1, w_true, f_true, dt, flags, sm_a, const, add_const, gm_par, 
     white_z = np.empty((n if flags[0, 3] or flags[1, 3] else 1, 3))
     for i in range(r0, r1):
         if vib_on[i]:
-            _row_vibration(i, kinds, speed, dt, idle_on, w12, coef, road_on, road_par, zi, scale, road_kind,
+            vibration_row(i, kinds, speed, dt, idle_on, w12, coef, road_on, road_par, zi, scale, road_kind,
                            road_state, e_off, e_flat, vib)
         if rough_off[i + 1] > rough_off[i]:
             rough_fill(rough_seg[rough_off[i]:rough_off[i + 1]], dt, rough)

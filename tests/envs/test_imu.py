@@ -356,6 +356,19 @@ def test_simulate_imu_bad_inputs_name_the_argument():
     bad[0, 3, 1] = np.nan
     with pytest.raises(ValueError, match="f_true"):
         simulate_imu(bad, w, RATE, "consumer", r)
+    # one non-finite element anywhere, in a float64 or float32, C-ordered or strided array, on 1 or 2 threads
+    # (the compiled row check), is refused; integer truth is finite
+    big_f, big_w = static_truth(40, 50)
+    big_r = rngs(range(40))
+    for value, (i, k, j) in ((np.inf, (39, 49, 2)), (-np.inf, (0, 0, 0)), (np.nan, (21, 17, 1))):
+        for dtype, order in ((np.float64, "C"), (np.float32, "C"), (np.float64, "F")):
+            for workers in (1, 2):
+                bad_w = np.array(big_w, dtype=dtype, order=order)
+                bad_w[i, k, j] = value
+                with pytest.raises(ValueError, match="w_true must be finite"):
+                    simulate_imu(big_f, bad_w, RATE, "consumer", big_r, workers=workers)
+    ints = simulate_imu(np.zeros((2, 10, 3), np.int64), np.zeros((2, 10, 3), np.int32), RATE, "ideal", r)
+    assert np.array_equal(ints.f_b, np.zeros((2, 10, 3)))
 
 
 def _vibration_reference(gen, dt, engine_on, speed, vib):

@@ -114,6 +114,36 @@ def test_row_normals_are_the_rows_child_draws_stacked(bit_generator):
     np.testing.assert_array_equal(buf, ref)
 
 
+@pytest.mark.parametrize("bit_generator", [np.random.SFC64, np.random.PCG64])
+def test_child_states_rows_are_each_rows_raw_states(bit_generator):
+    """child_states_rows: row i's states are ChildStreams(words[i] as ints).raw_state(key), for 64-bit words with
+    and without a high word (entropy_words makes 2, 3 or 4 uint32 words of them), zero words, one word or four;
+    bad shapes, keys and kinds are refused."""
+    from envs.sim.normals import PCG64, SFC64
+    from envs.sim.rng import child_states_rows
+    kind = SFC64 if bit_generator is np.random.SFC64 else PCG64
+    rng = np.random.default_rng(8)
+    keys = [0, 3, 6, 101]
+    for width in (1, 2, 4):
+        words = rng.integers(0, 2**64 - 1, size=(60, width), dtype=np.uint64, endpoint=True)
+        words[::3, 0] &= np.uint64(0xFFFFFFFF)                  # no high word
+        words[::5, -1] = 0
+        words[7] = 0
+        words[8] = np.iinfo(np.uint64).max
+        got = child_states_rows(words, keys, kind)
+        assert got.shape == (60, 4, 4) and got.dtype == np.uint64
+        for i, row in enumerate(words):
+            cs = ChildStreams([int(w) for w in row], 102, bit_generator)
+            for c, k in enumerate(keys):
+                np.testing.assert_array_equal(got[i, c], cs.raw_state(k)[1], err_msg=f"{width} {i} {k}")
+    with pytest.raises(ValueError, match=r"words must have shape \(B, W\)"):
+        child_states_rows(np.zeros((3, 5), np.uint64), keys, kind)
+    with pytest.raises(ValueError, match="keys must lie in"):
+        child_states_rows(np.zeros((3, 2), np.uint64), [-1], kind)
+    with pytest.raises(ValueError, match="kind must be SFC64"):
+        child_states_rows(np.zeros((3, 2), np.uint64), keys, 7)
+
+
 def _with_state(bit_generator, kind, state):
     """A fresh ``bit_generator`` set to the raw ``(kind, state)``."""
     from envs.sim.normals import store_stream_state
