@@ -716,7 +716,8 @@ def main(argv=None):
         if args.rounds > 1:
             print(f"each figure the median of {args.rounds} alternating runs per tree")
     elif args.rounds > 1:
-        print(f"each figure the median of {args.rounds} runs in fresh processes, cells in turn; their range beside")
+        beside = "" if args.headline_only else "; in the throughput table their range beside"
+        print(f"each figure the median of {args.rounds} runs in fresh processes, cells in turn{beside}")
     if not args.no_headline and not args.profile_only:
         _print_headline(args, n_steps, here, other)
     if args.headline_only:
