@@ -2,6 +2,8 @@
 
 * :func:`nlos_burst_rows`: the NLOS bursts' epochs, biases and rates of every row and satellite from the row's
   drawn renewal cycles (:func:`envs.sim.gnss_stages.canyon_and_bursts`);
+* :func:`segment_index_rows`: the segment index per epoch of renewal processes of consecutive segments (the
+  urban zones' and noise regimes' per-satellite segments, :func:`envs.sim.events._segment_index`);
 * :func:`receiver_tail_rows`: the channel errors, reported sigmas and true variances of rows ``r0 .. r1-1`` in
   one pass without the GIL, from the per-channel inputs the stage draws and maps with numpy (the mapping
   functions, the Gauss-Markov processes, the white-noise variates) (:func:`envs.sim.gnss_stages.receiver_errors`).
@@ -63,6 +65,37 @@ def nlos_burst_rows(t, t_begin, K, gap, dur, bias_draw, rate_draw, active, bias,
                     active[b, m, s] = False
                     bias[b, m, s] = 0.0
                     rate[b, m, s] = 0.0
+
+
+@nb.njit(cache=True, nogil=True)
+def segment_index_rows(t, lengths, idx, ends):
+    """Segment index per epoch of R rows of n columns of consecutive segments from ``t[0]``.
+
+    Column ``(r, j)``: segment ``k`` ends at ``ends[r, k, j] = t[0] + (lengths[r, 0, j] + ... + lengths[r, k, j])``,
+    the running sum taken in order (``t[0] + np.cumsum(lengths, axis=1)``: the same roundings); ``idx[r, i, j]``
+    is the number of ends at or before ``t[i]`` (``np.searchsorted(ends[r, :, j], t, side="right")``), at most
+    ``K - 1``, by one merge of the increasing epochs with the ends, which are nondecreasing for lengths >= 0.
+
+    Parameters
+    ----------
+    t : (M,) increasing epochs [s]; lengths : (R, K, n) segment lengths >= 0 [s].
+    idx : (R, M, n) int64 output; ends : (R, K, n) float64 output [s].
+    """
+    R, K, n = lengths.shape
+    M = t.shape[0]
+    t0 = t[0]
+    for r in range(R):
+        for j in range(n):
+            acc = lengths[r, 0, j]
+            ends[r, 0, j] = t0 + acc
+            for k in range(1, K):
+                acc = acc + lengths[r, k, j]
+                ends[r, k, j] = t0 + acc
+            k = 0
+            for i in range(M):
+                while k < K and ends[r, k, j] <= t[i]:
+                    k += 1
+                idx[r, i, j] = k if k < K else K - 1
 
 
 @nb.njit(cache=True, nogil=True)

@@ -54,6 +54,7 @@ import numpy as np
 
 from .canyon import UrbanCanyon, canyon_visibility_rows
 from .constellation import _check_pair as _pair, _check_real
+from .error_kernels import segment_index_rows
 from .receiver import _gauss_markov
 
 __all__ = [
@@ -145,18 +146,17 @@ def _segment_index(t: np.ndarray, lengths: np.ndarray):
 
     Returns
     -------
-    idx : (R, M, n) int64, the segment of each epoch (at most K - 1); ends : (R, K, n) the segments' ends [s].
+    idx : (R, M, n) int64, the segment of each epoch (at most K - 1); ends : (R, K, n) the segments' ends [s]
+    (compiled: :func:`~envs.sim.error_kernels.segment_index_rows`).
     """
     R, K, n = lengths.shape
-    M = t.size
-    ends = t[0] + np.cumsum(lengths, axis=1)
-    # idx[r, i, j] = number of ends[r, :, j] <= t[i] (np.searchsorted(ends[r, :, j], t, side="right")), for all
-    # columns at once: segment end k is passed from epoch first[r, k, j] = #(t < ends[r, k, j]) on (t increasing)
-    first = np.searchsorted(t, ends, side="left")
-    col = np.arange(R * n).reshape(R, 1, n)
-    passed = np.bincount((first + (M + 1) * col).ravel(), minlength=(M + 1) * R * n)
-    idx = np.cumsum(passed.reshape(R, n, M + 1)[:, :, :M], axis=2).transpose(0, 2, 1)
-    return np.minimum(idx, K - 1), ends
+    lengths = np.ascontiguousarray(lengths, dtype=np.float64)
+    if not (lengths >= 0.0).all():
+        raise ValueError("segment lengths must be >= 0")
+    idx = np.empty((R, t.size, n), dtype=np.int64)
+    ends = np.empty((R, K, n))
+    segment_index_rows(np.ascontiguousarray(t, dtype=np.float64), lengths, idx, ends)
+    return idx, ends
 
 
 # =============================================================================

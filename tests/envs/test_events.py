@@ -179,6 +179,29 @@ def test_renewal_segment_index_is_searchsorted_per_column():
         np.testing.assert_array_equal(starts, ends - lengths)
 
 
+def test_segment_index_of_many_rows_is_searchsorted_per_column():
+    """_segment_index (compiled merge) over R rows equals per column the count of ends at or before each epoch,
+    np.searchsorted(..., side="right"), capped at K - 1, and its ends are t[0] + np.cumsum bit for bit: with
+    ends falling exactly on epochs, zero lengths, segments that end before the last epoch and one column; negative
+    lengths are refused."""
+    t = np.concatenate([[0.0, 0.5], np.arange(1.0, 60.0, 1.0), [60.25]])
+    rng = np.random.default_rng(9)
+    cases = [rng.uniform(0.5, 9.0, (5, 12, 7)), np.ones((3, 70, 2)), rng.uniform(0.1, 0.6, (4, 6, 3)),
+             rng.uniform(2.0, 30.0, (2, 30, 1))]
+    cases[1][:, 3:5] = 0.0                                       # zero lengths: equal ends
+    for lengths in cases:
+        R, K, n = lengths.shape
+        idx, ends = ev._segment_index(t, lengths)
+        want_ends = t[0] + np.cumsum(lengths, axis=1)
+        np.testing.assert_array_equal(ends.view(np.uint64), want_ends.view(np.uint64))
+        for r in range(R):
+            for j in range(n):
+                ref = np.minimum(np.searchsorted(want_ends[r, :, j], t, side="right"), K - 1)
+                np.testing.assert_array_equal(idx[r, :, j], ref, err_msg=f"{lengths.shape} {r} {j}")
+    with pytest.raises(ValueError, match="segment lengths must be >= 0"):
+        ev._segment_index(t, -np.ones((1, 3, 2)))
+
+
 def test_zone_effects_rows_equal_each_row_alone():
     """zone_effects_rows over 8 rows gives what zone_effects gives for each row alone, bit for bit (the rows'
     draws from their own streams, their canyon windows, zone counts and segment indices kept apart), with the
