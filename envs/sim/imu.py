@@ -524,14 +524,16 @@ def _road_rows(gens, z, road_a, road_g, n_road, vib: Vibration, dt: float, rows,
     interval divided by dt. So the sample is ``(L_k y_k - L_(k-1) y_(k-1)) / dt``: its sum telescopes, the
     integrated vibration (attitude, velocity) stays bounded, and its spectrum is zero at DC, as for a physical
     oscillation (a rate with power at DC would integrate into an attitude random walk that no vehicle has).
-    ``var(y_k - y_(k-1)) = 2 gamma0 (1 - rho1)`` for the unit-innovation process, hence ``scale``.
+    ``var(y_k - y_(k-1)) = 2 gamma0 (1 - rho1)`` for the unit-innovation process, hence ``scale``. The process
+    runs only over the road samples (a stationary process restarted from its carried-over state after a stop is
+    still stationary).
     """
     weights = np.asarray(vib.axis_weights)
     a1, a2, gamma0 = _ar2_coefficients(vib.road_center_hz, vib.road_damping, dt)
     rho1 = a1 / (1.0 - a2)
     y1 = z[:, 0]
     y2 = rho1 * z[:, 0] + math.sqrt(max(1.0 - rho1 * rho1, 0.0)) * z[:, 1]
-    d.zi[rows] = np.stack([a1 * y1 + a2 * y2, a2 * y1], axis=1) * math.sqrt(gamma0)
+    d.zi[rows] = np.stack([a1 * y1 + a2 * y2, a2 * y1], axis=1) * math.sqrt(gamma0)  # state in the unscaled process
     unit = 1.0 / math.sqrt(2.0 * gamma0 * (1.0 - rho1))
     d.scale[rows] = np.concatenate([road_a[:, None] * weights, road_g[:, None] * weights], axis=1) * unit
     d.road_on[rows] = True
