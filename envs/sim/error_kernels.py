@@ -4,6 +4,8 @@
   drawn renewal cycles (:func:`envs.sim.gnss_stages.canyon_and_bursts`);
 * :func:`segment_index_rows`: the segment index per epoch of renewal processes of consecutive segments (the
   urban zones' and noise regimes' per-satellite segments, :func:`envs.sim.events._segment_index`);
+* :func:`gauss_markov_rows`: first-order Gauss-Markov processes on uniform steps along the time axis of rows of
+  columns (:func:`envs.sim.receiver._gauss_markov_rows`: the troposphere and ionosphere residuals);
 * :func:`receiver_tail_rows`: the channel errors, reported sigmas and true variances of rows ``r0 .. r1-1`` in
   one pass without the GIL, from the per-channel inputs the stage draws and maps with numpy (the mapping
   functions, the Gauss-Markov processes, the white-noise variates) (:func:`envs.sim.gnss_stages.receiver_errors`).
@@ -96,6 +98,38 @@ def segment_index_rows(t, lengths, idx, ends):
                 while k < K and ends[r, k, j] <= t[i]:
                     k += 1
                 idx[r, i, j] = k if k < K else K - 1
+
+
+@nb.njit(cache=True, nogil=True)
+def gauss_markov_rows(z, sigma, a0, c, out):
+    """First-order Gauss-Markov processes on uniform steps, one per column of each row, into ``out``.
+
+    Column ``(r, j)``: ``x_0 = sigma z_0``, then ``x_m = a0 x_(m-1) + c_(m-1) z_m`` as ``scipy.signal.lfilter([1],
+    [1, -a0], c z[1:], zi=[a0 x_0])`` computes it: its direct form II transposed recursion with the numerator
+    padded to ``[1, 0]``, its operations in its order (``y = zi + 1.0 e``, ``zi = e 0.0 - y (-a0)``), so the same
+    bits as :func:`envs.sim.receiver._gauss_markov`'s uniform-step path.
+
+    Parameters
+    ----------
+    z : (R, M, L) standard normal draws, time along axis 1; sigma : stationary standard deviation;
+    a0 : ``exp(-dt / tau)``; c : (M - 1,) the innovation scales ``sigma sqrt(1 - exp(-2 dt / tau))``;
+    out : (R, M, L) float64 output.
+    """
+    R, M, L = z.shape
+    na = -a0
+    zi = np.empty(L)
+    for r in range(R):                  # the columns side by side in the inner loop: independent recursions
+        for j in range(L):
+            x0 = sigma * z[r, 0, j]
+            out[r, 0, j] = x0
+            zi[j] = a0 * x0
+        for m in range(1, M):
+            cm = c[m - 1]
+            for j in range(L):
+                e = cm * z[r, m, j]
+                y = zi[j] + 1.0 * e
+                zi[j] = e * 0.0 - y * na
+                out[r, m, j] = y
 
 
 @nb.njit(cache=True, nogil=True)

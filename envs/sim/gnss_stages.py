@@ -31,7 +31,7 @@ from .canyon import canyon_visibility_rows, in_intervals
 from .constellation import Constellation
 from .error_kernels import nlos_burst_rows, receiver_tail_rows
 from .geometry_kernels import ranging_rows, sky_rows
-from .receiver import _MIN_EL_SIGMA, CN0_JITTER_DB, _gauss_markov, iono_obliquity, simulate_clock, tropo_mapping
+from .receiver import _MIN_EL_SIGMA, CN0_JITTER_DB, _gauss_markov_rows, iono_obliquity, simulate_clock, tropo_mapping
 from .rng import ChildStreams, row_normals
 from .rng import entropy_words as _entropy_words  # noqa: F401  (re-exported by envs.sim.gnss)
 from .row_threads import run_row_ranges
@@ -575,12 +575,12 @@ def _receiver_rows(r0: int, r1: int, t, ch: Channels, noise: ChannelNoise, sat: 
     clock[0][sl], clock[1][sl] = simulate_clock(t, [s[_SUB_CLOCK] for s in rows], receiver.clock)
     s_el = np.sin(np.maximum(el, _MIN_EL_SIGMA))
     m_t, f_i = tropo_mapping(el), iono_obliquity(el)
-    # the Gauss-Markov processes of the rows in one call each (time axis first; columns are independent)
-    tropo_z = _gauss_markov(t, receiver.tropo_tau_s, receiver.tropo_zenith_sigma_m,
-                            np.ascontiguousarray(row_normals(rows, _SUB_TROPO, (M,)).T)).T
-    iono_sat = _gauss_markov(t, receiver.iono_tau_s, receiver.iono_zenith_sigma_m,   # one process per satellite
-                             np.ascontiguousarray(row_normals(rows, _SUB_IONO, (M, S)).transpose(1, 0, 2)))
-    iono_ch = np.take(iono_sat.transpose(1, 0, 2), ch.flat_sel[sl] - r0 * M * S)  # Channels.gather of the rows
+    # the Gauss-Markov processes of the rows in one call each (columns are independent)
+    tropo_z = _gauss_markov_rows(t, receiver.tropo_tau_s, receiver.tropo_zenith_sigma_m,
+                                 row_normals(rows, _SUB_TROPO, (M, 1)))[:, :, 0]
+    iono_sat = _gauss_markov_rows(t, receiver.iono_tau_s, receiver.iono_zenith_sigma_m,   # one per satellite
+                                  row_normals(rows, _SUB_IONO, (M, S)))
+    iono_ch = np.take(iono_sat, ch.flat_sel[sl] - r0 * M * S)  # Channels.gather of the rows
     del iono_sat
     code_z = row_normals(rows, _SUB_CODE, (M, C), out=draws[0][sl])
     rate_z = row_normals(rows, _SUB_RATE, (M, C), out=draws[1][sl])

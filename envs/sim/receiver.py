@@ -18,6 +18,7 @@ from scipy.signal import lfilter
 from earth.wgs84 import C_LIGHT
 
 from .constellation import _check_int, _check_real
+from .error_kernels import gauss_markov_rows
 from .sigma_models import SigmaModel
 
 __all__ = ["ClockModel", "ReceiverConfig", "simulate_clock", "tropo_mapping", "iono_obliquity", "CN0_JITTER_DB"]
@@ -202,6 +203,11 @@ def simulate_clock(t, rngs, clock: ClockModel | None = None):
     return bias, drift
 
 
+def _uniform_steps(dt: np.ndarray) -> bool:
+    """Whether the steps ``dt`` (M - 1,) are equal to rtol 1e-9: ``np.allclose(dt, dt[0], rtol=1e-9, atol=0)``."""
+    return bool(np.all(np.abs(dt - dt[0]) <= 1e-9 * abs(dt[0])))
+
+
 def _gauss_markov(t: np.ndarray, tau: float, sigma: float, z: np.ndarray) -> np.ndarray:
     """Stationary first-order Gauss-Markov process sampled exactly at ``t``.
 
@@ -228,7 +234,7 @@ def _gauss_markov(t: np.ndarray, tau: float, sigma: float, z: np.ndarray) -> np.
     dt = np.diff(t)
     a = np.exp(-dt / tau)
     e = sigma * np.sqrt(-np.expm1(-2.0 * dt / tau)).reshape((-1,) + (1,) * (z.ndim - 1)) * z[1:]
-    if np.all(np.abs(dt - dt[0]) <= 1e-9 * abs(dt[0])):      # uniform: np.allclose(dt, dt[0], rtol=1e-9, atol=0)
+    if _uniform_steps(dt):
         a0 = float(a[0])
         y, _ = lfilter([1.0], [1.0, -a0], e, axis=0, zi=(a0 * x0)[None])
         return np.concatenate([x0[None], y], axis=0)
@@ -247,6 +253,22 @@ def _gauss_markov(t: np.ndarray, tau: float, sigma: float, z: np.ndarray) -> np.
         xs = np.exp(L) * (x_prev + np.cumsum(e[s:f] * np.exp(-L), axis=0))
         out[s + 1:f + 1] = xs
         x_prev = xs[-1]
+    return out
+
+
+def _gauss_markov_rows(t: np.ndarray, tau: float, sigma: float, z: np.ndarray) -> np.ndarray:
+    """:func:`_gauss_markov` of each row of ``z`` (R, M, L) along its time axis 1, as a new C-ordered (R, M, L)
+    array: the same values bit for bit, without transposing the rows' draws to time-first. Uniform steps run the
+    compiled recursion (:func:`~envs.sim.error_kernels.gauss_markov_rows`), others :func:`_gauss_markov`."""
+    z = np.ascontiguousarray(z, dtype=np.float64)
+    M = z.shape[1]
+    dt = np.diff(t)
+    if M == 1 or not _uniform_steps(dt):
+        return np.ascontiguousarray(_gauss_markov(t, tau, sigma, z.transpose(1, 0, 2)).transpose(1, 0, 2))
+    a0 = float(np.exp(-dt / tau)[0])
+    c = sigma * np.sqrt(-np.expm1(-2.0 * dt / tau))
+    out = np.empty(z.shape)
+    gauss_markov_rows(z, float(sigma), a0, c, out)
     return out
 
 

@@ -173,3 +173,20 @@ def test_nlos_bursts_of_rows_equal_each_row_alone():
     g = np.random.default_rng(0)
     off = _nlos_burst_rows(t, 6, NlosConfig(rate_hz=0.0), [g])
     assert not off[0].any() and not off[1].any() and g.random() == np.random.default_rng(0).random()
+
+
+def test_gauss_markov_rows_equal_the_lfilter_process_of_each_row():
+    """receiver._gauss_markov_rows (compiled lfilter recursion on uniform steps) gives, for each row of (R, M, L)
+    draws, receiver._gauss_markov of that row (scipy's lfilter, time axis first) bit for bit: one and many columns,
+    a single epoch, and non-uniform steps (its numpy path)."""
+    from envs.sim.receiver import _gauss_markov, _gauss_markov_rows
+    rng = np.random.default_rng(12)
+    uniform = np.arange(1.0, 61.0)
+    for t, L in ((uniform, 30), (uniform, 1), (0.2 * uniform, 7), (np.array([3.0]), 4),
+                 (np.cumsum(rng.uniform(0.5, 2.0, 40)), 5)):
+        z = rng.standard_normal((6, t.size, L))
+        got = _gauss_markov_rows(t, 300.0, 0.4, z)
+        assert got.shape == z.shape and got.flags.c_contiguous
+        for r in range(z.shape[0]):
+            want = _gauss_markov(t, 300.0, 0.4, z[r])
+            np.testing.assert_array_equal(got[r].view(np.uint64), want.view(np.uint64), err_msg=f"{t.size} {L} {r}")
