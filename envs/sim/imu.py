@@ -864,8 +864,13 @@ def _children(rng: np.random.Generator) -> ChildStreams:
     ``k`` is ``Generator(SFC64(SeedSequence(entropy, spawn_key=(k,))))``, each built on first use
     (:class:`envs.sim.rng.ChildStreams`). :func:`_draw_rows` takes the same streams of all rows at once; this one
     row's form is what the one-row stages and their tests use."""
-    words = rng.integers(0, _U64_MAX, size=2, dtype=np.uint64, endpoint=True)
-    return ChildStreams([int(w) for w in words], len(_COMPONENTS), np.random.SFC64, _COMPONENTS)
+    return ChildStreams([int(w) for w in _seed_words(rng)], len(_COMPONENTS), np.random.SFC64, _COMPONENTS)
+
+
+def _seed_words(rng: np.random.Generator) -> np.ndarray:
+    """The two uint64 words a row draws from ``rng`` to seed its component streams (:func:`_children`,
+    :func:`_draw_rows`)."""
+    return rng.integers(0, _U64_MAX, size=2, dtype=np.uint64, endpoint=True)
 
 
 def _error_matrix(z: np.ndarray, scale_sigma: float, mis_sigma: float) -> np.ndarray:
@@ -1117,7 +1122,7 @@ def _draw_rows(job: _RowJob, d: _RowDraws) -> None:
     b, n = job.truth[0].shape[:2]
     words = np.empty((b, 2), np.uint64)
     for i, gen in enumerate(job.rngs):
-        words[i] = gen.integers(0, _U64_MAX, size=2, dtype=np.uint64, endpoint=True)
+        words[i] = _seed_words(gen)
     raw = ["constants"] + [s.gm_stream for s in job.sensors if s.gm_sigma > 0] \
         + [s.white_stream for s in job.sensors if s.white_sigma > 0]
     states = child_states_rows(words, [_COMPONENTS.index(name) for name in raw], SFC64)
