@@ -864,7 +864,12 @@ def _children(rng: np.random.Generator) -> ChildStreams:
     ``k`` is ``Generator(SFC64(SeedSequence(entropy, spawn_key=(k,))))``, each built on first use
     (:class:`envs.sim.rng.ChildStreams`). :func:`_draw_rows` takes the same streams of all rows at once; this one
     row's form is what the one-row stages and their tests use."""
-    return ChildStreams([int(w) for w in _seed_words(rng)], len(_COMPONENTS), np.random.SFC64, _COMPONENTS)
+    return _streams_of(_seed_words(rng))
+
+
+def _streams_of(words) -> ChildStreams:
+    """The component streams (:func:`_children`) seeded by a row's two words (:func:`_seed_words`)."""
+    return ChildStreams([int(w) for w in words], len(_COMPONENTS), np.random.SFC64, _COMPONENTS)
 
 
 def _seed_words(rng: np.random.Generator) -> np.ndarray:
@@ -1134,7 +1139,7 @@ def _draw_rows(job: _RowJob, d: _RowDraws) -> None:
         job.sm[k] = _error_matrix(z[:, 6 + 9 * k:15 + 9 * k].reshape(b, 3, 3), s.scale_sigma, s.mis_sigma)
     kids = None
     if job.events is not None or (job.vibration is not None and job.vibration_rngs is None):
-        kids = [ChildStreams([int(w) for w in row], len(_COMPONENTS), np.random.SFC64, _COMPONENTS) for row in words]
+        kids = [_streams_of(row) for row in words]
     if job.vibration is not None:
         gens = job.vibration_rngs if job.vibration_rngs is not None else [c["vibration"] for c in kids]
         _vibration_rows(gens, job.dt, job.engine_on, job.speed, job.vibration, d)

@@ -208,6 +208,12 @@ def _uniform_steps(dt: np.ndarray) -> bool:
     return bool(np.all(np.abs(dt - dt[0]) <= 1e-9 * abs(dt[0])))
 
 
+def _gm_steps(dt: np.ndarray, tau: float, sigma: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per step ``dt`` (M - 1,) of a Gauss-Markov process (:func:`_gauss_markov`): the transition ``a =
+    exp(-dt / tau)`` and the innovation scale ``sigma sqrt(1 - exp(-2 dt / tau))``."""
+    return np.exp(-dt / tau), sigma * np.sqrt(-np.expm1(-2.0 * dt / tau))
+
+
 def _gauss_markov(t: np.ndarray, tau: float, sigma: float, z: np.ndarray) -> np.ndarray:
     """Stationary first-order Gauss-Markov process sampled exactly at ``t``.
 
@@ -232,8 +238,8 @@ def _gauss_markov(t: np.ndarray, tau: float, sigma: float, z: np.ndarray) -> np.
     if t.size == 1:
         return x0[None].copy() if np.ndim(x0) else np.array([x0])
     dt = np.diff(t)
-    a = np.exp(-dt / tau)
-    e = sigma * np.sqrt(-np.expm1(-2.0 * dt / tau)).reshape((-1,) + (1,) * (z.ndim - 1)) * z[1:]
+    a, c = _gm_steps(dt, tau, sigma)
+    e = c.reshape((-1,) + (1,) * (z.ndim - 1)) * z[1:]
     if _uniform_steps(dt):
         a0 = float(a[0])
         y, _ = lfilter([1.0], [1.0, -a0], e, axis=0, zi=(a0 * x0)[None])
@@ -265,8 +271,8 @@ def _gauss_markov_rows(t: np.ndarray, tau: float, sigma: float, z: np.ndarray) -
     dt = np.diff(t)
     if M == 1 or not _uniform_steps(dt):
         return np.ascontiguousarray(_gauss_markov(t, tau, sigma, z.transpose(1, 0, 2)).transpose(1, 0, 2))
-    a0 = float(np.exp(-dt / tau)[0])
-    c = sigma * np.sqrt(-np.expm1(-2.0 * dt / tau))
+    a, c = _gm_steps(dt, tau, sigma)
+    a0 = float(a[0])
     out = np.empty(z.shape)
     gauss_markov_rows(z, float(sigma), a0, c, out)
     return out
