@@ -36,6 +36,7 @@ import math
 import numba as nb
 import numpy as np
 
+from earth.ranging import range_rate_pair
 from nav_filters.kernels import serial_and_parallel
 from nav_filters.measurements import MAX_PRN
 
@@ -196,59 +197,124 @@ def _commit_rows(mask, keys, cn0, innov, S, resid, u, pr_var, prr_var, with_rate
         channel i now holds its satellite (found by key among the previous state's channels, or new).
     """
     B, C = mask.shape
-    L = ch_hist.shape[2]
-    D = ch_hist.shape[3]
     for ch in nb.prange(nchunk):
-        old_keys = np.empty(C, np.int64)
-        old_hist = np.empty((C, L, D))
-        old_count = np.empty(C, np.int64)
-        w_pr = np.empty(C)
-        w_prr = np.empty(C)
+        work = _commit_work(C, ch_hist.shape[2], ch_hist.shape[3])
         use = np.empty(C, np.bool_)
-        A = np.empty((4, 4))
-        g = np.empty(4)
         for b in range(ch * B // nchunk, (ch + 1) * B // nchunk):
             for i in range(C):
-                old_keys[i] = ch_keys[b, i]
-                old_count[i] = ch_count[b, i]
-                for lag in range(L):
-                    for f in range(D):
-                        old_hist[i, lag, f] = ch_hist[b, i, lag, f]
                 use[i] = mask[b, i] and keys[b, i] >= 0
-            _snapshot_fit(resid[b], u[b], pr_var[b], use, 0, C, w_pr, A, g)
-            if with_rate:
-                _snapshot_fit(resid[b], u[b], prr_var[b], use, C, C, w_prr, A, g)
+            _commit_row(b, use, keys[b], cn0[b], innov, S, resid[b], u[b], pr_var[b], prr_var[b], with_rate, scale,
+                        act, ch_keys, ch_hist, ch_count, ch_act, work)
+
+
+@nb.njit(cache=True, inline="always")
+def _commit_work(C, L, D):
+    """The scratch of :func:`_commit_row` (one per chunk of rows)."""
+    return (np.empty(C, np.int64), np.empty((C, L, D)), np.empty(C, np.int64), np.empty(C), np.empty(C),
+            np.empty((4, 4)), np.empty(4))
+
+
+@nb.njit(cache=True, inline="always")
+def _commit_row(b, use, keys, cn0, innov, S, resid, u, pr_var, prr_var, with_rate, scale, act, ch_keys, ch_hist,
+                ch_count, ch_act, work):
+    """Row ``b`` of :func:`_commit_rows`: ``use`` (C,) the channels used with a key, ``keys``, ``cn0`` (C,), ``resid``
+    (m_r,), ``u`` (C, 3), ``pr_var``, ``prr_var`` (C,) that row's; the rest as there; ``work``
+    (:func:`_commit_work`)."""
+    old_keys, old_hist, old_count, w_pr, w_prr, A, g = work
+    C = use.shape[0]
+    L = ch_hist.shape[2]
+    D = ch_hist.shape[3]
+    for i in range(C):
+        old_keys[i] = ch_keys[b, i]
+        old_count[i] = ch_count[b, i]
+        for lag in range(L):
+            for f in range(D):
+                old_hist[i, lag, f] = ch_hist[b, i, lag, f]
+    _snapshot_fit(resid, u, pr_var, use, 0, C, w_pr, A, g)
+    if with_rate:
+        _snapshot_fit(resid, u, prr_var, use, C, C, w_prr, A, g)
+    for i in range(C):
+        key = keys[i] if use[i] else -1
+        ch_keys[b, i] = key
+        if key < 0:
+            ch_count[b, i] = 0
+            ch_act[b, i] = 0.0
+            for lag in range(L):
+                for f in range(D):
+                    ch_hist[b, i, lag, f] = 0.0
+            continue
+        j = -1
+        for q in range(C):
+            if old_keys[q] == key:
+                j = q
+                break
+        ch_count[b, i] = old_count[j] + 1 if j >= 0 else 1
+        for lag in range(L - 1, 0, -1):
+            for f in range(D):
+                ch_hist[b, i, lag, f] = old_hist[j, lag - 1, f] if j >= 0 else 0.0
+        z_pr = np.float64(innov[b, i]) / math.sqrt(np.float64(S[b, i]))
+        z_prr = np.float64(innov[b, C + i]) / math.sqrt(np.float64(S[b, C + i])) if with_rate else 0.0
+        ch_hist[b, i, 0, 0] = math.asinh(z_pr)
+        ch_hist[b, i, 0, 1] = math.asinh(z_prr)
+        ch_hist[b, i, 0, 2] = math.asinh(w_pr[i])
+        ch_hist[b, i, 0, 3] = math.asinh(w_prr[i]) if with_rate else 0.0
+        ch_hist[b, i, 0, 4] = math.log10(max(scale[b, i], 1e-12))
+        ch_hist[b, i, 0, 5] = cn0[i] / 50.0
+        ch_act[b, i] = act[b, i]
+
+
+def _commit_epoch_rows(epoch, sat_keys, sat_cn0, sat_pos, sat_vel, pr, prr, pr_sigma, prr_sigma, r, v, clk, drift,
+                       mask, with_rate, innov, S, scale, act, ch_keys, ch_hist, ch_count, ch_act, nchunk):
+    """:func:`_commit_rows` on an env core's world arrays at each row's updated epoch, its inputs formed per row
+    as the numpy chain before it formed them for all rows (the same bits): the epoch's keys, C/N0 and reported
+    variances ``sigma^2``, and the post-update residuals and lines of sight of
+    :func:`nav_filters.measurements.gnss_innovations` at the corrected state (its ranging,
+    :func:`earth.ranging.range_rate_pair`, 3 light-time iterations; 0 on unused channels).
+
+    Parameters
+    ----------
+    epoch : (B,) int64 the updated epoch of each row; sat_keys (B, M, C) int64, sat_cn0, pr, prr, pr_sigma,
+    prr_sigma (B, M, C), sat_pos, sat_vel (B, M, C, 3): the world's epochs [m, m/s, dB-Hz]; r, v (B, 3), clk, drift
+    (B,): the navigator's corrected position, velocity [m, m/s], clock bias and drift [m, m/s]; mask (B, C) bool
+    the channels used; the rest as :func:`_commit_rows`.
+    """
+    B, C = mask.shape
+    for ch in nb.prange(nchunk):
+        work = _commit_work(C, ch_hist.shape[2], ch_hist.shape[3])
+        use = np.empty(C, np.bool_)
+        keys = np.empty(C, np.int64)
+        resid = np.empty(2 * C if with_rate else C)
+        u = np.empty((C, 3))
+        uu = np.empty(3)
+        pr_var = np.empty(C)
+        prr_var = np.empty(C)
+        for b in range(ch * B // nchunk, (ch + 1) * B // nchunk):
+            e = epoch[b]
             for i in range(C):
-                key = keys[b, i] if use[i] else -1
-                ch_keys[b, i] = key
-                if key < 0:
-                    ch_count[b, i] = 0
-                    ch_act[b, i] = 0.0
-                    for lag in range(L):
-                        for f in range(D):
-                            ch_hist[b, i, lag, f] = 0.0
-                    continue
-                j = -1
-                for q in range(C):
-                    if old_keys[q] == key:
-                        j = q
-                        break
-                ch_count[b, i] = old_count[j] + 1 if j >= 0 else 1
-                for lag in range(L - 1, 0, -1):
-                    for f in range(D):
-                        ch_hist[b, i, lag, f] = old_hist[j, lag - 1, f] if j >= 0 else 0.0
-                z_pr = np.float64(innov[b, i]) / math.sqrt(np.float64(S[b, i]))
-                z_prr = np.float64(innov[b, C + i]) / math.sqrt(np.float64(S[b, C + i])) if with_rate else 0.0
-                ch_hist[b, i, 0, 0] = math.asinh(z_pr)
-                ch_hist[b, i, 0, 1] = math.asinh(z_prr)
-                ch_hist[b, i, 0, 2] = math.asinh(w_pr[i])
-                ch_hist[b, i, 0, 3] = math.asinh(w_prr[i]) if with_rate else 0.0
-                ch_hist[b, i, 0, 4] = math.log10(max(scale[b, i], 1e-12))
-                ch_hist[b, i, 0, 5] = cn0[b, i] / 50.0
-                ch_act[b, i] = act[b, i]
+                rho, rho_dot = range_rate_pair(sat_pos[b, e, i, 0], sat_pos[b, e, i, 1], sat_pos[b, e, i, 2],
+                                               sat_vel[b, e, i, 0], sat_vel[b, e, i, 1], sat_vel[b, e, i, 2],
+                                               np.float64(r[b, 0]), np.float64(r[b, 1]), np.float64(r[b, 2]),
+                                               np.float64(v[b, 0]), np.float64(v[b, 1]), np.float64(v[b, 2]), 3, uu)
+                m = mask[b, i]
+                for k in range(3):
+                    u[i, k] = uu[k]
+                resid[i] = pr[b, e, i] - (rho + np.float64(clk[b])) if m else 0.0
+                sg = pr_sigma[b, e, i]
+                pr_var[i] = sg * sg
+                if with_rate:
+                    resid[C + i] = prr[b, e, i] - (rho_dot + np.float64(drift[b])) if m else 0.0
+                    sg = prr_sigma[b, e, i]
+                    prr_var[i] = sg * sg
+                else:
+                    prr_var[i] = pr_var[i]
+                keys[i] = sat_keys[b, e, i]
+                use[i] = m and keys[i] >= 0
+            _commit_row(b, use, keys, sat_cn0[b, e], innov, S, resid, u, pr_var, prr_var, with_rate, scale, act,
+                        ch_keys, ch_hist, ch_count, ch_act, work)
 
 
 commit_serial, commit_parallel = serial_and_parallel(_commit_rows)
+commit_epoch_serial, commit_epoch_parallel = serial_and_parallel(_commit_epoch_rows)
 
 
 def _observation_rows(rows, epoch, gmask, keys, cn0, el, ch_keys, ch_hist, ch_count, ch_act, default_action, lo, hi,
@@ -308,4 +374,4 @@ observation_serial, observation_parallel = serial_and_parallel(_observation_rows
 
 __all__ = ["CHANNEL_HISTORY", "STATIC_FEATURES", "LAGGED_FEATURES", "CHANNEL_FEATURES", "N_CHANNEL_FEATURES",
            "channel_feature_table", "snapshot_deleted_residuals", "commit_serial", "commit_parallel",
-           "observation_serial", "observation_parallel"]
+           "commit_epoch_serial", "commit_epoch_parallel", "observation_serial", "observation_parallel"]

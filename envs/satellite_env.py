@@ -92,11 +92,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from nav_filters.measurements import N_SAT_KEYS, gnss_innovations
+from nav_filters.measurements import N_SAT_KEYS
 from nav_filters.kernels import row_kernel
 
-from .channel_features import (CHANNEL_FEATURES, CHANNEL_HISTORY, N_CHANNEL_FEATURES, N_LAGGED, commit_parallel,
-                               commit_serial, observation_parallel, observation_serial)
+from .channel_features import (CHANNEL_FEATURES, CHANNEL_HISTORY, N_CHANNEL_FEATURES, N_LAGGED, commit_epoch_parallel,
+                               commit_epoch_serial, observation_parallel, observation_serial)
 from .config import EnvConfig, ParamSpec
 from .core import TuningCore
 from .gnss_ins_env import SAGE_HUSA_PARAMS, GnssInsTuningEnv
@@ -262,36 +262,29 @@ class SatelliteCore(TuningCore):
         return out
 
     def _commit_channels(self, res) -> None:
-        """The statistics of the epoch just updated onto each used channel's satellite history (compiled)."""
+        """The statistics of the epoch just updated onto each used channel's satellite history (one compiled call,
+        :func:`~envs.channel_features.commit_epoch_serial`, on the world's arrays at each row's updated epoch)."""
         nav = self.nav
-        B = self.B
-        rows = np.arange(B)
-        e = self.upd_epoch
         with_rate = bool(nav.config.use_pseudorange_rate and self.has_rate)
-        pr_var = np.square(self.pr_sigma[rows, e])
-        prr_var = np.square(self.prr_sigma[rows, e]) if with_rate else pr_var
-        mask = self._last_mask
-        resid, _, _, _, u = gnss_innovations(
-            nav.r, nav.v, nav.clk, nav.drift, self.sat_pos[rows, e], self.sat_vel[rows, e], self.pr[rows, e],
-            self.prr[rows, e] if with_rate else None, pr_var, prr_var if with_rate else None, mask,
-            use_rate=with_rate)
-        keys = self.sat_keys[rows, e]
-        scale = self._law_scales(keys, mask)
-        kern, nchunk = row_kernel(commit_serial, commit_parallel, B)
+        mask = np.ascontiguousarray(self._last_mask, bool)
+        kern, nchunk = row_kernel(commit_epoch_serial, commit_epoch_parallel, self.B)
         c = np.ascontiguousarray
-        kern(c(mask), c(keys), c(self.sat_cn0[rows, e]), c(res.innovation), c(res.innovation_var), c(resid), c(u),
-             c(pr_var), c(prr_var), with_rate, scale, self.ch_action, self.ch_keys, self.ch_hist, self.ch_count,
+        kern(self.upd_epoch, self.sat_keys, self.sat_cn0, self.sat_pos, self.sat_vel, self.pr, self.prr, self.pr_sigma,
+             self.prr_sigma, c(nav.r), c(nav.v), c(nav.clk), c(nav.drift), mask, with_rate, c(res.innovation),
+             c(res.innovation_var), self._law_scales(mask), self.ch_action, self.ch_keys, self.ch_hist, self.ch_count,
              self.ch_act, nchunk)
 
-    def _law_scales(self, keys, mask) -> np.ndarray:
-        """(B, C) the per-satellite law's pseudorange variance scales after the update (1 without such a law)."""
+    def _law_scales(self, mask) -> np.ndarray:
+        """(B, C) the per-satellite law's pseudorange variance scales after the update (1 without such a law) of
+        the channels ``mask`` used at the updated epoch."""
         get = getattr(self.nav.form, "satellite_scales", None)
         if get is None:
-            return np.ones(keys.shape)
+            return np.ones(mask.shape)
+        keys = self.sat_keys[np.arange(self.B), self.upd_epoch]
         try:
             return np.ascontiguousarray(get(np.where(mask, keys, -1)), np.float64)
         except ValueError:  # a law whose per-satellite mode is off
-            return np.ones(keys.shape)
+            return np.ones(mask.shape)
 
     def _observation(self, rows=None) -> np.ndarray:
         rows = np.arange(self.B) if rows is None else np.asarray(rows, np.intp)

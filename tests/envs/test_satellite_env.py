@@ -8,11 +8,13 @@ import pytest
 
 import envs  # noqa: F401  (registers the ids)
 from envs.channel_features import (CHANNEL_FEATURES, CHANNEL_HISTORY, N_CHANNEL_FEATURES, N_LAGGED, N_STATIC,
-                                   commit_serial, snapshot_deleted_residuals)
+                                   commit_epoch_parallel, commit_epoch_serial, commit_serial,
+                                   snapshot_deleted_residuals)
 from envs.core import OBS_FEATURES
 from envs.datasets.errors import shared_data_dir
 from envs.gnss_ins_env import SAGE_HUSA_PARAMS
 from envs.satellite_env import SatelliteCore, SatelliteEnvConfig
+from nav_filters.measurements import gnss_innovations
 
 IDS = ("GnssIns/SatelliteR-v0", "GnssIns/SatelliteSageHusa-v0")
 DATA = shared_data_dir()
@@ -195,6 +197,58 @@ def test_the_deleted_residual_kernel_matches_its_numpy_specification():
         np.testing.assert_allclose(st["ch_hist"][b, :, 0, 3], np.where(mask[b], np.arcsinh(w_prr), 0), atol=1e-9)
     assert np.argmax(np.abs(st["ch_hist"][0, :, 0, 2])) == 1  # the outlier has the largest statistic
     assert np.all(st["ch_hist"][2, :, 0, 2] == 0)
+
+
+def _channel_state(B, C):
+    return dict(ch_keys=np.full((B, C), -1, np.int64), ch_hist=np.zeros((B, C, CHANNEL_HISTORY, N_LAGGED)),
+                ch_count=np.zeros((B, C), np.int64), ch_act=np.zeros((B, C)))
+
+
+@pytest.mark.parametrize("with_rate", [True, False])
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_commit_at_the_epochs_equals_the_gathered_chain(with_rate, dtype):
+    """The env's commit (one kernel on the world arrays at each row's epoch) gives the bits of the chain it replaced:
+    the epoch gathered per row, ``gnss_innovations`` at the corrected state and ``commit_serial``; serial and in
+    parallel chunks, over three updates (the histories shift), with and without rate rows, in both filter dtypes."""
+    rng = np.random.default_rng(11)
+    B, M, C = 5, 4, 9
+    r = rng.normal(size=(B, 3)) * 10 + np.array([4.0e6, 3.0e5, 4.9e6])
+    los = rng.normal(size=(B, M, C, 3))
+    los /= np.linalg.norm(los, axis=-1, keepdims=True)
+    sat_pos = r[:, None, None] + 2.2e7 * los
+    sat_vel = rng.normal(size=(B, M, C, 3)) * 3e3
+    pr = np.linalg.norm(sat_pos - r[:, None, None], axis=-1) + rng.normal(size=(B, M, C)) * 5
+    prr, pr_sigma, prr_sigma = rng.normal(size=(B, M, C)) * 300, rng.uniform(1, 9, (B, M, C)), \
+        rng.uniform(0.05, 0.3, (B, M, C))
+    sat_keys = rng.integers(-1, 12, (B, M, C))
+    sat_cn0 = rng.uniform(25, 50, (B, M, C))
+    m = 2 * C if with_rate else C
+    got = [_channel_state(B, C) for _ in range(3)]
+    for t in range(3):
+        epoch = rng.integers(0, M, B)
+        mask = rng.uniform(size=(B, C)) < 0.85
+        mask[0, :5] = False  # at most 4 satellites of a type: no deleted residual
+        nav = [(rng.normal(size=(B, 3)) + r).astype(dtype), rng.normal(size=(B, 3)).astype(dtype),
+               rng.normal(size=B).astype(dtype) * 30, rng.normal(size=B).astype(dtype)]
+        innov, S = rng.normal(size=(B, m)).astype(dtype), rng.uniform(1, 4, (B, m)).astype(dtype)
+        scale, act = rng.uniform(0.5, 20, (B, C)), rng.uniform(-1, 1, (B, C))
+        rows = np.arange(B)
+        pr_var, prr_var = np.square(pr_sigma[rows, epoch]), np.square(prr_sigma[rows, epoch])
+        resid, _, _, _, u = gnss_innovations(*nav, sat_pos[rows, epoch], sat_vel[rows, epoch], pr[rows, epoch],
+                                             prr[rows, epoch] if with_rate else None, pr_var,
+                                             prr_var if with_rate else None, mask, use_rate=with_rate)
+        ref = got[0]
+        commit_serial(mask, sat_keys[rows, epoch], sat_cn0[rows, epoch], innov, S, resid, u, pr_var,
+                      prr_var if with_rate else pr_var, with_rate, scale, act, ref["ch_keys"], ref["ch_hist"],
+                      ref["ch_count"], ref["ch_act"], 1)
+        for st, kern, nchunk in ((got[1], commit_epoch_serial, 1), (got[2], commit_epoch_parallel, 2)):
+            kern(epoch, sat_keys, sat_cn0, sat_pos, sat_vel, pr, prr, pr_sigma, prr_sigma, *nav, mask, with_rate,
+                 innov, S, scale, act, st["ch_keys"], st["ch_hist"], st["ch_count"], st["ch_act"], nchunk)
+        for st in got[1:]:
+            for k in ref:
+                np.testing.assert_array_equal(st[k], ref[k], err_msg=k)
+    assert np.count_nonzero(got[0]["ch_hist"][:, :, 0, 2]) > 10  # deleted residuals were formed
+    assert np.count_nonzero(got[0]["ch_count"] > 1) > 0  # and histories carried over
 
 
 @pytest.mark.parametrize("env_id", IDS)
