@@ -8,10 +8,11 @@ channel's history is its satellite's. A satellite not used at the previous updat
 tracked count 0).
 
 Two compiled row kernels (serial below :data:`~nav_filters.kernels.PARALLEL_MIN_BATCH` rows, else parallel
-chunks) do the work of a step: :func:`commit_channels` after the update (each used channel's statistics of the
-epoch, pushed onto its satellite's history) and :func:`channel_observation` (the features of the coming epoch's
-channels). :func:`snapshot_deleted_residuals` is the numpy specification of the deleted residuals (agreement test
-in ``tests/envs/test_satellite_env.py``).
+chunks) do the work of a step: ``commit_epoch_serial`` / ``_parallel`` after the update (each used channel's
+statistics of the epoch, pushed onto its satellite's history, read straight from the world's arrays at each row's
+epoch; ``commit_serial`` / ``_parallel`` do the same from inputs gathered beforehand) and ``observation_serial`` /
+``_parallel`` (the features of the coming epoch's channels). :func:`snapshot_deleted_residuals` is the numpy
+specification of the deleted residuals (agreement tests in ``tests/envs/test_satellite_env.py``).
 
 Features of channel i (the rows of :data:`CHANNEL_FEATURES`, in this order, float32, clipped to [low, high];
 zero on a channel without a satellite):
@@ -265,11 +266,12 @@ def _commit_row(b, use, keys, cn0, innov, S, resid, u, pr_var, prr_var, with_rat
 
 def _commit_epoch_rows(epoch, sat_keys, sat_cn0, sat_pos, sat_vel, pr, prr, pr_sigma, prr_sigma, r, v, clk, drift,
                        mask, with_rate, innov, S, scale, act, ch_keys, ch_hist, ch_count, ch_act, nchunk):
-    """:func:`_commit_rows` on an env core's world arrays at each row's updated epoch, its inputs formed per row
-    as the numpy chain before it formed them for all rows (the same bits): the epoch's keys, C/N0 and reported
-    variances ``sigma^2``, and the post-update residuals and lines of sight of
-    :func:`nav_filters.measurements.gnss_innovations` at the corrected state (its ranging,
-    :func:`earth.ranging.range_rate_pair`, 3 light-time iterations; 0 on unused channels).
+    """:func:`_commit_rows` on an env core's world arrays at each row's updated epoch, forming that row's inputs
+    itself with the arithmetic of the gathered inputs (the same bits, test): the epoch's keys, C/N0 and reported
+    variances ``sigma^2``, and the post-update residuals and lines of sight that
+    :func:`nav_filters.measurements.gnss_innovations` gives at the corrected state (its ranging,
+    :func:`earth.ranging.range_rate_pair`, 3 light-time iterations; residual 0 on unused channels). One call per
+    step: no (B, C, ...) gathers, and no measurement matrix formed for nothing.
 
     Parameters
     ----------
