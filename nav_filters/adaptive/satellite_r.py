@@ -62,6 +62,42 @@ def check_satellite_options(owner: str, cfg) -> None:
 
 
 @nb.njit(cache=True)
+def _set_key_b(keys, b, table):
+    """``table[r, keys[r, i]] = b[r, i]`` for every ``keys[r, i] >= 0``, in row-major order (a key given twice
+    in a row keeps its last value), if every key lies in ``-1 .. K - 1`` (K = ``table.shape[1]``) and every
+    ``b`` of a key is NaN or in (0, 1]; else nothing is written. Returns whether it wrote (keys (B, n) int64, b
+    (B, n) float64, table (B, K))."""
+    B, n = keys.shape
+    K = table.shape[1]
+    for r in range(B):
+        for i in range(n):
+            k = keys[r, i]
+            if k < -1 or k >= K:
+                return False
+            v = b[r, i]
+            if k >= 0 and not (v != v or (v > 0.0 and v <= 1.0)):
+                return False
+    for r in range(B):
+        for i in range(n):
+            if keys[r, i] >= 0:
+                table[r, keys[r, i]] = b[r, i]
+    return True
+
+
+@nb.njit(cache=True)
+def _key_scales(keys, scale, last):
+    """(B, k) ``scale[r, keys[r, i]]`` where the key is >= 0 and was used (``last >= 0``), else 1 (keys (B, k)
+    int64 below K, checked by the caller; scale (B, K) float64; last (B, K) int64)."""
+    out = np.ones(keys.shape)
+    for r in range(keys.shape[0]):
+        for i in range(keys.shape[1]):
+            k = keys[r, i]
+            if k >= 0 and last[r, k] >= 0:
+                out[r, i] = scale[r, k]
+    return out
+
+
+@nb.njit(cache=True)
 def _group_step(num, den, cnt, active, d, scale, smin, smax, out):
     """One group-scale recursion of one batch row: ``out_g = clip((1 - d) scale_g + d num_g / den_g)`` on the
     groups with rows when the row adapts, else ``scale_g``."""
@@ -474,15 +510,14 @@ class SatelliteNoise:
                              f"{keys.shape} and {b.shape}")
         if keys.dtype.kind not in "iu":
             raise ValueError(f"set_satellite_params: keys must be integers, got dtype {keys.dtype}")
-        K = self._sat_b_key.shape[1]
+        if _set_key_b(np.ascontiguousarray(keys, np.int64), np.ascontiguousarray(b), self._sat_b_key):
+            return
+        K = self._sat_b_key.shape[1]  # nothing was changed: name the culprit
         if keys.size and (keys.min() < -1 or keys.max() >= K):
             raise ValueError(f"set_satellite_params: keys must lie in -1..{K - 1}, got {keys.min()}..{keys.max()}")
         bad = (keys >= 0) & ~np.isnan(b) & ~((b > 0.0) & (b <= 1.0))
-        if bad.any():
-            raise ValueError(f"set_satellite_params: b must lie in (0, 1] (or be NaN: the row's b), got "
-                             f"{b[bad][0]!r} at {np.argwhere(bad)[0].tolist()}")
-        rows, cols = np.nonzero(keys >= 0)
-        self._sat_b_key[rows, keys[rows, cols]] = b[rows, cols]
+        raise ValueError(f"set_satellite_params: b must lie in (0, 1] (or be NaN: the row's b), got "
+                         f"{b[bad][0]!r} at {np.argwhere(bad)[0].tolist()}")
 
     def satellite_params(self, keys) -> dict:
         """``{'b': (B, n)}``: the forgetting factor each measurement key of ``keys`` (B, n) uses (the row's ``b``
@@ -636,7 +671,10 @@ class SatelliteNoise:
         keys never seen or forgotten (aging not applied: the values of the last epoch each was used)."""
         if not self._sat_enabled():
             raise ValueError("satellite_scales needs r_mode='satellite'")
-        keys = np.asarray(keys, np.int64)
-        kk = np.maximum(keys, 0)
-        out = np.take_along_axis(self._sat_scale, kk, 1)
-        return np.where((keys >= 0) & (np.take_along_axis(self._sat_last, kk, 1) >= 0), out, 1.0)
+        keys = np.ascontiguousarray(keys, np.int64)
+        B, K = self._sat_scale.shape
+        if keys.ndim != 2 or keys.shape[0] != B:
+            raise ValueError(f"satellite_scales: keys must have the shape (B={B}, k), got {keys.shape}")
+        if keys.size and keys.max() >= K:
+            raise ValueError(f"satellite_scales: keys must be below {K}, got {keys.max()}")
+        return _key_scales(keys, self._sat_scale, self._sat_last)

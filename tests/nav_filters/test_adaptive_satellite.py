@@ -594,6 +594,49 @@ def test_set_satellite_params_checks_its_arguments_and_the_law():
             registry.make_form(method, P0).set_satellite_params(keys, np.full((B, C), 0.5))
 
 
+def test_per_satellite_b_and_scales_equal_their_numpy_forms():
+    """``set_satellite_params`` writes what numpy's fancy assignment writes (a key given twice in a row keeps its
+    last value; NaN and -1 entries; nothing on a bad value), and ``satellite_scales`` reads what
+    ``take_along_axis`` reads (1 for -1 keys and keys never used), over the law's real tables."""
+    rng = np.random.default_rng(7)
+    B, C = 5, 12
+    law = sat_law(B=B, forget_after_epochs=3)
+    H = static_problem(rng, B, C)
+    keys = np.broadcast_to(np.arange(C), (B, C)).copy()
+    m = np.ones((B, C), bool)
+    m[:, -3:] = False  # keys 9.. never used: scale 1
+    for _ in range(6):
+        law.predict(np.broadcast_to(np.eye(4), (B, 4, 4)), np.broadcast_to(np.eye(4) * 1e-4, (B, 4, 4)))
+        law.update(rng.normal(size=(B, C)) * 3, H, np.ones((B, C)), m, keys=keys)
+    K = law._sat_b_key.shape[1]
+    for t in range(4):
+        k = rng.integers(-1, 2 * N_SAT_KEYS, (B, 9))
+        k[:, 3] = k[:, 1]  # a key twice in each row
+        b = rng.uniform(0.2, 1.0, (B, 9))
+        b[rng.uniform(size=(B, 9)) < 0.2] = np.nan
+        ref = law._sat_b_key.copy()
+        rows, cols = np.nonzero(k >= 0)
+        ref[rows, k[rows, cols]] = b[rows, cols]
+        law.set_satellite_params(k, b)
+        np.testing.assert_array_equal(law._sat_b_key, ref)
+        q = rng.integers(-1, C + 2, (B, 7))
+        qq = np.maximum(q, 0)
+        want = np.where((q >= 0) & (np.take_along_axis(law._sat_last, qq, 1) >= 0),
+                        np.take_along_axis(law._sat_scale, qq, 1), 1.0)
+        np.testing.assert_array_equal(law.satellite_scales(q), want)
+    assert np.any(law.satellite_scales(keys[:, :9]) != 1.0) and np.all(law.satellite_scales(keys[:, 9:]) == 1.0)
+    before = law._sat_b_key.copy()
+    bad = np.full((B, 4), 0.5)
+    bad[-1, -1] = 0.0
+    with pytest.raises(ValueError, match=r"b must lie in \(0, 1\]"):
+        law.set_satellite_params(np.ones((B, 4), np.int64), bad)
+    np.testing.assert_array_equal(law._sat_b_key, before)  # nothing changed, not even the rows before the culprit
+    with pytest.raises(ValueError, match=f"keys must be below {K}"):
+        law.satellite_scales(np.full((B, 2), K))
+    with pytest.raises(ValueError, match="keys must have the shape"):
+        law.satellite_scales(np.zeros((B + 1, 2), np.int64))
+
+
 def _check_plan_against_reference(law, dz, H, m, keys, check_r_scale=False):
     """The compiled per-satellite plan of the coming update (``law._plan_satellite``) against the numpy reference
     (``law._r_sat_reference``): the rows' scales, their sample counts, R (and the group scale with
