@@ -129,6 +129,8 @@ fused_update=True`` (``fused``: also the fused compiled predict + Joseph update 
 envs' default)."""
 
 _SHORT = {"exact": "", "averaged": " avg", "fused": " fused"}
+NAME_W = max(len(m) for m in METHOD_ENV) + max(len(v) for v in _SHORT.values()) + 1
+"""Width of the tables' method column (the longest method name with its mode suffix)."""
 
 
 def _label(method, transition):
@@ -487,7 +489,7 @@ def _print_headline(args, n_steps, here, other=None):
               f"wall time; {cpus}-core bound: the e2e steps/s if the same CPU work kept all {cpus} cores busy "
               f"(no scheduling of it does better here)")
     cols = ("e2e steps/s", "step-only", "resets")
-    hdr = (f"{'method':16s} {'B':>5s} " + (" ".join(f"{c + ' before':>18s} {'after':>9s}" for c in cols) + " e2e speed-up"
+    hdr = (f"{'method':{NAME_W}s} {'B':>5s} " + (" ".join(f"{c + ' before':>18s} {'after':>9s}" for c in cols) + " e2e speed-up"
                                            if other else " ".join(f"{c:>12s}" for c in cols)
                                            + f" {'reset CPU':>10s} {'cores busy':>11s} {f'{cpus}-core bound':>13s}"))
     print(hdr + "\n" + "-" * len(hdr))
@@ -504,17 +506,17 @@ def _print_headline(args, n_steps, here, other=None):
             a = med[here]
             if other:
                 b = med[other]
-                print(f"{m:16s} {B:5d} {b[0]:18.0f} {a[0]:9.0f} {b[1]:18.0f} {a[1]:9.0f} {100 * b[2]:17.0f}% "
+                print(f"{m:{NAME_W}s} {B:5d} {b[0]:18.0f} {a[0]:9.0f} {b[1]:18.0f} {a[1]:9.0f} {100 * b[2]:17.0f}% "
                       f"{100 * a[2]:8.0f}% {a[0] / b[0]:11.2f}x", flush=True)
             else:
-                print(f"{m:16s} {B:5d} {a[0]:12.0f} {a[1]:12.0f} {100 * a[2]:11.0f}% {100 * a[3]:9.0f}% "
+                print(f"{m:{NAME_W}s} {B:5d} {a[0]:12.0f} {a[1]:12.0f} {100 * a[2]:11.0f}% {100 * a[3]:9.0f}% "
                       f"{a[4]:11.2f} {a[5]:13.0f}", flush=True)
     print()
 
 
 def _print_rate_row(label, B, t_reset, rate, cpu, extra=""):
     """One row of the single-tree throughput table (``extra``: the rounds' range column)."""
-    print(f"{label:16s} {B:5d} {t_reset:10.2f} {rate:12.0f} {1e3 * B / rate:9.2f} {cpu:12.2f}{extra}", flush=True)
+    print(f"{label:{NAME_W}s} {B:5d} {t_reset:10.2f} {rate:12.0f} {1e3 * B / rate:9.2f} {cpu:12.2f}{extra}", flush=True)
 
 
 def _cell_main(kind, method, B, steps, episode_s, scenario, transition, stat="mean"):
@@ -632,11 +634,11 @@ def _print_rate_table(args, batches, n_steps, here, other) -> None:
     """The step-only throughput table: each method x B x transition mode, here (and in ``other`` with
     ``--compare``, alternately, ``--rounds`` times, medians)."""
     if other:
-        hdr = (f"{'method':16s} {'B':>5s} {'steps/s before':>15s} {'after':>10s} {'speed-up':>9s} "
+        hdr = (f"{'method':{NAME_W}s} {'B':>5s} {'steps/s before':>15s} {'after':>10s} {'speed-up':>9s} "
                f"{'cpu ms before':>14s} {'after':>9s} {'reset s before':>15s} {'after':>7s}"
                + (f" {'rounds: speed-ups':>18s}" if args.rounds > 1 else ""))
     else:
-        hdr = (f"{'method':16s} {'B':>5s} {'reset [s]':>10s} {'steps/s':>12s} {'ms/step':>9s} {'cpu ms/step':>12s}"
+        hdr = (f"{'method':{NAME_W}s} {'B':>5s} {'reset [s]':>10s} {'steps/s':>12s} {'ms/step':>9s} {'cpu ms/step':>12s}"
                + (f" {'rounds: steps/s':>18s}" if args.rounds > 1 else ""))
     print("\n" + hdr + "\n" + "-" * len(hdr))
     rounds_here = args.rounds > 1 and not other  # the table of _print_rounds instead of the loop below
@@ -662,7 +664,7 @@ def _print_rate_table(args, batches, n_steps, here, other) -> None:
                 rb, ra = np.median(before, axis=0), np.median(after, axis=0)
                 ups = [a[1] / b[1] for a, b in zip(after, before)]
                 spread = f" {min(ups):12.2f}-{max(ups):.2f}x" if args.rounds > 1 else ""
-                print(f"{lab:16s} {B:5d} {rb[1]:15.0f} {ra[1]:10.0f} {ra[1] / rb[1]:8.2f}x {rb[2]:14.2f} "
+                print(f"{lab:{NAME_W}s} {B:5d} {rb[1]:15.0f} {ra[1]:10.0f} {ra[1] / rb[1]:8.2f}x {rb[2]:14.2f} "
                       f"{ra[2]:9.2f} {rb[0]:15.2f} {ra[0]:7.2f}{spread}", flush=True)
 
 

@@ -25,7 +25,7 @@ else
   BENCHES=(
     # end-to-end env-steps/s (automatic resets included) beside step-only, B = 1 and 1024; each cell the median
     # of 3 fresh processes (one run's cells swung by up to 1.5x on a shared machine)
-    "benchmarks/bench_envs.py --headline-only --methods sage-husa stkf svd-akf satellite-r --e2e-batches 1 1024 --rounds 3"
+    "benchmarks/bench_envs.py --headline-only --methods sage-husa stkf svd-akf satellite-r satellite-sage-husa --e2e-batches 1 1024 --rounds 3"
     # step time of the robust measurement screens against kf
     "benchmarks/bench_robust.py --batches 1 1024 --steps 20"
     # world generation per row (what a reset pays), by stage, with the cores busy in each
