@@ -510,9 +510,11 @@ class SatelliteNoise:
                              f"{keys.shape} and {b.shape}")
         if keys.dtype.kind not in "iu":
             raise ValueError(f"set_satellite_params: keys must be integers, got dtype {keys.dtype}")
-        if _set_key_b(np.ascontiguousarray(keys, np.int64), np.ascontiguousarray(b), self._sat_b_key):
+        K = self._sat_b_key.shape[1]
+        wraps = keys.dtype.kind == "u" and keys.size and keys.max() >= K  # as int64 it could read as -1 (none)
+        if not wraps and _set_key_b(np.ascontiguousarray(keys, np.int64), np.ascontiguousarray(b), self._sat_b_key):
             return
-        K = self._sat_b_key.shape[1]  # nothing was changed: name the culprit
+        # nothing was changed: name the culprit
         if keys.size and (keys.min() < -1 or keys.max() >= K):
             raise ValueError(f"set_satellite_params: keys must lie in -1..{K - 1}, got {keys.min()}..{keys.max()}")
         bad = (keys >= 0) & ~np.isnan(b) & ~((b > 0.0) & (b <= 1.0))

@@ -631,6 +631,9 @@ def test_per_satellite_b_and_scales_equal_their_numpy_forms():
     with pytest.raises(ValueError, match=r"b must lie in \(0, 1\]"):
         law.set_satellite_params(np.ones((B, 4), np.int64), bad)
     np.testing.assert_array_equal(law._sat_b_key, before)  # nothing changed, not even the rows before the culprit
+    with pytest.raises(ValueError, match="keys must lie in"):  # 2^64 - 1 is not the -1 of "no key"
+        law.set_satellite_params(np.full((B, 4), np.iinfo(np.uint64).max, np.uint64), np.full((B, 4), 0.5))
+    np.testing.assert_array_equal(law._sat_b_key, before)
     with pytest.raises(ValueError, match=f"keys must be below {K}"):
         law.satellite_scales(np.full((B, 2), K))
     with pytest.raises(ValueError, match="keys must have the shape"):
