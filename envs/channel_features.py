@@ -37,9 +37,8 @@ import math
 import numba as nb
 import numpy as np
 
-from earth.ranging import range_rate_pair
 from nav_filters.kernels import serial_and_parallel
-from nav_filters.measurements import MAX_PRN
+from nav_filters.measurements import MAX_PRN, channel_residuals
 
 CHANNEL_HISTORY = 3
 """Updates of a satellite in its channel's features (the last and the two before)."""
@@ -269,8 +268,8 @@ def _commit_epoch_rows(epoch, sat_keys, sat_cn0, sat_pos, sat_vel, pr, prr, pr_s
     """:func:`_commit_rows` on an env core's world arrays at each row's updated epoch, forming that row's inputs
     itself with the arithmetic of the gathered inputs (the same bits, test): the epoch's keys, C/N0 and reported
     variances ``sigma^2``, and the post-update residuals and lines of sight that
-    :func:`nav_filters.measurements.gnss_innovations` gives at the corrected state (its ranging,
-    :func:`earth.ranging.range_rate_pair`, 3 light-time iterations; residual 0 on unused channels). One call per
+    :func:`nav_filters.measurements.gnss_innovations` gives at the corrected state (its
+    :func:`~nav_filters.measurements.channel_residuals`; residual 0 on unused channels). One call per
     step: no (B, C, ...) gathers, and no measurement matrix formed for nothing.
 
     Parameters
@@ -293,18 +292,19 @@ def _commit_epoch_rows(epoch, sat_keys, sat_cn0, sat_pos, sat_vel, pr, prr, pr_s
         for b in range(ch * B // nchunk, (ch + 1) * B // nchunk):
             e = epoch[b]
             for i in range(C):
-                rho, rho_dot = range_rate_pair(sat_pos[b, e, i, 0], sat_pos[b, e, i, 1], sat_pos[b, e, i, 2],
-                                               sat_vel[b, e, i, 0], sat_vel[b, e, i, 1], sat_vel[b, e, i, 2],
-                                               np.float64(r[b, 0]), np.float64(r[b, 1]), np.float64(r[b, 2]),
-                                               np.float64(v[b, 0]), np.float64(v[b, 1]), np.float64(v[b, 2]), 3, uu)
+                e_pr, e_prr = channel_residuals(
+                    sat_pos[b, e, i, 0], sat_pos[b, e, i, 1], sat_pos[b, e, i, 2], sat_vel[b, e, i, 0],
+                    sat_vel[b, e, i, 1], sat_vel[b, e, i, 2], np.float64(r[b, 0]), np.float64(r[b, 1]),
+                    np.float64(r[b, 2]), np.float64(v[b, 0]), np.float64(v[b, 1]), np.float64(v[b, 2]),
+                    np.float64(clk[b]), np.float64(drift[b]), pr[b, e, i], prr[b, e, i], uu)
                 m = mask[b, i]
                 for k in range(3):
                     u[i, k] = uu[k]
-                resid[i] = pr[b, e, i] - (rho + np.float64(clk[b])) if m else 0.0
+                resid[i] = e_pr if m else 0.0
                 sg = pr_sigma[b, e, i]
                 pr_var[i] = sg * sg
                 if with_rate:
-                    resid[C + i] = prr[b, e, i] - (rho_dot + np.float64(drift[b])) if m else 0.0
+                    resid[C + i] = e_prr if m else 0.0
                     sg = prr_sigma[b, e, i]
                     prr_var[i] = sg * sg
                 else:

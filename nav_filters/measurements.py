@@ -197,6 +197,17 @@ def dop_reference(u, mask):
 _POS0, _VEL0, _CLK0, _DRIFT0 = POS.start, VEL.start, CLK.start, DRIFT.start
 
 
+@nb.njit(cache=True, inline="always")
+def channel_residuals(sx, sy, sz, svx, svy, svz, rx, ry, rz, rvx, rvy, rvz, clk, drift, pr, prr, u):
+    """One channel's pseudorange and rate residuals at a receiver state: ``(pr - (rho + clk), prr - (rho_dot +
+    drift))`` [m, m/s], the range and rate by :func:`earth.ranging.range_rate_pair` (Groves eqs 8.36, 8.46; 3
+    light-time iterations), ``u`` (3,) the unit line of sight it leaves. The compiled innovations
+    (:func:`_innovations_rows`) and the per-satellite envs' post-update residuals
+    (:mod:`envs.channel_features`) both form them here. Scalars in, so that the row loops pass no array views."""
+    rho, rho_dot = range_rate_pair(sx, sy, sz, svx, svy, svz, rx, ry, rz, rvx, rvy, rvz, 3, u)
+    return pr - (rho + clk), prr - (rho_dot + drift)
+
+
 def _innovations_rows(r, v, clk, drift, sat_pos, sat_vel, pr, prr, pr_var, prr_var, mask, with_rate,
                       dz, H, R, row_mask, u, nchunk):
     """Fill dz, H, R, row_mask, u for every row and channel (see the reference; H zeroed here, row by row, in
@@ -207,15 +218,16 @@ def _innovations_rows(r, v, clk, drift, sat_pos, sat_vel, pr, prr, pr_var, prr_v
         for b in range(c * B // nchunk, (c + 1) * B // nchunk):
             H[b] = 0.0
             for j in range(C):
-                rho, rho_dot = range_rate_pair(sat_pos[b, j, 0], sat_pos[b, j, 1], sat_pos[b, j, 2],
-                                               sat_vel[b, j, 0], sat_vel[b, j, 1], sat_vel[b, j, 2],
-                                               r[b, 0], r[b, 1], r[b, 2], v[b, 0], v[b, 1], v[b, 2], 3, uu)
+                e_pr, e_prr = channel_residuals(sat_pos[b, j, 0], sat_pos[b, j, 1], sat_pos[b, j, 2],
+                                                sat_vel[b, j, 0], sat_vel[b, j, 1], sat_vel[b, j, 2],
+                                                r[b, 0], r[b, 1], r[b, 2], v[b, 0], v[b, 1], v[b, 2], clk[b],
+                                                drift[b], pr[b, j], prr[b, j], uu)
                 m = mask[b, j]
                 for i in range(3):
                     u[b, j, i] = uu[i]
                     H[b, j, _POS0 + i] = -uu[i]
                 H[b, j, _CLK0] = 1.0
-                dz[b, j] = pr[b, j] - (rho + clk[b]) if m else 0.0
+                dz[b, j] = e_pr if m else 0.0
                 R[b, j] = pr_var[b, j] if m else 1.0
                 row_mask[b, j] = m
                 if with_rate:
@@ -223,7 +235,7 @@ def _innovations_rows(r, v, clk, drift, sat_pos, sat_vel, pr, prr, pr_var, prr_v
                     for i in range(3):
                         H[b, k, _VEL0 + i] = -uu[i]
                     H[b, k, _DRIFT0] = 1.0
-                    dz[b, k] = prr[b, j] - (rho_dot + drift[b]) if m else 0.0
+                    dz[b, k] = e_prr if m else 0.0
                     R[b, k] = prr_var[b, j] if m else 1.0
                     row_mask[b, k] = m
 
