@@ -87,8 +87,10 @@ def world_arrays(world: World) -> dict:
     B, M = g.pr.shape[:2]
     ep = world.epoch_idx
     still = tr.stationary(STILL_SPEED_MPS)
-    # the origin (sample 0) and the epochs in one conversion and one rotation (elementwise: the same bits)
-    C_ne = np.swapaxes(C_en(*ecef_to_geodetic(tr.r_e[:, np.concatenate([[0], ep])])[:2]), -1, -2)
+    # the origin (sample 0) and the epochs in one conversion and one rotation (elementwise: the same bits); the
+    # truth may hold its states only there (generate_world's truth_states='epochs')
+    r_at = tr.take(np.concatenate([[0], ep])).r_e
+    C_ne = np.swapaxes(C_en(*ecef_to_geodetic(r_at)[:2]), -1, -2)
     has_rate = g.prr is not None
     return {
         "f": world.imu.f_b, "w": world.imu.w_b,
@@ -97,11 +99,11 @@ def world_arrays(world: World) -> dict:
         "prr": g.prr if has_rate else np.zeros(g.pr.shape),
         "prr_sigma": g.prr_sigma if has_rate else np.zeros(g.pr.shape),
         "gmask": g.mask,
-        "truth_r": tr.r_e[:, ep],
+        "truth_r": r_at[:, 1:],
         "truth_Cne": C_ne[:, 1:],
         "truth_still": still[:, ep],
         "truth_still_n": still,
-        "origin": tr.r_e[:, 0],
+        "origin": r_at[:, 0],
         "origin_Cne": C_ne[:, 0],
         "sat_keys": satellite_keys(g),
         "odo": np.full((B, M), np.nan) if world.odometer is None else world.odometer,
@@ -117,10 +119,12 @@ def prepared_from(world: World) -> PreparedWorld:
                          arrays=world_arrays(world), has_rate=world.gnss.prr is not None)
 
 
-def prepare_world(config, seeds) -> PreparedWorld:
+def prepare_world(config, seeds, buffers=None) -> PreparedWorld:
     """Draw the world of ``config`` (an :class:`~envs.config.EnvConfig`) for ``seeds`` (B ints) and reduce it
-    to what a reset uses (:class:`PreparedWorld`). A pure function of its arguments."""
-    return prepared_from(config.make_world([int(s) for s in seeds]))
+    to what a reset uses (:class:`PreparedWorld`). A pure function of its arguments (``buffers``: the world's
+    :class:`envs.sim.buffers.WorldBuffers`, which the result does not depend on). The world's truth states are
+    formed only at sample 0 and the epochs (``truth_states='epochs'``), all that a reset reads of them."""
+    return prepared_from(config.make_world([int(s) for s in seeds], buffers=buffers, truth_states="epochs"))
 
 
 __all__ = ["WORLD_ARRAY_NAMES", "CHANNEL_ARRAY_NAMES", "PreparedWorld", "prepare_world", "prepared_from", "world_arrays"]

@@ -208,8 +208,8 @@ class SatelliteCore(TuningCore):
         if prepared is None and coming is not None:
             prepared = self.worlds_ahead.take([int(s) for s in seeds], coming)
         if prepared is None:
-            from .prepared import prepared_from
-            prepared = prepared_from(self.config.make_world([int(s) for s in seeds], buffers=self.world_buffers))
+            from .prepared import prepare_world
+            prepared = prepare_world(self.config, seeds, buffers=self.world_buffers)
         return super().reset_rows(rows, seeds, pad_channels(prepared, self.n_channels))
 
     def _alloc(self, prepared: PreparedWorld):

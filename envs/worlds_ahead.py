@@ -23,7 +23,7 @@ from __future__ import annotations
 import threading
 import weakref
 
-from .prepared import PreparedWorld, prepared_from
+from .prepared import PreparedWorld, prepare_world
 from .sim.buffers import WorldBuffers
 
 __all__ = ["AHEAD_ROWS", "AHEAD_SAMPLES", "WorldsAhead", "shared_buffers"]
@@ -140,7 +140,7 @@ class WorldsAhead:
             raise ValueError(f"coming({k - 1}) must give {k - 1} lists of {len(key)} seeds")
         pool = _pool()
         pool.join(self)
-        batch = prepared_from(self.config.make_world([s for g in groups for s in g], buffers=pool.buffers))
+        batch = prepare_world(self.config, [s for g in groups for s in g], buffers=pool.buffers)
         n = len(key)
         for j, g in enumerate(groups[1:], start=1):
             self._parts[tuple(g)] = batch.rows(j * n, (j + 1) * n)

@@ -467,9 +467,9 @@ class Truth:
     Attributes
     ----------
     t : (N,) time [s].
-    r_e : (B, N, 3) ECEF position [m].
-    v_e : (B, N, 3) ECEF velocity [m/s].
-    C_eb : (B, N, 3, 3) attitude, body FRD -> ECEF.
+    r_e : (B, N, 3) ECEF position [m] (None when ``states_every`` > 1).
+    v_e : (B, N, 3) ECEF velocity [m/s] (None when ``states_every`` > 1).
+    C_eb : (B, N, 3, 3) attitude, body FRD -> ECEF (None when ``states_every`` > 1).
     f_b : (B, N, 3) ideal specific force [m/s^2]: mean over ``(t_{k-1}, t_k]`` (k >= 1),
         instantaneous at k = 0.
     w_b : (B, N, 3) ideal angular rate ``w_ib^b`` [rad/s], same sampling as ``f_b``.
@@ -479,6 +479,10 @@ class Truth:
     engine_on : (B, N) bool.
     lat0, lon0 : (B,) start latitude / longitude [rad];  h0 : (B,) start height [m].
     imu_rate_hz : IMU rate [Hz].
+    states_every : int >= 1: the states ``r_e``, ``v_e``, ``C_eb`` were formed at every ``states_every``-th sample
+        only (``generate_truth(..., states_every=s)``: what an env reads, sample 0 and the GNSS epochs). With
+        s > 1 those three fields are None and the states are in ``coarse``; read them with :meth:`take`.
+    coarse : :class:`TruthAt` at the samples ``0, s, 2 s, ...`` when ``states_every`` = s > 1, else None.
     """
 
     t: np.ndarray
@@ -495,11 +499,13 @@ class Truth:
     lon0: np.ndarray
     h0: np.ndarray
     imu_rate_hz: float
+    states_every: int = 1
+    coarse: TruthAt | None = None
 
     @property
     def batch_size(self) -> int:
         """B."""
-        return self.r_e.shape[0]
+        return self.speed.shape[0]
 
     @property
     def dt(self) -> float:
@@ -507,15 +513,27 @@ class Truth:
         return 1.0 / self.imu_rate_hz
 
     def take(self, idx) -> TruthAt:
-        """Truth (r_e, v_e, C_eb, speed, heading) at sample indices ``idx`` (M,) int."""
+        """Truth (r_e, v_e, C_eb, speed, heading) at sample indices ``idx`` (M,) int (negative ones count from
+        the end). A truth with ``states_every`` = s > 1 has its states only at the multiples of s: any other
+        index is refused."""
         idx = np.asarray(idx)
         if idx.ndim != 1 or not np.issubdtype(idx.dtype, np.integer):
             raise ValueError(f"idx must be a 1-D integer array, got shape {idx.shape} dtype {idx.dtype}")
         n = self.t.shape[0]
         if idx.size and (idx.min() < -n or idx.max() >= n):
             raise ValueError(f"idx out of range for N = {n} samples")
-        return TruthAt(self.t[idx], self.r_e[:, idx], self.v_e[:, idx], self.C_eb[:, idx],
-                       self.speed[:, idx], self.heading[:, idx])
+        if self.coarse is None:
+            return TruthAt(self.t[idx], self.r_e[:, idx], self.v_e[:, idx], self.C_eb[:, idx],
+                           self.speed[:, idx], self.heading[:, idx])
+        s = self.states_every
+        k = np.where(idx < 0, idx + n, idx)
+        off = np.flatnonzero(k % s)
+        if off.size:
+            raise ValueError(f"this truth holds its states only at every {s}th sample (states_every={s}); "
+                             f"sample {int(k[off[0]])} is not one")
+        c = self.coarse
+        j = k // s
+        return TruthAt(c.t[j], c.r_e[:, j], c.v_e[:, j], c.C_eb[:, j], c.speed[:, j], c.heading[:, j])
 
     def stationary(self, threshold_mps: float = 0.05) -> np.ndarray:
         """(B, N) bool: true speed below ``threshold_mps`` [m/s] (the ZUPT label)."""
@@ -746,11 +764,12 @@ def _imu_points(t, pid, arc_c, arc_s, pc, gA, dgA, inv_h, f, w):
 
 @nb.njit(cache=True, nogil=True)
 def _node_kernel(t, dtk, pn, arc_c, arc_s, mid_c, mid_s, simpson, pc, gA, dgA, inv_h,
-                 r, ve, C, speed, heading, pitch, engine, fo, wo, u0, u1, j0, jm0):
+                 r, ve, C, speed, heading, pitch, engine, fo, wo, se, u0, u1, j0, jm0):
     """One pass over the grid nodes of rows ``u0 .. u1 - 1`` of the U x N grid (``pn`` (U N,) their pieces).
 
     Writes speed and engine_on everywhere; heading (off horizontal arcs), pitch (off vertical arcs) and
-    r_e, v_e, C_eb on the straight pieces (the arcs' states are numpy's, :func:`_arc_node_states`); and the
+    r_e, v_e, C_eb on the straight pieces at the nodes ``k`` that are multiples of ``se`` (into index ``k // se``
+    of ``r``, ``ve``, ``C``; the arcs' states are numpy's, :func:`_arc_node_states`); and the
     IMU outputs ``fo``, ``wo`` (U, N, 3): the instantaneous value at node 0, and the mean over each interval
     that lies on one piece: the trapezoid of the node values on a straight piece (= Simpson there), Simpson
     with the midpoint value on an arc, or everywhere with ``simpson`` (gravity with kinks inside intervals).
@@ -785,13 +804,14 @@ def _node_kernel(t, dtk, pn, arc_c, arc_s, mid_c, mid_s, simpson, pc, gA, dgA, i
                 heading[u, k] = psi0w[p]
             if kd != _VARC:
                 pitch[u, k] = gam0[p]
-            if kd == _STRAIGHT:
+            if kd == _STRAIGHT and k % se == 0:
                 s = (v0[p] + v) * (0.5 * tau)                       # straight: s = tau (v0 + v) / 2
+                ks = k // se
                 for c in range(3):
-                    r[u, k, c] = xe[p, c] * s + re0[p, c]
-                    ve[u, k, c] = xe[p, c] * v
+                    r[u, ks, c] = xe[p, c] * s + re0[p, c]
+                    ve[u, ks, c] = xe[p, c] * v
                     for d in range(3):
-                        C[u, k, c, d] = C_eb[p, c, d]
+                        C[u, ks, c, d] = C_eb[p, c, d]
             if k == 0:
                 fo[u, 0, 0], fo[u, 0, 1], fo[u, 0, 2] = f0, f1, f2
                 wo[u, 0, 0], wo[u, 0, 1], wo[u, 0, 2] = w0, w1, w2
@@ -819,13 +839,35 @@ def _node_kernel(t, dtk, pn, arc_c, arc_s, mid_c, mid_s, simpson, pc, gA, dgA, i
             a0, a1, a2, b0, b1, b2 = f0, f1, f2, w0, w1, w2
 
 
-def _arc_node_states(pc: _Pieces, ia, p, k: _Kin, out: dict) -> None:
-    """Write r_e, v_e, C_eb, heading / pitch at the arc nodes ``ia`` (m,) (global node indices of the U x N grid;
-    pieces ``p``, kinematics ``k``) into ``out``.
+def _kin_subset(k: _Kin, sel) -> _Kin:
+    """The kinematics ``k`` of m points restricted to the points ``sel`` (ascending indices into the m)."""
+    m = k.tau.shape[0]
+    on_h, on_v = np.zeros(m, bool), np.zeros(m, bool)
+    on_h[k.i_h], on_v[k.i_v] = True, True
+    psi, gam = np.empty(m), np.empty(m)
+    psi[k.i_h], gam[k.i_v] = k.psi_h, k.gam_v
+    i_h, i_v = np.flatnonzero(on_h[sel]), np.flatnonzero(on_v[sel])
+    return _Kin(k.tau[sel], k.v0[sel], k.v[sel], i_h, i_v, psi[sel][i_h], gam[sel][i_v], k.cpsi[sel],
+                k.spsi[sel], k.cgam[sel], k.sgam[sel])
+
+
+def _arc_node_states(pc: _Pieces, ia, p, k: _Kin, out: dict, se: int = 1) -> None:
+    """Write heading / pitch at the arc nodes ``ia`` (m,) (global node indices ``u N + k`` of the U x N grid;
+    pieces ``p``, kinematics ``k``) and r_e, v_e, C_eb at those of them whose ``k`` is a multiple of ``se``
+    (state index ``u ((N - 1) // se + 1) + k // se``) into ``out``.
 
     ``r_e = r0_e + C_eL p_L`` is formed row by row with the row's arc nodes in the order (horizontal, vertical)
-    of a row alone: the BLAS product's rounding may depend on its row count.
+    of a row alone: the BLAS product's rounding may depend on its row count (with ``se`` > 1 the count is that
+    of the row's stored arc nodes; ``test_trajectory`` checks the same bits as every node's states).
     """
+    flat = lambda name: out[name].reshape((-1,) + out[name].shape[2:])  # noqa: E731
+    flat("heading")[ia[k.i_h]] = _wrap(k.psi_h)
+    flat("pitch")[ia[k.i_v]] = k.gam_v
+    n = out["speed"].shape[1]
+    if se > 1:                                                    # the stored nodes only, at their state index
+        sel = np.flatnonzero(ia % n % se == 0)
+        ia = (ia // n * ((n - 1) // se + 1) + ia % n // se)[sel]
+        p, k = p[sel], _kin_subset(k, sel)
     U = pc.C_eL.shape[0]
     ca, sa, cb, sb = k.cgam, k.sgam, k.cpsi, k.spsi
     C_Lb = np.empty((ia.size, 3, 3))
@@ -843,12 +885,9 @@ def _arc_node_states(pc: _Pieces, ia, p, k: _Kin, out: dict) -> None:
     for u in np.flatnonzero(np.diff(bounds)):
         a, b = bounds[u], bounds[u + 1]
         r[a:b] = pa[a:b] @ pc.C_eL[u].T + pc.r0[u]
-    flat = lambda name: out[name].reshape((-1,) + out[name].shape[2:])  # noqa: E731
     flat("C_eb")[ia] = Ca
     flat("v_e")[ia] = Ca[:, :, 0] * k.v[:, None]
     flat("r_e")[ia[order]] = r
-    flat("heading")[ia[k.i_h]] = _wrap(k.psi_h)
-    flat("pitch")[ia[k.i_v]] = k.gam_v
 
 
 @nb.njit(cache=True)
@@ -977,10 +1016,10 @@ def _node_rows(args, U: int, n: int, ia, gm, workers: int | None = None) -> None
                                                int(np.searchsorted(gm, u0 * n))), U, workers)
 
 
-def _evaluate(pc: _Pieces, t, grav, linear_gravity: bool, out: dict, workers: int | None = None) -> None:
+def _evaluate(pc: _Pieces, t, grav, linear_gravity: bool, out: dict, workers: int | None = None, se: int = 1) -> None:
     """Write all outputs of the U rows of ``pc`` on the grid ``t`` (N,) into ``out``, the (U, N, ...) arrays of
-    :class:`Truth` by name (C-contiguous rows; :func:`_truth_outputs`); ``workers``: the node pass's threads
-    (:func:`_node_rows`).
+    :class:`Truth` by name (C-contiguous rows; :func:`_truth_outputs`), the states r_e, v_e, C_eb only at every
+    ``se``-th node ((U, (N - 1) // se + 1, ...)); ``workers``: the node pass's threads (:func:`_node_rows`).
 
     States and instantaneous IMU at the grid nodes; IMU means over the intervals ``(t_{k-1}, t_k]`` by
     Simpson's rule on each smooth sub-interval:
@@ -1007,17 +1046,18 @@ def _evaluate(pc: _Pieces, t, grav, linear_gravity: bool, out: dict, workers: in
     _, mid_c, mid_s = _arc_kin(pl, 0.5 * (t[km] + t[km + 1]), pn[gm])
     dtk = np.diff(t)
     node_args = ((t, dtk, pn, arc_c, arc_s, mid_c, mid_s, not linear_gravity, pc, *grav, out["r_e"], out["v_e"],
-                  out["C_eb"], out["speed"], out["heading"], out["pitch"], out["engine_on"], out["f_b"], out["w_b"]),
+                  out["C_eb"], out["speed"], out["heading"], out["pitch"], out["engine_on"], out["f_b"], out["w_b"],
+                  se),
                  U, n, ia, gm, workers)
     if ia.size and U >= OVERLAP_ROWS:   # the node pass (off the arcs' states) beside the arcs' states (numpy)
         with ThreadPoolExecutor(max_workers=1) as ex:
             pending = ex.submit(_node_rows, *node_args)
-            _arc_node_states(pc, ia, pa, ka, out)
+            _arc_node_states(pc, ia, pa, ka, out, se)
             pending.result()
     else:
         _node_rows(*node_args)
         if ia.size:
-            _arc_node_states(pc, ia, pa, ka, out)
+            _arc_node_states(pc, ia, pa, ka, out, se)
     _split_means(pc, t, dtk, starts, pn, grav, linear_gravity, out)
 
 
@@ -1025,10 +1065,15 @@ _TRUTH_FIELDS = (("r_e", (3,)), ("v_e", (3,)), ("C_eb", (3, 3)), ("f_b", (3,)), 
                  ("heading", ()), ("pitch", ()), ("engine_on", ()))
 
 
-def _truth_outputs(U: int, n: int, dtype, buffers=None) -> dict:
-    """The (U, n, ...) output arrays of :class:`Truth` by name (from ``buffers``, :class:`envs.sim.buffers.
-    WorldBuffers`, when given)."""
-    return {key: empty(buffers, f"truth.{key}", (U, n) + tail, bool if key == "engine_on" else dtype)
+_STATE_FIELDS = ("r_e", "v_e", "C_eb")
+
+
+def _truth_outputs(U: int, n: int, dtype, buffers=None, se: int = 1) -> dict:
+    """The (U, n, ...) output arrays of :class:`Truth` by name, the states' (U, (n - 1) // se + 1, ...) (from
+    ``buffers``, :class:`envs.sim.buffers.WorldBuffers`, when given)."""
+    ns = (n - 1) // se + 1
+    return {key: empty(buffers, f"truth.{key}", (U, ns if key in _STATE_FIELDS else n) + tail,
+                       bool if key == "engine_on" else dtype)
             for key, tail in _TRUTH_FIELDS}
 
 
@@ -1039,7 +1084,7 @@ rows, so the threads overlap where numpy releases the GIL; a range pays the stag
 
 
 def _truth_rows(motions: Sequence[Motion], lat0, lon0, h0, t, rate: float, out: dict,
-                workers: int | None = None) -> None:
+                workers: int | None = None, se: int = 1) -> None:
     """The truth of ``motions`` (U distinct motions, their start points ``lat0``, ``lon0`` [rad], ``h0`` [m] (U,))
     on the grid ``t`` (N,) at ``rate`` [Hz] into ``out`` (:func:`_truth_outputs` of U rows, or rows of it): each
     row depends only on its motion."""
@@ -1057,7 +1102,7 @@ def _truth_rows(motions: Sequence[Motion], lat0, lon0, h0, t, rate: float, out: 
     ga_e = gravity_ecef(pa @ C_eL.mT + r0[:, None, :])            # r_e = r0 + C_eL p_L
     ga_L = (ga_e @ C_eL).mT.copy()                                 # (U, 3, A): C_Le g_e
     dga_L = np.diff(ga_L, axis=-1)
-    _evaluate(pc, t, (ga_L, dga_L, 1.0 / h), on_nodes, out, workers)
+    _evaluate(pc, t, (ga_L, dga_L, 1.0 / h), on_nodes, out, workers, se)
 
 
 def _check_dtype(dtype):
@@ -1087,7 +1132,7 @@ def _anchor_grid(n: int, rate: float):
 
 
 def generate_truth(motions: Sequence[Motion], duration_s: float, imu_rate_hz: float, dtype=np.float64,
-                   buffers=None) -> Truth:
+                   buffers=None, states_every: int = 1) -> Truth:
     """Truth trajectory and ideal IMU for a batch of motions on one time grid.
 
     Parameters
@@ -1103,6 +1148,10 @@ def generate_truth(motions: Sequence[Motion], duration_s: float, imu_rate_hz: fl
         rounded once.
     buffers : :class:`envs.sim.buffers.WorldBuffers` or None: the output arrays come from it (reused from an
         earlier draw that nobody holds any more). The values do not depend on it.
+    states_every : int >= 1: form the states ``r_e``, ``v_e``, ``C_eb`` only at the samples ``0, s, 2 s, ...``
+        (:attr:`Truth.coarse`; the same bits as those samples of every sample's states). An env reads them
+        only at sample 0 and at the GNSS epochs, every ``samples_per_epoch``-th sample; the IMU and the other
+        fields are the same either way. It saves 15 of the 24 stored numbers per sample and their arithmetic.
 
     From ``2 TRUTH_RANGE_ROWS`` distinct motions on, the rows run in ranges on threads
     (:func:`~envs.sim.row_threads.run_row_ranges`, :data:`TRUTH_RANGE_ROWS`): each row depends only on its
@@ -1127,6 +1176,9 @@ def generate_truth(motions: Sequence[Motion], duration_s: float, imu_rate_hz: fl
         if isinstance(val, bool) or not isinstance(val, (int, float, np.integer, np.floating)) \
                 or not math.isfinite(val) or val <= 0:
             raise ValueError(f"{name} must be a finite number > 0, got {val!r}")
+    if isinstance(states_every, bool) or not isinstance(states_every, (int, np.integer)) or states_every < 1:
+        raise ValueError(f"states_every must be an int >= 1, got {states_every!r}")
+    se = int(states_every)
     rate = float(imu_rate_hz)
     n = int(round(float(duration_s) * rate)) + 1
     if n < 2:
@@ -1143,17 +1195,23 @@ def generate_truth(motions: Sequence[Motion], duration_s: float, imu_rate_hz: fl
     lat0 = np.array([m.lat0_deg for m in ums]) * DEG
     lon0 = np.array([m.lon0_deg for m in ums]) * DEG
     h0 = np.array([m.h0_m for m in ums])
-    out = _truth_outputs(U, n, dtype, buffers)
+    out = _truth_outputs(U, n, dtype, buffers, se)
     if U < 2 * TRUTH_RANGE_ROWS:
-        _truth_rows(ums, lat0, lon0, h0, t, rate, out)
+        _truth_rows(ums, lat0, lon0, h0, t, rate, out, se=se)
     else:   # row ranges on threads (each range's node pass on one thread beside it): the same bits
         run_row_ranges(lambda u0, u1: _truth_rows(ums[u0:u1], lat0[u0:u1], lon0[u0:u1], h0[u0:u1], t, rate,
-                                                  {k: a[u0:u1] for k, a in out.items()}, 1),
+                                                  {k: a[u0:u1] for k, a in out.items()}, 1, se),
                        U, min_rows=TRUTH_RANGE_ROWS)
     idx = np.array(row_of)
     if not np.array_equal(idx, np.arange(B)):                     # copy the rows of equal motions
         out = {key: val[idx] for key, val in out.items()}
-    return Truth(t=t, lat0=lat0[idx], lon0=lon0[idx], h0=h0[idx], imu_rate_hz=rate, **out)
+    coarse = None
+    if se > 1:
+        coarse = TruthAt(t[::se], *(out.pop(key) for key in _STATE_FIELDS), out["speed"][:, ::se],
+                         out["heading"][:, ::se])
+        out.update(dict.fromkeys(_STATE_FIELDS))
+    return Truth(t=t, lat0=lat0[idx], lon0=lon0[idx], h0=h0[idx], imu_rate_hz=rate, states_every=se, coarse=coarse,
+                 **out)
 
 
 # --------------------------------------------------------------------------- random drives

@@ -374,3 +374,32 @@ def test_random_drive_deterministic_fills_duration_and_consistent(style):
         assert np.abs(tr.pitch).max() > 0.5 * DEG
         assert np.abs(tr.pitch[:, -1]).max() < 5.1 * DEG
     _check_velocity_increments(tr, 2e-6, [a, c])   # 50 ms steps: trapezoid residual grows as dt^3
+
+
+@pytest.mark.parametrize("scenario, rows, every", [("urban", 3, 10), ("noise-burst", 130, 10), ("urban", 2, 7)])
+def test_states_every_kth_sample_equal_those_samples_of_every_samples_states(scenario, rows, every):
+    """``generate_truth(..., states_every=s)`` forms r_e, v_e, C_eb only at samples 0, s, 2 s, ...: the same bits
+    there as the truth with every sample's states (arcs, straight pieces, the row ranges on threads from 128 rows,
+    float32), and every other field the same; ``take`` refuses the samples it did not form."""
+    from envs.sim.scenarios import get_scenario
+    scen = get_scenario(scenario, duration_s=20.0)
+    motions = scen.motions(row_generators(list(range(40, 40 + rows)), "trajectory"))
+    for dtype in (np.float64, np.float32):
+        dense = generate_truth(motions, 20.0, 100.0, dtype=dtype)
+        coarse = generate_truth(motions, 20.0, 100.0, dtype=dtype, states_every=every)
+        assert coarse.r_e is None and coarse.v_e is None and coarse.C_eb is None and coarse.states_every == every
+        assert coarse.batch_size == rows
+        idx = np.arange(0, dense.t.size, every)
+        assert idx.size == coarse.coarse.r_e.shape[1]
+        a, b = dense.take(idx), coarse.take(idx)
+        for name in ("t", "r_e", "v_e", "C_eb", "speed", "heading"):
+            assert getattr(b, name).dtype == getattr(a, name).dtype
+            np.testing.assert_array_equal(getattr(b, name), getattr(a, name), err_msg=name)
+        last = coarse.take(np.array([-1 - (dense.t.size - 1) % every]))          # a negative index of a formed one
+        np.testing.assert_array_equal(last.r_e[:, 0], a.r_e[:, -1])
+        for name in ("t", "f_b", "w_b", "speed", "heading", "pitch", "engine_on", "lat0", "lon0", "h0"):
+            np.testing.assert_array_equal(getattr(coarse, name), getattr(dense, name), err_msg=name)
+    with pytest.raises(ValueError, match=rf"every {every}th sample .*sample {every + 1} is not one"):
+        coarse.take(np.array([0, every + 1]))
+    with pytest.raises(ValueError, match="states_every must be an int >= 1"):
+        generate_truth(motions, 20.0, 100.0, states_every=0)

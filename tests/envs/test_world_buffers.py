@@ -8,6 +8,7 @@ from dataclasses import fields
 
 import gymnasium as gym
 import numpy as np
+import pytest
 
 import envs  # noqa: F401  (registers the env ids)
 from envs.sim.buffers import WorldBuffers
@@ -111,3 +112,32 @@ def test_env_resets_reuse_the_buffers_and_close_releases_them():
     assert {k: id(a) for k, a in buf._arrays.items()} == first
     env.close()
     assert buf.nbytes == 0
+
+
+def test_a_world_with_states_at_the_epochs_only_is_the_same_world():
+    """``generate_world(..., truth_states='epochs')`` (the env's resets, through buffers) forms the true states only
+    at sample 0 and the epochs: the same bits there, the same IMU, GNSS, initial estimate and odometer, and the
+    same reset arrays (``world_arrays``); a name it does not know is refused."""
+    from envs.prepared import world_arrays
+    scen = get_scenario("urban", duration_s=20.0)
+    seeds = [3, 4, 5]
+    whole = generate_world(scen, seeds)
+    buf = WorldBuffers()
+    for _ in range(2):                                               # the second draw reuses the arrays
+        w = generate_world(scen, seeds, buffers=buf, truth_states="epochs")
+        assert w.truth.r_e is None and w.truth.states_every == scen.samples_per_epoch
+        got, ref = _arrays(w), _arrays(whole)
+        assert set(ref) - set(got) == {"truth.r_e", "truth.v_e", "truth.C_eb"}
+        for key, val in got.items():
+            np.testing.assert_array_equal(val, ref[key], err_msg=key)
+        idx = np.concatenate([[0], w.epoch_idx])
+        for name in ("r_e", "v_e", "C_eb"):
+            np.testing.assert_array_equal(getattr(w.truth.take(idx), name), getattr(whole.truth.take(idx), name))
+        for name in ("r_e", "v_e", "C_eb", "pos_cov_e"):
+            np.testing.assert_array_equal(getattr(w.init, name), getattr(whole.init, name))
+        a, b = world_arrays(w), world_arrays(whole)
+        for key in a:
+            np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+        del w
+    with pytest.raises(ValueError, match="truth_states must be one of"):
+        generate_world(scen, seeds, truth_states="epoch")

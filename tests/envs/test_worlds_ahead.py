@@ -29,11 +29,11 @@ def _count_draws(ahead, buffers_seen=None):
         def __getattr__(self, name):
             return getattr(config, name)
 
-        def make_world(self, seeds, buffers=None):
+        def make_world(self, seeds, buffers=None, truth_states="all"):
             sizes.append(len(seeds))
             if buffers_seen is not None:
                 buffers_seen.append(buffers)
-            return make(seeds, buffers=buffers)
+            return make(seeds, buffers=buffers, truth_states=truth_states)
 
     ahead.config = Counting()
     return sizes
