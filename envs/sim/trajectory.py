@@ -529,8 +529,8 @@ class Truth:
         k = np.where(idx < 0, idx + n, idx)
         off = np.flatnonzero(k % s)
         if off.size:
-            raise ValueError(f"this truth holds its states only at every {s}th sample (states_every={s}); "
-                             f"sample {int(k[off[0]])} is not one")
+            raise ValueError(f"this truth holds its states only at the samples that are multiples of {s} "
+                             f"(states_every={s}); sample {int(k[off[0]])} is not one")
         c = self.coarse
         j = k // s
         return TruthAt(c.t[j], c.r_e[:, j], c.v_e[:, j], c.C_eb[:, j], c.speed[:, j], c.heading[:, j])
