@@ -32,9 +32,9 @@ over its wall time, both read around the same calls (1.00: one core throughout; 
 
 The draws go through one :class:`envs.sim.buffers.WorldBuffers` (each reuses the arrays of the one before, as an
 env core's resets do; a ``--compare`` tree without it allocates them); ``--fresh`` allocates them at every draw.
-They form the truth's position, velocity and attitude only at sample 0 and the GNSS epochs, as an env's reset does
-(``generate_world(..., truth_states='epochs')``; a ``--compare`` tree without that choice forms them at every
-sample); ``--truth-states all`` forms them at every sample.
+They form only what an env's reset reads, as the reset does (``generate_world(..., for_reset=True)``: the truth's
+position, velocity and attitude at sample 0 and the GNSS epochs only, no record of the IMU's bias; a ``--compare``
+tree without that choice draws whole worlds); ``--whole`` draws whole worlds.
 
 ``--draw-floor`` adds, per cell, the cost of the IMU stage's random draws alone (:func:`draw_floor`): the
 normal variates it draws, counted on the world's own streams by bit generator, drawn again as the stage draws
@@ -111,14 +111,13 @@ def _install_timers(acc, clock) -> set:
     return found
 
 
-def _make_world(scenario, seeds, duration_s, dtype, buffers=None, truth_states="epochs"):
-    """The world as an env's reset draws it: the truth's states only at the epochs (``truth_states``; a tree
-    without that choice forms them at every sample)."""
+def _make_world(scenario, seeds, duration_s, dtype, buffers=None, for_reset=True):
+    """The world as an env's reset draws it (``for_reset``; a tree without that choice draws the whole world)."""
     from envs.sim.scenarios import get_scenario
     from envs.sim.world import generate_world
     kw = {} if buffers is None else {"buffers": buffers}
-    if "truth_states" in inspect.signature(generate_world).parameters:
-        kw["truth_states"] = truth_states
+    if "for_reset" in inspect.signature(generate_world).parameters:
+        kw["for_reset"] = for_reset
     return generate_world(get_scenario(scenario, duration_s=duration_s), seeds, dtype=dtype, **kw)
 
 
@@ -150,7 +149,7 @@ def _stages_in_turn(on: bool):
         world.OVERLAP_ROWS = old
 
 
-def _timed_draws(scenario, B, duration_s, reps, dtype, buffers, clock, acc, acc_cpu, offset, truth_states):
+def _timed_draws(scenario, B, duration_s, reps, dtype, buffers, clock, acc, acc_cpu, offset, for_reset):
     """``reps`` draws of B rows (seeds from ``offset`` on); per draw the totals and stage times (wall or ``clock``,
     and CPU), with ``rest`` the remainder: two (reps, 2 + stages) arrays."""
     rows, cpu_rows = [], []
@@ -159,7 +158,7 @@ def _timed_draws(scenario, B, duration_s, reps, dtype, buffers, clock, acc, acc_
             acc[k] = acc_cpu[k] = 0.0
         seeds = list(range(offset + r * B, offset + (r + 1) * B))
         t0, c0 = clock(), time.process_time()
-        _make_world(scenario, seeds, duration_s, np.dtype(dtype), buffers, truth_states)
+        _make_world(scenario, seeds, duration_s, np.dtype(dtype), buffers, for_reset)
         total, total_cpu = clock() - t0, time.process_time() - c0
         rows.append((total, *(acc[k] for k in _WRAPPED), total - sum(acc.values())))
         cpu_rows.append((total_cpu, *(acc_cpu[k] for k in _WRAPPED), total_cpu - sum(acc_cpu.values())))
@@ -167,11 +166,11 @@ def _timed_draws(scenario, B, duration_s, reps, dtype, buffers, clock, acc, acc_
 
 
 def bench_cell(scenario, B, duration_s, reps, dtype="float64", cpu=False, cores=False, fresh=False,
-               truth_states="epochs"):
+               for_reset=True):
     """Median wall time (``cpu`` without ``cores``: process CPU time) per row [s] of the world and of each stage
     over ``reps`` draws of B rows, and N. The draws go through one :class:`envs.sim.buffers.WorldBuffers`, as an
-    env core's resets do (``fresh``: without, each draw allocates its arrays), and form the truth's states where
-    an env's reset does (``truth_states='epochs'``; ``'all'``: at every sample).
+    env core's resets do (``fresh``: without, each draw allocates its arrays), and form only what an env's reset
+    reads (``for_reset``; False: whole worlds).
 
     The world's total is timed as an env pays it (the IMU stage overlapping the GNSS stages where the world does
     that); the stages are timed in ``reps`` more draws of the same seeds with the stages in turn
@@ -191,10 +190,10 @@ def bench_cell(scenario, B, duration_s, reps, dtype="float64", cpu=False, cores=
         _install_timers(acc_cpu, time.process_time)  # around the wall timers: the same calls
     buffers = _world_buffers(fresh)
     w = _make_world(scenario, list(range(B)), duration_s, np.dtype(dtype), buffers,  # untimed: kernels load
-                    truth_states)
+                    for_reset)
     n = w.truth.t.shape[0]
     del w
-    draws = (scenario, B, duration_s, reps, dtype, buffers, clock, acc, acc_cpu, B, truth_states)
+    draws = (scenario, B, duration_s, reps, dtype, buffers, clock, acc, acc_cpu, B, for_reset)
     with _stages_in_turn(True):
         rows, cpu_rows = _timed_draws(*draws)
     paid, paid_cpu = rows[:, 0], cpu_rows[:, 0]
@@ -355,11 +354,12 @@ def draw_floor(scenario, B, duration_s, dtype="float64", reps=3) -> dict:
             "threads": threads}
 
 
-def _run_cell(root, scenario, B, duration_s, reps, dtype, cpu, fresh=False, truth_states="epochs"):
+def _run_cell(root, scenario, B, duration_s, reps, dtype, cpu, fresh=False, for_reset=True):
     """One cell in a fresh process on the source tree ``root``; returns its JSON result."""
     env = dict(os.environ, NAVGYM_BENCH_ROOT=root)
     cmd = [sys.executable, os.path.abspath(__file__), "--cell", scenario, str(B), str(duration_s), str(reps), dtype,
-           "cpu" if cpu else "wall", "fresh" if fresh else "buffers", truth_states]
+           "cpu" if cpu else "wall", "fresh" if fresh else "buffers",
+           "reset" if for_reset else "whole"]
     out = subprocess.run(cmd, env=env, cwd=root, capture_output=True, text=True, check=True).stdout
     return json.loads(out.strip().splitlines()[-1])
 
@@ -396,9 +396,9 @@ def main(argv=None):
     p.add_argument("--fresh", action="store_true",
                    help="each draw allocates its arrays (default: the draws reuse them through one WorldBuffers, "
                         "as an env's resets do)")
-    p.add_argument("--truth-states", choices=("epochs", "all"), default="epochs",
-                   help="where the worlds form the truth's position, velocity and attitude: at the epochs, as an "
-                        "env's reset does (default), or at every IMU sample")
+    p.add_argument("--whole", action="store_true",
+                   help="draw whole worlds (default: only what an env's reset reads, as the reset draws it: the "
+                        "truth's states at the epochs, no IMU bias records)")
     p.add_argument("--draw-floor", action="store_true",
                    help="also print, per cell, what the IMU stage's normal draws alone cost (draw_floor), "
                         "drawn as the stage draws them")
@@ -418,7 +418,7 @@ def main(argv=None):
     print("\n" + hdr + "\n" + "-" * len(hdr))
     for scen in args.scenarios:
         for B in args.batches:
-            cell = (scen, B, args.duration_s, reps(B), args.dtype, args.cpu, args.fresh, args.truth_states)
+            cell = (scen, B, args.duration_s, reps(B), args.dtype, args.cpu, args.fresh, not args.whole)
             if args.compare:
                 before, after = [], []
                 for _ in range(args.rounds):
@@ -433,7 +433,7 @@ def main(argv=None):
                       f"{1e-6 * ra['n'] / ra['total']:8.3f} {rb['total'] / ra['total']:8.2f}x", flush=True)
             else:
                 r = bench_cell(*cell[:6], cores=args.cores and not args.cpu, fresh=args.fresh,
-                               truth_states=args.truth_states)
+                               for_reset=not args.whole)
                 parts = " ".join(_with_share(r, s) for s in STAGES)
                 print(f"{scen:14s} {B:4d} {1e3 * r['total']:8.3f} {r['n'] / r['total']:11.3g} {parts}", flush=True)
                 if "cores" in r:
@@ -449,8 +449,8 @@ def main(argv=None):
 
 if __name__ == "__main__":
     if len(sys.argv) > 1 and sys.argv[1] == "--cell":
-        scenario, B, duration_s, reps, dtype, clock, alloc, states = sys.argv[2:10]
+        scenario, B, duration_s, reps, dtype, clock, alloc, part = sys.argv[2:10]
         print(json.dumps(bench_cell(scenario, int(B), float(duration_s), int(reps), dtype, clock == "cpu",
-                                    fresh=alloc == "fresh", truth_states=states)))
+                                    fresh=alloc == "fresh", for_reset=part == "reset")))
     else:
         main()

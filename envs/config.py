@@ -193,13 +193,12 @@ class EnvConfig:
                              f"(the episode's world is generated whole at reset: about {gb:.3g} GB per env row at "
                              f"{scen.imu_rate_hz:g} Hz)")
 
-    def make_world(self, seeds, buffers=None, truth_states: str = "all"):
+    def make_world(self, seeds, buffers=None, for_reset: bool = False):
         """The world of this config for ``seeds``: the scenario with its overrides (a recording cut to the
         episode length, its IMU synthesized at ``imu_grade``); see :func:`envs.worlds.make_world` (``buffers``:
-        its :class:`envs.sim.buffers.WorldBuffers`; ``truth_states``: ``'epochs'`` forms the true states only
-        where a reset reads them)."""
+        its :class:`envs.sim.buffers.WorldBuffers`; ``for_reset``: only what a reset reads of it)."""
         from .worlds import make_world
-        return make_world(self.resolve_scenario(), seeds, buffers=buffers, truth_states=truth_states)
+        return make_world(self.resolve_scenario(), seeds, buffers=buffers, for_reset=for_reset)
 
     def resolve_scenario(self) -> Scenario:
         """The scenario with this config's overrides applied (a recording: its

@@ -437,7 +437,7 @@ class TuningCore:
             # bulk (truth at the IMU rate, IMU error records) earlier made the reset of 1024 rows ~1 s shorter
             # but gave 2-3 of the 15 steps after it +30 ms of wall time (no minor page faults, no GC run; cause
             # not pinned down), 0.74-0.82x in bench_envs' 8 timed steps at B = 1024
-            whole = self.config.make_world(seeds, buffers=self.world_buffers, truth_states="epochs")
+            whole = self.config.make_world(seeds, buffers=self.world_buffers, for_reset=True)
             prepared = prepared_from(whole)
         elif list(prepared.seeds) != seeds:
             raise ValueError(f"reset_rows: the prepared world holds seeds {list(prepared.seeds)[:4]}..., not the "

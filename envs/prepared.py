@@ -88,7 +88,7 @@ def world_arrays(world: World) -> dict:
     ep = world.epoch_idx
     still = tr.stationary(STILL_SPEED_MPS)
     # the origin (sample 0) and the epochs in one conversion and one rotation (elementwise: the same bits); the
-    # truth may hold its states only there (generate_world's truth_states='epochs')
+    # truth may hold its states only there (generate_world's for_reset)
     r_at = tr.take(np.concatenate([[0], ep])).r_e
     C_ne = np.swapaxes(C_en(*ecef_to_geodetic(r_at)[:2]), -1, -2)
     has_rate = g.prr is not None
@@ -122,9 +122,10 @@ def prepared_from(world: World) -> PreparedWorld:
 def prepare_world(config, seeds, buffers=None) -> PreparedWorld:
     """Draw the world of ``config`` (an :class:`~envs.config.EnvConfig`) for ``seeds`` (B ints) and reduce it
     to what a reset uses (:class:`PreparedWorld`). A pure function of its arguments (``buffers``: the world's
-    :class:`envs.sim.buffers.WorldBuffers`, which the result does not depend on). The world's truth states are
-    formed only at sample 0 and the epochs (``truth_states='epochs'``), all that a reset reads of them."""
-    return prepared_from(config.make_world([int(s) for s in seeds], buffers=buffers, truth_states="epochs"))
+    :class:`envs.sim.buffers.WorldBuffers`, which the result does not depend on). The world is drawn with
+    ``for_reset=True``: only what a reset reads of it (the truth's states at sample 0 and the epochs, no IMU bias
+    records)."""
+    return prepared_from(config.make_world([int(s) for s in seeds], buffers=buffers, for_reset=True))
 
 
 __all__ = ["WORLD_ARRAY_NAMES", "CHANNEL_ARRAY_NAMES", "PreparedWorld", "prepare_world", "prepared_from", "world_arrays"]

@@ -49,7 +49,7 @@ def replay_descriptor(scenario, imu_grade: str | None = None, duration_s: float 
 
 
 def make_world(scenario, seeds, dtype=np.float64, imu_grade: str | None = None,
-               duration_s: float | None = None, buffers=None, truth_states: str = "all") -> World:
+               duration_s: float | None = None, buffers=None, for_reset: bool = False) -> World:
     """A batched world for ``scenario`` and ``seeds``.
 
     ``scenario`` is a name of :func:`scenario_names`, a dataset spec path (``*.toml``,
@@ -58,9 +58,9 @@ def make_world(scenario, seeds, dtype=np.float64, imu_grade: str | None = None,
     describing a recording raises ``ValueError`` rather than simulating). ``imu_grade`` and ``duration_s``
     override the scenario's (for a recording: the synthesized IMU's grade, and a prefix of the recording).
     ``buffers``: a simulated world's bulk arrays come from this :class:`envs.sim.buffers.WorldBuffers`
-    (:func:`envs.sim.world.generate_world`); a replayed world does not use it. ``truth_states``: ``'epochs'``
-    forms a simulated world's true position, velocity and attitude only at sample 0 and the GNSS epochs
-    (:func:`~envs.sim.world.generate_world`); a replayed world keeps its truth at every sample either way.
+    (:func:`envs.sim.world.generate_world`); a replayed world does not use it. ``for_reset``: a simulated world
+    forms only what an env's reset reads (:func:`~envs.sim.world.generate_world`); a replayed world is whole
+    either way.
     """
     if not isinstance(scenario, (str, Scenario)) and not hasattr(scenario, "__fspath__"):
         raise ValueError(f"scenario must be a name, a dataset spec path or a Scenario, got {scenario!r}")
@@ -78,7 +78,7 @@ def make_world(scenario, seeds, dtype=np.float64, imu_grade: str | None = None,
         over["duration_s"] = float(duration_s)
     from .sim.scenarios import get_scenario
     return generate_world(get_scenario(scenario, **over), seeds, dtype=dtype, buffers=buffers,
-                          truth_states=truth_states)
+                          for_reset=for_reset)
 
 
 def oracle_r_world(world: World, exclude_nlos: bool = False) -> World:

@@ -786,7 +786,8 @@ class ImuData:
     w_b : (B, N, 3) measured angular rate [rad/s].
     gyro_bias : (B, N, 3) total additive gyro bias at each sample
         (fixed + turn-on + Gauss-Markov) [rad/s]; a read-only broadcast view
-        when it is constant in time.
+        when it is constant in time; None where not recorded (``simulate_imu(..., bias_records=False)``, a
+        recorded IMU).
     accel_bias : (B, N, 3) same for the accelerometers [m/s^2].
     gyro_scale_misalignment : (B, 3, 3) per-run ``S_g + M_g`` [-]; the sensor
         applies ``I + gyro_scale_misalignment``.
@@ -802,8 +803,8 @@ class ImuData:
 
     f_b: np.ndarray
     w_b: np.ndarray
-    gyro_bias: np.ndarray
-    accel_bias: np.ndarray
+    gyro_bias: np.ndarray | None
+    accel_bias: np.ndarray | None
     gyro_scale_misalignment: np.ndarray
     accel_scale_misalignment: np.ndarray
     dt: float
@@ -1172,7 +1173,7 @@ def _kernel_args(job: _RowJob, d: _RowDraws) -> tuple:
                       for k, s in enumerate(job.sensors)])
     const = job.bias_const
     dtype = job.outs[0].dtype
-    bias = [np.empty((1, 1, 3), dtype) if f is None else f for f in job.bias_full]
+    bias = [np.empty((1, 0, 3), dtype) if f is None else f for f in job.bias_full]   # (1, 0, 3): not recorded
     speed = np.zeros((1, 1)) if job.vibration is None else np.ascontiguousarray(job.speed)
     rough_seg, rough_off = _csr(d.rough, 3)
     step_rec, step_off = _csr(d.steps, 4)
@@ -1191,7 +1192,7 @@ _CHILD_KIND = SFC64
 def simulate_imu(f_true, w_true, imu_rate_hz: float, grade, rngs: Sequence[np.random.Generator],
                  engine_on=None, speed=None, vibration: Vibration | None = None, dtype=np.float64,
                  workers: int | None = None, vibration_rngs: Sequence[np.random.Generator] | None = None,
-                 events: ImuEvents | None = None, buffers=None) -> ImuData:
+                 events: ImuEvents | None = None, buffers=None, bias_records: bool = True) -> ImuData:
     """Corrupt ideal IMU interval means with the errors of an IMU grade (and vehicle vibration).
 
     Implements (Groves 2013 sec. 4.4; IEEE Std 952-1997 noise terms)::
@@ -1233,6 +1234,10 @@ def simulate_imu(f_true, w_true, imu_rate_hz: float, grade, rngs: Sequence[np.ra
         not change). None: none.
     buffers : :class:`envs.sim.buffers.WorldBuffers` or None: the (B, N, 3) outputs come from it (reused from an
         earlier draw that nobody holds any more). The values do not depend on it.
+    bias_records : bool
+        Record each sample's bias in ``ImuData.gyro_bias`` / ``accel_bias`` (default). False: those are None
+        and the (B, N, 3) arrays are neither allocated nor written (an env's reset reads only ``f_b``, ``w_b``);
+        the samples are the same bits.
 
     Returns
     -------
@@ -1246,14 +1251,16 @@ def simulate_imu(f_true, w_true, imu_rate_hz: float, grade, rngs: Sequence[np.ra
     """
     grade, dtype, dt, f_true, w_true, engine_on, speed, vibration, workers = _check_inputs(
         f_true, w_true, imu_rate_hz, grade, rngs, engine_on, speed, vibration, dtype, workers, vibration_rngs, events)
+    if not isinstance(bias_records, (bool, np.bool_)):
+        raise ValueError(f"bias_records must be a bool, got {bias_records!r}")
     b, n, _ = f_true.shape
     sensors = _sensor_specs(grade, dt)
     step_rates = (0.0, 0.0) if events is None else (events.gyro_step_rate_hz, events.accel_step_rate_hz)
     job = _RowJob(sensors=sensors, truth=(w_true, f_true), dt=dt, rngs=rngs, vibration_rngs=vibration_rngs,
                   engine_on=engine_on, speed=speed, vibration=vibration, events=events, step_rates=step_rates,
                   outs=(empty(buffers, "imu.w_b", (b, n, 3), dtype), empty(buffers, "imu.f_b", (b, n, 3), dtype)),
-                  bias_full=tuple(empty(buffers, f"imu.{name}", (b, n, 3), dtype) if (s.gm_sigma > 0 or r > 0)
-                                  else None for name, s, r in zip(("gyro_bias", "accel_bias"), sensors, step_rates)),
+                  bias_full=tuple(empty(buffers, f"imu.{name}", (b, n, 3), dtype)
+                                  if bias_records and (s.gm_sigma > 0 or r > 0) else None for name, s, r in zip(("gyro_bias", "accel_bias"), sensors, step_rates)),
                   bias_const=np.empty((2, b, 3)), sm=np.zeros((2, b, 3, 3)),
                   ev_rows=[None] * b)
     draws = _RowDraws.empty(b, n, vibration)
@@ -1261,15 +1268,18 @@ def simulate_imu(f_true, w_true, imu_rate_hz: float, grade, rngs: Sequence[np.ra
     args = _kernel_args(job, draws)
     run_row_ranges(lambda r0, r1: imu_rows(r0, r1, *args), b, workers)
     _store_road_streams(draws)
-    return _imu_data(job, grade)
+    return _imu_data(job, grade, bool(bias_records))
 
 
-def _imu_data(job: _RowJob, grade: ImuGrade) -> ImuData:
-    """The rows' outputs as :class:`ImuData` (a constant bias as a read-only broadcast view)."""
+def _imu_data(job: _RowJob, grade: ImuGrade, bias_records: bool = True) -> ImuData:
+    """The rows' outputs as :class:`ImuData` (a constant bias as a read-only broadcast view; no bias without
+    ``bias_records``)."""
     b, n = job.truth[0].shape[:2]
     dtype = job.outs[0].dtype
 
     def _bias(full, const):
+        if not bias_records:
+            return None
         if full is not None:
             return full
         return np.broadcast_to(const.astype(dtype)[:, None, :], (b, n, 3))

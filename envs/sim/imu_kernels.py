@@ -126,7 +126,8 @@ def sensor_kernel(truth, vib, rough, a, has_sm, const, add_const, gm_z, gm_scale
 
     ``src`` is ``truth`` (n, 3) plus, when ``vib`` (n, 3) is not empty, the vibration times ``rough`` (n,) (ones
     off the rough-road segments: multiplying by 1 changes no bit). ``a = I + S + M`` applied when ``has_sm``
-    (:func:`apply_matrix`'s sum order). The bias, written to ``bias_out`` when it varies in time:
+    (:func:`apply_matrix`'s sum order). The bias, written to ``bias_out`` (n, 3) when it varies in time (not at
+    all when ``bias_out`` has no rows: not recorded):
 
     * with ``has_gm`` the first-order Gauss-Markov process (Groves 2013 sec. 4.4; Brown & Hwang, first-order
       Gauss-Markov process): ``b_k = phi b_(k-1) + u_k``, ``u = gm_scale gm_z`` (``gm_scale = sigma
@@ -147,6 +148,7 @@ def sensor_kernel(truth, vib, rough, a, has_sm, const, add_const, gm_z, gm_scale
     a00, a01, a02, a10, a11, a12, a20, a21, a22 = (a[0, 0], a[0, 1], a[0, 2], a[1, 0], a[1, 1], a[1, 2], a[2, 0],
                                                    a[2, 1], a[2, 2])
     c0, c1, c2 = const[0], const[1], const[2]
+    keep_bias = bias_out.shape[0] > 0
     for k in range(n):
         if has_vib:
             r = rough[k]
@@ -170,7 +172,8 @@ def sensor_kernel(truth, vib, rough, a, has_sm, const, add_const, gm_z, gm_scale
             else:
                 b0, b1, b2 = step[k, 0] + c0, step[k, 1] + c1, step[k, 2] + c2
             o0, o1, o2 = o0 + b0, o1 + b1, o2 + b2
-            bias_out[k, 0], bias_out[k, 1], bias_out[k, 2] = b0, b1, b2
+            if keep_bias:
+                bias_out[k, 0], bias_out[k, 1], bias_out[k, 2] = b0, b1, b2
         elif add_const:
             o0, o1, o2 = o0 + c0, o1 + c1, o2 + c2
         if has_white:
@@ -273,7 +276,8 @@ def imu_rows(r0, r1, w_true, f_true, dt, flags, sm_a, const, add_const, gm_par, 
     of ``w_out``, ``f_out`` (B, n, 3) and of the biases ``w_bias``, ``f_bias`` (B, n, 3) where they vary in time.
 
     Per sensor ``k`` (0 gyro, vibration columns 3-5; 1 accel, columns 0-2): ``flags[k] = (has_sm, has_gm,
-    has_step, has_white, has_bias)``, ``sm_a[k]`` (B, 3, 3) ``I + S + M``, ``const[k]`` (B, 3) with
+    has_step, has_white, has_bias)`` (``has_bias``: the bias is recorded in ``w_bias`` / ``f_bias``, else those
+    are a (1, 0, 3) placeholder), ``sm_a[k]`` (B, 3, 3) ``I + S + M``, ``const[k]`` (B, 3) with
     ``add_const[k]`` (B,), ``gm_par[k] = (sigma, phi, scale)``, ``white_sigma[k]``, the rows' child stream
     states ``gm_state[k]``, ``white_state[k]`` (B, 4) of kind ``child_kind`` (advanced). Vibration per row:
     ``vib_on`` (B,) (none where False), then :func:`vibration_row`'s arrays, ``kinds`` (B, n) the regimes and

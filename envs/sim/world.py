@@ -145,12 +145,7 @@ OVERLAP_ROWS = row_threads.OVERLAP_ROWS
 GNSS receiver (the two draw from separate streams into separate arrays: the same world either way)."""
 
 
-TRUTH_STATES = ("all", "epochs")
-"""Where :func:`generate_world` forms the truth's states (position, velocity, attitude): at every IMU sample, or
-only at sample 0 and the GNSS epochs (what an env reads; :attr:`~envs.sim.trajectory.Truth.states_every`)."""
-
-
-def generate_world(scenario, seeds, dtype=np.float64, buffers=None, truth_states: str = "all") -> World:
+def generate_world(scenario, seeds, dtype=np.float64, buffers=None, for_reset: bool = False) -> World:
     """Draw B episodes of ``scenario`` (name or :class:`Scenario`) from ``seeds`` (B non-negative ints).
 
     The stages in order: the drives and truth, the IMU and the GNSS receiver (from :data:`OVERLAP_ROWS` rows on,
@@ -164,9 +159,11 @@ def generate_world(scenario, seeds, dtype=np.float64, buffers=None, truth_states
     buffers : :class:`envs.sim.buffers.WorldBuffers` or None: the bulk arrays (truth at the IMU rate, IMU samples
         and error records, the GNSS ranging and receiver arrays) come from it, reused from an earlier draw that
         nobody holds any more (an env core's resets). The world does not depend on it.
-    truth_states : ``'all'`` (default): the truth's states at every IMU sample; ``'epochs'``: only at sample 0 and
-        the GNSS epochs (``Truth.states_every = samples_per_epoch``; read them with ``Truth.take``), the same bits
-        there, everything else the same. An env's reset uses ``'epochs'``.
+    for_reset : bool
+        Form only what an env's reset reads (:func:`envs.prepared.world_arrays`): the truth's position, velocity
+        and attitude only at sample 0 and the GNSS epochs (``Truth.states_every = samples_per_epoch``, read
+        through ``Truth.take``) and no record of the IMU's bias at each sample (``ImuData.gyro_bias``,
+        ``accel_bias`` None). The same bits in everything formed. Default False: the whole world.
     """
     scen = get_scenario(scenario)
     if getattr(scen, "dataset", None) is not None:   # envs.datasets.spec.ReplayScenario: never simulate it
@@ -175,16 +172,17 @@ def generate_world(scenario, seeds, dtype=np.float64, buffers=None, truth_states
     if scen.odometer is not None and scen.odometer.yaw_rate_sigma_rps is not None:
         raise ValueError(f"Scenario.odometer.yaw_rate_sigma_rps: a simulated odometer reads the forward speed "
                          f"only (the yaw rate comes with recorded odometry); set it to None for {scen.name!r}")
-    if truth_states not in TRUTH_STATES:
-        raise ValueError(f"truth_states must be one of {TRUTH_STATES}, got {truth_states!r}")
+    if not isinstance(for_reset, (bool, np.bool_)):
+        raise ValueError(f"for_reset must be a bool, got {for_reset!r}")
     seeds = as_seeds(seeds)
     motions = scen.motions(row_generators(seeds, "trajectory"))
     spe = scen.samples_per_epoch
     truth = generate_truth(motions, scen.duration_s, scen.imu_rate_hz, buffers=buffers,
-                           states_every=spe if truth_states == "epochs" else 1)
+                           states_every=spe if for_reset else 1)
     imu_args = (truth.f_b, truth.w_b, scen.imu_rate_hz, IMU_GRADES[scen.imu_grade], row_generators(seeds, "imu"))
     imu_kw = dict(engine_on=truth.engine_on, speed=truth.speed, vibration=scen.vibration, dtype=dtype,
-                  vibration_rngs=row_generators(seeds, "vibration"), events=scen.imu_events, buffers=buffers)
+                  vibration_rngs=row_generators(seeds, "vibration"), events=scen.imu_events, buffers=buffers,
+                  bias_records=not for_reset)
     epoch_idx = np.arange(spe, truth.t.size, spe)
     at = truth.take(epoch_idx)
     gnss_args = (truth.t[epoch_idx], at.r_e, at.v_e, at.heading, scen.constellation, scen.receiver, scen.events,

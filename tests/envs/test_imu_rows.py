@@ -99,6 +99,15 @@ def test_row_pass_equals_the_one_row_stages_on_any_thread_count(vib_bits, dtype)
                 assert np.array_equal(getattr(got, name)[i], want), (workers, i, name)
         assert [g.random() for g in got_v] == [copy.deepcopy(g).random() for g in ref_v]
     assert sum(map(bool, got.rough)) >= 5 and sum(map(bool, got.bias_steps)) >= 5   # events happened
+    # without the bias records (an env's reset): the same samples and events, no bias arrays
+    lean = simulate_imu(f, w, RATE, grade, row_generators(seeds, "imu"), engine_on=engine, speed=speed,
+                        vibration=vib, dtype=dtype, workers=2, vibration_rngs=vgens(), events=EVENTS,
+                        bias_records=False)
+    assert lean.gyro_bias is None and lean.accel_bias is None
+    assert np.array_equal(lean.w_b, got.w_b) and np.array_equal(lean.f_b, got.f_b)
+    assert lean.rough == got.rough and lean.bias_steps == got.bias_steps
+    with pytest.raises(ValueError, match="bias_records must be a bool"):
+        simulate_imu(f, w, RATE, grade, row_generators(seeds, "imu"), bias_records=None)
 
 
 def test_row_pass_without_vibration_or_events_and_ideal_grade():

@@ -158,7 +158,7 @@ class _FailingConfig:
     """A config whose world cannot be drawn, naming the content of ``marker.txt`` in the folder the worker runs
     in (pickled by reference: the worker imports this module)."""
 
-    def make_world(self, seeds, buffers=None, truth_states="all"):
+    def make_world(self, seeds, buffers=None, for_reset=False):
         raise ValueError(f"no world for {seeds} (marker: {Path('marker.txt').read_text()})")
 
 

@@ -114,20 +114,21 @@ def test_env_resets_reuse_the_buffers_and_close_releases_them():
     assert buf.nbytes == 0
 
 
-def test_a_world_with_states_at_the_epochs_only_is_the_same_world():
-    """``generate_world(..., truth_states='epochs')`` (the env's resets, through buffers) forms the true states only
-    at sample 0 and the epochs: the same bits there, the same IMU, GNSS, initial estimate and odometer, and the
-    same reset arrays (``world_arrays``); a name it does not know is refused."""
+def test_a_world_for_a_reset_is_the_same_world_where_it_is_formed():
+    """``generate_world(..., for_reset=True)`` (the env's resets, through buffers) forms the true states only at
+    sample 0 and the epochs and records no IMU bias: the same bits there, the same IMU samples, GNSS, initial
+    estimate and odometer, and the same reset arrays (``world_arrays``); a non-bool is refused."""
     from envs.prepared import world_arrays
     scen = get_scenario("urban", duration_s=20.0)
     seeds = [3, 4, 5]
     whole = generate_world(scen, seeds)
     buf = WorldBuffers()
     for _ in range(2):                                               # the second draw reuses the arrays
-        w = generate_world(scen, seeds, buffers=buf, truth_states="epochs")
+        w = generate_world(scen, seeds, buffers=buf, for_reset=True)
         assert w.truth.r_e is None and w.truth.states_every == scen.samples_per_epoch
+        assert w.imu.gyro_bias is None and w.imu.accel_bias is None
         got, ref = _arrays(w), _arrays(whole)
-        assert set(ref) - set(got) == {"truth.r_e", "truth.v_e", "truth.C_eb"}
+        assert set(ref) - set(got) == {"truth.r_e", "truth.v_e", "truth.C_eb", "imu.gyro_bias", "imu.accel_bias"}
         for key, val in got.items():
             np.testing.assert_array_equal(val, ref[key], err_msg=key)
         idx = np.concatenate([[0], w.epoch_idx])
@@ -138,6 +139,12 @@ def test_a_world_with_states_at_the_epochs_only_is_the_same_world():
         a, b = world_arrays(w), world_arrays(whole)
         for key in a:
             np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+        # the buffers hold the coarse states and no bias records: the whole world's buffers less those
+        whole_buf = WorldBuffers()
+        generate_world(scen, seeds, buffers=whole_buf)
+        dense = [whole.truth.r_e, whole.truth.v_e, whole.truth.C_eb, whole.imu.gyro_bias, whole.imu.accel_bias]
+        coarse = [w.truth.coarse.r_e, w.truth.coarse.v_e, w.truth.coarse.C_eb]
+        assert whole_buf.nbytes - buf.nbytes == sum(x.nbytes for x in dense) - sum(x.nbytes for x in coarse)
         del w
-    with pytest.raises(ValueError, match="truth_states must be one of"):
-        generate_world(scen, seeds, truth_states="epoch")
+    with pytest.raises(ValueError, match="for_reset must be a bool"):
+        generate_world(scen, seeds, for_reset="yes")

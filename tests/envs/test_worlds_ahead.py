@@ -29,11 +29,11 @@ def _count_draws(ahead, buffers_seen=None):
         def __getattr__(self, name):
             return getattr(config, name)
 
-        def make_world(self, seeds, buffers=None, truth_states="all"):
+        def make_world(self, seeds, buffers=None, for_reset=False):
             sizes.append(len(seeds))
             if buffers_seen is not None:
                 buffers_seen.append(buffers)
-            return make(seeds, buffers=buffers, truth_states=truth_states)
+            return make(seeds, buffers=buffers, for_reset=for_reset)
 
     ahead.config = Counting()
     return sizes

@@ -63,7 +63,7 @@ def test_cores_are_each_stages_cpu_time_over_its_wall_time(monkeypatch):
                                              (("no_such_module_navgym", "f"),)) for s in bw._WRAPPED})
     monkeypatch.setattr(bw, "time", fake_time)
 
-    def fake_world(scenario, seeds, duration_s, dtype, buffers=None, truth_states="epochs"):
+    def fake_world(scenario, seeds, duration_s, dtype, buffers=None, for_reset=True):
         stage_mod.simulate_imu()  # looked up at call time: the wrapped stage
         clocks["wall"] += 1.0
         clocks["cpu"] += 1.0
