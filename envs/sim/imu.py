@@ -1260,7 +1260,8 @@ def simulate_imu(f_true, w_true, imu_rate_hz: float, grade, rngs: Sequence[np.ra
                   engine_on=engine_on, speed=speed, vibration=vibration, events=events, step_rates=step_rates,
                   outs=(empty(buffers, "imu.w_b", (b, n, 3), dtype), empty(buffers, "imu.f_b", (b, n, 3), dtype)),
                   bias_full=tuple(empty(buffers, f"imu.{name}", (b, n, 3), dtype)
-                                  if bias_records and (s.gm_sigma > 0 or r > 0) else None for name, s, r in zip(("gyro_bias", "accel_bias"), sensors, step_rates)),
+                                  if bias_records and (s.gm_sigma > 0 or r > 0) else None
+                                  for name, s, r in zip(("gyro_bias", "accel_bias"), sensors, step_rates)),
                   bias_const=np.empty((2, b, 3)), sm=np.zeros((2, b, 3, 3)),
                   ev_rows=[None] * b)
     draws = _RowDraws.empty(b, n, vibration)
