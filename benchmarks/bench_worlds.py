@@ -407,6 +407,8 @@ def main(argv=None):
     here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     print(f"world generation per row: {args.duration_s:g} s episodes, IMU dtype {args.dtype}, {os.cpu_count()} CPUs; "
           f"median of the draws; {'CPU' if args.cpu else 'wall'} ms per row (share of the world's time)")
+    print("worlds drawn whole" if args.whole else
+          "worlds drawn as an env's reset draws them (for_reset: truth states at the epochs, no IMU bias records)")
     if args.compare:
         other = os.path.abspath(args.compare)
         print(f"before = {other}\nafter  = {here}")
