@@ -786,6 +786,7 @@ def _node_kernel(t, dtk, pn, arc_c, arc_s, mid_c, mid_s, simpson, pc, gA, dgA, i
     j, jm = j0, jm0
     a0 = a1 = a2 = b0 = b1 = b2 = 0.0
     for u in range(u0, u1):
+        ks = 0                                                      # the row's next stored state, at node ks se
         for k in range(n):
             p = pn[u * n + k]
             kd = kind[p]
@@ -804,14 +805,15 @@ def _node_kernel(t, dtk, pn, arc_c, arc_s, mid_c, mid_s, simpson, pc, gA, dgA, i
                 heading[u, k] = psi0w[p]
             if kd != _VARC:
                 pitch[u, k] = gam0[p]
-            if kd == _STRAIGHT and k % se == 0:
-                s = (v0[p] + v) * (0.5 * tau)                       # straight: s = tau (v0 + v) / 2
-                ks = k // se
-                for c in range(3):
-                    r[u, ks, c] = xe[p, c] * s + re0[p, c]
-                    ve[u, ks, c] = xe[p, c] * v
-                    for d in range(3):
-                        C[u, ks, c, d] = C_eb[p, c, d]
+            if k == ks * se:                                        # a stored state's node (no division)
+                if kd == _STRAIGHT:
+                    s = (v0[p] + v) * (0.5 * tau)                   # straight: s = tau (v0 + v) / 2
+                    for c in range(3):
+                        r[u, ks, c] = xe[p, c] * s + re0[p, c]
+                        ve[u, ks, c] = xe[p, c] * v
+                        for d in range(3):
+                            C[u, ks, c, d] = C_eb[p, c, d]
+                ks += 1
             if k == 0:
                 fo[u, 0, 0], fo[u, 0, 1], fo[u, 0, 2] = f0, f1, f2
                 wo[u, 0, 0], wo[u, 0, 1], wo[u, 0, 2] = w0, w1, w2
