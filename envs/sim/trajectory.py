@@ -279,8 +279,14 @@ _SEGMENT_TYPES = (Static, Accelerate, Decelerate, Cruise, Turn, Climb)
 _STRAIGHT, _HARC, _VARC = 0, 1, 2
 
 
+_PLAN_COLUMNS = ("t0", "kind", "pN", "pE", "pD", "v0", "acc", "psi0", "w", "gam0", "q", "engine")
+"""The columns of a motion's compiled table (``Motion._plan``, :func:`_compile`): one row per piece, all float64
+(``kind`` and ``engine`` as 0.0 / 1.0 / 2.0), the fields of :class:`_Plan` before its trigonometry."""
+
+
 class _Plan(NamedTuple):
-    """A motion compiled into P analytic pieces (the last one open-ended), arrays of shape (P,)."""
+    """Motions compiled into P analytic pieces (each motion's last one open-ended), arrays of shape (P,): the
+    pieces of the rows evaluated together (:func:`_pieces` forms it from the motions' tables)."""
 
     t0: np.ndarray      # start time [s], strictly increasing, t0[0] = 0
     kind: np.ndarray    # _STRAIGHT / _HARC / _VARC
@@ -321,8 +327,10 @@ def _segment_name(i: int, s) -> str:
     return f"Motion.segments[{i}] ({type(s).__name__})"
 
 
-def _compile(m: "Motion") -> _Plan:
-    """Compile the segments of a motion into analytic pieces; ValueError on inconsistent segments."""
+def _compile(m: "Motion") -> np.ndarray:
+    """Compile the segments of a motion into analytic pieces: its (P, 12) float64 table, a row per piece in the
+    columns :data:`_PLAN_COLUMNS` (one array: a motion costs one conversion; :func:`_pieces` forms the
+    :class:`_Plan` of many motions and its trigonometry at once); ValueError on inconsistent segments."""
     rows = []
     t, p, v, psi, gam = 0.0, (0.0, 0.0, 0.0), m.speed0_mps, m.heading0_deg * DEG, 0.0
     engine = True
@@ -331,7 +339,7 @@ def _compile(m: "Motion") -> _Plan:
         nonlocal t, p, v, psi, gam, engine
         if dur <= 0.0:
             return
-        rows.append((t, kind, p, v, a, psi, w, gam, q, eng))
+        rows.append((t, kind, *p, v, a, psi, w, gam, q, 1.0 if eng else 0.0))
         p, v, psi, gam = _advance(kind, dur, p, v, a, psi, w, gam, q)
         t, engine = t + dur, eng
 
@@ -384,13 +392,8 @@ def _compile(m: "Motion") -> _Plan:
         else:  # pragma: no cover - Motion validates the types
             raise ValueError(f"{_segment_name(i, s)}: unknown segment type")
     # open-ended continuation: straight at the last velocity, or at rest with the last engine flag
-    rows.append((t, _STRAIGHT, p, v, 0.0, psi, 0.0, gam, 0.0, engine if v == 0.0 else True))
-
-    t0, kind, p0, v0, acc, psi0, w, gam0, q, eng = zip(*rows)
-    f = lambda x: np.array(x, dtype=np.float64)  # noqa: E731
-    psi0, gam0 = f(psi0), f(gam0)
-    return _Plan(f(t0), np.array(kind, np.int8), f(p0).reshape(-1, 3), f(v0), f(acc), psi0, f(w), gam0, f(q),
-                 np.array(eng, bool), np.cos(psi0), np.sin(psi0), np.cos(gam0), np.sin(gam0))
+    rows.append((t, _STRAIGHT, *p, v, 0.0, psi, 0.0, gam, 0.0, 1.0 if (engine if v == 0.0 else True) else 0.0))
+    return np.array(rows, dtype=np.float64)
 
 
 @dataclass(frozen=True)
@@ -417,7 +420,7 @@ class Motion:
     heading0_deg: float
     speed0_mps: float = 0.0
     segments: tuple = ()
-    _plan: _Plan = field(init=False, repr=False, compare=False, hash=False)
+    _plan: np.ndarray = field(init=False, repr=False, compare=False, hash=False)   # (P, 12), :func:`_compile`
 
     def __post_init__(self):
         _real(self, "lat0_deg", lo=-90.0, hi=90.0)
@@ -587,28 +590,44 @@ def _wrap(a):
     return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 
-def _pieces(plans: Sequence[_Plan], C_eL, r0, wL) -> _Pieces:
-    """Concatenate the U rows' plans and add the per-piece frame constants (C_eL (U, 3, 3), r0 (U, 3), wL (U, 3)).
+def _plan_of(tables: Sequence[np.ndarray]) -> _Plan:
+    """The :class:`_Plan` of the motions' tables (:func:`_compile`, (P_u, 12) each) back to back: one contiguous
+    array per field, and the cos / sin of the start headings and pitches over all the pieces at once (numpy's
+    elementwise cos and sin: the same values as for each motion's pieces alone)."""
+    tab = np.concatenate(tables) if len(tables) > 1 else tables[0]
+    col = lambda j: np.ascontiguousarray(tab[:, j])  # noqa: E731
+    psi0, gam0 = col(7), col(9)
+    return _Plan(col(0), tab[:, 1].astype(np.int8), np.ascontiguousarray(tab[:, 2:5]), col(5), col(6), psi0, col(8),
+                 gam0, col(10), tab[:, 11] != 0.0, np.cos(psi0), np.sin(psi0), np.cos(gam0), np.sin(gam0))
+
+
+def _pieces(tables: Sequence[np.ndarray], C_eL, r0, wL) -> _Pieces:
+    """Concatenate the U rows' plans (the motions' tables, :func:`_plan_of`) and add the per-piece frame
+    constants (C_eL (U, 3, 3), r0 (U, 3), wL (U, 3)).
 
     The products whose rounding could depend on the array shapes (a BLAS product with the row's piece count
-    as a dimension, the einsum) are formed row by row, exactly as for a row alone; the stacked 3 x 3 products
-    and the elementwise terms are formed once for all rows.
+    as a dimension) are formed row by row, exactly as for a row alone; the stacked 3 x 3 products, the Earth
+    rate in the body (``C_bL omega_ie_L``, summed in the order of the index: numpy's ``einsum`` of a row alone
+    gives the same bits) and the elementwise terms are formed once for all rows.
     """
-    pl = _Plan(*(np.concatenate(f) for f in zip(*plans)))
-    counts = [p.t0.shape[0] for p in plans]
-    row = np.repeat(np.arange(len(plans)), counts)
+    pl = _plan_of(tables)
+    counts = [tab.shape[0] for tab in tables]
+    row = np.repeat(np.arange(len(tables)), counts)
     last = np.zeros(row.shape[0], bool)
     last[np.cumsum(counts) - 1] = True
     C_Lb = dcm_from_euler(0.0, pl.gam0, pl.psi0)                  # (P, 3, 3)
     C_eb = C_eL[row] @ C_Lb
     re0 = np.empty((row.shape[0], 3))
-    wb = np.empty((row.shape[0], 3))
     a = 0
-    for u, p in enumerate(plans):
+    for u in range(len(tables)):
         b = a + counts[u]
-        re0[a:b] = r0[u] + p.p0 @ C_eL[u].T
-        wb[a:b] = np.einsum("pji,j->pi", C_Lb[a:b], wL[u])       # C_bL omega_ie_L
+        re0[a:b] = r0[u] + pl.p0[a:b] @ C_eL[u].T
         a = b
+    wr = wL[row]
+    wb = np.zeros((row.shape[0], 3))                               # C_bL omega_ie_L, from +0 as einsum sums
+    wb += C_Lb[:, 0, :] * wr[:, 0:1]
+    wb += C_Lb[:, 1, :] * wr[:, 1:2]
+    wb += C_Lb[:, 2, :] * wr[:, 2:3]
     return _Pieces(pl, row, last, np.where(pl.kind == _HARC, pl.w, pl.q),
                    np.stack([pl.cpsi, pl.spsi, pl.cgam, pl.sgam], axis=1), re0,
                    np.ascontiguousarray(C_eb[:, :, 0]), C_eb, wb, _wrap(pl.psi0), C_eL, r0,
