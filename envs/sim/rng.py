@@ -50,7 +50,12 @@ def row_generators(seeds: Sequence[int], stream: str) -> list[np.random.Generato
     if stream not in STREAMS:
         raise ValueError(f"unknown random stream {stream!r}; known: {sorted(STREAMS)}")
     key = STREAMS[stream]
-    return [np.random.Generator(np.random.PCG64(FastSeedSequence(entropy_words([s]), key))) for s in as_seeds(seeds)]
+    seeds = as_seeds(seeds)
+    if max(seeds) >= 2**64:                                 # entropy beyond one 64-bit word: row by row
+        return [np.random.Generator(np.random.PCG64(FastSeedSequence(entropy_words([s]), key))) for s in seeds]
+    states = np.empty((len(seeds), _STATE_WORDS), np.uint32)
+    _seed_states_rows(np.array(seeds, dtype=np.uint64), key, states)   # every row's state in one compiled call
+    return [np.random.Generator(np.random.PCG64(FastSeedSequence.of_seed(s, key, st))) for s, st in zip(seeds, states)]
 
 
 def entropy_words(entropy) -> np.ndarray:
@@ -259,6 +264,23 @@ def _seed_state(words, key, out):
 
 
 @nb.njit(cache=True, nogil=True)
+def _seed_states_rows(seeds, key, out):
+    """Row ``i`` of ``out`` (B, n) uint32: the state words of ``SeedSequence(entropy_words([seeds[i]]),
+    spawn_key=(key,))`` (:func:`_seed_state`), each seed (B,) uint64 made into words as :func:`entropy_words`
+    does (the low word, then the high word where it is not zero)."""
+    w32 = np.empty(2, np.uint32)
+    low, shift = np.uint64(0xFFFFFFFF), np.uint64(32)
+    for i in range(seeds.shape[0]):
+        v = seeds[i]
+        w32[0] = np.uint32(v & low)
+        m = 1
+        if v >> shift:
+            w32[1] = np.uint32(v >> shift)
+            m = 2
+        _seed_state(w32[:m], key, out[i])
+
+
+@nb.njit(cache=True, nogil=True)
 def _child_state(kind, words, key, state):
     """The state of ``SFC64`` or ``PCG64`` (``kind``, :mod:`envs.sim.normals`) seeded by ``SeedSequence(words,
     spawn_key=(key,))``, into ``state`` (4,) uint64: 3 or 4 seed words (pairs of :func:`_seed_state`'s uint32
@@ -287,6 +309,7 @@ class FastSeedSequence(ISpawnableSeedSequence):
 
     def __init__(self, words: np.ndarray, key: int):
         self._words = np.asarray(words, dtype=np.uint32)
+        self._seed = None
         self._key = int(key)
         self._seq = None
         self._state = None                                  # no entropy or a multi-word key: numpy's own path
@@ -294,13 +317,25 @@ class FastSeedSequence(ISpawnableSeedSequence):
             self._state = np.empty(_STATE_WORDS, np.uint32)
             _seed_state(self._words, self._key, self._state)
 
+    @classmethod
+    def of_seed(cls, seed: int, key: int, state: np.ndarray) -> "FastSeedSequence":
+        """``FastSeedSequence(entropy_words([seed]), key)`` whose state words ``state`` (8,) uint32 were computed
+        already (:func:`_seed_states_rows`, many rows in one call); the entropy words are formed only if
+        something other than the state is asked of it."""
+        self = cls.__new__(cls)
+        self._words, self._seed, self._key, self._seq, self._state = None, seed, key, None, state
+        return self
+
     def _real(self) -> np.random.SeedSequence:
         if self._seq is None:
-            self._seq = np.random.SeedSequence(self._words, spawn_key=(self._key,))
+            words = entropy_words([self._seed]) if self._words is None else self._words
+            self._seq = np.random.SeedSequence(words, spawn_key=(self._key,))
         return self._seq
 
     def generate_state(self, n_words: int, dtype=np.uint32) -> np.ndarray:
         """``SeedSequence.generate_state``: (n_words,) uint32 or uint64 (pairs of words, low word first)."""
+        if dtype is np.uint64 and n_words == 4 and self._state is not None:   # what a PCG64 asks for
+            return self._state.view(np.uint64).copy()
         wide = dtype is np.uint64 or np.dtype(dtype) == np.uint64   # PCG64 and SFC64 pass np.uint64 itself
         n32 = n_words * (2 if wide else 1)
         if self._state is None or not (wide or np.dtype(dtype) == np.uint32) or n32 > _STATE_WORDS:

@@ -7,7 +7,7 @@ import pickle
 import numpy as np
 import pytest
 
-from envs.sim.rng import ChildStreams, FastSeedSequence, entropy_words, row_generators
+from envs.sim.rng import STREAMS, ChildStreams, FastSeedSequence, entropy_words, row_generators
 
 
 def _entropies(rng, n):
@@ -48,10 +48,23 @@ def test_streams_equal_seed_sequence(bit_generator):
 
 def test_row_generators_and_children_keep_their_streams():
     """row_generators and ChildStreams give the streams of their documented SeedSequence recipes."""
-    seeds = [0, 1, 2**32 - 1, 2**32, 2**40 + 3, 123456789]
-    for g, s in zip(row_generators(seeds, "gnss"), seeds):
-        ref = np.random.default_rng(np.random.SeedSequence(s, spawn_key=(3,)))
-        np.testing.assert_array_equal(g.random(20), ref.random(20))
+    seeds = [0, 1, 2**32 - 1, 2**32, 2**40 + 3, 123456789, 2**64 - 1]
+    for stream, key in STREAMS.items():                      # every row's state in one compiled call
+        for g, s in zip(row_generators(seeds, stream), seeds):
+            ref = np.random.default_rng(np.random.SeedSequence(s, spawn_key=(key,)))
+            assert g.bit_generator.state == ref.bit_generator.state, (stream, s)
+            np.testing.assert_array_equal(g.random(20), ref.random(20))
+    for seeds in ([2**64], [3, 2**70 + 1]):                  # entropy beyond 64 bits: the row-by-row path
+        for g, s in zip(row_generators(seeds, "imu"), seeds):
+            np.testing.assert_array_equal(g.random(5), np.random.default_rng(np.random.SeedSequence(
+                s, spawn_key=(2,))).random(5))
+    seq = row_generators([2**40 + 3], "imu")[0].bit_generator.seed_seq   # its entropy words formed on request
+    ref = np.random.SeedSequence(2**40 + 3, spawn_key=(2,))
+    np.testing.assert_array_equal(np.asarray(seq.entropy, np.uint32), entropy_words([2**40 + 3]))
+    np.testing.assert_array_equal(seq.pool, ref.pool)
+    np.testing.assert_array_equal(seq.spawn(2)[1].generate_state(4), ref.spawn(2)[1].generate_state(4))
+    for n, dtype in ((4, np.uint64), (2, np.uint64), (8, np.uint32), (9, np.uint32)):
+        np.testing.assert_array_equal(seq.generate_state(n, dtype), ref.generate_state(n, dtype))
     ent = [2**63 - 5, 7, 0, 2**40]
     cs = ChildStreams(ent, 17)
     for k in (0, 5, -1):
