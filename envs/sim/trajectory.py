@@ -526,8 +526,9 @@ class Truth:
         if idx.size and (idx.min() < -n or idx.max() >= n):
             raise ValueError(f"idx out of range for N = {n} samples")
         if self.coarse is None:
-            return TruthAt(self.t[idx], self.r_e[:, idx], self.v_e[:, idx], self.C_eb[:, idx],
-                           self.speed[:, idx], self.heading[:, idx])
+            pick = _picker(np.where(idx < 0, idx + n, idx))
+            return TruthAt(self.t[idx], pick(self.r_e), pick(self.v_e), pick(self.C_eb), pick(self.speed),
+                           pick(self.heading))
         s = self.states_every
         k = np.where(idx < 0, idx + n, idx)
         off = np.flatnonzero(k % s)
@@ -536,7 +537,8 @@ class Truth:
                              f"(states_every={s}); sample {int(k[off[0]])} is not one")
         c = self.coarse
         j = k // s
-        return TruthAt(c.t[j], c.r_e[:, j], c.v_e[:, j], c.C_eb[:, j], c.speed[:, j], c.heading[:, j])
+        pick = _picker(j)
+        return TruthAt(c.t[j], pick(c.r_e), pick(c.v_e), pick(c.C_eb), pick(c.speed), pick(c.heading))
 
     def stationary(self, threshold_mps: float = 0.05) -> np.ndarray:
         """(B, N) bool: true speed below ``threshold_mps`` [m/s] (the ZUPT label)."""
@@ -544,6 +546,17 @@ class Truth:
                 or not math.isfinite(threshold_mps) or threshold_mps < 0:
             raise ValueError(f"threshold_mps must be a finite number >= 0, got {threshold_mps!r}")
         return self.speed < threshold_mps
+
+
+def _picker(j: np.ndarray):
+    """``a -> a[:, j]`` for the sample indices ``j`` (M,) >= 0, a new C-contiguous array: for evenly spaced
+    ascending ``j`` (the GNSS epochs) a copy of the slice, ~10x faster than numpy's gather along axis 1."""
+    if j.size > 1:
+        step = int(j[1] - j[0])
+        if step > 0 and np.array_equal(j, np.arange(j[0], j[0] + step * j.size, step)):
+            sel = slice(int(j[0]), int(j[-1]) + 1, step)
+            return lambda a: np.ascontiguousarray(a[:, sel])
+    return lambda a: a[:, j]
 
 
 # --------------------------------------------------------------------------- evaluation

@@ -305,6 +305,14 @@ def test_take_and_stationary():
     assert s.r_e.shape == (2, 3, 3) and s.C_eb.shape == (2, 3, 3, 3) and s.heading.shape == (2, 3)
     np.testing.assert_array_equal(s.v_e, tr.v_e[:, idx])
     np.testing.assert_array_equal(s.t, tr.t[idx])
+    for idx in ([100, 200, 300], [5, 6, 7, 8], [-2001, -1901, -1801], [1999], [], [300, 200, 100], [7, 7, 7],
+                [0, 100, 150]):                       # evenly spaced ones are sliced, the others gathered
+        idx = np.array(idx, dtype=np.int64)
+        s = tr.take(idx)
+        for name in ("r_e", "v_e", "C_eb", "speed", "heading"):
+            a = getattr(s, name)
+            np.testing.assert_array_equal(a, getattr(tr, name)[:, idx], err_msg=name)
+            assert not np.shares_memory(a, getattr(tr, name)), name            # a copy, as numpy gathers
     st = tr.stationary(0.05)
     assert st.shape == (2, 2001) and st.dtype == bool
     np.testing.assert_array_equal(st, tr.speed < 0.05)
