@@ -8,7 +8,9 @@
   columns (:func:`envs.sim.receiver._gauss_markov_rows`: the troposphere and ionosphere residuals);
 * :func:`receiver_tail_rows`: the channel errors, reported sigmas and true variances of rows ``r0 .. r1-1`` in
   one pass without the GIL, from the per-channel inputs the stage draws and maps with numpy (the mapping
-  functions, the Gauss-Markov processes, the white-noise variates) (:func:`envs.sim.gnss_stages.receiver_errors`).
+  functions, the Gauss-Markov processes, the white-noise variates) (:func:`envs.sim.gnss_stages.receiver_errors`);
+* :func:`measurement_rows`: the pseudoranges and rates of rows ``r0 .. r1-1`` and the untracked channels set to
+  zero in every output (:func:`envs.sim.gnss._gnss_data`).
 
 Each replaces a numpy chain: per row and satellite for the bursts (a dozen small operations per row), and of
 about 25 temporaries of the (B, M, C) channel shape for the receiver (each a fresh allocation per world, which the
@@ -190,3 +192,30 @@ def receiver_tail_rows(r0, r1, m_t, f_i, tropo_z, iono_ch, s_el, pr_bias, prr_bi
                     pr_sigma[b, k, c] = pr_sigma[b, k, c] * code_rep[b, k]
                     sig_rate = sig_rate * doppler_rep[b, k]
                 prr_sigma[b, k, c] = sig_rate
+
+
+@nb.njit(cache=True, nogil=True)
+def measurement_rows(r0, r1, mask, rho, bias, pr_err, rho_dot, drift, prr_err, pr, prr, pr_sigma, prr_sigma, el, az,
+                     cn0):
+    """Rows ``r0 .. r1-1`` of the pseudoranges and rates (B, M, C) of :func:`envs.sim.gnss.simulate_gnss`, and the
+    masked channels set to +0 in them and in the error, sigma, elevation, azimuth and C/N0 arrays (in place):
+    ``pr = (rho + bias) + pr_err`` and ``prr = (rho_dot + drift) + prr_err`` on a tracked channel (the order of
+    numpy's ``np.add(rho, bias[..., None]) + pr_err``; ``bias``, ``drift`` (B, M) the receiver clock [m, m/s]),
+    0 on the others. The same bits as those numpy lines followed by ``a[~mask] = 0``."""
+    for i in range(r0, r1):
+        for j in range(mask.shape[1]):
+            b, d = bias[i, j], drift[i, j]
+            for c in range(mask.shape[2]):
+                if mask[i, j, c]:
+                    pr[i, j, c] = (rho[i, j, c] + b) + pr_err[i, j, c]
+                    prr[i, j, c] = (rho_dot[i, j, c] + d) + prr_err[i, j, c]
+                else:
+                    pr[i, j, c] = 0.0
+                    prr[i, j, c] = 0.0
+                    pr_err[i, j, c] = 0.0
+                    prr_err[i, j, c] = 0.0
+                    pr_sigma[i, j, c] = 0.0
+                    prr_sigma[i, j, c] = 0.0
+                    el[i, j, c] = 0.0
+                    az[i, j, c] = 0.0
+                    cn0[i, j, c] = 0.0

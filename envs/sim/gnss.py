@@ -72,6 +72,7 @@ from . import gnss_stages as stages
 from .buffers import empty
 from .canyon import UrbanCanyon, _check_intervals
 from .constellation import Constellation, _check_pair, _check_real
+from .error_kernels import measurement_rows
 from .events import Cn0Scatter, NoiseRegimes, RandomBursts, Reacquisition, SigmaMismatch, UrbanZones
 # the receiver's models and the stages' stream indices live in their own modules (re-exported here)
 from .gnss_stages import (_N_SUB, _SUB_BURSTS, _SUB_CANYON, _SUB_CLOCK, _SUB_CN0, _SUB_CODE,  # noqa: F401
@@ -80,6 +81,7 @@ from .gnss_stages import (_N_SUB, _SUB_BURSTS, _SUB_CANYON, _SUB_CLOCK, _SUB_CN0
                           _entropy_words, _nlos_bursts, _row_children)
 from .receiver import (CN0_JITTER_DB, ClockModel, ReceiverConfig, _check_rngs, _check_times,  # noqa: F401
                        _gauss_markov, iono_obliquity, simulate_clock, tropo_mapping)
+from .row_threads import run_row_ranges
 
 __all__ = [
     "Constellation", "ClockModel", "ReceiverConfig", "NlosConfig", "UrbanCanyon", "GnssEvents",
@@ -395,35 +397,32 @@ def _check_inputs(t, r_e, v_e, heading, constellation, receiver, events, rngs, t
 
 
 def _gnss_data(t, sky, ch, rng, noise, err, bits, dtype, buffers=None) -> GnssData:
-    """The stages' results as :class:`GnssData`: pseudoranges and rates formed (into ``buffers`` when given),
-    masked channels set to finite zeros (in place, then one cast; ``sat_pos`` / ``sat_vel``, evaluated on the
-    tracked channels only, and the NLOS biases, since ``nlos`` implies ``mask``, are zero there already)."""
+    """The stages' results as :class:`GnssData`: pseudoranges and rates formed (into ``buffers`` when given) and
+    the masked channels set to finite zeros in every channel array, in place, by the compiled
+    :func:`~envs.sim.error_kernels.measurement_rows` in row ranges on threads, then one cast (``sat_pos`` /
+    ``sat_vel``, evaluated on the tracked channels only, and the NLOS biases, since ``nlos`` implies ``mask``,
+    are zero there already)."""
     mask = ch.mask
-    off = ~mask
-    pr = np.add(rng.rho, err.bias_m[..., None], out=empty(buffers, "gnss.pr", mask.shape, np.float64))
-    pr += err.pr_err
-    prr = np.add(rng.rho_dot, err.drift_mps[..., None], out=empty(buffers, "gnss.prr", mask.shape, np.float64))
-    prr += err.prr_err
+    pr = empty(buffers, "gnss.pr", mask.shape, np.float64)
+    prr = empty(buffers, "gnss.prr", mask.shape, np.float64)
+    run_row_ranges(lambda r0, r1: measurement_rows(r0, r1, mask, rng.rho, err.bias_m, err.pr_err, rng.rho_dot,
+                                                   err.drift_mps, err.prr_err, pr, prr, err.pr_sigma,
+                                                   err.prr_sigma, ch.el, ch.az, ch.cn0), mask.shape[0])
 
-    def z(a):
-        a[off] = 0.0
-        return a.astype(dtype, copy=False)
-
-    def zero_already(a):
+    def cast(a):
         return a.astype(dtype, copy=False)
 
     prn = np.where(mask, ch.sel + 1, -1).astype(np.int64)
     return GnssData(
         t=t.astype(dtype),
         t0_gps=sky.t0_gps.copy(),
-        sat_pos=zero_already(rng.sat_pos), sat_vel=zero_already(rng.sat_vel),
-        pr=z(pr), prr=z(prr), pr_sigma=z(err.pr_sigma), prr_sigma=z(err.prr_sigma),
-        mask=mask, prn=prn, elevation=z(ch.el), azimuth=z(ch.az),
-        clock_bias_m=err.bias_m.astype(dtype, copy=False), clock_drift_mps=err.drift_mps.astype(dtype, copy=False),
-        nlos=noise.nlos, pr_error_m=z(err.pr_err), prr_error_mps=z(err.prr_err),
-        cn0_dbhz=z(ch.cn0), pr_var_true=err.pr_var_true.astype(dtype, copy=False),
-        prr_var_true=err.prr_var_true.astype(dtype, copy=False),
-        pr_bias_m=zero_already(noise.pr_bias), prr_bias_mps=zero_already(noise.prr_bias), event_mask=bits,
+        sat_pos=cast(rng.sat_pos), sat_vel=cast(rng.sat_vel),
+        pr=cast(pr), prr=cast(prr), pr_sigma=cast(err.pr_sigma), prr_sigma=cast(err.prr_sigma),
+        mask=mask, prn=prn, elevation=cast(ch.el), azimuth=cast(ch.az),
+        clock_bias_m=cast(err.bias_m), clock_drift_mps=cast(err.drift_mps),
+        nlos=noise.nlos, pr_error_m=cast(err.pr_err), prr_error_mps=cast(err.prr_err),
+        cn0_dbhz=cast(ch.cn0), pr_var_true=cast(err.pr_var_true), prr_var_true=cast(err.prr_var_true),
+        pr_bias_m=cast(noise.pr_bias), prr_bias_mps=cast(noise.prr_bias), event_mask=bits,
     )
 
 

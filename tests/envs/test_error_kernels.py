@@ -17,7 +17,7 @@ from envs.sim.error_kernels import nlos_burst_rows
 from envs.sim.gnss import NlosConfig
 from envs.sim.gnss_stages import _nlos_burst_rows, _nlos_bursts
 from envs.sim.receiver import _MIN_EL_SIGMA, iono_obliquity, tropo_mapping
-from envs.sim.error_kernels import receiver_tail_rows
+from envs.sim.error_kernels import measurement_rows, receiver_tail_rows
 from envs.sim.row_threads import run_row_ranges
 from envs.sim.world import generate_world
 
@@ -190,3 +190,39 @@ def test_gauss_markov_rows_equal_the_lfilter_process_of_each_row():
         for r in range(z.shape[0]):
             want = _gauss_markov(t, 300.0, 0.4, z[r])
             np.testing.assert_array_equal(got[r].view(np.uint64), want.view(np.uint64), err_msg=f"{t.size} {L} {r}")
+
+
+def test_measurement_rows_equal_the_numpy_lines_bit_for_bit():
+    """measurement_rows: ``pr = rho + bias[..., None] + pr_err`` (and the rates), then ``a[~mask] = 0`` in each of
+    the nine channel arrays: the same bits as those numpy lines, signed zeros and NaN under the mask included, on
+    row ranges of any split; the rows outside its range untouched."""
+    rng = np.random.default_rng(8)
+    B, M, C = 11, 7, 5
+    mask = rng.random((B, M, C)) < 0.6
+    rho, rho_dot = rng.uniform(2e7, 2.6e7, (B, M, C)), rng.normal(0.0, 800.0, (B, M, C))
+    bias, drift = rng.normal(0.0, 1e4, (B, M)), rng.normal(0.0, 50.0, (B, M))
+    chan = {k: rng.normal(size=(B, M, C)) for k in ("pr_err", "prr_err", "pr_sigma", "prr_sigma", "el", "az", "cn0")}
+    chan["el"][~mask] = np.nan                                 # whatever lies under the mask is zeroed
+    chan["cn0"][~mask] = -0.0
+    ref = {k: a.copy() for k, a in chan.items()}
+    ref["pr"] = np.add(rho, bias[..., None]) + ref["pr_err"]
+    ref["prr"] = np.add(rho_dot, drift[..., None]) + ref["prr_err"]
+    for a in ref.values():
+        a[~mask] = 0.0
+    for split in ((0, B), (0, 4, B), (0, 1, 2, 9, B)):
+        got = {k: a.copy() for k, a in chan.items()}
+        got["pr"], got["prr"] = np.full((B, M, C), 7.0), np.full((B, M, C), 7.0)
+        for r0, r1 in zip(split[:-1], split[1:]):
+            measurement_rows(r0, r1, mask, rho, bias, got["pr_err"], rho_dot, drift, got["prr_err"], got["pr"],
+                             got["prr"], got["pr_sigma"], got["prr_sigma"], got["el"], got["az"], got["cn0"])
+        for k in ref:
+            assert got[k].tobytes() == ref[k].tobytes(), (split, k)
+    part = {k: a.copy() for k, a in chan.items()}
+    pr, prr = np.full((B, M, C), 7.0), np.full((B, M, C), 7.0)
+    measurement_rows(3, 5, mask, rho, bias, part["pr_err"], rho_dot, drift, part["prr_err"], pr, prr,
+                     part["pr_sigma"], part["prr_sigma"], part["el"], part["az"], part["cn0"])
+    outside = np.r_[0:3, 5:B]
+    assert (pr[outside] == 7.0).all() and (prr[outside] == 7.0).all()
+    for k, a in part.items():
+        assert a[outside].tobytes() == chan[k][outside].tobytes(), k
+        assert a[3:5].tobytes() == ref[k][3:5].tobytes(), k
