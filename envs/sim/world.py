@@ -145,11 +145,20 @@ OVERLAP_ROWS = row_threads.OVERLAP_ROWS
 GNSS receiver (the two draw from separate streams into separate arrays: the same world either way)."""
 
 
+def _stage_generators(seeds) -> dict:
+    """The rows' generators of the stages after the truth (:func:`~envs.sim.rng.row_generators` of the IMU,
+    vibration, GNSS and initial-estimate streams), by stream name. Built before any of them draws: the order of
+    their construction changes no draw."""
+    return {stream: row_generators(seeds, stream) for stream in ("imu", "vibration", "gnss", "init")}
+
+
 def generate_world(scenario, seeds, dtype=np.float64, buffers=None, for_reset: bool = False) -> World:
     """Draw B episodes of ``scenario`` (name or :class:`Scenario`) from ``seeds`` (B non-negative ints).
 
     The stages in order: the drives and truth, the IMU and the GNSS receiver (from :data:`OVERLAP_ROWS` rows on,
     the IMU on a thread of its own beside the GNSS stages: the same world), the initial estimate, the odometer.
+    The later stages' row generators are built beside the truth from :data:`OVERLAP_ROWS` rows on (Python,
+    while the truth's compiled kernels run; no generator draws before the truth is done).
 
     Parameters
     ----------
@@ -177,16 +186,24 @@ def generate_world(scenario, seeds, dtype=np.float64, buffers=None, for_reset: b
     seeds = as_seeds(seeds)
     motions = scen.motions(row_generators(seeds, "trajectory"))
     spe = scen.samples_per_epoch
-    truth = generate_truth(motions, scen.duration_s, scen.imu_rate_hz, buffers=buffers,
-                           states_every=spe if for_reset else 1)
-    imu_args = (truth.f_b, truth.w_b, scen.imu_rate_hz, IMU_GRADES[scen.imu_grade], row_generators(seeds, "imu"))
+    truth_args = (motions, scen.duration_s, scen.imu_rate_hz)
+    truth_kw = dict(buffers=buffers, states_every=spe if for_reset else 1)
+    if len(seeds) < OVERLAP_ROWS:
+        truth = generate_truth(*truth_args, **truth_kw)
+        gens = _stage_generators(seeds)
+    else:   # the other stages' generators (Python) built on a thread of its own while the truth's kernels run
+        with ThreadPoolExecutor(max_workers=1) as ex:
+            pending = ex.submit(_stage_generators, seeds)
+            truth = generate_truth(*truth_args, **truth_kw)
+            gens = pending.result()
+    imu_args = (truth.f_b, truth.w_b, scen.imu_rate_hz, IMU_GRADES[scen.imu_grade], gens["imu"])
     imu_kw = dict(engine_on=truth.engine_on, speed=truth.speed, vibration=scen.vibration, dtype=dtype,
-                  vibration_rngs=row_generators(seeds, "vibration"), events=scen.imu_events, buffers=buffers,
+                  vibration_rngs=gens["vibration"], events=scen.imu_events, buffers=buffers,
                   bias_records=not for_reset)
     epoch_idx = np.arange(spe, truth.t.size, spe)
     at = truth.take(epoch_idx)
     gnss_args = (truth.t[epoch_idx], at.r_e, at.v_e, at.heading, scen.constellation, scen.receiver, scen.events,
-                 row_generators(seeds, "gnss"))
+                 gens["gnss"])
     if len(seeds) < OVERLAP_ROWS:
         imu = simulate_imu(*imu_args, **imu_kw)
         gnss = simulate_gnss(*gnss_args, buffers=buffers)
@@ -197,7 +214,7 @@ def generate_world(scenario, seeds, dtype=np.float64, buffers=None, for_reset: b
             imu = pending.result()
     if scen.imu_events is not None:
         gnss = replace(gnss, event_mask=gnss.event_mask | imu_event_bits(gnss.t, imu, scen.imu_events))
-    init = initial_estimate(scen, truth, gnss, row_generators(seeds, "init"))
+    init = initial_estimate(scen, truth, gnss, gens["init"])
     odo = None if scen.odometer is None else simulate_odometer(truth.speed[:, epoch_idx], seeds, scen.odometer)
     return World(scenario=scen, seeds=seeds, truth=truth, imu=imu, gnss=gnss, epoch_idx=epoch_idx, init=init,
                  odometer=odo)
