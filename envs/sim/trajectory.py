@@ -129,17 +129,17 @@ STYLES = ("urban", "highway", "open")
 def _real(obj, name: str, *, lo=None, hi=None, lo_open=False, hi_open=False) -> float:
     """Check ``obj.name`` is a finite real in the given range, store it as float, return it."""
     x = getattr(obj, name)
-    cls = type(obj).__name__
-    if isinstance(x, (bool, np.bool_)) or not isinstance(x, (int, float, np.integer, np.floating)):
-        raise ValueError(f"{cls}.{name} must be a real number, got {x!r}")
-    x = float(x)
+    if type(x) is not float:                  # a float is stored as it is (the random drives build ~15 a row)
+        if isinstance(x, (bool, np.bool_)) or not isinstance(x, (int, float, np.integer, np.floating)):
+            raise ValueError(f"{type(obj).__name__}.{name} must be a real number, got {x!r}")
+        x = float(x)
+        object.__setattr__(obj, name, x)
     if not math.isfinite(x):
-        raise ValueError(f"{cls}.{name} must be finite, got {x!r}")
+        raise ValueError(f"{type(obj).__name__}.{name} must be finite, got {x!r}")
     if lo is not None and (x <= lo if lo_open else x < lo):
-        raise ValueError(f"{cls}.{name} must be {'>' if lo_open else '>='} {lo}, got {x!r}")
+        raise ValueError(f"{type(obj).__name__}.{name} must be {'>' if lo_open else '>='} {lo}, got {x!r}")
     if hi is not None and (x >= hi if hi_open else x > hi):
-        raise ValueError(f"{cls}.{name} must be {'<' if hi_open else '<='} {hi}, got {x!r}")
-    object.__setattr__(obj, name, x)
+        raise ValueError(f"{type(obj).__name__}.{name} must be {'<' if hi_open else '<='} {hi}, got {x!r}")
     return x
 
 
