@@ -549,8 +549,9 @@ class Truth:
 
 
 def _picker(j: np.ndarray):
-    """``a -> a[:, j]`` for the sample indices ``j`` (M,) >= 0, a new C-contiguous array: for evenly spaced
-    ascending ``j`` (the GNSS epochs) a copy of the slice, ~10x faster than numpy's gather along axis 1."""
+    """``a -> a[:, j]`` for the sample indices ``j`` (M,) >= 0, a new array (a copy, never a view): for evenly
+    spaced ascending ``j`` (the GNSS epochs) a C-contiguous copy of the slice, ~3x faster than numpy's gather
+    along axis 1 (used for the other index sets)."""
     if j.size > 1:
         step = int(j[1] - j[0])
         if step > 0 and np.array_equal(j, np.arange(j[0], j[0] + step * j.size, step)):

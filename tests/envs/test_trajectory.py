@@ -411,3 +411,49 @@ def test_states_every_kth_sample_equal_those_samples_of_every_samples_states(sce
         coarse.take(np.array([0, every + 1]))
     with pytest.raises(ValueError, match="states_every must be an int >= 1"):
         generate_truth(motions, 20.0, 100.0, states_every=0)
+
+
+def test_pieces_of_many_motions_equal_each_motions_own_forms():
+    """The pieces of many motions formed at once (one table per motion, the trigonometry and the Earth rate in
+    the body over all pieces) hold, bit for bit, what each motion's pieces alone give by the per-row forms: its
+    columns, ``cos`` / ``sin`` of its own start headings and pitches, ``np.einsum('pji,j->pi', C_Lb, w_L)`` and
+    ``r0 + p0 C_eL^T`` (signed zeros included: a piece heading north, and an Earth rate with a -0 east term)."""
+    from earth import dcm_from_euler, geodetic_to_ecef
+    from envs.sim.trajectory import _PLAN_COLUMNS, _pieces
+    north = Motion(10.0, 20.0, 0.0, 0.0, 5.0, (Cruise(3.0), Turn(90.0, 30.0), Cruise(2.0)))   # heading 0, 90
+    motions = [ON_GRID, OFF_GRID, north] + [random_drive(g, 120.0, style=s) for g, s in
+                                             zip(row_generators(range(9), "trajectory"), STYLES * 3)]
+    lat0 = np.array([m.lat0_deg for m in motions]) * DEG
+    lon0 = np.array([m.lon0_deg for m in motions]) * DEG
+    C_eL = C_en(lat0, lon0)
+    r0 = geodetic_to_ecef(lat0, lon0, np.array([m.h0_m for m in motions]))
+    wL = np.einsum("uji,j->ui", C_eL, OMEGA_IE_E)
+    pc = _pieces([m._plan for m in motions], C_eL, r0, wL)
+    bits = lambda a: np.ascontiguousarray(a).tobytes()  # noqa: E731
+    a = 0
+    for u, m in enumerate(motions):
+        tab = m._plan
+        assert tab.shape[1] == len(_PLAN_COLUMNS)
+        b = a + tab.shape[0]
+        psi0, gam0 = tab[:, 7].copy(), tab[:, 9].copy()
+        assert bits(pc.pl.t0[a:b]) == bits(tab[:, 0]) and bits(pc.pl.p0[a:b]) == bits(tab[:, 2:5])
+        assert (pc.pl.kind[a:b] == tab[:, 1]).all() and (pc.pl.engine[a:b] == (tab[:, 11] == 1.0)).all()
+        for got, want in ((pc.pl.cpsi, np.cos(psi0)), (pc.pl.spsi, np.sin(psi0)), (pc.pl.cgam, np.cos(gam0)),
+                          (pc.pl.sgam, np.sin(gam0))):
+            assert bits(got[a:b]) == bits(want), u
+        C_Lb = dcm_from_euler(0.0, gam0, psi0)
+        assert bits(pc.wb[a:b]) == bits(np.einsum("pji,j->pi", C_Lb, wL[u])), u
+        assert bits(pc.re0[a:b]) == bits(r0[u] + tab[:, 2:5].copy() @ C_eL[u].T), u
+        assert (pc.row[a:b] == u).all() and pc.last[b - 1] and not pc.last[a:b - 1].any()
+        a = b
+    assert a == pc.row.size
+    # any Earth rate (three non-zero terms; signed zeros): still einsum's sum, row by row
+    rng = np.random.default_rng(4)
+    for wX in (rng.normal(0.0, 7e-5, (len(motions), 3)), np.tile([-7e-5, -0.0, -7e-5], (len(motions), 1))):
+        pc = _pieces([m._plan for m in motions], C_eL, r0, wX)
+        a = 0
+        for u, m in enumerate(motions):
+            b = a + m._plan.shape[0]
+            C_Lb = dcm_from_euler(0.0, m._plan[:, 9].copy(), m._plan[:, 7].copy())
+            assert bits(pc.wb[a:b]) == bits(np.einsum("pji,j->pi", C_Lb, wX[u])), u
+            a = b
