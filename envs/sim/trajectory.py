@@ -714,9 +714,9 @@ def _arc_kin(pl: _Plan, t, pid):
 
 
 # The compiled kernels below evaluate the closed forms point by point in the order of operations of numpy's
-# elementwise evaluation (no fastmath: the same roundings); the cos/sin of arc angles come from numpy
-# (:func:`_arc_kin`). Their helpers take scalars: passing arrays into a helper call costs reference counting
-# on every point.
+# elementwise evaluation (no fastmath: the same roundings); the cos/sin of arc angles are the C library's, which
+# numpy's float64 cos and sin are (the node pass forms them; :func:`_imu_points` takes numpy's, :func:`_arc_kin`).
+# Their helpers take scalars: passing arrays into a helper call costs reference counting on every point.
 @nb.njit(cache=True)
 def _gravity_at(tk, u, gA, dgA, inv_h):
     """Gravity in L [m/s^2] (three scalars) at time ``tk`` of row ``u``: linear interpolation on the anchor grid
@@ -795,49 +795,59 @@ def _imu_points(t, pid, arc_c, arc_s, pc, gA, dgA, inv_h, f, w):
             wb[p, 0], wb[p, 1], wb[p, 2], wND[u, 0], wND[u, 1], gN, gE, gD)
 
 
+@nb.njit(cache=True, inline="always")
+def _arc_angle(tau, kind, p, psi0, gam0, rate):
+    """The turning angle at time ``tau`` into arc piece ``p``: the heading ``psi0 + w tau`` on a horizontal arc,
+    the pitch ``gam0 + q tau`` on a vertical one (the operations of :func:`_kin`)."""
+    if kind == _HARC:
+        return psi0[p] + rate[p] * tau
+    return gam0[p] + rate[p] * tau
+
+
 @nb.njit(cache=True, nogil=True)
-def _node_kernel(t, dtk, pn, arc_c, arc_s, mid_c, mid_s, simpson, pc, gA, dgA, inv_h,
-                 r, ve, C, speed, heading, pitch, engine, fo, wo, se, u0, u1, j0, jm0):
+def _node_kernel(t, dtk, pn, simpson, pc, gA, dgA, inv_h, r, ve, C, speed, heading, pitch, engine, fo, wo, se,
+                 u0, u1):
     """One pass over the grid nodes of rows ``u0 .. u1 - 1`` of the U x N grid (``pn`` (U N,) their pieces).
 
-    Writes speed and engine_on everywhere; heading (off horizontal arcs), pitch (off vertical arcs) and
-    r_e, v_e, C_eb on the straight pieces at the nodes ``k`` that are multiples of ``se`` (into index ``k // se``
-    of ``r``, ``ve``, ``C``; the arcs' states are numpy's, :func:`_arc_node_states`); and the
+    Writes speed, engine_on, heading (wrapped to [-pi, pi)) and pitch everywhere, and r_e, v_e, C_eb on the
+    straight pieces at the nodes ``k`` that are multiples of ``se`` (into index ``k // se`` of ``r``, ``ve``,
+    ``C``; the arcs' states are numpy's, :func:`_arc_node_states`); and the
     IMU outputs ``fo``, ``wo`` (U, N, 3): the instantaneous value at node 0, and the mean over each interval
     that lies on one piece: the trapezoid of the node values on a straight piece (= Simpson there), Simpson
     with the midpoint value on an arc, or everywhere with ``simpson`` (gravity with kinks inside intervals).
     The intervals at segment boundaries get the trapezoid as a placeholder (:func:`_split_means`).
-    ``arc_c``, ``arc_s``: the turning angle's cos/sin at the nodes on arcs; ``mid_c``, ``mid_s``: at the
-    midpoints of the intervals on one arc; each in grid order (:func:`_arc_kin`), from their entries ``j0``,
-    ``jm0`` (those of the first row ``u0``). Rows are independent: any split into row ranges gives the same
-    bits, and the kernel releases the GIL (:func:`_node_rows` runs row ranges on threads).
+    On an arc the turning angle at the node and at the interval's midpoint (:func:`_arc_angle`) and their cos
+    and sin are formed here, as :func:`_kin` forms them (numpy's float64 cos and sin are the C library's, which
+    these calls are: the same bits). Rows are independent: any split into row ranges gives the same bits, and
+    the kernel releases the GIL (:func:`_node_rows` runs row ranges on threads).
     """
     t0, v0, acc, kind, trig, rate, wb, wND = (pc.pl.t0, pc.pl.v0, pc.pl.acc, pc.pl.kind, pc.trig, pc.rate, pc.wb,
                                               pc.wND)
-    eng, gam0, psi0w, xe, re0, C_eb = pc.pl.engine, pc.pl.gam0, pc.psi0w, pc.xe, pc.re0, pc.C_eb
+    eng, gam0, psi0, psi0w, xe, re0, C_eb = (pc.pl.engine, pc.pl.gam0, pc.pl.psi0, pc.psi0w, pc.xe, pc.re0,
+                                             pc.C_eb)
     n = speed.shape[1]
-    j, jm = j0, jm0
     a0 = a1 = a2 = b0 = b1 = b2 = 0.0
     for u in range(u0, u1):
         ks = 0                                                      # the row's next stored state, at node ks se
         for k in range(n):
             p = pn[u * n + k]
             kd = kind[p]
+            tau = t[k] - t0[p]
             ac = sc = 0.0
             if kd != _STRAIGHT:
-                ac, sc = arc_c[j], arc_s[j]
-                j += 1
+                ang = _arc_angle(tau, kd, p, psi0, gam0, rate)
+                ac, sc = np.cos(ang), np.sin(ang)
             gN, gE, gD = _gravity_at(t[k], u, gA, dgA, inv_h)
-            tau = t[k] - t0[p]
             v, f0, f1, f2, w0, w1, w2 = _point_at(
                 tau, kd, v0[p], acc[p], rate[p], trig[p, 0], trig[p, 1], trig[p, 2], trig[p, 3], ac, sc,
                 wb[p, 0], wb[p, 1], wb[p, 2], wND[u, 0], wND[u, 1], gN, gE, gD)
             speed[u, k] = v
             engine[u, k] = eng[p]
-            if kd != _HARC:
+            if kd == _HARC:
+                heading[u, k] = (ang + math.pi) % (2.0 * math.pi) - math.pi     # _wrap
+            else:
                 heading[u, k] = psi0w[p]
-            if kd != _VARC:
-                pitch[u, k] = gam0[p]
+            pitch[u, k] = ang if kd == _VARC else gam0[p]
             if k == ks * se:                                        # a stored state's node (no division)
                 if kd == _STRAIGHT:
                     s = (v0[p] + v) * (0.5 * tau)                   # straight: s = tau (v0 + v) / 2
@@ -854,8 +864,8 @@ def _node_kernel(t, dtk, pn, arc_c, arc_s, mid_c, mid_s, simpson, pc, gA, dgA, i
                 tm = 0.5 * (t[k - 1] + t[k])
                 ac = sc = 0.0
                 if kd != _STRAIGHT:
-                    ac, sc = mid_c[jm], mid_s[jm]
-                    jm += 1
+                    ang = _arc_angle(tm - t0[p], kd, p, psi0, gam0, rate)
+                    ac, sc = np.cos(ang), np.sin(ang)
                 gN, gE, gD = _gravity_at(tm, u, gA, dgA, inv_h)
                 _, m0, m1, m2, n0, n1, n2 = _point_at(
                     tm - t0[p], kd, v0[p], acc[p], rate[p], trig[p, 0], trig[p, 1], trig[p, 2], trig[p, 3], ac, sc,
@@ -874,35 +884,19 @@ def _node_kernel(t, dtk, pn, arc_c, arc_s, mid_c, mid_s, simpson, pc, gA, dgA, i
             a0, a1, a2, b0, b1, b2 = f0, f1, f2, w0, w1, w2
 
 
-def _kin_subset(k: _Kin, sel) -> _Kin:
-    """The kinematics ``k`` of m points restricted to the points ``sel`` (ascending indices into the m)."""
-    m = k.tau.shape[0]
-    on_h, on_v = np.zeros(m, bool), np.zeros(m, bool)
-    on_h[k.i_h], on_v[k.i_v] = True, True
-    psi, gam = np.empty(m), np.empty(m)
-    psi[k.i_h], gam[k.i_v] = k.psi_h, k.gam_v
-    i_h, i_v = np.flatnonzero(on_h[sel]), np.flatnonzero(on_v[sel])
-    return _Kin(k.tau[sel], k.v0[sel], k.v[sel], i_h, i_v, psi[sel][i_h], gam[sel][i_v], k.cpsi[sel],
-                k.spsi[sel], k.cgam[sel], k.sgam[sel])
-
-
 def _arc_node_states(pc: _Pieces, ia, p, k: _Kin, out: dict, se: int = 1) -> None:
-    """Write heading / pitch at the arc nodes ``ia`` (m,) (global node indices ``u N + k`` of the U x N grid;
-    pieces ``p``, kinematics ``k``) and r_e, v_e, C_eb at those of them whose ``k`` is a multiple of ``se``
-    (state index ``u ((N - 1) // se + 1) + k // se``) into ``out``.
+    """Write r_e, v_e, C_eb at the arc nodes ``ia`` (m,) whose states are stored (global node indices ``u N + k``
+    of the U x N grid, each ``k`` a multiple of ``se``; pieces ``p``, kinematics ``k`` (:func:`_kin`)) into
+    ``out`` at the state index ``u ((N - 1) // se + 1) + k // se`` (the heading and pitch on arcs come from the
+    node pass, :func:`_node_kernel`).
 
-    ``r_e = r0_e + C_eL p_L`` is formed row by row with the row's arc nodes in the order (horizontal, vertical)
-    of a row alone: the BLAS product's rounding may depend on its row count (with ``se`` > 1 the count is that
-    of the row's stored arc nodes; ``test_trajectory`` checks the same bits as every node's states).
+    ``r_e = r0_e + C_eL p_L`` is formed row by row with the row's stored arc nodes in the order (horizontal,
+    vertical) of a row alone: the BLAS product's rounding may depend on its row count (``test_trajectory``
+    checks the same bits as every node's states).
     """
     flat = lambda name: out[name].reshape((-1,) + out[name].shape[2:])  # noqa: E731
-    flat("heading")[ia[k.i_h]] = _wrap(k.psi_h)
-    flat("pitch")[ia[k.i_v]] = k.gam_v
     n = out["speed"].shape[1]
-    if se > 1:                                                    # the stored nodes only, at their state index
-        sel = np.flatnonzero(ia % n % se == 0)
-        ia = (ia // n * ((n - 1) // se + 1) + ia % n // se)[sel]
-        p, k = p[sel], _kin_subset(k, sel)
+    ia = ia // n * ((n - 1) // se + 1) + ia % n // se
     U = pc.C_eL.shape[0]
     ca, sa, cb, sb = k.cgam, k.sgam, k.cpsi, k.spsi
     C_Lb = np.empty((ia.size, 3, 3))
@@ -1039,16 +1033,13 @@ def _grid_pieces(pc: _Pieces, t):
     return starts, cnt, np.repeat(np.arange(starts.shape[0]), cnt)
 
 
-def _node_rows(args, U: int, n: int, ia, gm, workers: int | None = None) -> None:
+def _node_rows(args, U: int, workers: int | None = None) -> None:
     """:func:`_node_kernel` over the U rows, in row ranges on ``workers`` threads (default ``min(os.cpu_count(),
     8)``; dynamic: a thread takes the next range when it is done, so a busy core costs only its share).
 
-    ``args``: the kernel's arguments up to ``wo``; ``ia``, ``gm`` the global indices (``u n + k``, ascending) of
-    the arc nodes and of the arc nodes that start an interval on one piece, whose ranks are the kernel's entries
-    into its arc inputs. The same bits as one call over all rows (rows are independent).
+    ``args``: the kernel's arguments up to ``se``. The same bits as one call over all rows (rows are independent).
     """
-    run_row_ranges(lambda u0, u1: _node_kernel(*args, u0, u1, int(np.searchsorted(ia, u0 * n)),
-                                               int(np.searchsorted(gm, u0 * n))), U, workers)
+    run_row_ranges(lambda u0, u1: _node_kernel(*args, u0, u1), U, workers)
 
 
 def _evaluate(pc: _Pieces, t, grav, linear_gravity: bool, out: dict, workers: int | None = None, se: int = 1) -> None:
@@ -1073,26 +1064,21 @@ def _evaluate(pc: _Pieces, t, grav, linear_gravity: bool, out: dict, workers: in
     arcs = np.flatnonzero((pl.kind != _STRAIGHT) & (cnt > 0))
     c = cnt[arcs]
     ia = np.repeat(pc.row[arcs] * n + starts[arcs] - (np.cumsum(c) - c), c) + np.arange(c.sum())  # arc nodes
+    if se > 1:
+        ia = ia[ia % n % se == 0]                                  # those whose states are stored
     pa = pn[ia]
-    ka, arc_c, arc_s = _arc_kin(pl, t[ia % n], pa)
-    gm = ia[ia % n != n - 1]
-    gm = gm[pn[gm + 1] == pn[gm]]                                  # arc nodes starting an interval on one piece
-    km = gm % n
-    _, mid_c, mid_s = _arc_kin(pl, 0.5 * (t[km] + t[km + 1]), pn[gm])
     dtk = np.diff(t)
-    node_args = ((t, dtk, pn, arc_c, arc_s, mid_c, mid_s, not linear_gravity, pc, *grav, out["r_e"], out["v_e"],
-                  out["C_eb"], out["speed"], out["heading"], out["pitch"], out["engine_on"], out["f_b"], out["w_b"],
-                  se),
-                 U, n, ia, gm, workers)
+    node_args = ((t, dtk, pn, not linear_gravity, pc, *grav, out["r_e"], out["v_e"], out["C_eb"], out["speed"],
+                  out["heading"], out["pitch"], out["engine_on"], out["f_b"], out["w_b"], se), U, workers)
     if ia.size and U >= OVERLAP_ROWS:   # the node pass (off the arcs' states) beside the arcs' states (numpy)
         with ThreadPoolExecutor(max_workers=1) as ex:
             pending = ex.submit(_node_rows, *node_args)
-            _arc_node_states(pc, ia, pa, ka, out, se)
+            _arc_node_states(pc, ia, pa, _kin(pl, t[ia % n], pa), out, se)
             pending.result()
     else:
         _node_rows(*node_args)
         if ia.size:
-            _arc_node_states(pc, ia, pa, ka, out, se)
+            _arc_node_states(pc, ia, pa, _kin(pl, t[ia % n], pa), out, se)
     _split_means(pc, t, dtk, starts, pn, grav, linear_gravity, out)
 
 

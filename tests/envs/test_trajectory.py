@@ -457,3 +457,43 @@ def test_pieces_of_many_motions_equal_each_motions_own_forms():
             C_Lb = dcm_from_euler(0.0, m._plan[:, 9].copy(), m._plan[:, 7].copy())
             assert bits(pc.wb[a:b]) == bits(np.einsum("pji,j->pi", C_Lb, wX[u])), u
             a = b
+
+
+def test_node_pass_arcs_equal_numpy_trigonometry_bit_for_bit(monkeypatch):
+    """On the arcs the node pass forms the turning angle and its cos / sin itself: the heading (wrapped to
+    [-pi, pi)) and pitch at arc nodes, and the Simpson means over intervals on one arc, equal bit for bit those
+    formed with numpy's trigonometry (``_kin``, ``_arc_kin``) and the point evaluation ``_imu_points``."""
+    import envs.sim.trajectory as T
+    seen = {}
+    evaluate = T._evaluate
+
+    def spy(pc, t, grav, linear_gravity, out, workers=None, se=1):
+        seen.update(pc=pc, t=t, grav=grav)
+        return evaluate(pc, t, grav, linear_gravity, out, workers, se)
+
+    monkeypatch.setattr(T, "_evaluate", spy)
+    motions = [ON_GRID, OFF_GRID] + [random_drive(g, 30.0, style=s) for g, s in
+                                      zip(row_generators(range(20, 26), "trajectory"), STYLES * 2)]
+    tr = generate_truth(motions, 30.0, 100.0)
+    pc, t, grav = seen["pc"], seen["t"], seen["grav"]
+    n = t.size
+    pn = T._grid_pieces(pc, t)[2]
+    arc = np.flatnonzero(pc.pl.kind[pn] != T._STRAIGHT)
+    assert arc.size > 1000 and (pc.pl.kind[pn[arc]] == T._VARC).any()
+    k = T._kin(pc.pl, t[arc % n], pn[arc])
+    assert tr.heading.reshape(-1)[arc[k.i_h]].tobytes() == T._wrap(k.psi_h).tobytes()
+    assert tr.pitch.reshape(-1)[arc[k.i_v]].tobytes() == k.gam_v.tobytes()
+    assert (tr.heading >= -math.pi).all() and (tr.heading < math.pi).all()
+    g = arc[arc % n != 0]
+    g = g[pn[g - 1] == pn[g]]                                   # intervals (t_k-1, t_k] on one arc piece
+    kk, p = g % n, pn[g]
+    vals = []
+    for tt in (t[kk - 1], t[kk], 0.5 * (t[kk - 1] + t[kk])):
+        _, c, s = T._arc_kin(pc.pl, tt, p)
+        f, w = np.empty((g.size, 3)), np.empty((g.size, 3))
+        T._imu_points(tt, p, c, s, pc, *grav, f, w)
+        vals.append((f, w))
+    e, d = (np.diff(t)[kk - 1] / 6.0)[:, None], np.diff(t)[kk - 1][:, None]
+    for j, name in enumerate(("f_b", "w_b")):
+        mean = (vals[0][j] + vals[1][j] + 4.0 * vals[2][j]) * e / d
+        assert getattr(tr, name).reshape(-1, 3)[g].tobytes() == mean.tobytes(), name
