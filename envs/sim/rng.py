@@ -185,21 +185,29 @@ def child_states_rows(words: np.ndarray, keys: Sequence[int], kind: int = SFC64)
     return out
 
 
+@nb.njit(cache=True, inline="always")
+def _words_of(values, w32):
+    """:func:`entropy_words` of the 64-bit ints ``values`` (W,) uint64 into ``w32`` (>= 2 W,) uint32 (each the low
+    word, then the high word where it is not zero); returns how many words it wrote."""
+    low, shift = np.uint64(0xFFFFFFFF), np.uint64(32)
+    m = 0
+    for j in range(values.shape[0]):
+        v = values[j]
+        w32[m] = np.uint32(v & low)
+        m += 1
+        if v >> shift:
+            w32[m] = np.uint32(v >> shift)
+            m += 1
+    return m
+
+
 @nb.njit(cache=True, nogil=True)
 def _child_states_rows(kind, words, keys, out):
-    """:func:`child_states_rows`: each row's uint32 entropy words as :func:`entropy_words` makes them of its
-    64-bit ints (the low word, then the high word where it is not zero), then :func:`_child_state` per key."""
+    """:func:`child_states_rows`: each row's uint32 entropy words (:func:`_words_of` its 64-bit ints), then
+    :func:`_child_state` per key."""
     w32 = np.empty(2 * words.shape[1], np.uint32)
-    low, shift = np.uint64(0xFFFFFFFF), np.uint64(32)
     for i in range(words.shape[0]):
-        m = 0
-        for j in range(words.shape[1]):
-            v = words[i, j]
-            w32[m] = np.uint32(v & low)
-            m += 1
-            if v >> shift:
-                w32[m] = np.uint32(v >> shift)
-                m += 1
+        m = _words_of(words[i], w32)
         for c in range(keys.shape[0]):
             _child_state(kind, w32[:m], keys[c], out[i, c])
 
@@ -266,18 +274,10 @@ def _seed_state(words, key, out):
 @nb.njit(cache=True, nogil=True)
 def _seed_states_rows(seeds, key, out):
     """Row ``i`` of ``out`` (B, n) uint32: the state words of ``SeedSequence(entropy_words([seeds[i]]),
-    spawn_key=(key,))`` (:func:`_seed_state`), each seed (B,) uint64 made into words as :func:`entropy_words`
-    does (the low word, then the high word where it is not zero)."""
+    spawn_key=(key,))`` (:func:`_seed_state` of :func:`_words_of` the seed; ``seeds`` (B,) uint64)."""
     w32 = np.empty(2, np.uint32)
-    low, shift = np.uint64(0xFFFFFFFF), np.uint64(32)
     for i in range(seeds.shape[0]):
-        v = seeds[i]
-        w32[0] = np.uint32(v & low)
-        m = 1
-        if v >> shift:
-            w32[1] = np.uint32(v >> shift)
-            m = 2
-        _seed_state(w32[:m], key, out[i])
+        _seed_state(w32[:_words_of(seeds[i:i + 1], w32)], key, out[i])
 
 
 @nb.njit(cache=True, nogil=True)
