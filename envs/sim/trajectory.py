@@ -884,9 +884,9 @@ def _node_kernel(t, dtk, pn, simpson, pc, gA, dgA, inv_h, r, ve, C, speed, headi
             a0, a1, a2, b0, b1, b2 = f0, f1, f2, w0, w1, w2
 
 
-def _arc_node_states(pc: _Pieces, ia, p, k: _Kin, out: dict, se: int = 1) -> None:
+def _arc_node_states(pc: _Pieces, ia, p, t, out: dict, se: int = 1) -> None:
     """Write r_e, v_e, C_eb at the arc nodes ``ia`` (m,) whose states are stored (global node indices ``u N + k``
-    of the U x N grid, each ``k`` a multiple of ``se``; pieces ``p``, kinematics ``k`` (:func:`_kin`)) into
+    of the U x N grid ``t`` (N,), each ``k`` a multiple of ``se``; pieces ``p``; kinematics by :func:`_kin`) into
     ``out`` at the state index ``u ((N - 1) // se + 1) + k // se`` (the heading and pitch on arcs come from the
     node pass, :func:`_node_kernel`).
 
@@ -895,7 +895,8 @@ def _arc_node_states(pc: _Pieces, ia, p, k: _Kin, out: dict, se: int = 1) -> Non
     checks the same bits as every node's states).
     """
     flat = lambda name: out[name].reshape((-1,) + out[name].shape[2:])  # noqa: E731
-    n = out["speed"].shape[1]
+    n = t.shape[0]
+    k = _kin(pc.pl, t[ia % n], p)
     ia = ia // n * ((n - 1) // se + 1) + ia % n // se
     U = pc.C_eL.shape[0]
     ca, sa, cb, sb = k.cgam, k.sgam, k.cpsi, k.spsi
@@ -1073,12 +1074,12 @@ def _evaluate(pc: _Pieces, t, grav, linear_gravity: bool, out: dict, workers: in
     if ia.size and U >= OVERLAP_ROWS:   # the node pass (off the arcs' states) beside the arcs' states (numpy)
         with ThreadPoolExecutor(max_workers=1) as ex:
             pending = ex.submit(_node_rows, *node_args)
-            _arc_node_states(pc, ia, pa, _kin(pl, t[ia % n], pa), out, se)
+            _arc_node_states(pc, ia, pa, t, out, se)
             pending.result()
     else:
         _node_rows(*node_args)
         if ia.size:
-            _arc_node_states(pc, ia, pa, _kin(pl, t[ia % n], pa), out, se)
+            _arc_node_states(pc, ia, pa, t, out, se)
     _split_means(pc, t, dtk, starts, pn, grav, linear_gravity, out)
 
 
