@@ -32,6 +32,12 @@ else
     "benchmarks/bench_worlds.py --batches 1 1024 --scenarios noise-burst urban urban-smartloc --cores"
     # resident memory of a single env, a DummyVecEnv of single envs and the native vector env
     "benchmarks/bench_memory.py --layouts single dummy-16 vector-64 --episodes 10"
+    # where a step's time goes: each compiled kernel's share, and the Python around them
+    "benchmarks/bench_envs.py --kernel-time --methods sage-husa --batches 1 1024"
+    # PPO as train.py rl runs it (n_envs 256, no prefetch process): env-steps/s and the share spent outside the env
+    "benchmarks/bench_training.py --n-envs 256 --transitions fused --no-dummy --prefetch-worlds 0"
+    # the same cells idle and beside one competing CPU-bound process (the busy / idle ratio of every cell)
+    "benchmarks/bench_contention.py --policies always never auto --kinds e2e step --layers"
   )
 fi
 
