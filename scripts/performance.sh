@@ -36,8 +36,8 @@ else
     "benchmarks/bench_envs.py --kernel-time --methods sage-husa --batches 1 1024"
     # PPO as train.py rl runs it (n_envs 256, no prefetch process): env-steps/s and the share spent outside the env
     "benchmarks/bench_training.py --n-envs 256 --transitions fused --no-dummy --prefetch-worlds 0"
-    # the same cells idle and beside one competing CPU-bound process (the busy / idle ratio of every cell)
-    "benchmarks/bench_contention.py --policies always never auto --kinds e2e step --layers"
+    # the env's default parallel_kernels ('auto') idle and beside one competing CPU-bound process: busy / idle
+    "benchmarks/bench_contention.py --policies auto --kinds e2e step --layers"
   )
 fi
 
