@@ -525,20 +525,17 @@ class Truth:
         n = self.t.shape[0]
         if idx.size and (idx.min() < -n or idx.max() >= n):
             raise ValueError(f"idx out of range for N = {n} samples")
-        if self.coarse is None:
-            pick = _picker(np.where(idx < 0, idx + n, idx))
-            return TruthAt(self.t[idx], pick(self.r_e), pick(self.v_e), pick(self.C_eb), pick(self.speed),
-                           pick(self.heading))
-        s = self.states_every
         k = np.where(idx < 0, idx + n, idx)
-        off = np.flatnonzero(k % s)
-        if off.size:
-            raise ValueError(f"this truth holds its states only at the samples that are multiples of {s} "
-                             f"(states_every={s}); sample {int(k[off[0]])} is not one")
-        c = self.coarse
-        j = k // s
+        src, j = self, k
+        if self.coarse is not None:                         # the states at the multiples of s only
+            s = self.states_every
+            off = np.flatnonzero(k % s)
+            if off.size:
+                raise ValueError(f"this truth holds its states only at the samples that are multiples of {s} "
+                                 f"(states_every={s}); sample {int(k[off[0]])} is not one")
+            src, j = self.coarse, k // s
         pick = _picker(j)
-        return TruthAt(c.t[j], pick(c.r_e), pick(c.v_e), pick(c.C_eb), pick(c.speed), pick(c.heading))
+        return TruthAt(src.t[j], pick(src.r_e), pick(src.v_e), pick(src.C_eb), pick(src.speed), pick(src.heading))
 
     def stationary(self, threshold_mps: float = 0.05) -> np.ndarray:
         """(B, N) bool: true speed below ``threshold_mps`` [m/s] (the ZUPT label)."""
