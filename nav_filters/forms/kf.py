@@ -372,6 +372,133 @@ def transition_prior(Phi, P):
     return out
 
 
+@nb.njit(cache=True, inline="always", error_model="numpy")
+def _predicted_row(b, mode, P, x, Phi, s, Q, prior, Pm, T, C, xm):
+    """The time update of :func:`_fused_rows` for row ``b`` into ``Pm`` (n, >= n) and ``xm`` (n,): mode 0 the
+    posterior as it is; mode 1 ``sym(D Phi P Phi^T D + Q)``, mode 2 ``sym(D prior D + Q)``, and ``x- = D Phi x``
+    (``D = diag(s[b])``); ``T``, ``C`` (n, n) scratch."""
+    n = xm.shape[0]
+    if mode == 0:
+        for i in range(n):
+            xm[i] = x[b, i]
+            for j in range(n):
+                Pm[i, j] = P[b, i, j]
+        return
+    if mode == 1:
+        _prior_row(Phi[b], P[b], T, C)
+    else:
+        for i in range(n):
+            for j in range(n):
+                C[i, j] = prior[b, i, j]
+    for i in range(n):
+        for j in range(i + 1):
+            v = 0.5 * ((s[b, i] * s[b, j] * C[i, j] + Q[b, i, j])
+                       + (s[b, j] * s[b, i] * C[j, i] + Q[b, j, i]))
+            Pm[i, j] = v
+            Pm[j, i] = v
+    for i in range(n):
+        acc = 0.0
+        for k in range(n):
+            acc += Phi[b, i, k] * x[b, k]
+        xm[i] = s[b, i] * acc
+
+
+@nb.njit(cache=True, inline="always", error_model="numpy")
+def _innovation_row(b, H, R, dz, mask, xm, Pm, r, Sd, idx, nzc, nzv, cnt, HP, L, rv):
+    """The valid rows of row ``b`` (``idx``; the non-zeros of their H rows in ``nzc``, ``nzv``, ``cnt``), their
+    residuals ``dz - H x-`` (into ``rv`` and ``r[b]``; 0 and ``Sd = 1`` on the masked rows), ``HP = H P-`` and the
+    lower triangle of ``S = HP H^T + R`` (diagonal into ``Sd[b]``) factored in place in ``L``. Returns
+    ``(mv, good)``: the number of valid rows and whether S is positive definite."""
+    m = mask.shape[1]
+    W = HP.shape[1]
+    mv = 0
+    for i in range(m):
+        if mask[b, i]:
+            idx[mv] = i
+            cnt[mv] = _row_nonzeros(H[b, i], nzc[mv], nzv[mv])
+            mv += 1
+        else:
+            r[b, i] = 0.0
+            Sd[b, i] = 1.0
+    for t in range(mv):
+        i = idx[t]
+        for k in range(W):
+            HP[t, k] = 0.0
+        sres = _residual_and_hp(dz[b, i], nzc[t], nzv[t], cnt[t], xm, Pm, HP[t])
+        r[b, i] = sres
+        rv[t] = sres
+    for t in range(mv):
+        for u in range(t + 1):
+            acc = R[b, idx[t], idx[u]]
+            for q in range(cnt[u]):
+                acc += HP[t, nzc[u, q]] * nzv[u, q]
+            L[t, u] = acc
+        Sd[b, idx[t]] = L[t, t]
+    return mv, _cholesky_lower(L, mv)
+
+
+@nb.njit(cache=True, inline="always", error_model="numpy")
+def _joseph_row(b, R, mv, idx, nzc, nzv, cnt, Pm, Y, KHt, cols, pos, AP, KRt, X, Pn):
+    """The Joseph covariance of :func:`_fused_rows` for row ``b`` into ``Pn[b]``, from ``P-`` (``Pm``) and
+    ``K^T`` (``Y``, the valid rows): ``A = I - K H`` is non-trivial only in the ``nc`` columns of H that hold a
+    non-zero (8 of 17 for GNSS rows): ``KHt = (K H)^T`` on those columns, ``AP = P- - K H P-``,
+    ``X = AP A^T = AP - (AP)[:, cols] KHt`` (whole rows), ``X += K R K^T`` with ``KRt = (K R)^T``; the upper
+    triangle of X, mirrored (exactly symmetric). ``pos`` (n,) is -1 on entry and on return."""
+    n = Pm.shape[0]
+    W = Pm.shape[1]
+    nc = 0
+    for t in range(mv):
+        for q in range(cnt[t]):
+            l = nzc[t, q]
+            if pos[l] < 0:
+                pos[l] = nc
+                cols[nc] = l
+                for k in range(W):
+                    KHt[nc, k] = 0.0
+                nc += 1
+            ci = pos[l]
+            h = nzv[t, q]
+            for k in range(W):
+                KHt[ci, k] += h * Y[t, k]
+    for k in range(n):
+        for j in range(W):
+            AP[k, j] = Pm[k, j]
+        for ci in range(nc):
+            a = KHt[ci, k]
+            if a != 0:
+                l = cols[ci]
+                for j in range(W):
+                    AP[k, j] -= a * Pm[l, j]
+    for k in range(n):
+        for j in range(W):
+            X[k, j] = AP[k, j]
+        for ci in range(nc):
+            a = AP[k, cols[ci]]
+            if a != 0:
+                for j in range(W):
+                    X[k, j] -= a * KHt[ci, j]
+    for ci in range(nc):
+        pos[cols[ci]] = -1
+    for t in range(mv):       # KRt = (K R)^T = R^T K^T over the valid rows
+        for k in range(W):
+            KRt[t, k] = 0.0
+        for u in range(mv):
+            ru = R[b, idx[u], idx[t]]
+            if ru != 0:
+                for k in range(W):
+                    KRt[t, k] += ru * Y[u, k]
+    for k in range(n):
+        for t in range(mv):
+            a = Y[t, k]
+            if a != 0:
+                for j in range(W):
+                    X[k, j] += a * KRt[t, j]
+    for k in range(n):
+        for j in range(k, n):
+            Pn[b, k, j] = X[k, j]
+            Pn[b, j, k] = X[k, j]
+
+
 def _fused_rows(P, x, Phi, s, Q, prior, mode, H, R, dz, mask, Pn, xn, r, Sd, nis, ok, nchunk):
     """Fused time and Joseph measurement update of every batch row (the fast path, ``fused_update=True``).
 
@@ -432,56 +559,8 @@ def _fused_rows(P, x, Phi, s, Q, prior, mode, H, R, dz, mask, Pn, xn, r, Sd, nis
         nzv = np.empty((m, n), dt)
         cnt = np.empty(m, np.int64)
         for b in range(lo, hi):
-            # ---- time update
-            if mode == 0:
-                for i in range(n):
-                    xm[i] = x[b, i]
-                    for j in range(n):
-                        Pm[i, j] = P[b, i, j]
-            else:
-                if mode == 1:
-                    _prior_row(Phi[b], P[b], T, C)
-                else:
-                    for i in range(n):
-                        for j in range(n):
-                            C[i, j] = prior[b, i, j]
-                for i in range(n):
-                    for j in range(i + 1):
-                        v = 0.5 * ((s[b, i] * s[b, j] * C[i, j] + Q[b, i, j])
-                                   + (s[b, j] * s[b, i] * C[j, i] + Q[b, j, i]))
-                        Pm[i, j] = v
-                        Pm[j, i] = v
-                for i in range(n):
-                    acc = 0.0
-                    for k in range(n):
-                        acc += Phi[b, i, k] * x[b, k]
-                    xm[i] = s[b, i] * acc
-            # ---- the valid rows and the non-zeros of their H rows
-            mv = 0
-            for i in range(m):
-                if mask[b, i]:
-                    idx[mv] = i
-                    cnt[mv] = _row_nonzeros(H[b, i], nzc[mv], nzv[mv])
-                    mv += 1
-                else:
-                    r[b, i] = 0.0
-                    Sd[b, i] = 1.0
-            # ---- residual, H P-, S (lower triangle) and its Cholesky factor
-            for t in range(mv):
-                i = idx[t]
-                for k in range(W):
-                    HP[t, k] = 0.0
-                sres = _residual_and_hp(dz[b, i], nzc[t], nzv[t], cnt[t], xm, Pm, HP[t])
-                r[b, i] = sres
-                rv[t] = sres
-            for t in range(mv):
-                for u in range(t + 1):
-                    acc = R[b, idx[t], idx[u]]
-                    for q in range(cnt[u]):
-                        acc += HP[t, nzc[u, q]] * nzv[u, q]
-                    L[t, u] = acc
-                Sd[b, idx[t]] = L[t, t]
-            good = _cholesky_lower(L, mv)
+            _predicted_row(b, mode, P, x, Phi, s, Q, prior, Pm, T, C, xm)
+            mv, good = _innovation_row(b, H, R, dz, mask, xm, Pm, r, Sd, idx, nzc, nzv, cnt, HP, L, rv)
             ok[b] = good
             if not good:
                 continue
@@ -496,61 +575,7 @@ def _fused_rows(P, x, Phi, s, Q, prior, mode, H, R, dz, mask, Pn, xn, r, Sd, nis
                     xp[k] += Y[t, k] * a
             for k in range(n):
                 xn[b, k] = xp[k]
-            # ---- Joseph with A = I - K H non-trivial only in the nc columns of H that hold a non-zero
-            # (8 of 17 for GNSS rows): KHt = (K H)^T on those columns, AP = P- - K H P-,
-            # X = AP A^T = AP - (AP)[:, cols] KHt   (whole rows; only the upper triangle is kept: P+ is symmetric,
-            # mirrored below)
-            nc = 0
-            for t in range(mv):
-                for q in range(cnt[t]):
-                    l = nzc[t, q]
-                    if pos[l] < 0:
-                        pos[l] = nc
-                        cols[nc] = l
-                        for k in range(W):
-                            KHt[nc, k] = 0.0
-                        nc += 1
-                    ci = pos[l]
-                    h = nzv[t, q]
-                    for k in range(W):
-                        KHt[ci, k] += h * Y[t, k]
-            for k in range(n):
-                for j in range(W):
-                    AP[k, j] = Pm[k, j]
-                for ci in range(nc):
-                    a = KHt[ci, k]
-                    if a != 0:
-                        l = cols[ci]
-                        for j in range(W):
-                            AP[k, j] -= a * Pm[l, j]
-            for k in range(n):
-                for j in range(W):
-                    X[k, j] = AP[k, j]
-                for ci in range(nc):
-                    a = AP[k, cols[ci]]
-                    if a != 0:
-                        for j in range(W):
-                            X[k, j] -= a * KHt[ci, j]
-            for ci in range(nc):
-                pos[cols[ci]] = -1
-            for t in range(mv):       # KRt = (K R)^T = R^T K^T over the valid rows
-                for k in range(W):
-                    KRt[t, k] = 0.0
-                for u in range(mv):
-                    ru = R[b, idx[u], idx[t]]
-                    if ru != 0:
-                        for k in range(W):
-                            KRt[t, k] += ru * Y[u, k]
-            for k in range(n):
-                for t in range(mv):
-                    a = Y[t, k]
-                    if a != 0:
-                        for j in range(W):
-                            X[k, j] += a * KRt[t, j]
-            for k in range(n):
-                for j in range(k, n):
-                    Pn[b, k, j] = X[k, j]
-                    Pn[b, j, k] = X[k, j]
+            _joseph_row(b, R, mv, idx, nzc, nzv, cnt, Pm, Y, KHt, cols, pos, AP, KRt, X, Pn)
 
 
 _fused_serial, _fused_parallel = serial_and_parallel(_fused_rows, error_model="numpy")
