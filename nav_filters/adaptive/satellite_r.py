@@ -120,6 +120,152 @@ def _row_group(H, b, i, n):
     return 2
 
 
+@nb.njit(cache=True, inline="always")
+def _sat_priors_row(b, r, H, R, mask, keys, bf, b_key, epoch, s_tab, n_tab, last_tab, forget, sample, nzc, nzv, cnt,
+                    Pm3, s_rows, n_rows, s_prev, work):
+    """Step 1 of :func:`_r_sat_kernel` on row ``b``: per used row i its group ``gi``, the innovation excess
+    ``ex = r_i^2 - (H P- H^T)_ii``, and for a keyed row its key's forgetting factor ``bks``, prior scale ``s0``
+    (aged, or 1 when reacquired) into ``s_prev[b]``, count ``n0s`` and variance ``var = s0 R_ii`` (with the
+    innovation sample, ``xs``); the outputs of the unused rows set to their neutral values. ``work = (xs, bks, ex,
+    has_x, var, gi, n0s)`` (m,) each; ``Pm3`` (1, n, >= n) holds P-."""
+    xs, bks, ex, has_x, var, gi, n0s = work
+    m, n = H.shape[1], H.shape[2]
+    for i in range(m):
+        s_rows[b, i] = 1.0
+        n_rows[b, i] = 0
+        s_prev[b, i] = 1.0
+        has_x[i] = False
+        var[i] = 1.0
+        gi[i] = -1
+        if not mask[b, i]:
+            continue
+        gi[i] = _row_group(H, b, i, n)
+        q = _quad_nz(nzc, nzv, cnt, i, Pm3, Pm3, False, 0)
+        rr = np.float64(r[b, i])
+        ex[i] = rr * rr - q
+        key = keys[b, i]
+        if key >= 0:
+            bk = b_key[b, key]
+            if bk != bk:  # NaN: the row's b
+                bk = bf[b]
+            bks[i] = bk
+            last = last_tab[b, key]
+            u = epoch[b] - last
+            if last < 0 or u > forget:
+                s0 = 1.0
+                n0 = 0
+            else:
+                s0 = s_tab[b, key]
+                n0 = n_tab[b, key]
+                if u > 1:
+                    s0 = 1.0 + (s0 - 1.0) * bk ** (u - 1)
+            s_prev[b, i] = s0
+            n0s[i] = n0
+            var[i] = s0 * np.float64(R[b, i, i])
+            if sample == 0:
+                xs[i] = ex[i] / np.float64(R[b, i, i])
+                has_x[i] = True
+
+
+@nb.njit(cache=True, inline="always")
+def _sat_scales_row(b, r, H, R, mask, keys, active, jcap, n_iter, sample, min_red, k_prior, guard, sat_min, smax, nzc,
+                    nzv, cnt, Pm, s_rows, n_rows, s_prev, work, geo_work, post_work):
+    """Step 2 of :func:`_r_sat_kernel` on row ``b``: ``n_iter`` rounds of the samples (geometry, residual,
+    loo, consensus; a later round refits with each row weighted by the larger of its tentative scale and its
+    sample) and the recursion of each keyed row's scale and count into ``s_rows[b]``, ``n_rows[b]``.
+    ``work = (xs, bks, has_x, var, n0s, use, v, red, xl, hl, srt)`` (m,) each, as step 1 left them; ``Pm``
+    (n, >= n) holds P-."""
+    xs, bks, has_x, var, n0s, use, v, red, xl, hl, srt = work
+    m = mask.shape[1]
+    j_last = -1  # the last count and b whose weight was computed for this row (most satellites share them)
+    b_last = np.nan
+    d_last = 0.0
+    for it in range(n_iter):
+        if it > 0 and sample > 0:  # refit with each row weighted by max(tentative scale, its sample)
+            for i in range(m):
+                if mask[b, i] and keys[b, i] >= 0:
+                    w = max(s_rows[b, i], xs[i]) if has_x[i] else s_rows[b, i]
+                    var[i] = w * np.float64(R[b, i, i])
+                    has_x[i] = False
+        if sample == 1 or sample == 4:
+            for t in range(2):
+                for i in range(m):
+                    k = keys[b, i]
+                    use[i] = mask[b, i] and k >= 0 and ((k >= _NK) == (t == 1))
+                _geometry_residual_row(r[b], H[b], nzc, cnt, var, use, v, red, geo_work)
+                for i in range(m):
+                    if use[i] and red[i] >= min_red:
+                        xs[i] = v[i] * v[i] / (red[i] * np.float64(R[b, i, i]))
+                        has_x[i] = True
+        if sample >= 2:
+            for i in range(m):
+                use[i] = mask[b, i] and keys[b, i] >= 0
+            _posterior_residual_row(r[b], nzc, nzv, cnt, Pm, Pm, False, k_prior, var, use, v, red, post_work)
+            for i in range(m):
+                hl[i] = use[i] and red[i] >= min_red
+                if hl[i] and sample != 2:  # deleted residual e = v / red, its prediction's variance var/red - var
+                    e = v[i] / red[i]
+                    xl[i] = (e * e - (var[i] / red[i] - var[i])) / np.float64(R[b, i, i])
+            if guard and sample != 2:
+                _median_guard(xl, hl, keys[b], srt)
+            for i in range(m):
+                if hl[i]:
+                    if sample == 2:
+                        xs[i] = v[i] * v[i] / (red[i] * np.float64(R[b, i, i]))
+                    else:
+                        xs[i] = min(xs[i], xl[i]) if (sample == 4 and has_x[i]) else xl[i]
+                    has_x[i] = True
+        for i in range(m):
+            if not mask[b, i] or keys[b, i] < 0:
+                continue
+            s0 = s_prev[b, i]
+            n0 = n0s[i]
+            if active[b] and has_x[i]:
+                j = min(n0 + 1, jcap[b])
+                if j != j_last or bks[i] != b_last:
+                    d_last = _weight_one(bks[i], j)
+                    j_last = j
+                    b_last = bks[i]
+                d = d_last
+                s1 = (1.0 - d) * s0 + d * xs[i]
+                s_rows[b, i] = min(max(s1, sat_min), smax)
+                n_rows[b, i] = n0 + 1
+            else:
+                s_rows[b, i] = s0
+                n_rows[b, i] = n0
+
+
+@nb.njit(cache=True, inline="always")
+def _sat_group_row(b, R, mask, keys, gi, ex, s_rows, common, active, d_row, r_scale, smin, smax, s_group, work,
+                   R_out):
+    """Step 3 of :func:`_r_sat_kernel` on row ``b``: the group scales (over the rows without a key, or with
+    ``common`` over every row) into ``s_group[b]`` and ``R_out[b] = D^(1/2) R D^(1/2)``. ``work = (num, den,
+    cnt_g, sq)``: (G,), (G,), (G,) int and (m,) scratch."""
+    num, den, cnt_g, sq = work
+    m = mask.shape[1]
+    for g in range(num.shape[0]):
+        num[g] = 0.0
+        den[g] = 0.0
+        cnt_g[g] = 0
+    for i in range(m):
+        if gi[i] < 0 or (keys[b, i] >= 0 and not common):
+            continue
+        num[gi[i]] += ex[i]
+        den[gi[i]] += s_rows[b, i] * np.float64(R[b, i, i])
+        cnt_g[gi[i]] += 1
+    _group_step(num, den, cnt_g, active[b], d_row[b], r_scale[b], smin, smax, s_group[b])
+    for i in range(m):
+        if not mask[b, i]:
+            sq[i] = 1.0
+        elif keys[b, i] >= 0:
+            sq[i] = np.sqrt(s_rows[b, i] * (s_group[b, gi[i]] if common else 1.0))
+        else:
+            sq[i] = np.sqrt(s_group[b, gi[i]])
+    for i in range(m):
+        for j in range(m):
+            R_out[b, i, j] = R[b, i, j] * sq[i] * sq[j]
+
+
 @nb.njit(cache=True)
 def _r_sat_kernel(r, H, prior, Q, add_q, R, mask, keys, bf, b_key, jcap, d_row, active, epoch, s_tab, n_tab,
                   last_tab, forget, smin, smax, sat_min, sample, min_red, k_prior, n_iter, common, guard, r_scale,
@@ -169,13 +315,10 @@ def _r_sat_kernel(r, H, prior, Q, add_q, R, mask, keys, bf, b_key, jcap, d_row, 
     red = np.zeros(m)
     n0s = np.zeros(m, np.int64)
     gi = np.full(m, -1, np.int64)
-    num = np.empty(G)
-    den = np.empty(G)
-    cnt_g = np.empty(G, np.int64)
-    sq = np.empty(m, R.dtype)
     xl = np.zeros(m)  # the loo samples of a row, and which rows have one
     hl = np.zeros(m, np.bool_)
     srt = np.empty(m)
+    group_work = (np.empty(G), np.empty(G), np.empty(G, np.int64), np.empty(m, R.dtype))
     # scratch of the row helpers, allocated once per call (not per batch row)
     nzc, nzv, cnt = _nonzeros_work(m, n, H.dtype)
     geo_work = _geometry_work(n)
@@ -190,119 +333,13 @@ def _r_sat_kernel(r, H, prior, Q, add_q, R, mask, keys, bf, b_key, jcap, d_row, 
         for i in range(n):
             for j in range(n):
                 Pm[i, j] = prior[b, i, j] + Q[b, i, j] if add_q else prior[b, i, j]
-        j_last = -1  # the last count and b whose weight was computed for this row (most satellites share them)
-        b_last = np.nan
-        d_last = 0.0
-        for i in range(m):
-            s_rows[b, i] = 1.0
-            n_rows[b, i] = 0
-            s_prev[b, i] = 1.0
-            has_x[i] = False
-            var[i] = 1.0
-            gi[i] = -1
-            if not mask[b, i]:
-                continue
-            gi[i] = _row_group(H, b, i, n)
-            q = _quad_nz(nzc, nzv, cnt, i, Pm3, Pm3, False, 0)
-            rr = np.float64(r[b, i])
-            ex[i] = rr * rr - q
-            key = keys[b, i]
-            if key >= 0:
-                bk = b_key[b, key]
-                if bk != bk:  # NaN: the row's b
-                    bk = bf[b]
-                bks[i] = bk
-                last = last_tab[b, key]
-                u = epoch[b] - last
-                if last < 0 or u > forget:
-                    s0 = 1.0
-                    n0 = 0
-                else:
-                    s0 = s_tab[b, key]
-                    n0 = n_tab[b, key]
-                    if u > 1:
-                        s0 = 1.0 + (s0 - 1.0) * bk ** (u - 1)
-                s_prev[b, i] = s0
-                n0s[i] = n0
-                var[i] = s0 * np.float64(R[b, i, i])
-                if sample == 0:
-                    xs[i] = ex[i] / np.float64(R[b, i, i])
-                    has_x[i] = True
-        for it in range(n_iter):
-            if it > 0 and sample > 0:  # refit with each row weighted by max(tentative scale, its sample)
-                for i in range(m):
-                    if mask[b, i] and keys[b, i] >= 0:
-                        w = max(s_rows[b, i], xs[i]) if has_x[i] else s_rows[b, i]
-                        var[i] = w * np.float64(R[b, i, i])
-                        has_x[i] = False
-            if sample == 1 or sample == 4:
-                for t in range(2):
-                    for i in range(m):
-                        k = keys[b, i]
-                        use[i] = mask[b, i] and k >= 0 and ((k >= _NK) == (t == 1))
-                    _geometry_residual_row(r[b], H[b], nzc, cnt, var, use, v, red, geo_work)
-                    for i in range(m):
-                        if use[i] and red[i] >= min_red:
-                            xs[i] = v[i] * v[i] / (red[i] * np.float64(R[b, i, i]))
-                            has_x[i] = True
-            if sample >= 2:
-                for i in range(m):
-                    use[i] = mask[b, i] and keys[b, i] >= 0
-                _posterior_residual_row(r[b], nzc, nzv, cnt, Pm, Pm, False, k_prior, var, use, v, red,
-                                        post_work)
-                for i in range(m):
-                    hl[i] = use[i] and red[i] >= min_red
-                    if hl[i] and sample != 2:  # deleted residual e = v / red, its prediction's variance var/red - var
-                        e = v[i] / red[i]
-                        xl[i] = (e * e - (var[i] / red[i] - var[i])) / np.float64(R[b, i, i])
-                if guard and sample != 2:
-                    _median_guard(xl, hl, keys[b], srt)
-                for i in range(m):
-                    if hl[i]:
-                        if sample == 2:
-                            xs[i] = v[i] * v[i] / (red[i] * np.float64(R[b, i, i]))
-                        else:
-                            xs[i] = min(xs[i], xl[i]) if (sample == 4 and has_x[i]) else xl[i]
-                        has_x[i] = True
-            for i in range(m):
-                if not mask[b, i] or keys[b, i] < 0:
-                    continue
-                s0 = s_prev[b, i]
-                n0 = n0s[i]
-                if active[b] and has_x[i]:
-                    j = min(n0 + 1, jcap[b])
-                    if j != j_last or bks[i] != b_last:
-                        d_last = _weight_one(bks[i], j)
-                        j_last = j
-                        b_last = bks[i]
-                    d = d_last
-                    s1 = (1.0 - d) * s0 + d * xs[i]
-                    s_rows[b, i] = min(max(s1, sat_min), smax)
-                    n_rows[b, i] = n0 + 1
-                else:
-                    s_rows[b, i] = s0
-                    n_rows[b, i] = n0
-        for g in range(G):
-            num[g] = 0.0
-            den[g] = 0.0
-            cnt_g[g] = 0
-        for i in range(m):
-            if gi[i] < 0 or (keys[b, i] >= 0 and not common):
-                continue
-            num[gi[i]] += ex[i]
-            den[gi[i]] += s_rows[b, i] * np.float64(R[b, i, i])
-            cnt_g[gi[i]] += 1
-        _group_step(num, den, cnt_g, active[b], d_row[b], r_scale[b], smin, smax, s_group[b])
-        for i in range(m):
-            if not mask[b, i]:
-                sq[i] = 1.0
-            elif keys[b, i] >= 0:
-                sq[i] = np.sqrt(s_rows[b, i] * (s_group[b, gi[i]] if common else 1.0))
-            else:
-                sq[i] = np.sqrt(s_group[b, gi[i]])
-        for i in range(m):
-            for j in range(m):
-                R_out[b, i, j] = R[b, i, j] * sq[i] * sq[j]
+        _sat_priors_row(b, r, H, R, mask, keys, bf, b_key, epoch, s_tab, n_tab, last_tab, forget, sample, nzc, nzv,
+                        cnt, Pm3, s_rows, n_rows, s_prev, (xs, bks, ex, has_x, var, gi, n0s))
+        _sat_scales_row(b, r, H, R, mask, keys, active, jcap, n_iter, sample, min_red, k_prior, guard, sat_min, smax,
+                        nzc, nzv, cnt, Pm, s_rows, n_rows, s_prev, (xs, bks, has_x, var, n0s, use, v, red, xl, hl, srt),
+                        geo_work, post_work)
+        _sat_group_row(b, R, mask, keys, gi, ex, s_rows, common, active, d_row, r_scale, smin, smax, s_group,
+                       group_work, R_out)
 
 
 @nb.njit(cache=True)
