@@ -22,6 +22,16 @@ from .constellation import walker_point
 _TWO_PI = 2.0 * np.pi
 
 
+BELOW_HORIZON_EL = -0.5 * np.pi
+"""The elevation :func:`sky_rows` reports for a satellite below the local horizon (its azimuth: 0) [rad]."""
+
+_BELOW_MARGIN_M = 1.0e4
+"""How far below the horizon plane [m] the line of sight computed without the Earth-rotation correction must point
+for :func:`sky_rows` to skip that correction: the correction turns the satellite position about the z axis by
+``OMEGA_IE tau``, which moves the vertical component by at most ``OMEGA_IE tau |r_s|``: 0.2 km for GPS (flight time
+< 0.12 s, orbit radius 26 600 km), under 1 km for any orbit radius below 60 000 km."""
+
+
 @nb.njit(cache=True, nogil=True)
 def sky_rows(r0, r1, t_rx, r_e, sl, cl, so, co, cu0, su0, cr, sr, a, ci, si, n, t_tx, el, az):
     """Transmission time, elevation and azimuth of all satellites at every epoch of rows ``r0 .. r1-1``.
@@ -32,6 +42,12 @@ def sky_rows(r0, r1, t_rx, r_e, sl, cl, so, co, cu0, su0, cr, sr, a, ci, si, n, 
     with a first-order satellite back propagation) resolved in NED: ``h = cos(lon) d_x + sin(lon) d_y``,
     ``n = -sin(lat) h + cos(lat) d_z``, ``e = -sin(lon) d_x + cos(lon) d_y``, ``up = cos(lat) h + sin(lat) d_z``;
     ``el = atan2(up, hypot(n, e))``, ``az = atan2(e, n)`` wrapped to [0, 2 pi).
+
+    A satellite below the horizon (``up < 0``, about 60% of them: never visible, the elevation mask is >= 0 deg)
+    gets :data:`BELOW_HORIZON_EL` and azimuth 0 instead of its angles (lazily: no stage reads them but as
+    "not visible", and every channel array of the world is the same bit for bit; ``t_tx`` is exact for all).
+    One whose uncorrected line of sight points more than :data:`_BELOW_MARGIN_M` below the horizon plane skips
+    the Earth-rotation correction too.
 
     Parameters
     ----------
@@ -56,16 +72,24 @@ def sky_rows(r0, r1, t_rx, r_e, sl, cl, so, co, cu0, su0, cr, sr, a, ci, si, n, 
                 # numpy chain this kernel replaced (its two-lane inner loop), so the worlds keep their bits
                 tau = math.sqrt((dx * dx + dz * dz) + dy * dy) / C_LIGHT
                 t_tx[b, j, k] = t - tau
+                px, py, pz = x - vx * tau, y - vy * tau, z - vz * tau
+                ez = pz - rz
+                if cl[b, j] * (co[b, j] * (px - rx) + so[b, j] * (py - ry)) + sl[b, j] * ez < -_BELOW_MARGIN_M:
+                    el[b, j, k] = BELOW_HORIZON_EL
+                    az[b, j, k] = 0.0
+                    continue
                 th = OMEGA_IE * tau
                 c, s = np.cos(th), np.sin(th)
-                px, py, pz = x - vx * tau, y - vy * tau, z - vz * tau
                 ex = c * px + s * py - rx
                 ey = -s * px + c * py - ry
-                ez = pz - rz
                 h1 = co[b, j] * ex + so[b, j] * ey
+                up = cl[b, j] * h1 + sl[b, j] * ez
+                if up < 0.0:
+                    el[b, j, k] = BELOW_HORIZON_EL
+                    az[b, j, k] = 0.0
+                    continue
                 nn = -sl[b, j] * h1 + cl[b, j] * ez
                 ee = -so[b, j] * ex + co[b, j] * ey
-                up = cl[b, j] * h1 + sl[b, j] * ez
                 el[b, j, k] = math.atan2(up, math.hypot(nn, ee))
                 w = math.atan2(ee, nn)
                 az[b, j, k] = w + _TWO_PI if w < 0.0 else w + 0.0

@@ -138,7 +138,9 @@ class Sky:
     Attributes
     ----------
     t0_gps : (B,) GPS time of ``t = 0`` per row [s].
-    t_tx : (B, M, S) transmission time [s]; el, az : (B, M, S) elevation, azimuth [rad].
+    t_tx : (B, M, S) transmission time [s]; el, az : (B, M, S) elevation, azimuth [rad]; a satellite below the
+    local horizon: :data:`~envs.sim.geometry_kernels.BELOW_HORIZON_EL` and 0 (never visible: the elevation mask is
+    >= 0 deg; its angles are not formed).
     """
 
     t0_gps: np.ndarray
@@ -266,12 +268,18 @@ def sky_geometry(t, r_e, constellation: Constellation, subs, t0_gps=None) -> Sky
     if t0_gps is None:
         t0_gps = np.array([s[_SUB_SKY].uniform(0.0, GPS_WEEK_S) for s in subs])
     S = constellation.n_sats
-    lat, lon, _ = ecef_to_geodetic(r_e)
     t_rx = t0_gps[:, None] + t[None, :]                     # (B, M)
     t_tx, el_all, az_all = (np.empty((B, M, S)) for _ in range(3))
-    trig = (np.sin(lat), np.cos(lat), np.sin(lon), np.cos(lon))
     consts = constellation.kernel_constants()
-    run_row_ranges(lambda r0, r1: sky_rows(r0, r1, t_rx, r_e, *trig, *consts, t_tx, el_all, az_all), B)
+    trig = [np.empty((B, M)) for _ in range(4)]             # sin / cos of the receiver's latitude and longitude
+
+    def rows(r0, r1):  # those too per range of rows (numpy's elementwise ufuncs: the same bits as one call)
+        lat, lon, _ = ecef_to_geodetic(r_e[r0:r1])
+        for out, f, x in zip(trig, (np.sin, np.cos, np.sin, np.cos), (lat, lat, lon, lon)):
+            f(x, out=out[r0:r1])
+        sky_rows(r0, r1, t_rx, r_e, *trig, *consts, t_tx, el_all, az_all)
+
+    run_row_ranges(rows, B)
     return Sky(t0_gps=t0_gps, t_tx=t_tx, el=el_all, az=az_all)
 
 

@@ -17,7 +17,7 @@ import pytest
 from earth.ranging import range_and_rate
 from earth.wgs84 import C_LIGHT, OMEGA_IE, ecef_to_geodetic, geodetic_to_ecef
 from envs.sim.constellation import Constellation
-from envs.sim.geometry_kernels import ranging_rows, sky_rows
+from envs.sim.geometry_kernels import BELOW_HORIZON_EL, ranging_rows, sky_rows
 from envs.sim.row_threads import run_row_ranges
 
 
@@ -60,18 +60,38 @@ def _sky_kernel(con, t_rx, r_e, workers=1, min_rows=8):
 
 
 def test_sky_rows_matches_numpy_chain():
-    """Every satellite-epoch of 40 receivers: the same transmission time, elevation and azimuth to a few ulp."""
+    """Every satellite-epoch of 40 receivers: the same transmission time to a few ulp; above the horizon the same
+    elevation and azimuth, below it (``up < 0`` by the numpy chain, whichever of the kernel's two tests caught it)
+    :data:`BELOW_HORIZON_EL` and azimuth 0."""
     rng = np.random.default_rng(7)
     con = Constellation()
     r_e, t_rx = _receivers(rng, 40, 25)
     t_tx, el, az = _sky_kernel(con, t_rx, r_e)
     t_ref, el_ref, az_ref = _sky_numpy(con, t_rx, r_e)
     np.testing.assert_allclose(t_tx, t_ref, rtol=0, atol=1e-10)      # ulp of t ~ 604 800 s is 1.2e-10
-    np.testing.assert_allclose(el, el_ref, rtol=0, atol=4e-15)
-    d_az = np.abs(az - az_ref)
+    up = el_ref >= 0
+    np.testing.assert_allclose(el[up], el_ref[up], rtol=0, atol=4e-15)
+    d_az = np.abs(az[up] - az_ref[up])
     assert np.all(np.minimum(d_az, 2 * np.pi - d_az) < 4e-15)
     assert np.all((az >= 0) & (az < 2 * np.pi))
-    assert np.any(el > 0) and np.any(el < 0)                          # both sides of the horizon were covered
+    assert np.all(el[~up] == BELOW_HORIZON_EL) and np.all(az[~up] == 0.0)
+    assert np.all(el[up] >= 0)
+    assert 0.3 < np.mean(~up) < 0.8                                   # both sides of the horizon were covered
+
+
+def test_sky_rows_horizon_split_is_exact_near_the_horizon():
+    """Receivers whose satellites sit within a few metres of the horizon plane: the margin test never takes a
+    satellite the exact test would keep (every kept one is the numpy chain's, to the ulp)."""
+    rng = np.random.default_rng(11)
+    con = Constellation()
+    r_e, t_rx = _receivers(rng, 400, 4)
+    _, el_ref, _ = _sky_numpy(con, t_rx, r_e)
+    near = np.abs(el_ref) < np.radians(2.0)
+    assert near.sum() > 50                                           # the case is exercised
+    _, el, _ = _sky_kernel(con, t_rx, r_e)
+    keep = el_ref >= 0
+    np.testing.assert_allclose(el[keep & near], el_ref[keep & near], rtol=0, atol=4e-15)
+    assert np.all(el[~keep & near] == BELOW_HORIZON_EL)
 
 
 def test_ranging_rows_matches_range_and_rate():

@@ -16,6 +16,7 @@ import pytest
 import envs.sim.world as wmod
 from envs.sim import events as ev
 from envs.sim import gnss_stages as st
+from envs.sim.geometry_kernels import BELOW_HORIZON_EL
 from envs.sim.imu import IMU_GRADES, ImuEvents, _children, _row_events, _sensor_row, _sensor_specs
 from envs.sim.rng import row_generators
 from envs.sim.row_threads import run_row_ranges
@@ -97,6 +98,28 @@ def test_sky_geometry_contract(monkeypatch):
     one = st.sky_geometry(t, r_e[1:2], con, [st._row_children(row_generators([2], "gnss")[0])])
     np.testing.assert_array_equal(one.el[0], sky.el[1])
     np.testing.assert_array_equal(one.t_tx[0], sky.t_tx[1])
+
+
+def test_sky_geometry_ranges_and_below_horizon(monkeypatch):
+    """Rows in ranges of 2 on 3 threads (each range forms its receivers' latitude and longitude) give the one-call
+    sky bit for bit; a satellite below the horizon reads BELOW_HORIZON_EL, azimuth 0, and the satellites at or
+    above it keep their angles."""
+    args, _ = _gnss_inputs("open-sky", [1, 2, 3, 4, 5], monkeypatch)
+    t, r_e, con, rngs = np.asarray(args[0], float), args[1], args[4], args[7]
+    t0 = np.array([100.0, 2e5, 4e5, 5e5, 6e5])
+    monkeypatch.setattr(st, "run_row_ranges", lambda fn, n, workers=None, min_rows=8: fn(0, n))
+    one = st.sky_geometry(t, r_e, con, [], t0_gps=t0)
+    ranges = []
+    monkeypatch.setattr(st, "run_row_ranges", lambda fn, n, workers=None, min_rows=8: run_row_ranges(
+        lambda r0, r1: ranges.append((r0, r1)) or fn(r0, r1), n, 3, 2))
+    split = st.sky_geometry(t, r_e, con, [], t0_gps=t0)
+    assert len(ranges) == 2
+    for a in ("t_tx", "el", "az"):
+        np.testing.assert_array_equal(getattr(split, a), getattr(one, a))
+    below = one.el < 0
+    assert 0.3 < below.mean() < 0.8
+    assert np.all(one.el[below] == BELOW_HORIZON_EL) and np.all(one.az[below] == 0.0)
+    assert np.all(one.el[~below] >= 0)
 
 
 def test_visibility_and_channel_allocation_contract(monkeypatch):
