@@ -135,3 +135,40 @@ def ranging_rows(r0, r1, t_tx, sel, mask, r_e, v_e, cu0, su0, cr, sr, a, ci, si,
                 rho[b, j, k], rho_dot[b, j, k] = range_rate_pair(
                     x, y, z, vx, vy, vz, r_e[b, j, 0], r_e[b, j, 1], r_e[b, j, 2], v_e[b, j, 0], v_e[b, j, 1],
                     v_e[b, j, 2], 3, u)
+
+
+@nb.njit(cache=True, nogil=True)
+def channel_order_rows(r0, r1, visible, el, sel):
+    """The satellites on the C channels of rows ``r0 .. r1-1`` (:func:`envs.sim.gnss_stages.allocate_channels`):
+    per epoch the visible satellites by elevation, descending, then the others, each group in index order where
+    it ties, the first C of them (index 0 on the channels beyond S). The permutation of numpy's
+    ``argsort(-where(visible, el, -inf), kind="stable")`` (one insertion sort of at most S entries per epoch,
+    without numpy's per-epoch call).
+
+    Parameters
+    ----------
+    r0, r1 : the rows to evaluate; visible : (B, M, S) bool; el : (B, M, S) elevation [rad];
+    sel : (B, M, C) int output (only rows ``r0 .. r1-1`` are written).
+    """
+    M, S = el.shape[1], el.shape[2]
+    C = sel.shape[2]
+    idx = np.empty(S, np.int64)
+    for b in range(r0, r1):
+        for j in range(M):
+            nv = 0
+            for k in range(S):
+                if visible[b, j, k]:
+                    e = el[b, j, k]
+                    p = nv
+                    while p > 0 and el[b, j, idx[p - 1]] < e:   # strictly lower: a tie keeps the index order
+                        idx[p] = idx[p - 1]
+                        p -= 1
+                    idx[p] = k
+                    nv += 1
+            q = nv
+            for k in range(S):
+                if not visible[b, j, k]:
+                    idx[q] = k
+                    q += 1
+            for c in range(C):
+                sel[b, j, c] = idx[c] if c < S else 0

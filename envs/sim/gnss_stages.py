@@ -30,7 +30,7 @@ from .buffers import empty
 from .canyon import canyon_visibility_rows, in_intervals
 from .constellation import Constellation
 from .error_kernels import nlos_burst_rows, receiver_tail_rows
-from .geometry_kernels import ranging_rows, sky_rows
+from .geometry_kernels import channel_order_rows, ranging_rows, sky_rows
 from .receiver import _MIN_EL_SIGMA, CN0_JITTER_DB, _gauss_markov_rows, iono_obliquity, simulate_clock, tropo_mapping
 from .rng import ChildStreams, row_normals
 from .rng import entropy_words as _entropy_words  # noqa: F401  (re-exported by envs.sim.gnss)
@@ -437,14 +437,8 @@ def _channel_rows(r0: int, r1: int, sky: Sky, visible, subs, t, cn0_cfg, ch: Cha
     sl = slice(r0, r1)
     _, M, S = sky.el.shape
     C = ch.sel.shape[-1]
-    key = np.where(visible[sl], sky.el[sl], -np.inf)
-    order = np.argsort(-key, axis=-1, kind="stable")
+    channel_order_rows(r0, r1, visible, sky.el, ch.sel)
     sel = ch.sel[sl]
-    if C <= S:
-        sel[...] = order[..., :C]
-    else:
-        sel[..., :S] = order
-        sel[..., S:] = 0
     # one flat index into (B, M, S) arrays serves every gather (one np.take instead of take_along_axis)
     flat_sel = ch.flat_sel[sl]
     flat_sel[...] = sel + (S * np.arange(r0 * M, r1 * M)).reshape(r1 - r0, M, 1)

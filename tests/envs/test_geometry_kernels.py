@@ -17,7 +17,7 @@ import pytest
 from earth.ranging import range_and_rate
 from earth.wgs84 import C_LIGHT, OMEGA_IE, ecef_to_geodetic, geodetic_to_ecef
 from envs.sim.constellation import Constellation
-from envs.sim.geometry_kernels import BELOW_HORIZON_EL, ranging_rows, sky_rows
+from envs.sim.geometry_kernels import BELOW_HORIZON_EL, channel_order_rows, ranging_rows, sky_rows
 from envs.sim.row_threads import run_row_ranges
 
 
@@ -147,3 +147,20 @@ def test_run_row_ranges_covers_each_row_once(n_rows, workers, min_rows):
     assert np.all(seen == 1)
     if workers == 1 or n_rows < 2 * min_rows:
         assert len(threads) <= 1
+
+
+@pytest.mark.parametrize("C", [5, 12, 34])
+def test_channel_order_rows_is_numpys_stable_argsort(C):
+    """The channel order equals numpy's stable argsort of ``-where(visible, el, -inf)``, ties included (elevations
+    drawn from 6 values, so most epochs have equal ones), the first C of it, index 0 beyond S."""
+    rng = np.random.default_rng(21)
+    B, M, S = 7, 40, 30
+    el = rng.choice(np.radians([-10.0, 0.0, 5.0, 15.0, 40.0, 80.0]), (B, M, S))
+    el[0, 0, :3] = -0.0                                                # signed zeros tie too
+    visible = (el >= 0) & (rng.random((B, M, S)) < 0.8)
+    order = np.argsort(-np.where(visible, el, -np.inf), axis=-1, kind="stable")
+    ref = np.zeros((B, M, C), np.intp)
+    ref[..., :min(C, S)] = order[..., :C]
+    sel = np.full((B, M, C), -1, np.intp)
+    run_row_ranges(lambda r0, r1: channel_order_rows(r0, r1, visible, el, sel), B, workers=2, min_rows=2)
+    np.testing.assert_array_equal(sel, ref)
