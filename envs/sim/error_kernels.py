@@ -219,3 +219,77 @@ def measurement_rows(r0, r1, mask, rho, bias, pr_err, rho_dot, drift, prr_err, p
                     el[i, j, c] = 0.0
                     az[i, j, c] = 0.0
                     cn0[i, j, c] = 0.0
+
+
+@nb.njit(cache=True, nogil=True)
+def channel_noise_rows(r0, r1, flat_sel, mask, cn0, scale, nlos_sat, bias_sat, rate_sat, k_nlos, deficit, deficit_ch,
+                       deficit_db, zone, nlos2_sat, bias2_sat, rate2_sat, att_sat, att_pow, reacq_sat, reacq_bit,
+                       bursts, code_mult, doppler_mult, bits, out_nlos, out_bias, out_rate, out_code, out_doppler):
+    """Rows ``r0 .. r1-1`` of the channels' NLOS state and true noise multipliers
+    (:func:`envs.sim.gnss_stages.channel_noise`): per channel, from its satellite's entries (``flat_sel`` into the
+    flat (B M S) arrays)::
+
+        nlos = nlos_sat & mask;  cn0 -= deficit on NLOS;  m = scale_k * (k_nlos on NLOS, else 1)
+        zones (``zone``):  nlos2 = nlos2_sat & mask; bias, rate <- the zone's on nlos2;
+                           m = (m / k_nlos where nlos2 and nlos, else m) * 10^(att / 20);  nlos |= nlos2;
+                           cn0 -= att  (and += deficit_db - deficit on nlos2 with a per-channel deficit)
+        m_prr = m;  re-acquisition: both times rq (and the epoch's bit where a tracked channel has rq > 1);
+        bursts / regimes (``bursts``): m times code_mult, m_prr times doppler_mult (per epoch)
+        outputs: nlos, its bias and rate (0 off NLOS), m, m_prr
+
+    the operations of the numpy lines it replaced, in their order (the same bits; one pass instead of some
+    fifteen (rows, M, C) temporaries).
+
+    Parameters
+    ----------
+    flat_sel, mask, cn0 : (B, M, C) (``cn0`` updated in place); scale : (M,) the noise-scale intervals' factor;
+    nlos_sat : (B M S,) bool, bias_sat, rate_sat : (B M S,) the canyon / burst NLOS; k_nlos : float;
+    deficit : float, the NLOS C/N0 deficit [dB], or per channel ``deficit_ch`` (B, M, C) where it has rows;
+    deficit_db : the constant deficit of a zone's NLOS [dB]; zone : bool; nlos2_sat (bool), bias2_sat, rate2_sat,
+    att_sat : (B M S,) the zones' NLOS, bias, rate and C/N0 loss [dB]; att_pow : (B, M, C) ``10^(att / 20)`` of
+    the channels (read if ``zone``); reacq_sat : (B M S,) re-acquisition multipliers, or empty; reacq_bit : its
+    event bit; bursts : bool; code_mult, doppler_mult : (B, M); bits : (B, M) uint16 event bits (in place);
+    out_* : (B, M, C) outputs.
+    """
+    M, C = mask.shape[1], mask.shape[2]
+    per_ch = deficit_ch.shape[0] > 0
+    reacq = reacq_sat.shape[0] > 0
+    for b in range(r0, r1):
+        for j in range(M):
+            rose = False
+            for c in range(C):
+                f = flat_sel[b, j, c]
+                tracked = mask[b, j, c]
+                nl = nlos_sat[f] and tracked
+                nb_ = bias_sat[f]
+                nr = rate_sat[f]
+                d = deficit_ch[b, j, c] if per_ch else deficit
+                cn = cn0[b, j, c] - (d if nl else 0.0)
+                m = scale[j] * (k_nlos if nl else 1.0)
+                if zone:
+                    nl2 = nlos2_sat[f] and tracked
+                    if nl2:
+                        nb_ = bias2_sat[f]
+                        nr = rate2_sat[f]
+                    m = (m / k_nlos if (nl2 and nl) else m) * att_pow[b, j, c]
+                    nl = nl or nl2
+                    cn = cn - att_sat[f]
+                    if per_ch:
+                        cn = cn + ((deficit_db - d) if nl2 else 0.0)
+                mp = m
+                if reacq:
+                    rq = reacq_sat[f]
+                    m = m * rq
+                    mp = mp * rq
+                    rose = rose or (tracked and rq > 1.0)
+                if bursts:
+                    m = m * code_mult[b, j]
+                    mp = mp * doppler_mult[b, j]
+                cn0[b, j, c] = cn
+                out_nlos[b, j, c] = nl
+                out_bias[b, j, c] = nb_ if nl else 0.0
+                out_rate[b, j, c] = nr if nl else 0.0
+                out_code[b, j, c] = m
+                out_doppler[b, j, c] = mp
+            if rose:
+                bits[b, j] |= reacq_bit

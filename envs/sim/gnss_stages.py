@@ -29,7 +29,7 @@ from . import events as ev
 from .buffers import empty
 from .canyon import canyon_visibility_rows, in_intervals
 from .constellation import Constellation
-from .error_kernels import nlos_burst_rows, receiver_tail_rows
+from .error_kernels import channel_noise_rows, nlos_burst_rows, receiver_tail_rows
 from .geometry_kernels import channel_order_rows, ranging_rows, sky_rows
 from .receiver import _MIN_EL_SIGMA, CN0_JITTER_DB, _gauss_markov_rows, iono_obliquity, simulate_clock, tropo_mapping
 from .rng import ChildStreams, row_normals
@@ -480,8 +480,9 @@ def channel_noise(t, ch: Channels, sat: SatelliteEvents, events) -> ChannelNoise
     """Stage 7: each channel's NLOS state and true noise multipliers: the NLOS factor ``k_nlos`` (or, for the
     zones' and regimes' NLOS, their C/N0 loss ``10^(att/20)``), the noise-scale intervals, the re-acquisition
     transient, the bursts and regimes. Subtracts the NLOS / zone C/N0 losses from ``ch.cn0`` and sets the
-    re-acquisition bit in ``sat.bits`` (in place). Elementwise per row: the rows run in ranges on threads
-    (:func:`_noise_rows`, from 2 :data:`EVENT_RANGE_ROWS` rows on: the same bits)."""
+    re-acquisition bit in ``sat.bits`` (in place). Elementwise per channel: the compiled
+    :func:`~envs.sim.error_kernels.channel_noise_rows` in row ranges on threads (from 2 :data:`EVENT_RANGE_ROWS`
+    rows on: the same bits)."""
     B, M, C = ch.mask.shape
     scale = np.ones(M)
     for iv in events.noise_scale:
@@ -489,52 +490,25 @@ def channel_noise(t, ch: Channels, sat: SatelliteEvents, events) -> ChannelNoise
     e = np.empty
     out = ChannelNoise(nlos=e((B, M, C), bool), pr_bias=e((B, M, C)), prr_bias=e((B, M, C)), code_mult=e((B, M, C)),
                        doppler_mult=e((B, M, C)))
-    run_row_ranges(lambda r0, r1: _noise_rows(r0, r1, scale, ch, sat, events, out), B, min_rows=EVENT_RANGE_ROWS)
+    none = np.empty(0)
+    zone = sat.zone is not None
+    zone_flat = [a.reshape(-1) for a in sat.zone] if zone else [np.empty(0, bool), none, none, none]
+    att_pow = e((B, M, C)) if zone else np.empty((0, 0, 0))
+    bursts = events.bursts is not None or events.regimes is not None
+    args = (scale, sat.nlos.reshape(-1), sat.nlos_bias.reshape(-1), sat.nlos_rate.reshape(-1),
+            float(events.nlos.noise_factor if events.nlos is not None else 3.0), float(ev.NLOS_DEFICIT_DB),
+            ch.nlos_deficit if ch.nlos_deficit is not None else np.empty((0, 0, 0)), float(ev.NLOS_DEFICIT_DB), zone,
+            *zone_flat, att_pow, none if sat.reacq is None else sat.reacq.reshape(-1), ev.REACQUISITION, bursts,
+            sat.code_mult, sat.doppler_mult, sat.bits, out.nlos, out.pr_bias, out.prr_bias, out.code_mult,
+            out.doppler_mult)
+
+    def rows(r0, r1):
+        if zone:  # the zones' C/N0 loss as a noise factor, by numpy's power (its rounding)
+            att_pow[r0:r1] = 10.0 ** (ch.gather(sat.zone[3], slice(r0, r1)) / 20.0)
+        channel_noise_rows(r0, r1, ch.flat_sel, ch.mask, ch.cn0, *args)
+
+    run_row_ranges(rows, B, min_rows=EVENT_RANGE_ROWS)
     return out
-
-
-def _noise_rows(r0: int, r1: int, scale, ch: Channels, sat: SatelliteEvents, events, out: ChannelNoise) -> None:
-    """:func:`channel_noise` of rows ``r0 .. r1-1`` (``scale`` (M,) the noise-scale intervals' factor) into those
-    rows of ``out``, ``ch.cn0`` and ``sat.bits``."""
-    sl = slice(r0, r1)
-
-    def gather(a):  # (B, M, S) -> these rows' (rows, M, C)
-        return ch.gather(a, sl)
-
-    mask = ch.mask[sl]
-    cn0 = ch.cn0[sl]
-    nlos = gather(sat.nlos) & mask
-    nlos_bias, nlos_rate = gather(sat.nlos_bias), gather(sat.nlos_rate)
-    k_nlos = events.nlos.noise_factor if events.nlos is not None else 3.0
-    deficit = ev.NLOS_DEFICIT_DB if ch.nlos_deficit is None else ch.nlos_deficit[sl]
-    cn0 -= np.where(nlos, deficit, 0.0)
-    noise_mult = scale[None, :, None] * np.where(nlos, k_nlos, 1.0)
-    noise_mult_prr = noise_mult
-    if sat.zone is not None:                               # zone / regime NLOS replace the old ones on a channel
-        nlos2_sat, bias2_sat, rate2_sat, att_sat = sat.zone
-        nlos2 = gather(nlos2_sat) & mask
-        att = gather(att_sat)
-        nlos_bias = np.where(nlos2, gather(bias2_sat), nlos_bias)
-        nlos_rate = np.where(nlos2, gather(rate2_sat), nlos_rate)
-        noise_mult = np.where(nlos2 & nlos, noise_mult / k_nlos, noise_mult) * 10.0 ** (att / 20.0)
-        nlos = nlos | nlos2
-        cn0 -= att                                         # att holds NLOS_DEFICIT_DB on an NLOS channel
-        if ch.nlos_deficit is not None:
-            cn0 += np.where(nlos2, ev.NLOS_DEFICIT_DB - deficit, 0.0)
-        noise_mult_prr = noise_mult
-    if sat.reacq is not None:
-        rq = gather(sat.reacq)
-        noise_mult = noise_mult * rq
-        noise_mult_prr = noise_mult_prr * rq
-        sat.bits[sl] |= np.where((mask & (rq > 1.0)).any(axis=-1), ev.REACQUISITION, 0).astype(np.uint16)
-    if events.bursts is not None or events.regimes is not None:
-        noise_mult = noise_mult * sat.code_mult[sl, :, None]
-        noise_mult_prr = noise_mult_prr * sat.doppler_mult[sl, :, None]
-    out.nlos[sl] = nlos
-    out.pr_bias[sl] = np.where(nlos, nlos_bias, 0.0)
-    out.prr_bias[sl] = np.where(nlos, nlos_rate, 0.0)
-    out.code_mult[sl] = noise_mult
-    out.doppler_mult[sl] = noise_mult_prr
 
 
 RECEIVER_RANGE_ROWS = 32

@@ -226,3 +226,83 @@ def test_measurement_rows_equal_the_numpy_lines_bit_for_bit():
     for k, a in part.items():
         assert a[outside].tobytes() == chan[k][outside].tobytes(), k
         assert a[3:5].tobytes() == ref[k][3:5].tobytes(), k
+
+
+def _channel_noise_numpy(t, ch, sat, events):
+    """The channel-noise stage as it was written in numpy (the specification of channel_noise_rows): the NLOS
+    state, its bias and rate, the C/N0 losses and the true noise multipliers of every channel; returns
+    ``(nlos, pr_bias, prr_bias, code_mult, doppler_mult, cn0, bits)`` without touching its inputs."""
+    from envs.sim import events as ev
+    cn0, bits = ch.cn0.copy(), sat.bits.copy()
+    scale = np.ones(t.size)
+    for iv in events.noise_scale:
+        scale = np.where((t >= iv[0]) & (t < iv[1]), scale * iv[2], scale)
+    mask = ch.mask
+    nlos = ch.gather(sat.nlos) & mask
+    nlos_bias, nlos_rate = ch.gather(sat.nlos_bias), ch.gather(sat.nlos_rate)
+    k_nlos = events.nlos.noise_factor if events.nlos is not None else 3.0
+    deficit = ev.NLOS_DEFICIT_DB if ch.nlos_deficit is None else ch.nlos_deficit
+    cn0 -= np.where(nlos, deficit, 0.0)
+    noise_mult = scale[None, :, None] * np.where(nlos, k_nlos, 1.0)
+    noise_mult_prr = noise_mult
+    if sat.zone is not None:
+        nlos2_sat, bias2_sat, rate2_sat, att_sat = sat.zone
+        nlos2 = ch.gather(nlos2_sat) & mask
+        att = ch.gather(att_sat)
+        nlos_bias = np.where(nlos2, ch.gather(bias2_sat), nlos_bias)
+        nlos_rate = np.where(nlos2, ch.gather(rate2_sat), nlos_rate)
+        noise_mult = np.where(nlos2 & nlos, noise_mult / k_nlos, noise_mult) * 10.0 ** (att / 20.0)
+        nlos = nlos | nlos2
+        cn0 -= att
+        if ch.nlos_deficit is not None:
+            cn0 += np.where(nlos2, ev.NLOS_DEFICIT_DB - deficit, 0.0)
+        noise_mult_prr = noise_mult
+    if sat.reacq is not None:
+        rq = ch.gather(sat.reacq)
+        noise_mult = noise_mult * rq
+        noise_mult_prr = noise_mult_prr * rq
+        bits |= np.where((mask & (rq > 1.0)).any(axis=-1), ev.REACQUISITION, 0).astype(np.uint16)
+    if events.bursts is not None or events.regimes is not None:
+        noise_mult = noise_mult * sat.code_mult[:, :, None]
+        noise_mult_prr = noise_mult_prr * sat.doppler_mult[:, :, None]
+    return (nlos, np.where(nlos, nlos_bias, 0.0), np.where(nlos, nlos_rate, 0.0), noise_mult, noise_mult_prr,
+            cn0, bits)
+
+
+@pytest.mark.parametrize("scenario", ["urban", "urban-smartloc", "regime-switch", "seed003-sim", "noise-burst"])
+def test_channel_noise_kernel_equals_the_numpy_chain_bit_for_bit(scenario, monkeypatch):
+    """channel_noise (channel_noise_rows in row ranges) against the numpy chain on the stages' own inputs: the
+    canyon and NLOS bursts (urban), the zones with the C/N0 scatter's per-channel deficit and re-acquisition
+    (urban-smartloc), the noise regimes (regime-switch), re-acquisition alone (seed003-sim), the noise-scale
+    intervals (noise-burst); every output, the C/N0 and the event bits bit for bit."""
+    import dataclasses
+
+    import envs.sim.gnss_stages as st
+    import envs.sim.world as wmod
+    from envs.sim.rng import row_generators
+    from envs.sim.scenarios import get_scenario
+    got = {}
+    real = wmod.simulate_gnss
+
+    def spy(*args, **kw):
+        got["args"] = args
+        return real(*args, **kw)
+
+    monkeypatch.setattr(wmod, "simulate_gnss", spy)
+    seeds = list(range(40, 110))
+    wmod.generate_world(get_scenario(scenario, duration_s=40.0), seeds)
+    t, r_e, v_e, heading, con, rec, events = got["args"][:7]
+    t = np.asarray(t, np.float64)
+    subs = [st._row_children(g) for g in row_generators(seeds, "gnss")]
+    sky = st.sky_geometry(t, r_e, con, subs)
+    sat = st.canyon_and_bursts(t, v_e, heading, sky, rec.elevation_mask_deg, events, subs)
+    st.random_events(t, v_e, heading, sky, sat, events, subs)
+    st.scheduled_events(t, sat, events)
+    ch = st.allocate_channels(sky, sat.visible, rec.n_channels, subs, t, events.cn0)
+    ref = _channel_noise_numpy(t, ch, sat, events)
+    noise = st.channel_noise(t, ch, sat, events)
+    mine = (*(getattr(noise, f.name) for f in dataclasses.fields(noise)), ch.cn0, sat.bits)
+    for name, a, b in zip(("nlos", "pr_bias", "prr_bias", "code_mult", "doppler_mult", "cn0", "bits"), mine, ref):
+        assert a.dtype == b.dtype, name
+        np.testing.assert_array_equal(a, b, err_msg=name)
+    assert noise.nlos.any() or scenario in ("noise-burst", "seed003-sim", "regime-switch")
