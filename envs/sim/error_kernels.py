@@ -222,19 +222,21 @@ def measurement_rows(r0, r1, mask, rho, bias, pr_err, rho_dot, drift, prr_err, p
 
 
 @nb.njit(cache=True, nogil=True)
-def channel_noise_rows(r0, r1, flat_sel, mask, cn0, scale, nlos_sat, bias_sat, rate_sat, k_nlos, deficit, deficit_ch,
-                       deficit_db, zone, nlos2_sat, bias2_sat, rate2_sat, att_sat, att_pow, reacq_sat, reacq_bit,
-                       bursts, code_mult, doppler_mult, bits, out_nlos, out_bias, out_rate, out_code, out_doppler):
+def channel_noise_rows(r0, r1, flat_sel, mask, cn0, scale, nlos_sat, bias_sat, rate_sat, k_nlos, deficit_db,
+                       deficit_ch, zone, nlos2_sat, bias2_sat, rate2_sat, att_sat, att_pow, reacq_sat, reacq_bit,
+                       epoch_mult, code_mult, doppler_mult, bits, out_nlos, out_bias, out_rate, out_code,
+                       out_doppler):
     """Rows ``r0 .. r1-1`` of the channels' NLOS state and true noise multipliers
     (:func:`envs.sim.gnss_stages.channel_noise`): per channel, from its satellite's entries (``flat_sel`` into the
     flat (B M S) arrays)::
 
         nlos = nlos_sat & mask;  cn0 -= deficit on NLOS;  m = scale_k * (k_nlos on NLOS, else 1)
+                           (deficit: deficit_db, or the channel's own in deficit_ch)
         zones (``zone``):  nlos2 = nlos2_sat & mask; bias, rate <- the zone's on nlos2;
                            m = (m / k_nlos where nlos2 and nlos, else m) * 10^(att / 20);  nlos |= nlos2;
                            cn0 -= att  (and += deficit_db - deficit on nlos2 with a per-channel deficit)
         m_prr = m;  re-acquisition: both times rq (and the epoch's bit where a tracked channel has rq > 1);
-        bursts / regimes (``bursts``): m times code_mult, m_prr times doppler_mult (per epoch)
+        bursts / regimes (``epoch_mult``): m times code_mult, m_prr times doppler_mult (per epoch)
         outputs: nlos, its bias and rate (0 off NLOS), m, m_prr
 
     the operations of the numpy lines it replaced, in their order (the same bits; one pass instead of some
@@ -244,11 +246,11 @@ def channel_noise_rows(r0, r1, flat_sel, mask, cn0, scale, nlos_sat, bias_sat, r
     ----------
     flat_sel, mask, cn0 : (B, M, C) (``cn0`` updated in place); scale : (M,) the noise-scale intervals' factor;
     nlos_sat : (B M S,) bool, bias_sat, rate_sat : (B M S,) the canyon / burst NLOS; k_nlos : float;
-    deficit : float, the NLOS C/N0 deficit [dB], or per channel ``deficit_ch`` (B, M, C) where it has rows;
-    deficit_db : the constant deficit of a zone's NLOS [dB]; zone : bool; nlos2_sat (bool), bias2_sat, rate2_sat,
+    deficit_db : the constant NLOS C/N0 deficit [dB]; deficit_ch : (B, M, C) the channels' own deficits where it
+    has rows (:class:`envs.sim.events.Cn0Scatter`), else empty; zone : bool; nlos2_sat (bool), bias2_sat, rate2_sat,
     att_sat : (B M S,) the zones' NLOS, bias, rate and C/N0 loss [dB]; att_pow : (B, M, C) ``10^(att / 20)`` of
     the channels (read if ``zone``); reacq_sat : (B M S,) re-acquisition multipliers, or empty; reacq_bit : its
-    event bit; bursts : bool; code_mult, doppler_mult : (B, M); bits : (B, M) uint16 event bits (in place);
+    event bit; epoch_mult : bool; code_mult, doppler_mult : (B, M); bits : (B, M) uint16 event bits (in place);
     out_* : (B, M, C) outputs.
     """
     M, C = mask.shape[1], mask.shape[2]
@@ -263,7 +265,7 @@ def channel_noise_rows(r0, r1, flat_sel, mask, cn0, scale, nlos_sat, bias_sat, r
                 nl = nlos_sat[f] and tracked
                 nb_ = bias_sat[f]
                 nr = rate_sat[f]
-                d = deficit_ch[b, j, c] if per_ch else deficit
+                d = deficit_ch[b, j, c] if per_ch else deficit_db
                 cn = cn0[b, j, c] - (d if nl else 0.0)
                 m = scale[j] * (k_nlos if nl else 1.0)
                 if zone:
@@ -282,7 +284,7 @@ def channel_noise_rows(r0, r1, flat_sel, mask, cn0, scale, nlos_sat, bias_sat, r
                     m = m * rq
                     mp = mp * rq
                     rose = rose or (tracked and rq > 1.0)
-                if bursts:
+                if epoch_mult:
                     m = m * code_mult[b, j]
                     mp = mp * doppler_mult[b, j]
                 cn0[b, j, c] = cn

@@ -494,13 +494,12 @@ def channel_noise(t, ch: Channels, sat: SatelliteEvents, events) -> ChannelNoise
     zone = sat.zone is not None
     zone_flat = [a.reshape(-1) for a in sat.zone] if zone else [np.empty(0, bool), none, none, none]
     att_pow = e((B, M, C)) if zone else np.empty((0, 0, 0))
-    bursts = events.bursts is not None or events.regimes is not None
+    epoch_mult = events.bursts is not None or events.regimes is not None   # sat.code_mult, doppler_mult apply
     args = (scale, sat.nlos.reshape(-1), sat.nlos_bias.reshape(-1), sat.nlos_rate.reshape(-1),
             float(events.nlos.noise_factor if events.nlos is not None else 3.0), float(ev.NLOS_DEFICIT_DB),
-            ch.nlos_deficit if ch.nlos_deficit is not None else np.empty((0, 0, 0)), float(ev.NLOS_DEFICIT_DB), zone,
-            *zone_flat, att_pow, none if sat.reacq is None else sat.reacq.reshape(-1), ev.REACQUISITION, bursts,
-            sat.code_mult, sat.doppler_mult, sat.bits, out.nlos, out.pr_bias, out.prr_bias, out.code_mult,
-            out.doppler_mult)
+            ch.nlos_deficit if ch.nlos_deficit is not None else np.empty((0, 0, 0)), zone, *zone_flat, att_pow,
+            none if sat.reacq is None else sat.reacq.reshape(-1), ev.REACQUISITION, epoch_mult, sat.code_mult,
+            sat.doppler_mult, sat.bits, out.nlos, out.pr_bias, out.prr_bias, out.code_mult, out.doppler_mult)
 
     def rows(r0, r1):
         if zone:  # the zones' C/N0 loss as a noise factor, by numpy's power (its rounding)
