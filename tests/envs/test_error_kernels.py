@@ -278,27 +278,13 @@ def test_channel_noise_kernel_equals_the_numpy_chain_bit_for_bit(scenario, monke
     import dataclasses
 
     import envs.sim.gnss_stages as st
-    import envs.sim.world as wmod
     from envs.sim.rng import row_generators
-    from envs.sim.scenarios import get_scenario
-    got = {}
-    real = wmod.simulate_gnss
-
-    def spy(*args, **kw):
-        got["args"] = args
-        return real(*args, **kw)
-
-    monkeypatch.setattr(wmod, "simulate_gnss", spy)
+    from tests.envs.test_world_stages import _gnss_inputs, stages_to_channels
     seeds = list(range(40, 110))
-    wmod.generate_world(get_scenario(scenario, duration_s=40.0), seeds)
-    t, r_e, v_e, heading, con, rec, events = got["args"][:7]
-    t = np.asarray(t, np.float64)
+    args, _ = _gnss_inputs(scenario, seeds, monkeypatch, duration_s=40.0)
+    t, r_e, v_e, heading, con, rec, events = np.asarray(args[0], np.float64), *args[1:7]
     subs = [st._row_children(g) for g in row_generators(seeds, "gnss")]
-    sky = st.sky_geometry(t, r_e, con, subs)
-    sat = st.canyon_and_bursts(t, v_e, heading, sky, rec.elevation_mask_deg, events, subs)
-    st.random_events(t, v_e, heading, sky, sat, events, subs)
-    st.scheduled_events(t, sat, events)
-    ch = st.allocate_channels(sky, sat.visible, rec.n_channels, subs, t, events.cn0)
+    _, sat, ch = stages_to_channels(t, r_e, v_e, heading, con, rec, events, subs, events.cn0)
     ref = _channel_noise_numpy(t, ch, sat, events)
     noise = st.channel_noise(t, ch, sat, events)
     mine = (*(getattr(noise, f.name) for f in dataclasses.fields(noise)), ch.cn0, sat.bits)

@@ -39,16 +39,22 @@ def _gnss_inputs(name, seeds, monkeypatch, duration_s=60.0):
     return got["args"][:7] + (row_generators(seeds, "gnss"),), got["out"]
 
 
+def stages_to_channels(t, r_e, v_e, heading, con, rec, events, subs, cn0_cfg=None):
+    """Stages 1-5 in simulate_gnss's order (sky, visibility and events, channel allocation with the C/N0
+    scatter ``cn0_cfg``): ``(sky, sat, ch)``."""
+    sky = st.sky_geometry(t, r_e, con, subs)
+    sat = st.canyon_and_bursts(t, v_e, heading, sky, rec.elevation_mask_deg, events, subs)
+    st.random_events(t, v_e, heading, sky, sat, events, subs)
+    st.scheduled_events(t, sat, events)
+    return sky, sat, st.allocate_channels(sky, sat.visible, rec.n_channels, subs, t, cn0_cfg)
+
+
 def _run_stages(args):
     """The stages in simulate_gnss's order on its (checked) arguments; returns each stage's result."""
     t, r_e, v_e, heading, con, rec, events, rngs = args
     t = np.asarray(t, np.float64)
     subs = [st._row_children(g) for g in rngs]
-    sky = st.sky_geometry(t, r_e, con, subs)
-    sat = st.canyon_and_bursts(t, v_e, heading, sky, rec.elevation_mask_deg, events, subs)
-    st.random_events(t, v_e, heading, sky, sat, events, subs)
-    st.scheduled_events(t, sat, events)
-    ch = st.allocate_channels(sky, sat.visible, rec.n_channels, subs)
+    sky, sat, ch = stages_to_channels(t, r_e, v_e, heading, con, rec, events, subs)
     rng = st.channel_ranging(r_e, v_e, sky, ch, con)
     noise = st.channel_noise(t, ch, sat, events)
     err = st.receiver_errors(t, ch, noise, sat, rec, subs)
@@ -244,11 +250,7 @@ def test_event_stages_in_row_ranges_equal_one_pass(name, monkeypatch):
 
     def stages():
         subs = [st._row_children(g) for g in row_generators(seeds, "gnss")]
-        sky = st.sky_geometry(t, r_e, con, subs)
-        sat = st.canyon_and_bursts(t, v_e, heading, sky, rec.elevation_mask_deg, events, subs)
-        st.random_events(t, v_e, heading, sky, sat, events, subs)
-        st.scheduled_events(t, sat, events)
-        ch = st.allocate_channels(sky, sat.visible, rec.n_channels, subs, t, events.cn0)
+        _, sat, ch = stages_to_channels(t, r_e, v_e, heading, con, rec, events, subs, events.cn0)
         return sat, ch, st.channel_noise(t, ch, sat, events)
 
     one, split, ranges = _one_pass_and_ranges(monkeypatch, "EVENT_RANGE_ROWS", stages)
