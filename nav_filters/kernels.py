@@ -640,32 +640,12 @@ def row_nonzeros(h_row, nzc_row, nzv_row):
     return c
 
 
-@nb.njit(cache=True, error_model="numpy")
-def sym_eig_inplace(A, d, Vt, e, v, wk):
-    """Eigen-decomposition of the symmetric ``A`` (n rows, overwritten): ``A = Vt^T diag(d) Vt``.
-
-    Householder reduction to tridiagonal form with the transformations accumulated, then the implicit
-    symmetric QR iteration with Wilkinson shifts on the tridiagonal matrix, rotations accumulated into the
-    eigenvectors (Golub & Van Loan, *Matrix Computations*, 4th ed., algorithms 8.3.1 and 8.3.3). Backward
-    stable like LAPACK's ``syevd`` (what ``np.linalg.eigh`` runs), with no allocation and no call overhead.
-
-    The rows of ``A`` and ``Vt`` are padded with zero columns to ``W >= n`` (:func:`padded_width`: 20 for n = 17)
-    and every row operation runs over all W (vectorized, no scalar remainder): the Householder step's product
-    ``p = A v`` as a sum of rows of the full symmetric ``A`` and its rank-2 update on whole rows (the columns left
-    of the trailing block take values never read again), the accumulation and the QR rotations on whole rows of
-    ``Vt``; the padding stays zero. Faster than the same steps over the lower triangle and n columns, whose short
-    row loops leave most of their work to a scalar remainder.
-
-    Parameters
-    ----------
-    A : (n, W) symmetric in its first n columns, both triangles stored, zero in the others (destroyed).
-    d : (n,) output eigenvalues (unsorted). Vt : (n, W) output, row k the eigenvector of ``d[k]`` (zero padding).
-    e : (>= n,), v, wk : (W,) scratch.
-
-    Returns
-    -------
-    bool, False when the QR iteration did not converge in 30 n steps (outputs undefined).
-    """
+@nb.njit(cache=True, error_model="numpy", inline="always")
+def _tridiagonalize(A, d, Vt, e, v, wk):
+    """Phase 1 of :func:`sym_eig_inplace`: the Householder reduction ``T = H A H`` (Golub & Van Loan alg. 8.3.1) of
+    the symmetric ``A`` (n, W) (destroyed) into its diagonal ``d`` (n,) and off-diagonal ``e`` (``e[i]`` couples
+    ``d[i]`` and ``d[i + 1]``; ``e[n - 1] = 0``), the reflections accumulated into ``Vt`` (n, W), set to I first
+    (``A = Vt^T T Vt``); ``v``, ``wk`` (W,) scratch."""
     n = A.shape[0]
     W = A.shape[1]
     for i in range(n):
@@ -725,6 +705,16 @@ def sym_eig_inplace(A, d, Vt, e, v, wk):
         e[n - 2] = A[n - 1, n - 2]
     for i in range(n):
         d[i] = A[i, i]
+
+
+@nb.njit(cache=True, error_model="numpy", inline="always")
+def _tridiagonal_qr(d, e, Vt):
+    """Phase 2 of :func:`sym_eig_inplace`: the implicit symmetric QR iteration with Wilkinson shifts (Golub & Van
+    Loan alg. 8.3.3) on the tridiagonal ``(d, e)`` of :func:`_tridiagonalize` (both destroyed; ``d`` becomes the
+    eigenvalues, unsorted), each rotation applied to two rows of ``Vt`` (n, W) over all W columns. Returns False
+    when it did not converge in 30 n steps."""
+    n = d.shape[0]
+    W = Vt.shape[1]
     # ---- implicit symmetric QR with Wilkinson shifts; e[i] couples d[i] and d[i + 1]
     eps = np.finfo(np.float64).eps
     h = n - 1
@@ -774,3 +764,35 @@ def sym_eig_inplace(A, d, Vt, e, v, wk):
                 Vt[k, j] = c * a + s * b
                 Vt[k + 1, j] = c * b - s * a
     return True
+
+
+@nb.njit(cache=True, error_model="numpy")
+def sym_eig_inplace(A, d, Vt, e, v, wk):
+    """Eigen-decomposition of the symmetric ``A`` (n rows, overwritten): ``A = Vt^T diag(d) Vt``.
+
+    Householder reduction to tridiagonal form with the transformations accumulated, then the implicit
+    symmetric QR iteration with Wilkinson shifts on the tridiagonal matrix, rotations accumulated into the
+    eigenvectors (Golub & Van Loan, *Matrix Computations*, 4th ed., algorithms 8.3.1 and 8.3.3). Backward
+    stable like LAPACK's ``syevd`` (what ``np.linalg.eigh`` runs), with no allocation and no call overhead.
+
+    The rows of ``A`` and ``Vt`` are padded with zero columns to ``W >= n`` (:func:`padded_width`: 20 for n = 17)
+    and every row operation runs over all W (vectorized, no scalar remainder): the Householder step's product
+    ``p = A v`` as a sum of rows of the full symmetric ``A`` and its rank-2 update on whole rows (the columns left
+    of the trailing block take values never read again), the accumulation and the QR rotations on whole rows of
+    ``Vt``; the padding stays zero. Faster than the same steps over the lower triangle and n columns, whose short
+    row loops leave most of their work to a scalar remainder.
+
+    Parameters
+    ----------
+    A : (n, W) symmetric in its first n columns, both triangles stored, zero in the others (destroyed).
+    d : (n,) output eigenvalues (unsorted). Vt : (n, W) output, row k the eigenvector of ``d[k]`` (zero padding).
+    e : (>= n,), v, wk : (W,) scratch.
+
+    Returns
+    -------
+    bool, False when the QR iteration did not converge in 30 n steps (outputs undefined).
+
+    The two phases are :func:`_tridiagonalize` and :func:`_tridiagonal_qr`.
+    """
+    _tridiagonalize(A, d, Vt, e, v, wk)
+    return _tridiagonal_qr(d, e, Vt)
