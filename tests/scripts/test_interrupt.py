@@ -28,8 +28,15 @@ def _children(pid: int) -> set[int]:
 def _ctrl_c(cmd, ready, settle_s: float):
     """Run ``cmd`` in a process group of its own; once ``ready()`` and ``settle_s`` later, SIGINT to the group.
     Returns (exit status, stderr, the children the process had then)."""
-    p = subprocess.Popen([sys.executable, *cmd], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                         start_new_session=True)
+    # a shell starts its background jobs with SIGINT ignored, and an ignored signal stays ignored across exec: with
+    # Python's handler installed here while the child is forked, the child starts with SIGINT at its default, as
+    # from a terminal, however this test run was started
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        p = subprocess.Popen([sys.executable, *cmd], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                             text=True, start_new_session=True)
+    finally:
+        signal.signal(signal.SIGINT, before)
     t0 = time.time()
     while not ready() and p.poll() is None and time.time() - t0 < 600:
         time.sleep(0.2)
