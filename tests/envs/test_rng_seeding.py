@@ -128,6 +128,35 @@ def test_row_normals_are_the_rows_child_draws_stacked(bit_generator):
 
 
 @pytest.mark.parametrize("bit_generator", [np.random.SFC64, np.random.PCG64])
+def test_take_raw_states_is_raw_state_row_by_row(bit_generator):
+    """take_raw_states: the states raw_state gives row by row and key by key (keys by index or name; entropy of 1
+    to 8 uint32 words, and rows without entropy, taken one by one), the children then taken; a child in use is
+    refused with raw_state's error, and so are children of another bit generator."""
+    from envs.sim.normals import PCG64, SFC64
+    from envs.sim.rng import take_raw_states
+    names = tuple("abcdef")
+    rows = [[s, 2**40 + s] for s in range(6)] + [[3], [2**63 - 1, 5, 2**33, 1]]
+    for entropy in (rows, rows + [[]]):
+        taken = [ChildStreams(e, 6, bit_generator, names) for e in entropy]
+        kind, got = take_raw_states(taken, (4, "b", 0))
+        assert kind == (SFC64 if bit_generator is np.random.SFC64 else PCG64)
+        assert got.shape == (len(entropy), 3, 4) and got.dtype == np.uint64
+        for i, e in enumerate(entropy):
+            ref = ChildStreams(e, 6, bit_generator, names)
+            for c, k in enumerate((4, 1, 0)):
+                np.testing.assert_array_equal(got[i, c], ref.raw_state(k)[1], err_msg=f"{e} {k}")
+        with pytest.raises(RuntimeError, match="taken as a raw state"):
+            taken[-1][1]
+    assert take_raw_states([], (0,))[1].shape == (0, 1, 4)
+    used = [ChildStreams(e, 6, bit_generator) for e in rows]
+    used[3][2]
+    with pytest.raises(RuntimeError, match="child stream 2 is already in use"):
+        take_raw_states(used, (2,))
+    with pytest.raises(ValueError, match="MT19937, not SFC64 or PCG64"):
+        take_raw_states([ChildStreams(e, 4, np.random.MT19937) for e in rows], (0,))
+
+
+@pytest.mark.parametrize("bit_generator", [np.random.SFC64, np.random.PCG64])
 def test_child_states_rows_are_each_rows_raw_states(bit_generator):
     """child_states_rows: row i's states are ChildStreams(words[i] as ints).raw_state(key), for 64-bit words with
     and without a high word (entropy_words makes 2, 3 or 4 uint32 words of them), zero words, one word or four;
