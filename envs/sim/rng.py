@@ -112,6 +112,14 @@ class ChildStreams:
             return self._names.index(k)
         return range(len(self._gens))[k]
 
+    def _take(self, k) -> int:
+        """Child ``k``'s index, the child marked as taken as a raw state; a child in use is refused."""
+        k = self._index(k)
+        if self._gens[k] is not None:
+            raise RuntimeError(f"child stream {k} is already in use (its generator or its state was taken)")
+        self._gens[k] = _TAKEN
+        return k
+
     def raw_state(self, k) -> tuple[int, np.ndarray]:
         """Child ``k``'s stream as ``(kind, state)`` for the compiled draws of :mod:`envs.sim.normals`
         (:func:`~envs.sim.normals.fill_normals`): numpy's state of its SFC64 or PCG64 bit generator, a fresh
@@ -121,10 +129,7 @@ class ChildStreams:
         kind = {np.random.SFC64: SFC64, np.random.PCG64: PCG64}.get(self._bit_generator)
         if kind is None:
             raise ValueError(f"raw_state: the children are {self._bit_generator.__name__}, not SFC64 or PCG64")
-        k = self._index(k)
-        if self._gens[k] is not None:
-            raise RuntimeError(f"child stream {k} is already in use (its generator or its state was taken)")
-        self._gens[k] = _TAKEN
+        k = self._take(k)
         state = np.empty(4, dtype=np.uint64)
         if not self._words.size:                            # no entropy words: numpy's own SeedSequence path
             seed = np.ascontiguousarray(FastSeedSequence(self._words, k).generate_state(4, np.uint64))
@@ -179,11 +184,7 @@ def take_raw_states(streams: Sequence["ChildStreams"], keys) -> tuple[int, np.nd
     index = np.empty((len(streams), len(keys)), dtype=np.int64)
     for i, s in enumerate(streams):   # raw_state's checks and bookkeeping, row by row, key by key
         for c, k in enumerate(keys):
-            j = s._index(k)
-            if s._gens[j] is not None:
-                raise RuntimeError(f"child stream {j} is already in use (its generator or its state was taken)")
-            s._gens[j] = _TAKEN
-            index[i, c] = j
+            index[i, c] = s._take(k)
     lengths = np.fromiter((s._words.size for s in streams), dtype=np.int64, count=len(streams))
     offsets = np.zeros(len(streams) + 1, dtype=np.int64)
     np.cumsum(lengths, out=offsets[1:])
